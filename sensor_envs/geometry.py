@@ -1,0 +1,256 @@
+"""Planar geometry shared by worlds, rigs and sensor models.
+
+Written once, used everywhere (world truth -> geometry -> sensor model -> wrapper):
+
+* line-segment maps: exact, vectorised raycasting of K bearings from P poses against
+  M segments, returning range [m], angle of incidence [rad] and the index of the hit segment;
+* rectangles (vehicles): corners, closest corner, angular extent and occlusion as seen from a
+  sensor.
+
+Conventions: metres and radians; a pose is ``(x, y, theta)`` in the map (world) frame; the sensor
+frame has x forward and y left; bearings are measured counter-clockwise from the sensor x axis.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "RAY_EPS",
+    "as_segments",
+    "raycast",
+    "raycast_pose",
+    "point_segment_distance",
+    "wrap_angle",
+    "to_frame",
+    "from_frame",
+    "rectangle_corners",
+    "rectangle_segments",
+    "closest_corner",
+    "angular_interval",
+    "occluded_fraction",
+]
+
+RAY_EPS = 1e-9
+"""Hits closer than this along a ray [m] are ignored: a ray that starts on a wall does not see it."""
+
+
+def wrap_angle(a: ArrayLike) -> NDArray[np.float64]:
+    """Wrap angles [rad] to [-pi, pi)."""
+    a = np.asarray(a, dtype=np.float64)
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def as_segments(segments: ArrayLike, *, name: str = "segments") -> NDArray[np.float64]:
+    """Validate and return line segments as an ``(M, 2, 2)`` float64 array ``[[x1, y1], [x2, y2]]``.
+
+    Accepts ``(M, 2, 2)`` or ``(M, 4)`` input in metres.
+
+    Raises:
+        ValueError: naming ``name`` when the array is empty, has the wrong shape, holds NaN/inf,
+            or contains a zero-length segment.
+    """
+    arr = np.asarray(segments, dtype=np.float64)
+    if arr.ndim == 2 and arr.shape[1] == 4:
+        arr = arr.reshape(-1, 2, 2)
+    if arr.ndim != 3 or arr.shape[1:] != (2, 2):
+        raise ValueError(f"{name}: expected shape (M, 2, 2) or (M, 4), got {arr.shape}")
+    if arr.shape[0] == 0:
+        raise ValueError(f"{name}: the map has no segments")
+    bad = ~np.isfinite(arr).all(axis=(1, 2))
+    if bad.any():
+        raise ValueError(f"{name}: segment {int(np.flatnonzero(bad)[0])} has a NaN or infinite coordinate")
+    length = np.linalg.norm(arr[:, 1] - arr[:, 0], axis=1)
+    zero = length <= 1e-12
+    if zero.any():
+        raise ValueError(f"{name}: segment {int(np.flatnonzero(zero)[0])} has zero length")
+    return arr
+
+
+def raycast(
+    origins: ArrayLike,
+    angles: ArrayLike,
+    segments: NDArray[np.float64],
+    max_range: float = np.inf,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+    """Exact raycast of rays against line segments.
+
+    Args:
+        origins: ``(P, 2)`` ray origins in the map frame [m].
+        angles: ``(P, K)`` (or ``(K,)``, shared by all origins) absolute ray directions in the map
+            frame [rad].
+        segments: ``(M, 2, 2)`` segments, already validated by :func:`as_segments`.
+        max_range: rays with no hit closer than this return ``inf`` [m].
+
+    Returns:
+        ``ranges (P, K)`` distance to the nearest hit [m] (``inf`` if none within ``max_range``),
+        ``incidence (P, K)`` angle between the ray and the hit segment's normal in ``[0, pi/2]``
+        [rad] (``nan`` where no hit), and ``index (P, K)`` of the hit segment (``-1`` if none).
+
+    A ray collinear with a segment that lies ahead hits the segment's nearer end with incidence
+    ``pi/2``; a ray parallel to but off a segment misses it. A ray that starts on a segment (at an end
+    or inside it) does not see that segment: hits at distance ``<= RAY_EPS`` are ignored.
+    """
+    o = np.atleast_2d(np.asarray(origins, dtype=np.float64))
+    ang = np.asarray(angles, dtype=np.float64)
+    if ang.ndim == 1:
+        ang = np.broadcast_to(ang, (o.shape[0], ang.shape[0]))
+    dx, dy = np.cos(ang)[..., None], np.sin(ang)[..., None]  # (P, K, 1)
+    a = segments[:, 0]  # (M, 2)
+    e = segments[:, 1] - a  # (M, 2)
+    ex, ey = e[:, 0], e[:, 1]
+    wx = a[:, 0][None, :] - o[:, 0][:, None]  # (P, M)
+    wy = a[:, 1][None, :] - o[:, 1][:, None]
+    wx, wy = wx[:, None, :], wy[:, None, :]  # (P, 1, M)
+    den = dx * ey - dy * ex  # (P, K, M)  cross(d, e)
+    t_num = wx * ey - wy * ex  # cross(w, e)
+    u_num = wx * dy - wy * dx  # cross(w, d)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = t_num / den
+        u = u_num / den
+    ok = (np.abs(den) > 1e-12) & (u >= 0.0) & (u <= 1.0) & (t > RAY_EPS)
+    t = np.where(ok, t, np.inf)
+    # Collinear rays (den == 0 and origin on the segment's line): hit at the nearer end.
+    col = (np.abs(den) <= 1e-12) & (np.abs(t_num) <= 1e-12 * (1.0 + np.hypot(ex, ey)))
+    if col.any():
+        bx, by = wx + ex, wy + ey  # end b relative to origin
+        ta = wx * dx + wy * dy
+        tb = bx * dx + by * dy
+        ahead = (ta > RAY_EPS) & (tb > RAY_EPS)  # origin off the segment, segment ahead
+        tc = np.where(ahead, np.minimum(ta, tb), np.inf)
+        t = np.where(col & (tc < t), tc, t)
+    idx = np.argmin(t, axis=-1)
+    rng = np.take_along_axis(t, idx[..., None], axis=-1)[..., 0]
+    hit = np.isfinite(rng) & (rng <= max_range)
+    rng = np.where(hit, rng, np.inf)
+    # Incidence: |cos| between ray and segment direction -> angle to normal = arccos(|sin|).
+    seg_len = np.hypot(ex, ey)
+    cx, cy = (ex / seg_len)[idx], (ey / seg_len)[idx]
+    sin_ = np.abs(dx[..., 0] * cy - dy[..., 0] * cx)
+    incidence = np.where(hit, np.arccos(np.clip(sin_, 0.0, 1.0)), np.nan)
+    return rng, incidence, np.where(hit, idx, -1).astype(np.int64)
+
+
+def raycast_pose(
+    poses: ArrayLike,
+    bearings: ArrayLike,
+    segments: NDArray[np.float64],
+    max_range: float = np.inf,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+    """Raycast the bearings of a planar range sensor at one or more poses.
+
+    Args:
+        poses: ``(3,)`` or ``(P, 3)`` sensor poses ``x, y, theta`` in the map frame [m, rad].
+        bearings: ``(K,)`` bearings in the sensor frame, counter-clockwise from x forward [rad].
+        segments: ``(M, 2, 2)`` map segments [m].
+        max_range: maximum range [m]; farther hits return ``inf``.
+
+    Returns:
+        As :func:`raycast`, shaped ``(K,)`` for one pose or ``(P, K)`` for several.
+    """
+    p = np.asarray(poses, dtype=np.float64)
+    single = p.ndim == 1
+    p = np.atleast_2d(p)
+    b = np.asarray(bearings, dtype=np.float64)
+    out = raycast(p[:, :2], p[:, 2:3] + b[None, :], segments, max_range)
+    return tuple(x[0] for x in out) if single else out  # type: ignore[return-value]
+
+
+def point_segment_distance(points: ArrayLike, segments: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Distance [m] from each of ``(N, 2)`` points to each of ``(M, 2, 2)`` segments, ``(N, M)``."""
+    p = np.atleast_2d(np.asarray(points, dtype=np.float64))[:, None, :]
+    a, b = segments[None, :, 0], segments[None, :, 1]
+    e = b - a
+    s = np.clip(np.sum((p - a) * e, axis=-1) / np.sum(e * e, axis=-1), 0.0, 1.0)
+    return np.linalg.norm(p - (a + s[..., None] * e), axis=-1)
+
+
+def to_frame(points: ArrayLike, pose: ArrayLike) -> NDArray[np.float64]:
+    """Express world points ``(..., 2)`` in the frame of ``pose = (x, y, theta)`` (x fwd, y left)."""
+    pts = np.asarray(points, dtype=np.float64)
+    x, y, th = np.asarray(pose, dtype=np.float64)
+    c, s = np.cos(th), np.sin(th)
+    dx, dy = pts[..., 0] - x, pts[..., 1] - y
+    return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)
+
+
+def from_frame(points: ArrayLike, pose: ArrayLike) -> NDArray[np.float64]:
+    """Inverse of :func:`to_frame`: points ``(..., 2)`` in the frame of ``pose`` to the world frame."""
+    pts = np.asarray(points, dtype=np.float64)
+    x, y, th = np.asarray(pose, dtype=np.float64)
+    c, s = np.cos(th), np.sin(th)
+    return np.stack([x + c * pts[..., 0] - s * pts[..., 1], y + s * pts[..., 0] + c * pts[..., 1]], axis=-1)
+
+
+def rectangle_corners(
+    x: ArrayLike, y: ArrayLike, heading: ArrayLike, length: ArrayLike, width: ArrayLike
+) -> NDArray[np.float64]:
+    """Corners ``(N, 4, 2)`` of oriented rectangles centred at ``(x, y)`` [m] with ``heading`` [rad].
+
+    Order: front-left, front-right, rear-right, rear-left (counter-clockwise is not assumed).
+    """
+    x, y, h, ln, w = (np.atleast_1d(np.asarray(v, dtype=np.float64)) for v in (x, y, heading, length, width))
+    c, s = np.cos(h), np.sin(h)
+    lx = np.array([0.5, 0.5, -0.5, -0.5])[None, :] * ln[:, None]
+    ly = np.array([0.5, -0.5, -0.5, 0.5])[None, :] * w[:, None]
+    cx = x[:, None] + c[:, None] * lx - s[:, None] * ly
+    cy = y[:, None] + s[:, None] * lx + c[:, None] * ly
+    return np.stack([cx, cy], axis=-1)
+
+
+def rectangle_segments(corners: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Edges ``(N * 4, 2, 2)`` of rectangles given by :func:`rectangle_corners`."""
+    nxt = np.roll(corners, -1, axis=1)
+    return np.stack([corners, nxt], axis=2).reshape(-1, 2, 2)
+
+
+def closest_corner(corners: NDArray[np.float64], origin: ArrayLike = (0.0, 0.0)) -> tuple[
+    NDArray[np.float64], NDArray[np.int64]
+]:
+    """Closest corner of each rectangle to ``origin`` (the sensor), and its index 0..3.
+
+    For a convex box seen from outside, the closest corner is always visible. ``corners`` is
+    ``(N, 4, 2)`` in any frame; ``origin`` in the same frame. Returns ``(N, 2)`` and ``(N,)``.
+    """
+    d = np.linalg.norm(corners - np.asarray(origin, dtype=np.float64), axis=-1)
+    i = np.argmin(d, axis=1)
+    return corners[np.arange(corners.shape[0]), i], i
+
+
+def angular_interval(corners: NDArray[np.float64], origin: ArrayLike = (0.0, 0.0)) -> tuple[
+    NDArray[np.float64], NDArray[np.float64]
+]:
+    """Angular extent ``(lo, hi)`` [rad] of each rectangle seen from ``origin``.
+
+    Angles are relative to the bearing of the rectangle's centre, so intervals do not wrap;
+    returns absolute bearings ``lo <= hi`` (``hi - lo < pi`` for a sensor outside the box).
+    """
+    rel = corners - np.asarray(origin, dtype=np.float64)
+    centre = np.arctan2(rel[..., 1].mean(axis=1), rel[..., 0].mean(axis=1))
+    a = wrap_angle(np.arctan2(rel[..., 1], rel[..., 0]) - centre[:, None])
+    return centre + a.min(axis=1), centre + a.max(axis=1)
+
+
+def occluded_fraction(corners: NDArray[np.float64], origin: ArrayLike = (0.0, 0.0), n_rays: int = 16) -> NDArray[
+    np.float64
+]:
+    """Fraction of each rectangle's angular extent hidden behind the other rectangles.
+
+    ``n_rays`` rays spread over each rectangle's extent (seen from ``origin``) are cast against
+    all other rectangles' edges; a ray counts as occluded when another box is hit before this one.
+    Returns ``(N,)`` in ``[0, 1]``.
+    """
+    n = corners.shape[0]
+    if n < 2:
+        return np.zeros(n)
+    o = np.asarray(origin, dtype=np.float64)
+    lo, hi = angular_interval(corners, o)
+    f = (np.arange(n_rays) + 0.5) / n_rays
+    ang = lo[:, None] + (hi - lo)[:, None] * f[None, :]  # (N, R)
+    segs = rectangle_segments(corners)
+    owner = np.repeat(np.arange(n), 4)
+    rng, _, idx = raycast(np.broadcast_to(o, (n, 2)), ang, segs)
+    own = np.isfinite(rng) & (owner[np.maximum(idx, 0)] == np.arange(n)[:, None])
+    hit_other = np.isfinite(rng) & ~own
+    return hit_other.mean(axis=1)

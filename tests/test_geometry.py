@@ -1,0 +1,123 @@
+import numpy as np
+import pytest
+
+from sensor_envs.geometry import (
+    as_segments,
+    closest_corner,
+    from_frame,
+    occluded_fraction,
+    point_segment_distance,
+    raycast,
+    raycast_pose,
+    rectangle_corners,
+    to_frame,
+)
+
+WALL = as_segments([[[2.0, -1.0], [2.0, 1.0]]])  # vertical wall at x = 2
+
+
+def test_perpendicular_wall():
+    r, inc, idx = raycast_pose([0.0, 0.0, 0.0], [0.0], WALL)
+    assert r[0] == pytest.approx(2.0) and inc[0] == pytest.approx(0.0) and idx[0] == 0
+
+
+def test_oblique_ray_range_and_incidence():
+    a = np.deg2rad(20.0)
+    r, inc, _ = raycast_pose([0.0, 0.0, 0.0], [a], WALL)
+    assert r[0] == pytest.approx(2.0 / np.cos(a))
+    assert inc[0] == pytest.approx(a)
+
+
+def test_pose_heading_rotates_bearings():
+    r, _, _ = raycast_pose([0.0, 0.0, np.pi / 2], [-np.pi / 2], WALL)
+    assert r[0] == pytest.approx(2.0)
+
+
+def test_corner_hit_and_nearest_of_two():
+    segs = as_segments([[[1, 0], [1, 1]], [[1, 1], [0, 1]]])  # corner at (1, 1)
+    r, _, idx = raycast_pose([0.0, 0.0, 0.0], [np.pi / 4], segs)
+    assert r[0] == pytest.approx(np.sqrt(2.0))
+    assert idx[0] in (0, 1)
+    segs2 = as_segments([[[3, -1], [3, 1]], [[1.5, -1], [1.5, 1]]])
+    r2, _, idx2 = raycast_pose([0.0, 0.0, 0.0], [0.0], segs2)
+    assert r2[0] == pytest.approx(1.5) and idx2[0] == 1
+
+
+def test_parallel_ray_misses_and_collinear_ray_hits_near_end():
+    seg = as_segments([[[1.0, 0.5], [3.0, 0.5]]])
+    r, inc, idx = raycast_pose([0.0, 0.0, 0.0], [0.0], seg)
+    assert np.isinf(r[0]) and np.isnan(inc[0]) and idx[0] == -1
+    col = as_segments([[[1.0, 0.0], [3.0, 0.0]]])
+    r, inc, _ = raycast_pose([0.0, 0.0, 0.0], [0.0], col)
+    assert r[0] == pytest.approx(1.0) and inc[0] == pytest.approx(np.pi / 2)
+
+
+def test_ray_from_a_segment_end_ignores_that_segment():
+    # The origin sits on the end (and inside the line) of a wall: rays leaving it do not hit it at 0.
+    segs = as_segments([[[0.0, 0.0], [0.0, 2.0]], [[2.0, -1.0], [2.0, 1.0]]])
+    r, _, idx = raycast_pose([0.0, 0.0, 0.0], [0.0, np.pi / 2, np.pi], segs)
+    assert r[0] == pytest.approx(2.0) and idx[0] == 1
+    assert np.isinf(r[1])  # along the wall it starts on: that wall is not seen
+    assert np.isinf(r[2])
+    # Inside a segment, looking across it: not seen either; looking along: neither.
+    r, _, _ = raycast_pose([0.0, 1.0, 0.0], [0.0, np.pi, np.pi / 2], segs)
+    assert r[0] == pytest.approx(2.0) and np.isinf(r[1]) and np.isinf(r[2])
+
+
+def test_max_range_and_batch_shapes():
+    poses = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    r, inc, idx = raycast_pose(poses, np.array([0.0, np.pi]), WALL, max_range=1.5)
+    assert r.shape == (2, 2)
+    assert np.isinf(r[0, 0]) and r[1, 0] == pytest.approx(1.0) and np.isinf(r[:, 1]).all()
+
+
+def test_raycast_matches_brute_force_reference():
+    rng = np.random.default_rng(0)
+    segs = as_segments(rng.uniform(-3, 3, size=(40, 2, 2)))
+    angles = rng.uniform(-np.pi, np.pi, size=50)
+    r, _, _ = raycast(np.zeros((1, 2)), angles[None, :], segs)
+    for k, a in enumerate(angles):
+        best = np.inf
+        d = np.array([np.cos(a), np.sin(a)])
+        for (p, q) in segs:
+            m = np.column_stack([d, p - q])
+            if abs(np.linalg.det(m)) < 1e-12:
+                continue
+            t, u = np.linalg.solve(m, p)
+            if t > 1e-9 and 0 <= u <= 1:
+                best = min(best, t)
+        assert r[0, k] == pytest.approx(best)
+
+
+@pytest.mark.parametrize(
+    "bad, msg",
+    [
+        (np.zeros((0, 2, 2)), "no segments"),
+        ([[[0, 0], [np.nan, 1]]], "NaN"),
+        ([[[1, 1], [1, 1]]], "zero length"),
+        (np.zeros((3, 3)), "expected shape"),
+    ],
+)
+def test_bad_segments_raise_clear_errors(bad, msg):
+    with pytest.raises(ValueError, match=msg):
+        as_segments(bad, name="my_map")
+
+
+def test_point_segment_distance_and_frames():
+    d = point_segment_distance([[0.0, 0.0], [3.0, 2.0]], WALL)
+    assert d[:, 0] == pytest.approx([2.0, np.hypot(1.0, 1.0)])
+    pose = np.array([1.0, 2.0, 0.7])
+    pts = np.array([[3.0, -1.0], [0.5, 0.2]])
+    assert from_frame(to_frame(pts, pose), pose) == pytest.approx(pts)
+    assert to_frame([[2.0, 2.0]], [1.0, 2.0, np.pi / 2])[0] == pytest.approx([0.0, -1.0])
+
+
+def test_closest_corner_and_occlusion():
+    boxes = rectangle_corners([10.0, 20.0, 10.0], [0.0, 0.0, 8.0], [0.0, 0.0, 0.0], [4.0, 4.0, 4.0], [2.0, 2.0, 2.0])
+    corner, idx = closest_corner(boxes)
+    assert corner[0] == pytest.approx([8.0, 1.0]) or corner[0] == pytest.approx([8.0, -1.0])
+    assert corner[2] == pytest.approx([8.0, 7.0])
+    occ = occluded_fraction(boxes)
+    assert occ[0] == 0.0  # nearest box is free
+    assert occ[1] == pytest.approx(1.0)  # directly behind the first, same size, farther: fully hidden
+    assert occ[2] == 0.0  # off to the side

@@ -1,0 +1,136 @@
+import pickle
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import sensor_envs  # noqa: F401  (registers the ids)
+from sensor_envs.lidars import GaussianLidar
+from sensor_envs.neato import NeatoEnv
+
+LIDARS = ["ideal", "gaussian"]
+
+
+@pytest.mark.parametrize("lidar", LIDARS)
+@pytest.mark.parametrize("map_name", ["seed_room", "cluttered"])
+def test_checkers_pass_without_warnings(lidar, map_name):
+    env = gym.make("sensor_envs/Neato-v0", lidar=lidar, map=map_name)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(env.unwrapped, skip_render_check=True)
+        sb3_check_env(env.unwrapped, warn=True)
+
+
+def _rollout(env, seed, n=40):
+    obs, _ = env.reset(seed=seed)
+    env.action_space.seed(seed)
+    seq, poses = [obs], []
+    for _ in range(n):
+        obs, _, term, trunc, info = env.step(env.action_space.sample())
+        seq.append(obs)
+        poses.append(info["pose"])
+        if term or trunc:
+            obs, _ = env.reset()
+            seq.append(obs)
+    return np.array(seq), np.array(poses)
+
+
+@pytest.mark.parametrize("lidar", LIDARS)
+def test_same_seed_same_observations(lidar):
+    a, _ = _rollout(gym.make("sensor_envs/Neato-v0", lidar=lidar), seed=7)
+    b, _ = _rollout(gym.make("sensor_envs/Neato-v0", lidar=lidar), seed=7)
+    c, _ = _rollout(gym.make("sensor_envs/Neato-v0", lidar=lidar), seed=8)
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_sensor_noise_does_not_change_the_world():
+    _, ideal = _rollout(gym.make("sensor_envs/Neato-v0", lidar="ideal"), seed=3)
+    _, noisy = _rollout(gym.make("sensor_envs/Neato-v0", lidar="gaussian"), seed=3)
+    assert np.array_equal(ideal, noisy)
+
+
+def test_ideal_scan_is_exact_in_the_seed_room():
+    env = NeatoEnv(map="seed_room")
+    obs, info = env.reset(seed=0, options={"start": [0.5, 0.5, 0.0], "goal": [3.0, 1.5, 0.0]})
+    assert obs[0] == pytest.approx(3.16, abs=1e-5)  # straight ahead to the east wall
+    assert obs[90] == pytest.approx(1.33, abs=1e-5)  # left, to the north wall
+    assert obs[180] == pytest.approx(0.5, abs=1e-5)
+    assert obs[360:362] == pytest.approx([2.5, 1.0], abs=1e-5)
+
+
+def test_null_value_modes_and_range_cut():
+    segs = np.array([[[10.0, -5.0], [10.0, 5.0]], [[-1.0, -5.0], [-1.0, 5.0]], [[-1.0, 5.0], [10.0, 5.0]],
+                     [[-1.0, -5.0], [10.0, -5.0]]])
+    for mode, fill in (("zero", 0.0), ("max", 5.0)):
+        env = NeatoEnv(map=segs, null_value=mode)
+        obs, info = env.reset(seed=0, options={"start": [0.0, 0.0, 0.0], "goal": [2.0, 0.0, 0.0]})
+        assert obs[0] == fill and np.isinf(info["ideal_scan"][0]) and info["scan"][0] == 0.0
+        assert obs[180] == pytest.approx(1.0)
+    env = NeatoEnv(map=segs, null_value="nan")
+    obs, _ = env.reset(seed=0, options={"start": [0.0, 0.0, 0.0], "goal": [2.0, 0.0, 0.0]})
+    assert np.isnan(obs[0])
+
+
+def test_goal_reached_and_collision_terminate():
+    env = NeatoEnv(map="seed_room")
+    env.reset(seed=0, options={"start": [1.0, 0.5, 0.0], "goal": [1.05, 0.5, 0.0]})
+    _, r, term, _, info = env.step(np.array([0.0, 0.0], dtype=np.float32))
+    assert term and info["is_success"] and r > 5
+    env.reset(seed=0, options={"start": [3.4, 0.5, 0.0], "goal": [1.0, 1.0, 0.0]})
+    for _ in range(10):
+        _, r, term, _, info = env.step(np.array([1.0, 0.0], dtype=np.float32))
+        if term:
+            break
+    assert term and info["collision"] and r < -5
+
+
+def test_progress_reward_sign():
+    env = NeatoEnv(map="seed_room")
+    env.reset(seed=0, options={"start": [1.0, 0.5, 0.0], "goal": [3.0, 0.5, 0.0]})
+    assert env.step(np.array([1.0, 0.0], dtype=np.float32))[1] > 0
+    assert env.step(np.array([-1.0, 0.0], dtype=np.float32))[1] < 0
+
+
+def test_render_draws_the_scene():
+    env = NeatoEnv(map="seed_room", render_mode="rgb_array")
+    env.reset(seed=0)
+    img = env.render()
+    assert img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3
+    assert (img == 20).all(axis=2).sum() > 500  # walls
+    assert ((img[..., 0] == 220) & (img[..., 1] == 30)).sum() > 100  # lidar hits
+
+
+def test_env_pickles_and_config_errors():
+    env = NeatoEnv(lidar="gaussian")
+    env.reset(seed=1)
+    clone = pickle.loads(pickle.dumps(env))
+    a = np.array([0.5, 0.1], dtype=np.float32)
+    assert np.array_equal(env.step(a)[0], clone.step(a)[0])
+    with pytest.raises(ValueError, match="unknown lidar 'perfect'"):
+        NeatoEnv(lidar="perfect")
+    with pytest.raises(ValueError, match="null_value"):
+        NeatoEnv(null_value="none")
+    with pytest.raises(TypeError):
+        NeatoEnv(lidars="ideal")
+    with pytest.raises(ValueError, match="options"):
+        NeatoEnv().reset(seed=0, options={"star": [0, 0, 0]})
+
+
+def test_gaussian_lidar_noise_grows_with_range_and_incidence():
+    lid = GaussianLidar()
+    s = lid.sigma(np.array([1.0, 4.0, 4.0]), np.array([0.0, 0.0, 1.0]))
+    assert s[0] < s[1] < s[2]
+    rng = np.random.default_rng(0)
+    x = np.array([lid.measure(np.array([3.0]), np.array([0.3]), rng)[0] for _ in range(4000)])
+    assert x.mean() == pytest.approx(3.0, abs=4 * s[1] / np.sqrt(4000) + 1e-3)
+    assert x.std() == pytest.approx(lid.sigma(np.array([3.0]), np.array([0.3]))[0], rel=0.08)
+
+
+def test_ros_map_world(real_data):
+    env = NeatoEnv(map=real_data / "neato_ros1_bags" / "mymap.yaml")
+    obs, _ = env.reset(seed=0)
+    assert obs in env.observation_space
