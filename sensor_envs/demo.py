@@ -27,7 +27,7 @@ import sensor_envs  # noqa: E402,F401  (registers the ids)
 
 __all__ = ["run_demo", "reactive_action", "DEMO_LIDARS"]
 
-DEMO_LIDARS = ("ideal", "gaussian")
+DEMO_LIDARS = ("ideal", "gaussian", "learned")
 
 
 def reactive_action(obs: NDArray[np.float32], n_bearings: int = 360, clearance: float = 0.45) -> NDArray[np.float32]:

@@ -13,13 +13,16 @@ Models: :class:`IdealRadar` (here), ``GaussianRadar`` and ``KDERadarModel``
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from importlib.resources import files
+from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["RadarSensor", "IdealRadar"]
+__all__ = ["RadarSensor", "IdealRadar", "RADAR_NAMES", "make_radar", "default_model_path"]
 
 
 @runtime_checkable
@@ -62,3 +65,45 @@ class IdealRadar:
     def sample_clutter(self, rng: np.random.Generator) -> NDArray[np.float64]:
         """No clutter."""
         return np.zeros((0, 2))
+
+
+RADAR_NAMES = ("ideal", "gaussian", "kde")
+"""Names accepted by :func:`make_radar`."""
+
+_DEFAULT_FILES = {"gaussian": "radar_gaussian.npz", "kde": "radar_kde.npz"}
+
+
+def default_model_path(name: str) -> Path:
+    """Path of the default model file shipped in ``models/`` for radar ``name`` ("gaussian" or "kde")."""
+    if name not in _DEFAULT_FILES:
+        raise ValueError(f"radar {name!r} has no default model file; known: {sorted(_DEFAULT_FILES)}")
+    return Path(str(files("sensor_envs.models") / _DEFAULT_FILES[name]))
+
+
+def make_radar(name: str, model: str | os.PathLike[str] | None = None) -> RadarSensor:
+    """Build a radar sensor model by name.
+
+    Args:
+        name: ``"ideal"``, ``"gaussian"`` (:class:`sensor_envs.radar_gaussian.GaussianRadar`) or
+            ``"kde"`` (:class:`sensor_envs.radar_kde.KDERadarModel`).
+        model: model file (``.npz``) for ``"gaussian"``/``"kde"``; ``None`` loads the default shipped
+            in ``models/`` (fitted on the reference rig at ``cycle_time = 1.0`` s, see
+            ``models/radar_kde.md``). Must be ``None`` for ``"ideal"``.
+
+    Raises:
+        ValueError: naming ``name`` when it is unknown, or when ``"ideal"`` is given a model file.
+    """
+    if name not in RADAR_NAMES:
+        raise ValueError(f"unknown radar {name!r}; expected one of {list(RADAR_NAMES)}")
+    if name == "ideal":
+        if model is not None:
+            raise ValueError(f"radar 'ideal' takes no model file (got {model!r})")
+        return IdealRadar()
+    path = default_model_path(name) if model is None else Path(model)
+    if name == "gaussian":
+        from sensor_envs.radar_gaussian import GaussianRadar  # noqa: PLC0415
+
+        return GaussianRadar.load(path)
+    from sensor_envs.radar_kde import KDERadarModel  # noqa: PLC0415
+
+    return KDERadarModel.load(path)

@@ -11,7 +11,7 @@ import sensor_envs  # noqa: F401  (registers the ids)
 from sensor_envs.lidars import GaussianLidar
 from sensor_envs.neato import NeatoEnv
 
-LIDARS = ["ideal", "gaussian"]
+LIDARS = ["ideal", "gaussian", "learned"]
 
 
 @pytest.mark.parametrize("lidar", LIDARS)

@@ -12,12 +12,14 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import yaml
+from tqdm import TqdmExperimentalWarning
 
 import sensor_envs  # noqa: F401  (registers the ids)
 
@@ -64,6 +66,7 @@ def train(env_id: str, cfg: dict[str, Any], out: Path, seed: int) -> dict[str, A
         EvalCallback(eval_env, best_model_save_path=str(out), log_path=str(out), eval_freq=every,
                      n_eval_episodes=int(cfg.get("eval_episodes", 5)), deterministic=True),
     ]
+    warnings.filterwarnings("ignore", category=TqdmExperimentalWarning)  # SB3's rich progress bar
     model.learn(total_timesteps=int(cfg["n_timesteps"]), callback=callbacks, progress_bar=True)
     model.save(out / "final_model")
     mean, std = evaluate_policy(model, eval_env, n_eval_episodes=int(cfg.get("eval_episodes", 5)))

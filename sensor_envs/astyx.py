@@ -1,0 +1,204 @@
+"""Astyx HiRes2019 radar frames -> radar object log, plus detection-rate and clutter statistics.
+
+Layout (``astyx_hires2019/``): ``radar_6455/NNNNNN.txt`` (line 1 empty, line 2 ``X Y Z V_r Mag``,
+then one detection per row, radar frame x forward / y left / z up, metres) and
+``groundtruth_obj3d/NNNNNN.json`` (reference boxes, ``center3d``, ``dimension3d`` [l, w, h],
+``orientation_quat`` [w, x, y, z], ``classname``, ...).
+
+Clutter rate: every cluster (DBSCAN noise points count as one-point clusters) that matches no
+annotated box; this includes real but unannotated reflectors (guard rails, poles, parked objects),
+so it is an upper bound of false detections. Clutter rows carry ``n_points`` (cluster size).
+
+Per frame:
+
+1. **cluster** the detections in the ground plane (x, y) with scikit-learn ``DBSCAN``
+   (``eps`` [m], ``min_samples``); DBSCAN noise points are single detections, each its own cluster;
+2. **associate** each cluster with the reference box (any class) that contains most of its points,
+   the box enlarged by ``margin`` [m] on every side; clusters without such a box are clutter;
+   clusters of one box are merged (one object per target);
+3. **object position** of a target's merged cluster: its detection nearest to the sensor
+   (``position="nearest"``, the natural counterpart of the closest corner), or the
+   magnitude-weighted mean (``position="centroid"``).
+
+Targets are the boxes of ``classes`` (default cars); clusters on boxes of other classes are neither
+targets nor clutter. Astyx frames are no time series: every target gets its own id (no ``z_{t-1}``),
+``t`` is the frame index (no time stamps are given) and ``sequence`` is the block of ``block``
+consecutive frames (used to split the data into train/test by blocks). Covariates: ``ref_z``,
+``occlusion``, ``label_certainty``, ``n_points``, ``class_code`` (index into :data:`CLASS_CODES`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from sklearn.cluster import DBSCAN
+from tqdm import tqdm
+
+from sensor_envs.geometry import to_frame
+from sensor_envs.radar_log import REQUIRED_COLUMNS, RadarLog
+
+__all__ = ["CLASS_CODES", "read_frame", "frame_rows", "load_astyx", "detection_statistics"]
+
+CLASS_CODES = ("Car", "Truck", "Bus", "Person", "Trailer", "Other Vehicle", "Towed Object", "Cyclist")
+"""``class_code`` covariate: index into this tuple (-1 for other names)."""
+
+
+def _yaw(q: list[float]) -> float:
+    w, x, y, z = q
+    return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+
+
+def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.float64], list[str]]:
+    """One frame: detections ``(m, 5)`` [x, y, z, v_r, mag], boxes ``(k, 8)`` and class names.
+
+    Boxes: ``x, y, heading, length, width, z, occlusion, label_certainty`` (radar frame, m, rad).
+
+    Raises:
+        ValueError: naming the file and the field when a file is malformed.
+    """
+    name = f"{index:06d}"
+    pc_path = root / "radar_6455" / f"{name}.txt"
+    try:
+        pts = np.loadtxt(pc_path, skiprows=2, ndmin=2)
+    except ValueError as exc:
+        raise ValueError(f"{pc_path}: not a table of 5 numbers per row ({exc})") from exc
+    if pts.size and pts.shape[1] != 5:
+        raise ValueError(f"{pc_path}: expected 5 columns X Y Z V_r Mag, got {pts.shape[1]}")
+    gt_path = root / "groundtruth_obj3d" / f"{name}.json"
+    objs = json.loads(gt_path.read_text()).get("objects", [])
+    boxes, names = [], []
+    for k, o in enumerate(objs):
+        try:
+            c, d = o["center3d"], o["dimension3d"]
+            boxes.append([c[0], c[1], _yaw(o["orientation_quat"]), d[0], d[1], c[2],
+                          float(o.get("occlusion", np.nan)), float(o.get("label_certainty", np.nan))])
+            names.append(str(o["classname"]))
+        except (KeyError, IndexError, TypeError) as exc:
+            raise ValueError(f"{gt_path}: object {k} lacks field {exc}") from None
+    return pts.reshape(-1, 5), np.asarray(boxes, dtype=np.float64).reshape(-1, 8), names
+
+
+def _points_in_boxes(xy: NDArray, boxes: NDArray, margin: float) -> NDArray[np.bool_]:
+    """``(m, k)``: point ``i`` lies in box ``j`` enlarged by ``margin`` [m] (ground plane)."""
+    inside = np.zeros((xy.shape[0], boxes.shape[0]), dtype=bool)
+    for j, b in enumerate(boxes):  # one iteration per box (a handful per frame), vectorised over points
+        p = to_frame(xy, b[:3])
+        inside[:, j] = (np.abs(p[:, 0]) <= b[3] / 2 + margin) & (np.abs(p[:, 1]) <= b[4] / 2 + margin)
+    return inside
+
+
+def frame_rows(pts: NDArray, boxes: NDArray, names: list[str], *, eps: float = 1.5, min_samples: int = 2,
+               margin: float = 0.5, classes: tuple[str, ...] = ("Car",), position: str = "nearest") -> tuple[
+    NDArray[np.float64], NDArray[np.float64]
+]:
+    """Target rows and clutter positions of one frame.
+
+    Returns:
+        ``targets (k_t, 9)``: ``box x, y, heading, length, width, meas_x, meas_y, n_points, box index``
+        per box of ``classes`` (``meas`` NaN when undetected); ``clutter (c, 3)``: position [m] of
+        each clutter cluster (its detection nearest to the sensor) and its number of detections.
+    """
+    xy = pts[:, :2]
+    labels = DBSCAN(eps=eps, min_samples=min_samples).fit_predict(xy) if len(xy) else np.zeros(0, dtype=int)
+    noise = labels < 0
+    labels = labels.copy()
+    labels[noise] = labels.max(initial=-1) + 1 + np.arange(noise.sum())
+    n_cl = int(labels.max(initial=-1)) + 1
+    inside = _points_in_boxes(xy, boxes, margin)
+    votes = np.zeros((n_cl, boxes.shape[0] + 1))
+    np.add.at(votes, (labels, np.where(inside.any(axis=1), inside.argmax(axis=1), boxes.shape[0])), 1.0)
+    owner = votes.argmax(axis=1)  # == boxes.shape[0]: no box -> clutter
+    point_owner = owner[labels]
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    is_target = np.array([n in classes for n in names], dtype=bool)
+    rows = []
+    for j in np.flatnonzero(is_target):  # one iteration per target box
+        sel = point_owner == j
+        meas = np.full(2, np.nan)
+        if sel.any():
+            if position == "nearest":
+                meas = xy[sel][np.argmin(r[sel])]
+            else:
+                wgt = np.maximum(pts[sel, 4], 1e-9)
+                meas = (xy[sel] * wgt[:, None]).sum(axis=0) / wgt.sum()
+        rows.append([*boxes[j, :5], *meas, sel.sum(), j])
+    cl = np.flatnonzero(owner == boxes.shape[0])
+    size = np.bincount(labels, minlength=n_cl)
+    cl_pos = np.array([xy[labels == c][np.argmin(r[labels == c])] for c in cl]).reshape(-1, 2)
+    return np.asarray(rows, dtype=np.float64).reshape(-1, 9), np.concatenate([cl_pos, size[cl, None]], axis=1)
+
+
+def load_astyx(root: str | os.PathLike[str], *, frames: range | None = None, block: int = 10,
+               progress: bool = False, **cluster_args: Any) -> RadarLog:
+    """Turn Astyx frames into a radar object log (see the module docstring).
+
+    Args:
+        root: the ``astyx_hires2019`` folder.
+        frames: frame indices (default: every ``radar_6455/*.txt``).
+        block: frames per ``sequence`` block.
+        progress: show a tqdm bar.
+        **cluster_args: ``eps``, ``min_samples``, ``margin``, ``classes``, ``position`` of :func:`frame_rows`.
+
+    Raises:
+        FileNotFoundError: when ``root`` lacks the ``radar_6455`` folder.
+    """
+    root = Path(root)
+    if not (root / "radar_6455").is_dir():
+        raise FileNotFoundError(f"{root}: no 'radar_6455' folder (expected the Astyx HiRes2019 layout)")
+    if cluster_args.get("position", "nearest") not in ("nearest", "centroid"):
+        raise ValueError(f"position must be 'nearest' or 'centroid', got {cluster_args['position']!r}")
+    if frames is None:
+        frames = sorted(int(p.stem) for p in (root / "radar_6455").glob("*.txt"))
+    out = []
+    for f in tqdm(frames, disable=not progress, desc="astyx"):
+        pts, boxes, names = read_frame(root, f)
+        tgt, clutter = frame_rows(pts, boxes, names, **cluster_args)
+        box_idx = tgt[:, 8].astype(int)
+        cov = np.stack([boxes[box_idx, 5], boxes[box_idx, 6], boxes[box_idx, 7], tgt[:, 7],
+                        [CLASS_CODES.index(names[j]) if names[j] in CLASS_CODES else -1 for j in box_idx]],
+                       axis=1).reshape(-1, 5)
+        ids = np.stack([np.full(len(tgt), f // block), np.full(len(tgt), f), np.full(len(tgt), f),
+                        f * 1000 + box_idx], axis=1)
+        t_rows = np.concatenate([ids, tgt[:, :7], cov], axis=1)
+        c_rows = np.full((len(clutter), 16), np.nan)
+        c_rows[:, :4] = [f // block, f, f, -1]
+        c_rows[:, 9:11] = clutter[:, :2]
+        c_rows[:, 14] = clutter[:, 2]
+        out.append(np.concatenate([t_rows, c_rows]))
+    data = np.concatenate(out) if out else np.zeros((0, 16))
+    names_all = [*REQUIRED_COLUMNS, "ref_z", "occlusion", "label_certainty", "n_points", "class_code"]
+    return RadarLog({n: data[:, j] for j, n in enumerate(names_all)}, source=f"astyx {root}")
+
+
+def detection_statistics(log: RadarLog, range_edges: NDArray, azimuth_edges: NDArray) -> dict[str, Any]:
+    """Share of target rows detected per range bin and per azimuth bin, and the clutter rate.
+
+    Range [m] and azimuth [rad] are of the reference box centre. Returns plain Python values.
+    """
+    tgt = ~log.is_clutter
+    r = np.hypot(log["ref_x"], log["ref_y"])[tgt]
+    az = np.arctan2(log["ref_y"], log["ref_x"])[tgt]
+    det = ~log.is_miss[tgt]
+
+    def share(v: NDArray, edges: NDArray) -> list[dict[str, float]]:
+        b = np.digitize(v, edges) - 1
+        res = []
+        for k in range(len(edges) - 1):  # one iteration per bin
+            s = b == k
+            res.append({"lo": float(edges[k]), "hi": float(edges[k + 1]), "n": int(s.sum()),
+                        "detected_share": float(det[s].mean()) if s.any() else float("nan")})
+        return res
+
+    n_cycles = np.unique(np.stack([log["sequence"], log["frame"]], axis=1), axis=0).shape[0]
+    res = {"n_targets": int(tgt.sum()), "detected_share": float(det.mean()),
+           "by_range": share(r, np.asarray(range_edges)), "by_azimuth": share(az, np.asarray(azimuth_edges)),
+           "n_cycles": int(n_cycles), "clutter_per_cycle": float(log.is_clutter.sum() / n_cycles)}
+    if "n_points" in log.columns:
+        multi = log.is_clutter & (log["n_points"] >= 2)
+        res["clutter_per_cycle_min2_points"] = float(multi.sum() / n_cycles)
+    return res

@@ -1,0 +1,348 @@
+"""The project's planar lidar log format, its validation, and loaders for CARMEN logs and ROS bags.
+
+Log format (``.npz``, loaded with ``allow_pickle=False``):
+
+* ``ranges`` float ``(S, K)`` (S scans, K bearings) or ``(P, K, R)`` (P static poses, R repeated
+  readings per bearing) [m]; ``0`` = null reading (no return), ``NaN`` = missing (padding).
+* ``bearings`` ``(K,)`` [rad], counter-clockwise from the sensor's x axis (x forward, y left).
+* ``poses`` ``(S or P, 3)`` approximate sensor pose ``x, y, theta`` in the map frame [m, m, rad].
+* ``map_segments`` ``(M, 2, 2)`` nominal map ``[[x1, y1], [x2, y2]]`` [m].
+* optional ``t`` ``(S or P,)`` time [s]; optional per-scan covariates ``cov_<name>`` ``(S or P,)``.
+
+Other arrays in the file are ignored. In memory a log is a :class:`LidarLog` whose ``ranges`` are
+always ``(P, K, R)`` float64 (a scan log has ``R = 1``).
+"""
+
+from __future__ import annotations
+
+import gzip
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from sensor_envs.geometry import as_segments
+
+__all__ = ["LidarLog", "LidarLogError", "load_log", "save_log", "read_carmen", "read_rosbag", "log_from_arrays"]
+
+PathLike = str | os.PathLike[str]
+
+
+class LidarLogError(ValueError):
+    """A lidar log is malformed; the message names the file and the field at fault."""
+
+
+@dataclass(frozen=True)
+class LidarLog:
+    """A validated lidar log (build it with :func:`log_from_arrays` or a loader, which validate).
+
+    Attributes:
+        ranges: ``(P, K, R)`` readings [m]; ``0`` = null, ``NaN`` = missing.
+        bearings: ``(K,)`` bearings [rad] in the sensor frame.
+        poses: ``(P, 3)`` approximate sensor poses ``x, y, theta`` [m, rad] in the map frame.
+        map_segments: ``(M, 2, 2)`` nominal map [m], or ``None`` when the source has no map.
+        t: ``(P,)`` times [s] or ``None``.
+        covariates: per-scan covariates, each ``(P,)``.
+        source: where the log came from (used in error messages).
+    """
+
+    ranges: NDArray[np.float64]
+    bearings: NDArray[np.float64]
+    poses: NDArray[np.float64]
+    map_segments: NDArray[np.float64] | None
+    t: NDArray[np.float64] | None = None
+    covariates: dict[str, NDArray[np.float64]] = field(default_factory=dict)
+    source: str = "<memory>"
+
+    @property
+    def n_poses(self) -> int:
+        """Number of poses (scans) P."""
+        return int(self.ranges.shape[0])
+
+    @property
+    def n_bearings(self) -> int:
+        """Number of bearings K."""
+        return int(self.ranges.shape[1])
+
+    def subset(self, idx: ArrayLike) -> LidarLog:
+        """The log restricted to poses ``idx`` (indices or boolean mask)."""
+        i = np.asarray(idx)
+        return LidarLog(self.ranges[i], self.bearings, self.poses[i], self.map_segments,
+                        None if self.t is None else self.t[i], {k: v[i] for k, v in self.covariates.items()},
+                        self.source)
+
+    def require_map(self) -> NDArray[np.float64]:
+        """The map segments, or a :class:`LidarLogError` when the log has none."""
+        if self.map_segments is None:
+            raise LidarLogError(f"{self.source}: field 'map_segments' is missing; pass a map to the loader")
+        return self.map_segments
+
+
+def _err(source: str, name: str, msg: str) -> LidarLogError:
+    return LidarLogError(f"{source}: field {name!r} {msg}")
+
+
+def _float_array(source: str, name: str, value: Any) -> NDArray[np.float64]:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise _err(source, name, f"is not numeric ({exc})") from None
+    return arr
+
+
+def _check_ranges(source: str, value: Any) -> NDArray[np.float64]:
+    r = _float_array(source, "ranges", value)
+    if r.ndim == 2:
+        r = r[:, :, None]
+    if r.ndim != 3:
+        raise _err(source, "ranges", f"must have shape (S, K) or (P, K, R), got {r.shape}")
+    if r.size == 0:
+        raise _err(source, "ranges", f"is empty (shape {r.shape})")
+    if np.isinf(r).any():
+        raise _err(source, "ranges", "holds infinite values (use 0 for a null reading, NaN for missing)")
+    neg = r < 0
+    if neg.any():
+        raise _err(source, "ranges", f"holds {int(neg.sum())} negative ranges (first at index "
+                                     f"{tuple(int(v) for v in np.argwhere(neg)[0])})")
+    if np.isnan(r).all():
+        raise _err(source, "ranges", "holds no readings (all NaN)")
+    return r
+
+
+def _check_per_pose(source: str, name: str, value: Any, n: int, width: int | None) -> NDArray[np.float64]:
+    a = _float_array(source, name, value)
+    want = (n,) if width is None else (n, width)
+    if a.shape != want:
+        raise _err(source, name, f"must have shape {want} to match 'ranges', got {a.shape}")
+    if not np.isfinite(a).all():
+        raise _err(source, name, "holds NaN or infinite values")
+    return a
+
+
+def log_from_arrays(ranges: ArrayLike, bearings: ArrayLike, poses: ArrayLike, map_segments: ArrayLike | None,
+                    t: ArrayLike | None = None, covariates: dict[str, ArrayLike] | None = None,
+                    source: str = "<memory>") -> LidarLog:
+    """Validate arrays and build a :class:`LidarLog` (see the module docstring for the fields).
+
+    Raises:
+        LidarLogError: naming ``source`` and the field when a shape, value or type is wrong.
+    """
+    r = _check_ranges(source, ranges)
+    p, k = r.shape[:2]
+    b = _float_array(source, "bearings", bearings)
+    if b.shape != (k,):
+        raise _err(source, "bearings", f"must have shape ({k},) to match 'ranges', got {b.shape}")
+    if not np.isfinite(b).all():
+        raise _err(source, "bearings", "holds NaN or infinite values")
+    ps = _check_per_pose(source, "poses", poses, p, 3)
+    segs = None
+    if map_segments is not None:
+        try:
+            segs = as_segments(map_segments, name=f"{source}: field 'map_segments'")
+        except ValueError as exc:
+            raise LidarLogError(str(exc)) from None
+    tt = None if t is None else _check_per_pose(source, "t", t, p, None)
+    cov = {k2: _check_per_pose(source, f"cov_{k2}", v, p, None) for k2, v in (covariates or {}).items()}
+    return LidarLog(r, b, ps, segs, tt, cov, source)
+
+
+def load_log(path: PathLike, **kwargs: Any) -> LidarLog:
+    """Load a lidar log: the project's ``.npz``, a CARMEN log (``.log``, ``.clf``, ``.gz``) or a ROS bag.
+
+    Args:
+        path: the file (a ROS2 bag may be a folder).
+        **kwargs: passed to :func:`read_carmen` / :func:`read_rosbag` (e.g. ``map=...``).
+
+    Raises:
+        LidarLogError: for a malformed log, naming the file and the field.
+        FileNotFoundError: when ``path`` does not exist.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{p}: lidar log not found")
+    if p.is_dir() or p.suffix in (".bag", ".db3", ".mcap"):
+        return read_rosbag(p, **kwargs)
+    if p.suffix == ".npz":
+        if kwargs:
+            raise TypeError(f"load_log: options {sorted(kwargs)} apply to CARMEN logs and ROS bags only")
+        return _read_npz(p)
+    return read_carmen(p, **kwargs)
+
+
+def _read_npz(p: Path) -> LidarLog:
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+    except Exception as exc:
+        raise LidarLogError(f"{p}: not a readable .npz lidar log ({exc})") from exc
+    for name in ("ranges", "bearings", "poses", "map_segments"):
+        if name not in data:
+            raise _err(str(p), name, "is missing")
+    cov = {k[4:]: v for k, v in data.items() if k.startswith("cov_")}
+    return log_from_arrays(data["ranges"], data["bearings"], data["poses"], data["map_segments"], data.get("t"),
+                           cov, source=str(p))
+
+
+def save_log(log: LidarLog, path: PathLike) -> Path:
+    """Write ``log`` in the project's ``.npz`` format (``(S, K)`` ranges when it has one repeat)."""
+    p = Path(path)
+    if p.suffix != ".npz":
+        p = p.with_suffix(".npz")
+    arrays: dict[str, NDArray[Any]] = {
+        "ranges": (log.ranges[:, :, 0] if log.ranges.shape[2] == 1 else log.ranges).astype(np.float32),
+        "bearings": log.bearings, "poses": log.poses,
+    }
+    if log.map_segments is not None:
+        arrays["map_segments"] = log.map_segments
+    if log.t is not None:
+        arrays["t"] = log.t
+    arrays.update({f"cov_{k}": v for k, v in log.covariates.items()})
+    p.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(p, **arrays)
+    return p
+
+
+def _map_or_none(map: Any) -> NDArray[np.float64] | None:  # noqa: A002
+    if map is None:
+        return None
+    from sensor_envs.maps import load_map  # noqa: PLC0415
+
+    return load_map(map).segments
+
+
+# ---------------------------------------------------------------------------------------------- CARMEN
+def _parse_flaser(tok: list[str]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float,
+                                            float]:
+    n = int(tok[1])
+    r = np.asarray(tok[2:2 + n], dtype=np.float64)
+    pose = np.asarray(tok[2 + n:5 + n], dtype=np.float64)
+    b = -np.pi / 2 + np.arange(n) * np.pi / n
+    return r, b, pose, float(tok[8 + n]), 80.0
+
+
+def _parse_robotlaser1(tok: list[str]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                                                 float, float]:
+    start, res, max_r = float(tok[2]), float(tok[4]), float(tok[5])
+    n = int(tok[8])
+    r = np.asarray(tok[9:9 + n], dtype=np.float64)
+    m = int(tok[9 + n])
+    rest = tok[10 + n + m:]
+    pose = np.asarray(rest[0:3], dtype=np.float64)  # laser pose
+    return r, start + np.arange(n) * res, pose, float(rest[11]), max_r
+
+
+def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = None) -> LidarLog:  # noqa: A002
+    """Read ``FLASER`` and ``ROBOTLASER1`` lines of a CARMEN log (optionally gzipped) into a log.
+
+    FLASER bearing ``i`` is ``-pi/2 + i * pi / n`` [rad]; ROBOTLASER1 uses its start angle and
+    resolution and its laser pose. A range ``>= max_range`` (default: 80 m for FLASER, the message's
+    maximum range for ROBOTLASER1) or ``<= 0`` is a null (stored as ``0``).
+
+    Args:
+        path: the log.
+        map: optional map (name, file or ``(M, 2, 2)`` array, see :func:`sensor_envs.maps.load_map`);
+            CARMEN logs carry none.
+        max_range: override of the null threshold [m].
+
+    Raises:
+        LidarLogError: when the file holds no laser line, a line is malformed, or scans differ in size.
+    """
+    p = Path(path)
+    opener = gzip.open if p.suffix == ".gz" else open
+    scans, poses, times, bearings = [], [], [], None
+    with opener(p, "rt") as f:
+        for lineno, line in enumerate(f, 1):
+            tok = line.split()
+            if not tok or tok[0] not in ("FLASER", "ROBOTLASER1"):
+                continue
+            try:
+                r, b, pose, ts, mx = (_parse_flaser if tok[0] == "FLASER" else _parse_robotlaser1)(tok)
+            except (IndexError, ValueError) as exc:
+                raise LidarLogError(f"{p}:{lineno}: field 'ranges': malformed {tok[0]} line ({exc})") from None
+            if bearings is None:
+                bearings = b
+            elif b.shape != bearings.shape:
+                raise LidarLogError(f"{p}:{lineno}: field 'ranges': {b.size} readings, expected {bearings.size}")
+            thr = mx if max_range is None else max_range
+            scans.append(np.where((r >= thr) | (r <= 0), 0.0, r))
+            poses.append(pose)
+            times.append(ts)
+    if not scans:
+        raise LidarLogError(f"{p}: field 'ranges': no FLASER or ROBOTLASER1 line found")
+    return log_from_arrays(np.stack(scans), bearings, np.stack(poses), _map_or_none(map), np.asarray(times),
+                           source=str(p))
+
+
+# ---------------------------------------------------------------------------------------------- ROS bags
+def _yaw(q: Any) -> float:
+    return float(np.arctan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z)))
+
+
+def _pose_of(msg: Any) -> NDArray[np.float64]:
+    """x, y, yaw of a nav_msgs/Odometry, geometry_msgs/PoseStamped or PoseWithCovarianceStamped."""
+    pose = msg.pose
+    if hasattr(pose, "pose"):
+        pose = pose.pose
+    return np.array([pose.position.x, pose.position.y, _yaw(pose.orientation)])
+
+
+def read_rosbag(path: PathLike, *, scan_topic: str = "/scan", pose_topic: str = "/odom", map: Any = None,  # noqa: A002
+                ) -> LidarLog:
+    """Read ``sensor_msgs/LaserScan`` messages and a pose topic of a ROS1 or ROS2 bag (``rosbags``).
+
+    Each scan gets the pose interpolated at its bag time (x, y linear, yaw on the unwrapped angle);
+    scans outside the pose topic's time span are dropped. Readings that are ``0``, ``inf``, below
+    ``range_min`` or above ``range_max`` are nulls; NaN readings are missing.
+
+    Args:
+        path: a ``.bag`` file or a ROS2 bag folder.
+        scan_topic: the LaserScan topic.
+        pose_topic: ``nav_msgs/Odometry``, ``geometry_msgs/PoseStamped`` or ``PoseWithCovarianceStamped``.
+        map: optional map (see :func:`sensor_envs.maps.load_map`).
+
+    Raises:
+        LidarLogError: naming the bag and topic when a topic is absent or scans differ in size.
+    """
+    from rosbags.highlevel import AnyReader  # noqa: PLC0415  (optional dependency)
+
+    p = Path(path)
+    scans, st, pts, pt, bearings = [], [], [], [], None
+    with AnyReader([p]) as reader:
+        topics = {c.topic for c in reader.connections}
+        for topic in (scan_topic, pose_topic):
+            if topic not in topics:
+                raise LidarLogError(f"{p}: topic {topic!r} not in the bag (topics: {sorted(topics)})")
+        conns = [c for c in reader.connections if c.topic in (scan_topic, pose_topic)]
+        for conn, t, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == pose_topic:
+                pts.append(_pose_of(msg))
+                pt.append(t * 1e-9)
+                continue
+            r = np.asarray(msg.ranges, dtype=np.float64)
+            b = msg.angle_min + np.arange(r.size) * msg.angle_increment
+            if bearings is None:
+                bearings = b
+            elif b.shape != bearings.shape:
+                raise LidarLogError(f"{p}: field 'ranges': a {scan_topic} scan has {b.size} readings, "
+                                    f"expected {bearings.size}")
+            null = ~np.isnan(r) & ((r <= 0) | ~np.isfinite(r) | (r < msg.range_min) | (r > msg.range_max))
+            scans.append(np.where(null, 0.0, r))
+            st.append(t * 1e-9)
+    if not scans:
+        raise LidarLogError(f"{p}: field 'ranges': no message on {scan_topic!r}")
+    if not pts:
+        raise LidarLogError(f"{p}: field 'poses': no message on {pose_topic!r}")
+    st_a, pt_a, pose_a = np.asarray(st), np.asarray(pt), np.stack(pts)
+    keep = (st_a >= pt_a[0]) & (st_a <= pt_a[-1])
+    if not keep.any():
+        raise LidarLogError(f"{p}: field 'poses': no {scan_topic} scan lies within the {pose_topic} time span")
+    yaw = np.unwrap(pose_a[:, 2])
+    ts = st_a[keep]
+    poses = np.stack([np.interp(ts, pt_a, pose_a[:, 0]), np.interp(ts, pt_a, pose_a[:, 1]),
+                      np.interp(ts, pt_a, yaw)], axis=1)
+    poses[:, 2] = (poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    return log_from_arrays(np.stack(scans)[keep], bearings, poses, _map_or_none(map), ts - ts[0], source=str(p))

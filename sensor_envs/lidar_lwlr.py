@@ -1,0 +1,699 @@
+"""Per-bearing learned lidar model (Tallavajhula & Kelly's seed), with a mixture extension.
+
+Each bearing ``k``'s reading is an outcome of a per-bearing distribution whose parameters depend on
+the features of the state: the nominal range ``r`` [m] and the angle of incidence ``alpha`` [rad] of
+the ray, computed from the (approximate) sensor pose and the nominal map.
+
+* ``variant="seed"`` (the paper): null with probability ``p_null``, else ``Normal(mu, sigma)``. All
+  non-null readings, including spurious far returns, enter ``mu`` and ``sigma``.
+* ``variant="extended"`` (this project): null with ``p_null``, a spurious far return with
+  ``p_spur`` (reading ``> spur_above``, value ``Normal(spur_mu_, spur_sigma_)`` shared by all bearings),
+  else ``Normal(mu, sigma)`` fitted on the in-range readings; ``log sigma`` is regressed (positive,
+  heteroscedastic) and the kernel also pools neighbouring bearings (width ``h_bearing``, chosen by
+  cross-validation, 0 = the seed's strictly per-bearing fit); cells whose mean or spread is an
+  outlier of a pilot fit are down-weighted (LOWESS bisquare); and ``tau`` [m], the spread of a
+  cell's mean around ``mu`` when the pose is approximate (regressed on the squared out-of-fold
+  residuals), widens the density of :meth:`LidarLWLR.log_prob` and :meth:`LidarLWLR.sample` to
+  ``sqrt(sigma^2 + tau^2)``. The world's sensor (:class:`LearnedLidar`) knows the true pose and
+  samples without ``tau``.
+
+Each parameter is regressed per bearing by locally weighted linear regression (LWLR) on
+``(r, alpha)`` of the training cells (one cell = one pose and one bearing, summarised by its
+null fraction, spurious fraction, mean and standard deviation), with Gaussian kernel widths chosen
+per parameter by leave-poses-out cross-validation. Exact LWLR is too slow at run time, so the fit
+tabulates every parameter on a regular ``(r, alpha)`` grid per bearing; :meth:`LidarLWLR.params`
+interpolates bilinearly. Queries outside the training cells' range of ``r``/``alpha`` at a bearing
+(widened by one kernel width) are clamped to it (constant extrapolation). Rays with no hit within
+``max_range`` are nulls with probability ``1 - P_EPS``.
+
+Model files hold only the tables, hyperparameters and the card (never training readings).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import os
+import warnings
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from tqdm.auto import tqdm
+
+from sensor_envs.geometry import as_segments, raycast_pose
+from sensor_envs.lidar_log import LidarLog
+from sensor_envs.modelio import ModelFileError, load_model_file, save_model_file
+
+__all__ = ["LidarLWLR", "LearnedLidar", "load_learned_lidar", "lidar_features", "cell_statistics",
+           "mixture_log_prob", "P_EPS", "SIGMA_FLOOR", "VARIANTS", "MODEL_KIND", "FORMAT_VERSION"]
+
+P_EPS = 1e-3
+"""Probabilities of null are clipped to ``[P_EPS, 1 - P_EPS]`` so that log-likelihoods stay finite."""
+P_SPUR_EPS = 1e-4
+"""Floor of the spurious-return probability (extended variant)."""
+SIGMA_FLOOR = 5e-4
+"""Floor of every standard deviation [m] (half the sensor's 1 mm range quantum)."""
+TAU_CLIP = 0.5
+"""Cell-mean residuals [m] are clipped to this before their variance ``tau^2`` is regressed."""
+VARIANTS = ("seed", "extended")
+MODEL_KIND = "sensor_envs.lidar_lwlr"
+FORMAT_VERSION = 1
+_PARAMS = {"seed": ("p_null", "bias", "sigma"), "extended": ("p_null", "p_spur", "bias", "log_sigma")}
+_TABLES = {"seed": _PARAMS["seed"], "extended": _PARAMS["extended"] + ("tau2",)}
+_RIDGE = (1e-3, 1e-2)  # (intercept pull to the bearing's mean, slope shrinkage) in kernel-weight units
+
+
+# --------------------------------------------------------------------------------------------- features
+def lidar_features(poses: ArrayLike, bearings: ArrayLike, segments: ArrayLike, max_range: float) -> tuple[
+    NDArray[np.float64], NDArray[np.float64]
+]:
+    """Nominal range and incidence per pose and bearing.
+
+    Args:
+        poses: ``(S, 3)`` sensor poses ``x, y, theta`` in the map frame [m, rad].
+        bearings: ``(K,)`` bearings in the sensor frame [rad].
+        segments: ``(M, 2, 2)`` map [m].
+        max_range: farther hits count as no hit [m].
+
+    Returns:
+        ``r (S, K)`` [m] (``inf`` = no hit) and ``alpha (S, K)`` [rad] (``NaN`` = no hit).
+    """
+    p = np.atleast_2d(np.asarray(poses, dtype=np.float64))
+    r, a, _ = raycast_pose(p, bearings, as_segments(segments, name="map"), max_range)
+    return r, a
+
+
+def cell_statistics(log: LidarLog, spur_above: float, split_spurious: bool) -> dict[str, NDArray[np.float64]]:
+    """Per pose-bearing cell statistics of a log's readings.
+
+    Args:
+        log: the log (``ranges (P, K, R)``).
+        spur_above: readings farther than this [m] are spurious returns.
+        split_spurious: if True, ``mean``/``std`` use in-range readings only; else all non-null readings.
+
+    Returns:
+        ``(P, K)`` arrays: ``n`` readings, ``n_ok`` readings entering mean/std, ``p_null``, ``p_spur``,
+        ``mean`` [m], ``std`` [m] (ddof 1; NaN where ``n_ok < 2``).
+    """
+    x = log.ranges
+    valid = ~np.isnan(x)
+    null = valid & (x == 0)
+    spur = valid & (x > spur_above)
+    ok = valid & (x > 0) & ~(spur if split_spurious else np.zeros_like(spur))
+    n, n_ok = valid.sum(2).astype(float), ok.sum(2).astype(float)
+    xs = np.where(ok, x, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = xs.sum(2) / n_ok
+        var = np.where(ok, (x - mean[..., None]) ** 2, 0.0).sum(2) / (n_ok - 1)
+        out = {"n": n, "n_ok": n_ok, "p_null": null.sum(2) / n, "p_spur": spur.sum(2) / n,
+               "mean": np.where(n_ok >= 1, mean, np.nan), "std": np.where(n_ok >= 2, np.sqrt(var), np.nan)}
+    return out
+
+
+def _targets(stats: dict[str, NDArray[np.float64]], r: NDArray[np.float64], name: str) -> tuple[
+    NDArray[np.float64], NDArray[np.bool_]
+]:
+    """Regression target ``(P, K)`` of parameter ``name`` and the mask of cells that inform it."""
+    hit = np.isfinite(r)
+    if name in ("p_null", "p_spur"):
+        return np.nan_to_num(stats[name]), hit & (stats["n"] > 0)
+    m = hit & (stats["n_ok"] >= 2)
+    if name == "bias":
+        return np.where(m, stats["mean"] - np.where(hit, r, 0.0), 0.0), m
+    s = np.where(m, stats["std"], 1.0)
+    return (np.log(np.maximum(s, SIGMA_FLOOR)) if name == "log_sigma" else s), m
+
+
+# ------------------------------------------------------------------------------------------------- LWLR
+def lwlr(q_r: NDArray[np.float64], q_a: NDArray[np.float64], t_r: NDArray[np.float64], t_a: NDArray[np.float64],
+         y: NDArray[np.float64], weight: NDArray[np.float64], h_r: float, h_a: float,
+         h_bearings: tuple[float, ...] = (0.0,), degrees: tuple[int, ...] = (1,)) -> NDArray[np.float64]:
+    """Locally weighted linear (or constant) regression per bearing, evaluated at query features.
+
+    Args:
+        q_r: ``(Q, K)`` query range [m] per bearing.
+        q_a: ``(Q, K)`` query incidence [rad] per bearing.
+        t_r: ``(T, K)`` training ranges [m] (finite where ``weight > 0``).
+        t_a: ``(T, K)`` training incidences [rad].
+        y: ``(T, K, n)`` training targets (n targets sharing the weights).
+        weight: ``(T, K)`` cell weights (0 = the cell takes no part).
+        h_r: range kernel width [m].
+        h_a: incidence kernel width [rad].
+        h_bearings: bearing kernel widths [bearing steps], evaluated together; ``0`` uses bearing
+            ``k``'s own cells only, else neighbour ``k + d`` weighs ``exp(-d^2 / 2 h^2)``.
+        degrees: local polynomial degrees, evaluated together: 1 = local linear in ``(r, alpha)``
+            (the seed's LWLR), 0 = local constant (Nadaraya-Watson).
+
+    Returns:
+        ``(len(degrees), len(h_bearings), Q, K, n)`` fitted values (the local intercept). With no data near a query
+        the estimate falls back to the weighted mean of the bearing's cells (a small ridge pull).
+    """
+    ok = weight > 0
+    w0 = np.where(ok, weight, 0.0)
+    tr, ta = np.where(ok, t_r, 0.0), np.where(ok, t_a, 0.0)
+    ty = np.where(ok[..., None], y, 0.0)
+    prior = (w0[..., None] * ty).sum(0) / np.maximum(w0.sum(0), 1e-12)[:, None]  # (K, n)
+    q, k = q_r.shape
+    n = ty.shape[2]
+    hb = np.asarray(h_bearings, dtype=np.float64)
+    acc = np.zeros((hb.size, 6 + 3 * n, q, k))
+    for d, step in _bearing_offsets(float(hb.max())):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            wb = np.where(hb > 0, step * np.exp(-0.5 * (d / hb) ** 2), float(d == 0))
+        wb = np.where(np.abs(d) <= np.ceil(3 * hb), wb, 0.0)
+        sr, sa, sw = (np.roll(v, -d, axis=1) for v in (tr, ta, w0))
+        sy = np.roll(ty, -d, axis=1)
+        dr = (sr[None] - q_r[:, None]) / h_r  # (Q, T, K)
+        da = (sa[None] - q_a[:, None]) / h_a
+        w = sw[None] * np.exp(-0.5 * (dr * dr + da * da))
+        wdr, wda = w * dr, w * da
+        parts = [w, wdr, wda, wdr * dr, wdr * da, wda * da]
+        sums = np.stack([v.sum(1) for v in parts] + _target_sums(w, wdr, wda, sy))
+        acc += wb[:, None, None, None] * sums[None]
+    return np.stack([_solve(acc, prior, n, deg) for deg in degrees])
+
+
+def _solve(acc: NDArray[np.float64], prior: NDArray[np.float64], n: int, degree: int) -> NDArray[np.float64]:
+    """Local intercepts ``(H, Q, K, n)`` from the accumulated weighted sums of :func:`lwlr`."""
+    lam0, lam1 = _RIDGE
+    h, _, q, k = acc.shape
+    ys = acc[:, 6:].reshape(h, 3, n, q, k)
+    if degree == 0:
+        return np.moveaxis((ys[:, 0] + lam0 * prior.T[None, :, None, :]) / (acc[:, None, 0] + lam0), 1, -1)
+    a_mat = np.empty((h, q, k, 3, 3))
+    a_mat[..., 0, 0] = acc[:, 0] + lam0
+    a_mat[..., 0, 1] = a_mat[..., 1, 0] = acc[:, 1]
+    a_mat[..., 0, 2] = a_mat[..., 2, 0] = acc[:, 2]
+    a_mat[..., 1, 1] = acc[:, 3] + lam1
+    a_mat[..., 1, 2] = a_mat[..., 2, 1] = acc[:, 4]
+    a_mat[..., 2, 2] = acc[:, 5] + lam1
+    b = np.moveaxis(ys, (1, 2), (-2, -1)).copy()  # (H, Q, K, 3, n)
+    b[..., 0, :] += lam0 * prior[None, None]
+    return np.linalg.solve(a_mat, b)[..., 0, :]
+
+
+def _bearing_offsets(h_max: float, fine: int = 6, coarse_step: int = 3) -> list[tuple[int, int]]:
+    """Bearing offsets ``d`` and the number of bearings each stands for, out to ``3 h_max``.
+
+    Offsets up to ``fine`` are all used; beyond, every ``coarse_step``-th offset stands for its
+    ``coarse_step`` neighbours (a Riemann sum of the broad kernel, to bound the cost of wide kernels).
+    """
+    span = int(np.ceil(3 * h_max))
+    out = [(d, 1) for d in range(-min(span, fine), min(span, fine) + 1)]
+    for d in range(fine + coarse_step // 2 + 1, span + 1, coarse_step):
+        out += [(d, coarse_step), (-d, coarse_step)]
+    return out
+
+
+def _target_sums(w: NDArray[np.float64], wdr: NDArray[np.float64], wda: NDArray[np.float64],
+                 sy: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+    """Sums over training cells of ``w y``, ``w dr y``, ``w da y`` per target: ``3 n`` arrays ``(Q, K)``."""
+    out = []
+    for v in (w, wdr, wda):
+        out.extend(np.einsum("qtk,tkn->nqk", v, sy))
+    return out
+
+
+def _robust_weights(t_r: NDArray[np.float64], t_a: NDArray[np.float64], y: NDArray[np.float64],
+                    weight: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Bisquare robustness weights (as in LOWESS) from a pilot LWLR fit, ``(T, K)``.
+
+    Cells whose target lies more than 6 median absolute residuals from the pilot fit (e.g. rays that
+    graze a corner, where a few cm of pose error move the hit to another wall) get weight 0.
+    """
+    pilot = lwlr(t_r, t_a, t_r, t_a, y, weight, 0.4, 0.5, (0.0,))[0, 0]
+    res = np.abs(y - pilot)
+    ok = weight > 0
+    scale = np.array([np.median(res[..., j][ok]) for j in range(y.shape[2])])
+    u = res / (6 * np.maximum(scale, 1e-9))
+    return weight * np.prod(np.where(u < 1, (1 - u * u) ** 2, 0.0), axis=2)
+
+
+def _finish(name: str, v: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Map a raw LWLR value of parameter ``name`` to its valid range."""
+    if name == "p_null":
+        return np.clip(v, P_EPS, 1 - P_EPS)
+    if name == "p_spur":
+        return np.clip(v, P_SPUR_EPS, 0.5)
+    if name == "sigma":
+        return np.maximum(v, SIGMA_FLOOR)
+    if name == "log_sigma":
+        return np.maximum(v, np.log(SIGMA_FLOOR))
+    return v
+
+
+def _cv_loss(name: str, pred: NDArray[np.float64], y: NDArray[np.float64], m: NDArray[np.bool_]) -> tuple[
+    float, float
+]:
+    """Sum of absolute errors (in the parameter's natural unit) over ``m`` and the cell count."""
+    p = _finish(name, pred)
+    if name == "log_sigma":
+        p, y = np.exp(p), np.exp(y)
+    return float(np.abs(p - y)[m].sum()), float(m.sum())
+
+
+# ------------------------------------------------------------------------------------------------ model
+class LidarLWLR:
+    """Per-bearing LWLR lidar model (scikit-learn style estimator).
+
+    Args:
+        variant: ``"seed"`` (3 parameters) or ``"extended"`` (adds spurious returns, log-sigma, bearing pooling).
+        n_folds: folds of the leave-poses-out cross-validation of the kernel widths.
+        h_range_grid: candidate range kernel widths [m].
+        h_alpha_grid: candidate incidence kernel widths [rad].
+        h_bearing_grid: candidate bearing kernel widths [bearing steps] (extended only; the seed uses 0).
+        degree_grid: candidate local polynomial degrees, 0 (local constant) or 1 (local linear)
+            (extended only; the seed uses 1).
+        max_range: the sensor's maximum range [m] (farther hits are no hit).
+        spur_above: readings farther than this are spurious returns [m] (extended).
+        table_range_step: range step of the parameter tables [m].
+        table_alpha_steps: number of incidence knots of the tables over ``[0, pi/2]``.
+        random_state: seed or Generator for the fold assignment.
+        progress: show tqdm progress bars.
+    """
+
+    def __init__(self, *, variant: str = "extended", n_folds: int = 10,
+                 h_range_grid: tuple[float, ...] = (0.1, 0.25, 0.6, 1.6, 6.4),
+                 h_alpha_grid: tuple[float, ...] = (0.15, 0.5, 4.0),
+                 h_bearing_grid: tuple[float, ...] = (0.0, 1.0, 3.0, 12.0), degree_grid: tuple[int, ...] = (0, 1),
+                 max_range: float = 5.0,
+                 spur_above: float = 6.0, table_range_step: float = 0.125, table_alpha_steps: int = 9,
+                 random_state: int | np.random.Generator | None = 0, progress: bool = True) -> None:
+        self.variant = variant
+        self.n_folds = n_folds
+        self.h_range_grid = h_range_grid
+        self.h_alpha_grid = h_alpha_grid
+        self.h_bearing_grid = h_bearing_grid
+        self.degree_grid = degree_grid
+        self.max_range = max_range
+        self.spur_above = spur_above
+        self.table_range_step = table_range_step
+        self.table_alpha_steps = table_alpha_steps
+        self.random_state = random_state
+        self.progress = progress
+
+    # ---------------------------------------------------------------------------------------- fitting
+    def _check_hyper(self, log: LidarLog) -> None:
+        if self.variant not in VARIANTS:
+            raise ValueError(f"variant: expected one of {VARIANTS}, got {self.variant!r}")
+        if not 2 <= self.n_folds <= log.n_poses:
+            raise ValueError(f"n_folds: must be in [2, number of poses = {log.n_poses}], got {self.n_folds}")
+        for name in ("h_range_grid", "h_alpha_grid"):
+            g = np.asarray(getattr(self, name), dtype=float)
+            if g.size == 0 or not (g > 0).all():
+                raise ValueError(f"{name}: needs at least one width, all > 0, got {getattr(self, name)}")
+        if not set(self.degree_grid) <= {0, 1} or not len(self.degree_grid):
+            raise ValueError(f"degree_grid: needs degrees among (0, 1), got {self.degree_grid}")
+        if not self.max_range > 0 or not self.spur_above > 0:
+            raise ValueError("max_range and spur_above must be > 0")
+        if log.ranges.shape[2] < 2:
+            raise ValueError(f"{log.source}: field 'ranges' has one reading per pose and bearing; the model "
+                             "needs repeated readings at static poses, shape (P, K, R >= 2)")
+
+    def fit(self, log: LidarLog) -> LidarLWLR:
+        """Fit the model to a log (approximate poses + nominal map), choosing kernel widths by CV.
+
+        Args:
+            log: a :class:`~sensor_envs.lidar_log.LidarLog` with a map.
+
+        Returns:
+            ``self``, with ``tables_`` ``(n_params, K, n_r, n_alpha)``, ``param_names_``, ``range_grid_`` [m],
+            ``alpha_grid_`` [rad], ``h_`` (per parameter: h_range, h_alpha, h_bearing, degree),
+            ``cv_scores_``, ``bearings_`` [rad], ``spur_mu_``/``spur_sigma_`` [m], ``p_out_`` and
+            ``training_`` (a summary of the log, no readings) set.
+
+        Raises:
+            ValueError: for bad hyperparameters or a log without repeated readings or map.
+        """
+        self._check_hyper(log)
+        segs = log.require_map()
+        r, a = lidar_features(log.poses, log.bearings, segs, self.max_range)
+        stats = cell_statistics(log, self.spur_above, split_spurious=self.variant == "extended")
+        groups = self._groups(stats, r)
+        r0, a0 = np.where(np.isfinite(r), r, 0.0), np.nan_to_num(a)
+        self.h_, self.cv_scores_ = self._cross_validate(r0, a0, groups)
+        self.bearings_ = log.bearings.copy()
+        if self.variant == "extended":
+            groups.append(self._tau_group(r0, a0, groups, stats["n_ok"]))
+            self.h_["tau2"] = list(self.h_["bias"])
+        self._tabulate(r, a, groups)
+        del self._bias_oof
+        if self.variant == "seed":
+            self.p_out_ = 0.0
+        self._fit_spurious(log)
+        self.training_ = {"source": Path(log.source).name, "n_poses": log.n_poses, "n_bearings": log.n_bearings,
+                          "n_readings": int((~np.isnan(log.ranges)).sum()),
+                          "null_fraction": float(np.nanmean(np.where(np.isnan(log.ranges), np.nan,
+                                                                     log.ranges == 0))),
+                          "sha256_of_ranges": hashlib.sha256(np.ascontiguousarray(log.ranges)).hexdigest()}
+        return self
+
+    def _groups(self, stats: dict[str, NDArray[np.float64]], r: NDArray[np.float64]) -> list[
+        tuple[tuple[str, ...], NDArray[np.float64], NDArray[np.float64], bool]
+    ]:
+        """Parameters sharing cell weights: ``(names, y (P, K, n), weight (P, K), robust)``.
+
+        The extended variant down-weights outlying cells of ``bias``/``log_sigma`` (bisquare, LOWESS-style).
+        """
+        names = _PARAMS[self.variant]
+        out = []
+        for grp in (names[:-2], names[-2:]):
+            ys, ms = zip(*(_targets(stats, r, n) for n in grp), strict=True)
+            out.append((grp, np.stack(ys, axis=-1), ms[0].astype(np.float64),
+                        self.variant == "extended" and grp[0] == "bias"))
+        return out
+
+    def _tau_group(self, r: NDArray[np.float64], a: NDArray[np.float64], groups: list[Any],
+                   n_ok: NDArray[np.float64]) -> tuple[
+        tuple[str, ...], NDArray[np.float64], NDArray[np.float64], bool
+    ]:
+        """Target of ``tau2`` (squared out-of-fold residual of the cell means) on the non-outlying cells.
+
+        Also sets ``p_out_``: the fraction of in-range readings in cells whose mean is an outlier (bisquare
+        weight 0), the weight of the uniform outlier component of :meth:`log_prob`.
+        """
+        _, y, weight, _ = next(g for g in groups if g[0][0] == "bias")
+        w = _robust_weights(r, a, y[..., :1], weight)
+        out = (weight > 0) & (w == 0)
+        self.p_out_ = float(np.clip((n_ok * out).sum() / max((n_ok * (weight > 0)).sum(), 1), P_EPS, 0.5))
+        e2 = np.minimum((y[..., 0] - self._bias_oof) ** 2, TAU_CLIP**2)
+        return ("tau2",), e2[..., None], w, False
+
+    def _folds(self, n: int) -> NDArray[np.int64]:
+        rng = np.random.default_rng(self.random_state)
+        return rng.permutation(np.arange(n) % self.n_folds)
+
+    def _cross_validate(self, r: NDArray[np.float64], a: NDArray[np.float64], groups: list[Any]) -> tuple[
+        dict[str, list[float]], dict[str, dict[str, float]]
+    ]:
+        """Leave-poses-out CV: per parameter, the kernel widths and degree with the least mean absolute error."""
+        fold = self._folds(r.shape[0])
+        hb = (0.0,) if self.variant == "seed" else tuple(float(v) for v in self.h_bearing_grid)
+        hra = list(itertools.product(self.h_range_grid, self.h_alpha_grid))
+        degs = (1,) if self.variant == "seed" else tuple(int(v) for v in self.degree_grid)
+        grid = [(h_r, h_a, h_b, deg) for h_r, h_a in hra for deg in degs for h_b in hb]
+        per = len(degs) * len(hb)
+        err = {n: np.zeros(len(grid)) for g in groups for n in g[0]}
+        oof = np.zeros((len(grid),) + r.shape)  # out-of-fold bias predictions (for tau)
+        cnt = {n: np.zeros(len(grid)) for g in groups for n in g[0]}
+        for f in tqdm(range(self.n_folds), desc=f"CV lidar LWLR ({self.variant})", disable=not self.progress):
+            tr, te = fold != f, fold == f
+            for names, y, weight, robust in groups:
+                w_tr = _robust_weights(r[tr], a[tr], y[tr], weight[tr]) if robust else weight[tr]
+                m_te = weight[te] > 0
+                for i, (h_r, h_a) in enumerate(hra):
+                    pred = lwlr(r[te], a[te], r[tr], a[tr], y[tr], w_tr, h_r, h_a, hb, degs)
+                    pred = pred.reshape((per,) + pred.shape[2:])  # (degrees x bearing widths, Q, K, n)
+                    if names[0] == "bias":
+                        oof[i * per:(i + 1) * per, te] = pred[..., 0]
+                    for j, n in enumerate(names):
+                        for b in range(per):
+                            e, c = _cv_loss(n, pred[b, ..., j], y[te][..., j], m_te)
+                            err[n][i * per + b] += e
+                            cnt[n][i * per + b] += c
+        best, scores = {}, {}
+        for n in err:
+            mae = err[n] / np.maximum(cnt[n], 1)
+            i = int(np.argmin(mae))
+            best[n] = [float(v) for v in grid[i]]
+            scores[n] = {"cv_mae_best": float(mae[i]), "cv_mae_worst": float(mae.max()), "n_candidates": len(grid)}
+            if n == "bias":
+                self._bias_oof = oof[i]
+        return best, scores
+
+    def _grid(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        n_r = int(np.ceil(self.max_range / self.table_range_step)) + 1
+        return np.linspace(0.0, (n_r - 1) * self.table_range_step, n_r), np.linspace(0.0, np.pi / 2,
+                                                                                     self.table_alpha_steps)
+
+    def _tabulate(self, r: NDArray[np.float64], a: NDArray[np.float64], groups: list[Any]) -> None:
+        """Evaluate each parameter's LWLR on the ``(r, alpha)`` grid of every bearing."""
+        rg, ag = self._grid()
+        self.range_grid_, self.alpha_grid_ = rg, ag
+        qr, qa = (v.ravel() for v in np.meshgrid(rg, ag, indexing="ij"))
+        hit = np.isfinite(r)
+        r0, a0 = np.where(hit, r, 0.0), np.nan_to_num(a)
+        tables, names = [], []
+        for grp, y, weight, robust in tqdm(groups, desc="tabulating", disable=not self.progress):
+            w = _robust_weights(r0, a0, y, weight) if robust else weight
+            for j, n in enumerate(grp):
+                h_r, h_a, h_b, deg = self.h_[n]
+                rr, aa = np.where(w > 0, r, np.nan), np.where(w > 0, a, np.nan)
+                with warnings.catch_warnings():  # bearings without any cell (blocked): whole grid
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    lo_r = np.nan_to_num(np.nanmin(rr, 0) - h_r, nan=0.0)
+                    hi_r = np.nan_to_num(np.nanmax(rr, 0) + h_r, nan=self.max_range)
+                    lo_a = np.nan_to_num(np.nanmin(aa, 0) - h_a, nan=0.0)
+                    hi_a = np.nan_to_num(np.nanmax(aa, 0) + h_a, nan=np.pi / 2)
+                q_r = np.clip(qr[:, None], lo_r[None], hi_r[None])
+                q_a = np.clip(qa[:, None], lo_a[None], hi_a[None])
+                v = _finish(n, lwlr(q_r, q_a, r0, a0, y[..., j:j + 1], w, h_r, h_a, (h_b,), (int(deg),))[0, 0, ..., 0])
+                tables.append(v.T.reshape(-1, rg.size, ag.size))
+                names.append(n)
+        # (n_params, K, n_r, n_alpha), rounded to float32 (the file's dtype) so that save/load is exact
+        self.tables_ = np.stack(tables).astype(np.float32).astype(np.float64)
+        self.param_names_ = names
+
+    def _fit_spurious(self, log: LidarLog) -> None:
+        x = log.ranges[~np.isnan(log.ranges) & (log.ranges > self.spur_above)]
+        if x.size >= 2:
+            self.spur_mu_, self.spur_sigma_ = float(x.mean()), float(max(x.std(ddof=1), SIGMA_FLOOR))
+        else:  # no spurious return seen: a broad placeholder far beyond the in-range readings
+            self.spur_mu_, self.spur_sigma_ = float(2 * self.spur_above), float(self.spur_above)
+
+    # ------------------------------------------------------------------------------------ prediction
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "tables_"):
+            raise RuntimeError("LidarLWLR: this model is not fitted yet; call fit(log) or load it first")
+
+    def params_from_features(self, r: ArrayLike, alpha: ArrayLike) -> dict[str, NDArray[np.float64]]:
+        """Reading-distribution parameters from features, by bilinear table lookup.
+
+        Args:
+            r: ``(..., K)`` nominal ranges [m] (``inf``/NaN = no hit), K = the model's bearings.
+            alpha: ``(..., K)`` incidence [rad] (NaN where no hit).
+
+        Returns:
+            ``p_null``, ``p_spur`` (0 for the seed variant), ``mu`` [m], ``sigma`` [m] (spread of repeated
+            readings) and ``tau`` [m] (spread of a cell's mean around ``mu`` at an approximate pose; 0 for
+            the seed variant), each ``(..., K)``.
+        """
+        self._check_fitted()
+        r = np.asarray(r, dtype=np.float64)
+        k = self.tables_.shape[1]
+        if r.shape[-1] != k:
+            raise ValueError(f"nominal_range: last axis has {r.shape[-1]} bearings, the model has {k}")
+        hit = np.isfinite(r)
+        rq = np.where(hit, r, self.range_grid_[-1])
+        aq = np.nan_to_num(np.asarray(alpha, dtype=np.float64), nan=0.0)
+        v = _bilinear(self.tables_, self.range_grid_, self.alpha_grid_, rq, aq)
+        out = dict(zip(self.param_names_, v, strict=True))
+        p_null = np.where(hit, out["p_null"], 1 - P_EPS)
+        if "p_spur" in out:  # null takes precedence: the three outcomes keep >= P_EPS for in-range readings
+            p_null = np.minimum(p_null, 1 - P_EPS - P_SPUR_EPS)
+            p_spur = np.clip(out["p_spur"], P_SPUR_EPS, 1 - P_EPS - p_null)
+        else:
+            p_spur = np.zeros_like(rq)
+        sigma = np.exp(out["log_sigma"]) if "log_sigma" in out else out["sigma"]
+        tau = np.sqrt(np.maximum(out["tau2"], 0.0)) if "tau2" in out else np.zeros_like(rq)
+        return {"p_null": p_null, "p_spur": p_spur, "mu": rq + out["bias"], "sigma": sigma, "tau": tau,
+                "p_out": np.full(rq.shape, self.p_out_), "out_range": np.full(rq.shape, self.max_range)}
+
+    def params(self, poses: ArrayLike, map_segments: ArrayLike) -> tuple[
+        NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]
+    ]:
+        """``(p_null, mu, sigma)``, each ``(S, K)``, at ``(S, 3)`` poses in a ``(M, 2, 2)`` map [m, rad].
+
+        ``mu``/``sigma`` [m] are those of the in-range (non-spurious) component.
+        """
+        p = self.params_full(poses, map_segments)
+        return p["p_null"], p["mu"], p["sigma"]
+
+    def params_full(self, poses: ArrayLike, map_segments: ArrayLike) -> dict[str, NDArray[np.float64]]:
+        """All parameters (``p_null``, ``p_spur``, ``mu``, ``sigma``), each ``(S, K)``, at poses in a map."""
+        self._check_fitted()
+        r, a = lidar_features(poses, self.bearings_, map_segments, self.max_range)
+        return self.params_from_features(r, a)
+
+    def sample_from_params(self, p: dict[str, NDArray[np.float64]], rng: np.random.Generator,
+                           shape: tuple[int, ...] | None = None, pose_uncertainty: bool = False) -> NDArray[np.float64]:
+        """Draw readings [m] (``0`` = null) with parameter arrays ``p`` broadcast to ``shape``.
+
+        With ``pose_uncertainty``, the in-range component's mean is drawn once per entry of ``p`` (one
+        cell), shared by the repeats along the extra axes of ``shape``: with probability ``p_out``
+        uniform on ``[0, out_range]`` (a ray whose nominal hit is another surface), else ``mu + tau z``.
+        """
+        shape = p["mu"].shape if shape is None else shape
+        u = rng.random(shape)
+        z = rng.standard_normal(shape)
+        mu = p["mu"]
+        if pose_uncertainty:
+            cell = p["tau"].shape
+            mu = np.where(rng.random(cell) < p["p_out"], rng.uniform(0.0, 1.0, cell) * p["out_range"],
+                          mu + p["tau"] * rng.standard_normal(cell))
+        x = np.maximum(mu + p["sigma"] * z, 1e-4)
+        if self.variant == "extended":
+            spur = (u >= p["p_null"]) & (u < p["p_null"] + p["p_spur"])
+            x = np.where(spur, self.spur_mu_ + self.spur_sigma_ * z, x)
+        return np.where(u < p["p_null"], 0.0, x)
+
+    def sample(self, poses: ArrayLike, map_segments: ArrayLike, rng: np.random.Generator,
+               n_repeats: int | None = None) -> NDArray[np.float64]:
+        """Sample a log at ``(S, 3)`` approximate poses: ``(S, K)`` or ``(S, K, n_repeats)`` [m], ``0`` = null.
+
+        Each cell's mean is drawn once (``mu + tau z``, the extended variant's spread of cell means
+        around ``mu`` at an approximate pose) and shared by its repeats; this matches :meth:`log_prob`
+        reading by reading.
+        """
+        p = self.params_full(poses, map_segments)
+        if n_repeats is None:
+            return self.sample_from_params(p, rng, pose_uncertainty=True)
+        p = {k: v[..., None] for k, v in p.items()}
+        return self.sample_from_params(p, rng, p["mu"].shape[:2] + (int(n_repeats),), pose_uncertainty=True)
+
+    def log_prob(self, ranges: ArrayLike, poses: ArrayLike, map_segments: ArrayLike) -> NDArray[np.float64]:
+        """Log-probability of readings: ``log p_null`` for a null, else a log density [1/m].
+
+        Args:
+            ranges: ``(S, K)`` or ``(S, K, R)`` readings [m], ``0`` = null, ``NaN`` = missing.
+            poses: ``(S, 3)`` approximate sensor poses ``x, y, theta`` [m, rad].
+            map_segments: ``(M, 2, 2)`` nominal map [m].
+
+        Returns:
+            Same shape as ``ranges``; ``NaN`` where missing.
+        """
+        x = np.asarray(ranges, dtype=np.float64)
+        p = self.params_full(poses, map_segments)
+        if x.ndim == 3:
+            p = {k: v[..., None] for k, v in p.items()}
+        return mixture_log_prob(x, p, self.spur_mu_, self.spur_sigma_)
+
+    # ----------------------------------------------------------------------------------------- files
+    def to_header(self) -> dict[str, Any]:
+        """JSON header of the model file: hyperparameters, fitted scalars and the card."""
+        self._check_fitted()
+        hyper = {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(self).items()
+                 if not k.endswith("_") and not k.startswith("_") and k not in ("random_state", "progress")}
+        card = {"training": self.training_, "cv_scores": self.cv_scores_, **getattr(self, "card_extra_", {})}
+        return {"params": hyper, "h": self.h_, "param_names": self.param_names_, "spur_mu": self.spur_mu_,
+                "spur_sigma": self.spur_sigma_, "p_out": self.p_out_, "card": card}
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the model file (tables + JSON header, no pickle, no training readings)."""
+        return save_model_file(path, MODEL_KIND, FORMAT_VERSION, self.to_header(),
+                               {"tables": self.tables_.astype(np.float32), "bearings": self.bearings_,
+                                "range_grid": self.range_grid_,
+                                "alpha_grid": self.alpha_grid_})
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> LidarLWLR:
+        """Read a model file written by :meth:`save`.
+
+        Raises:
+            ModelFileError: naming the file and the field when it is malformed.
+        """
+        schema = {"tables": ("f", 4, True), "bearings": ("f", 1, True), "range_grid": ("f", 1, True),
+                  "alpha_grid": ("f", 1, True)}
+        header, arr = load_model_file(path, MODEL_KIND, (FORMAT_VERSION,), schema)
+        try:
+            model = cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in header["params"].items()})
+            model.h_, model.param_names_ = header["h"], list(header["param_names"])
+            model.spur_mu_, model.spur_sigma_ = float(header["spur_mu"]), float(header["spur_sigma"])
+            model.p_out_ = float(header["p_out"])
+            card = dict(header["card"])
+        except (KeyError, TypeError) as exc:
+            raise ModelFileError(f"{path}: field '__header__' lacks or misstates {exc}") from None
+        if model.variant not in VARIANTS or model.param_names_ != list(_TABLES[model.variant]):
+            raise ModelFileError(f"{path}: field 'param_names' is {model.param_names_} for variant {model.variant!r}")
+        t = arr["tables"]
+        want = (len(model.param_names_), arr["bearings"].size, arr["range_grid"].size, arr["alpha_grid"].size)
+        if t.shape != want:
+            raise ModelFileError(f"{path}: field 'tables' has shape {t.shape}, expected {want}")
+        model.tables_, model.bearings_ = t.astype(np.float64), arr["bearings"]
+        model.range_grid_, model.alpha_grid_ = arr["range_grid"], arr["alpha_grid"]
+        model.training_, model.cv_scores_ = card.pop("training", {}), card.pop("cv_scores", {})
+        model.card_extra_ = card
+        return model
+
+
+def _bilinear(tables: NDArray[np.float64], rg: NDArray[np.float64], ag: NDArray[np.float64],
+              r: NDArray[np.float64], a: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Bilinear lookup of ``tables (n, K, n_r, n_a)`` (regular grids) at ``r, a (..., K)`` -> ``(n, ..., K)``."""
+    n, k, nr, na = tables.shape
+    fr = np.clip((r - rg[0]) / (rg[1] - rg[0]), 0.0, nr - 1 - 1e-9)
+    fa = np.clip((a - ag[0]) / (ag[1] - ag[0]), 0.0, na - 1 - 1e-9)
+    i, j = fr.astype(np.int64), fa.astype(np.int64)
+    wr, wa = fr - i, fa - j
+    base = (np.arange(k) * nr + i) * na + j
+    flat = tables.reshape(n, -1)
+    v00, v01 = flat[:, base], flat[:, base + 1]
+    v10, v11 = flat[:, base + na], flat[:, base + na + 1]
+    return (v00 * (1 - wa) + v01 * wa) * (1 - wr) + (v10 * (1 - wa) + v11 * wa) * wr
+
+
+def _norm_logpdf(x: NDArray[np.float64], mu: ArrayLike, sigma: ArrayLike) -> NDArray[np.float64]:
+    z = (x - mu) / sigma
+    return -0.5 * z * z - np.log(sigma) - 0.5 * np.log(2 * np.pi)
+
+
+def mixture_log_prob(x: ArrayLike, p: dict[str, NDArray[np.float64]], spur_mu: float, spur_sigma: float) -> NDArray[
+    np.float64
+]:
+    """Log-probability of readings ``x`` [m] under ``null | spurious | Normal(mu, sigma)``.
+
+    A null (``x == 0``) has probability ``p_null``; a reading has density
+    ``(1 - p_null - p_spur) N(x; mu, sqrt(sigma^2 + tau^2)) + p_spur N(x; spur_mu, spur_sigma)`` [1/m]
+    (``tau = 0`` when ``p`` has none); with ``p_out`` in ``p``, that normal is itself mixed with
+    ``Uniform(0, out_range)`` at weight ``p_out`` (outlying cells). NaN stays NaN.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    s = np.sqrt(p["sigma"] ** 2 + p["tau"] ** 2) if "tau" in p else p["sigma"]
+    main = _norm_logpdf(x, p["mu"], s)
+    if "p_out" in p:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            unif = np.where((x >= 0) & (x <= p["out_range"]), -np.log(p["out_range"]), -np.inf)
+            main = np.logaddexp(np.log1p(-p["p_out"]) + main, np.log(p["p_out"]) + unif)
+    main = np.log1p(-(p["p_null"] + p["p_spur"])) + main
+    with np.errstate(divide="ignore", invalid="ignore"):
+        spur = np.log(p["p_spur"]) + _norm_logpdf(x, spur_mu, spur_sigma)
+        dens = np.logaddexp(main, spur)
+    out = np.where(x == 0, np.log(p["p_null"]) + 0 * dens, dens)
+    return np.where(np.isnan(x), np.nan, out)
+
+
+# ---------------------------------------------------------------------------------------- the adapter
+@dataclass(frozen=True)
+class LearnedLidar:
+    """:class:`~sensor_envs.lidars.LidarSensor` adapter around a fitted :class:`LidarLWLR`."""
+
+    model: LidarLWLR
+
+    def measure(self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64],
+                rng: np.random.Generator) -> NDArray[np.float64]:
+        """Sample one scan: ``(K,)`` ranges [m] from ``(K,)`` nominal ranges/incidences; ``NaN`` = null."""
+        p = self.model.params_from_features(nominal_range, incidence)
+        x = self.model.sample_from_params(p, rng)
+        return np.where(x == 0, np.nan, x)
+
+
+def default_model_path() -> Path:
+    """Path of the model shipped in ``models/neato_lidar.npz`` (package ``sensor_envs.models``)."""
+    return Path(str(resources.files("sensor_envs.models").joinpath("neato_lidar.npz")))
+
+
+def load_learned_lidar(model: str | os.PathLike[str] | LidarLWLR | None = None, **kwargs: Any) -> LearnedLidar:
+    """The learned lidar sensor from a model file (default: the shipped rig-fitted model).
+
+    Raises:
+        ValueError: for any keyword argument (the learned lidar takes none besides ``model``).
+        ModelFileError: when the file is missing or malformed.
+    """
+    if kwargs:
+        raise ValueError(f"lidar: the learned lidar takes only 'model', got {sorted(kwargs)}")
+    if isinstance(model, LidarLWLR):
+        return LearnedLidar(model)
+    return LearnedLidar(LidarLWLR.load(default_model_path() if model is None else model))

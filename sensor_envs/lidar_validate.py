@@ -1,0 +1,323 @@
+"""Validation of lidar models against a log: the seed's Table I metrics, log-likelihood, baselines, plots.
+
+Definitions (written into every ``report.json``):
+
+* A cell is one pose and one bearing. Its empirical ``p_null`` is the fraction of null readings; its
+  empirical ``mu``/``sigma`` [m] are the mean and standard deviation (ddof 1) of its in-range
+  readings (non-null and ``<= spur_above``), over cells with at least 2 of them. Spurious far
+  returns (``> spur_above``) are a separate outcome with empirical fraction ``p_spur``.
+* Table I: mean absolute error, over cells, between a model's ``p_null``/``mu``/``sigma`` at the
+  log's (approximate) pose and the empirical ones; reported on all cells and on the "clean" cells
+  without any spurious reading.
+* Log-likelihood: mean over readings of ``log p_null`` (nulls) or the log density [1/m] of the
+  reading, on all readings and on the in-range readings only.
+* Baselines (same features): ``ideal`` has ``mu = r``, ``sigma = IDEAL_SIGMA`` (the 1 mm range quantum:
+  a floor that keeps its likelihood finite) and ``p_null = P_EPS`` on a hit (``1 - P_EPS`` without);
+  ``gaussian`` is :class:`~sensor_envs.lidars.GaussianLidar` with its ``sigma0``, ``k_range``,
+  ``k_incidence`` and ``p_null_floor`` refitted to the training data (:func:`fit_gaussian_lidar`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import nnls
+from tqdm.auto import tqdm
+
+from sensor_envs.geometry import to_frame
+from sensor_envs.lidar_log import LidarLog
+from sensor_envs.lidar_lwlr import (
+    P_EPS,
+    SIGMA_FLOOR,
+    LidarLWLR,
+    cell_statistics,
+    lidar_features,
+    mixture_log_prob,
+)
+from sensor_envs.lidars import GaussianLidar
+
+__all__ = ["IDEAL_SIGMA", "fit_gaussian_lidar", "baseline_params", "table_one", "validate", "cross_validate_log",
+           "model_card_markdown", "log_statistics"]
+
+IDEAL_SIGMA = 1e-3
+"""Standard deviation [m] given to the ideal baseline for its likelihood (the 1 mm range quantum)."""
+Params = dict[str, NDArray[np.float64]]
+
+
+def fit_gaussian_lidar(log: LidarLog, spur_above: float = 6.0, max_range: float = 5.0) -> GaussianLidar:
+    """Refit the Gaussian baseline to a log (for a fair comparison).
+
+    ``sigma0, k_range, k_incidence``: non-negative least squares on the cells' standard deviations of
+    in-range readings; ``p_null_floor``: the null fraction of the cells whose ray hits the map.
+    """
+    r, a = lidar_features(log.poses, log.bearings, log.require_map(), max_range)
+    st = cell_statistics(log, spur_above, split_spurious=True)
+    base = GaussianLidar()
+    hit = np.isfinite(r)
+    m = hit & (st["n_ok"] >= 2)
+    rm, am = r[m], np.minimum(np.nan_to_num(a[m]), base.alpha_max)
+    coef, _ = nnls(np.column_stack([np.ones(m.sum()), rm**2, rm * np.tan(am)]), st["std"][m])
+    n = st["n"][hit]
+    p_null = float((st["p_null"][hit] * n).sum() / max(n.sum(), 1))
+    return GaussianLidar(sigma0=float(max(coef[0], SIGMA_FLOOR)), k_range=float(coef[1]), k_incidence=float(coef[2]),
+                         p_null_floor=p_null)
+
+
+def baseline_params(name: str, r: NDArray[np.float64], a: NDArray[np.float64],
+                    gaussian: GaussianLidar | None = None) -> Params:
+    """Parameters ``p_null, p_spur, mu, sigma`` ``(..., K)`` of the ``"ideal"`` or ``"gaussian"`` baseline."""
+    hit = np.isfinite(r)
+    mu = np.where(hit, r, 0.0)
+    if name == "ideal":
+        p_null, sigma = np.where(hit, P_EPS, 1 - P_EPS), np.full(r.shape, IDEAL_SIGMA)
+    elif name == "gaussian":
+        g = gaussian or GaussianLidar()
+        p_null = np.where(hit, np.clip(g.p_null_floor, P_EPS, 1 - P_EPS), 1 - P_EPS)
+        sigma = np.maximum(np.nan_to_num(g.sigma(r, a), nan=1.0), SIGMA_FLOOR)
+    else:
+        raise ValueError(f"baseline: expected 'ideal' or 'gaussian', got {name!r}")
+    return {"p_null": p_null, "p_spur": np.zeros(r.shape), "mu": mu, "sigma": sigma, "tau": np.zeros(r.shape)}
+
+
+def _ll(log: LidarLog, p: Params, spur: tuple[Any, Any], spur_above: float) -> dict[str, float]:
+    """Mean log-likelihood per reading, all readings and in-range readings only."""
+    x = log.ranges
+    pe = {k: v[..., None] for k, v in p.items()}
+    lp = mixture_log_prob(x, pe, np.asarray(spur[0])[..., None, None] if np.ndim(spur[0]) else spur[0],
+                          np.asarray(spur[1])[..., None, None] if np.ndim(spur[1]) else spur[1])
+    valid = ~np.isnan(x)
+    inr = valid & (x <= spur_above)
+    return {"ll_per_reading": float(lp[valid].mean()), "ll_per_reading_in_range": float(lp[inr].mean()),
+            "n_readings": int(valid.sum())}
+
+
+def table_one(log: LidarLog, p: Params, spur: tuple[Any, Any] = (0.0, 1.0), spur_above: float = 6.0) -> dict[str, Any]:
+    """Table I MAEs (all and clean cells), ``p_spur`` MAE and log-likelihoods of parameters ``p`` ``(P, K)``."""
+    st = cell_statistics(log, spur_above, split_spurious=True)
+    has = st["n"] > 0
+    ms = st["n_ok"] >= 2
+    clean = st["p_spur"] == 0
+    out: dict[str, Any] = {}
+    for tag, sel in (("all", np.ones_like(has)), ("clean", clean)):
+        out[tag] = {"mae_mu": float(np.abs(p["mu"] - st["mean"])[ms & sel].mean()),
+                    "mae_sigma": float(np.abs(p["sigma"] - st["std"])[ms & sel].mean()),
+                    "mae_p_null": float(np.abs(p["p_null"] - st["p_null"])[has & sel].mean()),
+                    "n_cells_mu_sigma": int((ms & sel).sum()), "n_cells_p_null": int((has & sel).sum())}
+    out["mae_p_spur"] = float(np.abs(p["p_spur"] - st["p_spur"])[has].mean())
+    out.update(_ll(log, p, spur, spur_above))
+    return out
+
+
+def _model_spur(model: LidarLWLR) -> tuple[float, float]:
+    return model.spur_mu_, model.spur_sigma_
+
+
+def validate(model: LidarLWLR, log: LidarLog, out_dir: str | os.PathLike[str],
+             gaussian: GaussianLidar | None = None, rng: np.random.Generator | None = None) -> dict[str, Any]:
+    """Compare a fitted model and the baselines with a log; write ``report.json``, ``report.md`` and plots.
+
+    Args:
+        model: the fitted model.
+        log: the validation log (its approximate poses and map give the features).
+        out_dir: output folder.
+        gaussian: the Gaussian baseline (default: the one stored in the model's card, else the defaults).
+        rng: generator of the simulated scan in the plot (default: seeded 0).
+
+    Returns:
+        The report (also written to ``out_dir/report.json``).
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    r, a = lidar_features(log.poses, log.bearings, log.require_map(), model.max_range)
+    if gaussian is None and "gaussian_baseline" in getattr(model, "card_extra_", {}):
+        gaussian = GaussianLidar(**model.card_extra_["gaussian_baseline"])
+    params = {f"model_{model.variant}": model.params_from_features(r, a), "ideal": baseline_params("ideal", r, a),
+              "gaussian": baseline_params("gaussian", r, a, gaussian)}
+    spur = {f"model_{model.variant}": _model_spur(model)}
+    metrics = {k: table_one(log, p, spur.get(k, (0.0, 1.0)), model.spur_above) for k, p in params.items()}
+    report = {"log": log.source, "n_poses": log.n_poses, "model_training": model.training_,
+              "model_h": model.h_, "gaussian_baseline": vars(gaussian) if gaussian else vars(GaussianLidar()),
+              "definitions": __doc__.split("Definitions (written into every ``report.json``):")[1].strip(),
+              "metrics": metrics}
+    (out / "report.json").write_text(json.dumps(report, indent=2, default=float))
+    (out / "report.md").write_text(metrics_markdown(metrics))
+    plot_scan(model, log, params, out / "scan.png", rng or np.random.default_rng(0))
+    plot_per_bearing(log, params, out / "per_bearing_error.png", model.spur_above)
+    return report
+
+
+def metrics_markdown(metrics: dict[str, dict[str, Any]]) -> str:
+    """A Markdown table of :func:`table_one` results keyed by model name."""
+    lines = ["| model | MAE mu [m] | MAE sigma [m] | MAE p_null | clean: MAE mu | clean: MAE sigma | "
+             "clean: MAE p_null | MAE p_spur | LL/reading | LL/reading in range |", "|" + "---|" * 10]
+    for k, m in metrics.items():
+        a, c = m["all"], m["clean"]
+        lines.append(f"| {k} | {a['mae_mu']:.4f} | {a['mae_sigma']:.4f} | {a['mae_p_null']:.4f} | {c['mae_mu']:.4f} | "
+                     f"{c['mae_sigma']:.4f} | {c['mae_p_null']:.4f} | {m['mae_p_spur']:.4f} | "
+                     f"{m['ll_per_reading']:.4g} | {m['ll_per_reading_in_range']:.4g} |")
+    return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------------------------------------ plots
+def _sample(p: Params, rng: np.random.Generator) -> NDArray[np.float64]:
+    u, z = rng.random(p["mu"].shape), rng.standard_normal(p["mu"].shape)
+    return np.where(u < p["p_null"], 0.0, np.maximum(p["mu"] + p["sigma"] * z, 1e-4))
+
+
+def plot_scan(model: LidarLWLR, log: LidarLog, params: dict[str, Params], path: Path,
+              rng: np.random.Generator, pose_index: int = 0) -> None:
+    """The seed's Fig. 2: one real scan and one simulated scan per model at a pose (sensor frame, x fwd)."""
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    b = log.bearings
+    fig, axes = plt.subplots(1, len(params) + 1, figsize=(4.2 * (len(params) + 1), 4.2), sharex=True, sharey=True)
+    real = log.ranges[pose_index, :, 0]
+    name = next(iter(params))
+    scans = {f"log {Path(log.source).name} (repeat 0)": real,
+             **{f"{name} (sampled)": model.sample_from_params({k: v[pose_index] for k, v in params[name].items()},
+                                                                rng)},
+             **{f"{k} (sampled)": _sample({kk: v[pose_index] for kk, v in p.items()}, rng)
+                for k, p in params.items() if k != name}}
+    walls = to_frame(log.require_map(), log.poses[pose_index])  # (M, 2, 2) in the sensor frame
+    for ax, (title, x) in zip(axes, scans.items(), strict=False):
+        for seg in walls:
+            ax.plot(seg[:, 0], seg[:, 1], c="0.8", lw=1, zorder=0)
+        ok = (x > 0) & (x <= model.spur_above) & np.isfinite(x)
+        ax.scatter(x[ok] * np.cos(b[ok]), x[ok] * np.sin(b[ok]), s=3)
+        nul = (x == 0) | ~np.isfinite(x)
+        ax.scatter(0.2 * np.cos(b[nul]), 0.2 * np.sin(b[nul]), s=2, c="r", label="null")
+        sp = np.isfinite(x) & (x > model.spur_above)
+        ax.scatter(0.3 * np.cos(b[sp]), 0.3 * np.sin(b[sp]), s=4, c="m", marker="x", label="spurious (far)")
+        ax.set_title(title, fontsize=9)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m] (sensor frame, forward)")
+    axes[0].set_ylabel("y [m] (left)")
+    axes[0].legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_per_bearing(log: LidarLog, params: dict[str, Params], path: Path, spur_above: float) -> None:
+    """Per-bearing MAE of ``mu``, ``sigma`` and ``p_null`` over the log's poses, per model."""
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    st = cell_statistics(log, spur_above, split_spurious=True)
+    deg = np.rad2deg(log.bearings)
+    fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+    for name, p in params.items():
+        for ax, key, emp in zip(axes, ("mu", "sigma", "p_null"), ("mean", "std", "p_null"), strict=True):
+            with warnings.catch_warnings():  # bearings without any usable cell (blocked) stay NaN
+                warnings.simplefilter("ignore", RuntimeWarning)
+                e = np.nanmean(np.abs(p[key] - st[emp]), axis=0)
+            ax.plot(deg, e, lw=0.8, label=name)
+    for ax, lab in zip(axes, ("MAE mu [m]", "MAE sigma [m]", "MAE p_null"), strict=True):
+        ax.set_ylabel(lab)
+        ax.set_yscale("log")
+    axes[-1].set_xlabel("bearing [deg]")
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------- cross-validated table
+def cross_validate_log(log: LidarLog, n_folds: int = 10, inner_folds: int = 10, random_state: int = 0,
+                       model_kwargs: dict[str, Any] | None = None, progress: bool = True) -> dict[str, Any]:
+    """Leave-poses-out cross-validated Table I of the seed and extended models and both baselines.
+
+    ``seed_without_spurious`` is the seed model fitted with the spurious far returns removed from the
+    training readings (they are kept in the held-out readings).
+
+    Each outer fold fits the models (with their own inner CV of kernel widths) and the Gaussian
+    baseline on the other poses, and predicts the held-out poses; metrics pool all held-out cells.
+    """
+    fold = np.random.default_rng(random_state).permutation(np.arange(log.n_poses) % n_folds)
+    r, a = lidar_features(log.poses, log.bearings, log.require_map(), 5.0)
+    names = ("seed", "seed_without_spurious", "extended", "ideal", "gaussian")
+    pred: dict[str, Params] = {n: {} for n in names}
+    spur = {n: (np.zeros(log.n_poses), np.ones(log.n_poses)) for n in names}
+    for f in tqdm(range(n_folds), desc="outer CV folds", disable=not progress):
+        tr, te = fold != f, fold == f
+        train = log.subset(tr)
+        for name, v, data in (("seed", "seed", train), ("seed_without_spurious", "seed", _drop_spurious(train)),
+                              ("extended", "extended", train)):
+            m = LidarLWLR(variant=v, n_folds=min(inner_folds, int(tr.sum())), progress=False,
+                          random_state=random_state, **(model_kwargs or {})).fit(data)
+            _put(pred[name], te, m.params_from_features(r[te], a[te]))
+            spur[name][0][te], spur[name][1][te] = m.spur_mu_, m.spur_sigma_
+        _put(pred["ideal"], te, baseline_params("ideal", r[te], a[te]))
+        _put(pred["gaussian"], te, baseline_params("gaussian", r[te], a[te], fit_gaussian_lidar(train)))
+    return {n: table_one(log, pred[n], spur[n]) for n in names}
+
+
+def _drop_spurious(log: LidarLog, spur_above: float = 6.0) -> LidarLog:
+    """The log with its spurious far returns marked missing (the seed model fitted on cleaned data)."""
+    return dataclasses.replace(log, ranges=np.where(log.ranges > spur_above, np.nan, log.ranges))
+
+
+def _put(dst: Params, idx: NDArray[np.bool_], src: Params) -> None:
+    for k, v in src.items():
+        dst.setdefault(k, np.zeros(idx.shape + v.shape[1:]))[idx] = v
+
+
+# ------------------------------------------------------------------------------------- statistics, card
+def log_statistics(log: LidarLog, max_range: float = 5.0, spur_above: float = 6.0) -> dict[str, Any]:
+    """Summary statistics of a static-pose log (for calibrating the rig against real data)."""
+    r, _ = lidar_features(log.poses, log.bearings, log.require_map(), max_range)
+    st = cell_statistics(log, spur_above, split_spurious=True)
+    valid = ~np.isnan(log.ranges)
+    blocked = np.nanmean(st["p_null"], axis=0) > 0.99
+    ok = (st["n_ok"] >= 2) & ~blocked[None]
+    bins = np.arange(0.0, 4.01, 0.5)
+    by_r = []
+    for lo, hi in zip(bins[:-1], bins[1:], strict=True):
+        s = (r >= lo) & (r < hi) & ~blocked[None]
+        so = s & ok & (st["p_spur"] == 0)
+        by_r.append({"r": f"{lo:.1f}-{hi:.1f}", "cells": int(s.sum()),
+                     "p_null": float(st["p_null"][s].mean()) if s.any() else None,
+                     "median_std": float(np.median(st["std"][so])) if so.any() else None})
+    return {"null_fraction": float((log.ranges[valid] == 0).mean()),
+            "spurious_fraction": float((log.ranges[valid] > spur_above).mean()),
+            "cells_with_spurious": float((st["p_spur"] > 0).mean()),
+            "blocked_bearings": int(blocked.sum()),
+            "mae_mean_minus_nominal": float(np.abs(st["mean"] - r)[ok].mean()),
+            "median_cell_std": float(np.median(st["std"][ok])), "by_range": by_r}
+
+
+def model_card_markdown(model: LidarLWLR, commands: list[str], validation: dict[str, Any] | None = None) -> str:
+    """The model card (Markdown): data used, hyperparameters, CV scores, validation metrics, commands."""
+    t = model.training_
+    lines = [f"# Learned Neato lidar model ({model.variant} variant)", "",
+             "Per-bearing LWLR model of `sensor_envs.lidar_lwlr` (seed: Tallavajhula & Kelly), stored as "
+             "per-bearing (range, incidence) parameter tables; no training readings are stored.", "",
+             "## Data", "", f"- source: `{t.get('source')}`; {t.get('n_poses')} poses x {t.get('n_bearings')} "
+             f"bearings, {t.get('n_readings')} readings, null fraction {t.get('null_fraction', float('nan')):.3f}",
+             f"- sha256 of the ranges array: `{t.get('sha256_of_ranges')}`", "", "## Hyperparameters (by CV)", "",
+             "| parameter | h_range [m] | h_alpha [rad] | h_bearing [steps] | degree | CV MAE (best) | "
+             "CV MAE (worst) |",
+             "|---|---|---|---|---|---|---|"]
+    for n, h in model.h_.items():
+        s = model.cv_scores_.get(n, {})
+        lines.append(f"| {n} | {h[0]} | {h[1]} | {h[2]} | {int(h[3])} | {s.get('cv_mae_best', float('nan')):.5f} | "
+                     f"{s.get('cv_mae_worst', float('nan')):.5f} |")
+    lines += ["", "CV MAE of `log_sigma` is in metres of sigma; of `bias` in metres of mu; `tau2` (spread of cell "
+              "means at an approximate pose) reuses the widths of `bias` and is not cross-validated.", ""]
+    if validation is not None:
+        lines += ["## Validation", "", f"On `{validation.get('log')}` ({validation.get('n_poses')} poses):", "",
+                  metrics_markdown(validation["metrics"])]
+    lines += ["## Reproduce", ""] + [f"    {c}" for c in commands] + [""]
+    return "\n".join(lines)

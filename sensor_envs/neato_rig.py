@@ -1,0 +1,186 @@
+"""A reference Neato lidar "rig": a simulated sensor richer than the learned model.
+
+It stands in for recorded scans when no real data is at hand, and is the ground truth of the
+recovery tests (its per-bearing bias and blocked bearings are known). Its effects and their
+figures were calibrated on the real log ``neato_mar27_train.npz`` (29 static poses x 200 repeats;
+reproduce with ``python benchmarks/real_neato_report.py --data ../shared/data/real``, which prints
+the real and rig statistics side by side):
+
+* per-bearing bias ``b_k ~ Normal(3.8 mm, 7.6 mm)`` (the real per-bearing median of mean - nominal);
+* 26 bearings blocked by the casing's posts (the real never-returning bearings);
+* noise standard deviation growing with range: interpolated from the real cells' median standard
+  deviation per 0.5 m range bin, plus ``k_far * (r - 4)^2`` past 4 m;
+* dropout ``p_null = logistic(-4.03 + 1.38 r + 1.36 alpha)`` (logistic fit to the real cells);
+* spurious far returns near the post bearings: 9 % of the cells within 15 bearings of a post are
+  prone, and read ``Normal(16.9 m, 0.1 m)`` in a fraction ``Uniform(0.4, 1)`` of their readings;
+* 1 mm range quantisation;
+* pose error: ``Normal(0, 1.77 cm)`` per axis (2.5 cm rms) and ``Normal(0, 2 deg)`` in heading,
+  fixed per pose; map error: segment end points moved by ``Normal(0, 1 cm)``.
+
+Frames and units: metres and radians; bearings counter-clockwise from the sensor's x axis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from sensor_envs.geometry import as_segments, point_segment_distance, raycast_pose
+from sensor_envs.lidar_log import LidarLog, log_from_arrays
+
+__all__ = ["NeatoRig", "POST_BEARINGS", "BLOCKED_BEARINGS", "sample_free_poses"]
+
+BLOCKED_BEARINGS = tuple(list(range(30, 33)) + list(range(81, 86)) + list(range(165, 171))
+                         + list(range(250, 257)) + list(range(326, 331)))
+"""Bearing indices (degrees) that never return in the real data (the casing's posts)."""
+POST_BEARINGS = (31.0, 83.0, 167.5, 253.0, 328.0)
+"""Centres of the blocked bearing groups [deg]."""
+_SIGMA_KNOTS_R = (0.0, 0.25, 0.75, 1.25, 1.75, 2.25, 2.75, 3.25, 4.0)
+_SIGMA_KNOTS = (0.0002, 0.0002, 0.0007, 0.0034, 0.0095, 0.0293, 0.0379, 0.0488, 0.06)
+
+
+def _logistic(z: NDArray[np.float64]) -> NDArray[np.float64]:
+    return 1.0 / (1.0 + np.exp(-z))
+
+
+@dataclass(frozen=True)
+class NeatoRig:
+    """Reference Neato lidar: 360 bearings, effects calibrated on real data (see the module docstring).
+
+    The unit's own properties (per-bearing bias, spurious-prone cells) come from ``unit_seed``;
+    the noise of each recording from the generator passed to :meth:`record` / :meth:`measure`.
+    """
+
+    unit_seed: int = 0
+    n_bearings: int = 360
+    max_range: float = 5.0
+    bias_mean: float = 0.0038
+    bias_sd: float = 0.0076
+    blocked: tuple[int, ...] = BLOCKED_BEARINGS
+    null_logit: tuple[float, float, float] = (-4.03, 1.38, 1.36)
+    k_far: float = 0.05
+    spur_window: float = 15.0
+    spur_prone: float = 0.09
+    spur_frac: tuple[float, float] = (0.4, 1.0)
+    spur_value: tuple[float, float] = (16.9, 0.1)
+    quantum: float = 0.001
+    pose_sd: tuple[float, float] = (0.0177, float(np.deg2rad(2.0)))
+    map_sd: float = 0.01
+    bearings: NDArray[np.float64] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "bearings", np.deg2rad(np.arange(self.n_bearings) * 360.0 / self.n_bearings))
+
+    # ------------------------------------------------------------------------------ unit properties
+    def bias(self) -> NDArray[np.float64]:
+        """Per-bearing range bias ``(K,)`` [m] of this unit."""
+        return np.random.default_rng([self.unit_seed, 1]).normal(self.bias_mean, self.bias_sd, self.n_bearings)
+
+    def blocked_mask(self) -> NDArray[np.bool_]:
+        """``(K,)`` True at bearings blocked by the casing's posts."""
+        m = np.zeros(self.n_bearings, dtype=bool)
+        m[np.asarray(self.blocked, dtype=int) % self.n_bearings] = True
+        return m
+
+    def near_posts(self) -> NDArray[np.bool_]:
+        """``(K,)`` True at unblocked bearings within ``spur_window`` degrees of a post."""
+        deg = np.rad2deg(self.bearings)
+        d = np.abs((deg[:, None] - np.asarray(POST_BEARINGS)[None] + 180.0) % 360.0 - 180.0).min(axis=1)
+        return (d <= self.spur_window) & ~self.blocked_mask()
+
+    def sigma(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Noise standard deviation [m] at true range ``r`` [m]."""
+        return np.interp(r, _SIGMA_KNOTS_R, _SIGMA_KNOTS) + self.k_far * np.maximum(r - 4.0, 0.0) ** 2
+
+    def p_null(self, r: NDArray[np.float64], alpha: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Dropout probability at true range ``r`` [m] and incidence ``alpha`` [rad] (1 if no hit/blocked)."""
+        c0, c1, c2 = self.null_logit
+        hit = np.isfinite(r)
+        p = _logistic(c0 + c1 * np.where(hit, r, 0.0) + c2 * np.nan_to_num(alpha))
+        return np.where(hit & ~self.blocked_mask(), p, 1.0)
+
+    # ------------------------------------------------------------------------------------ readings
+    def _readings(self, r: NDArray[np.float64], alpha: NDArray[np.float64], p_spur: NDArray[np.float64],
+                  rng: np.random.Generator) -> NDArray[np.float64]:
+        """Readings ``(..., K, R)`` [m], 0 = null, from true features ``(..., K, 1)`` and spurious rates."""
+        shape = np.broadcast_shapes(r.shape, p_spur.shape)
+        u = rng.random(shape)
+        rr = np.where(np.isfinite(r), r, 0.0)
+        x = rr + self.bias()[:, None] + self.sigma(rr) * rng.standard_normal(shape)
+        spur = rng.normal(*self.spur_value, size=shape)
+        pn = self.p_null(r[..., 0], alpha[..., 0])[..., None]
+        x = np.where(u < pn, 0.0, np.where(u < pn + (1 - pn) * p_spur, spur, x))
+        x = np.where(x > 0, np.maximum(np.round(x / self.quantum) * self.quantum, self.quantum), 0.0)
+        return np.where((x > self.max_range) & (x < self.spur_value[0] - 1.0), 0.0, x)
+
+    def measure(self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64],
+                rng: np.random.Generator) -> NDArray[np.float64]:
+        """One scan ``(K,)`` [m], NaN = null, from true features (a :class:`~sensor_envs.lidars.LidarSensor`).
+
+        A scan has no pose identity, so each near-post bearing is spurious with the average rate.
+        """
+        p_spur = self.near_posts() * self.spur_prone * float(np.mean(self.spur_frac))
+        x = self._readings(np.asarray(nominal_range, float)[:, None], np.asarray(incidence, float)[:, None],
+                           p_spur[:, None], rng)[:, 0]
+        return np.where(x == 0, np.nan, x)
+
+    def record(self, map_segments: ArrayLike, rng: np.random.Generator, *, n_poses: int = 30, repeats: int = 200,
+               poses: ArrayLike | None = None) -> tuple[LidarLog, dict[str, NDArray[np.float64]]]:
+        """Record a static-pose log, as the real data set was made.
+
+        Args:
+            map_segments: ``(M, 2, 2)`` nominal map [m] (the world is this map moved by ``map_sd``).
+            rng: generator of poses, map error and noise.
+            n_poses: number of poses drawn in free space (ignored when ``poses`` is given).
+            repeats: readings per pose and bearing.
+            poses: optional ``(P, 3)`` TRUE poses.
+
+        Returns:
+            The log (approximate poses, nominal map; ``ranges (P, K, repeats)``) and the truth:
+            ``true_poses (P, 3)``, ``true_map (M, 2, 2)``, ``bias (K,)``, ``blocked (K,)``, ``p_spur (P, K)``.
+        """
+        nominal = as_segments(map_segments, name="map_segments")
+        true_map = nominal + rng.normal(0.0, self.map_sd, nominal.shape)
+        true_poses = (sample_free_poses(nominal, n_poses, rng) if poses is None
+                      else np.atleast_2d(np.asarray(poses, dtype=np.float64)))
+        r, a, _ = raycast_pose(true_poses, self.bearings, true_map, self.max_range)
+        unit = np.random.default_rng([self.unit_seed, 2])  # prone cells belong to the unit and the place
+        prone = (rng.random(r.shape) < self.spur_prone) & self.near_posts()[None]
+        p_spur = np.where(prone, unit.uniform(*self.spur_frac, r.shape), 0.0)
+        x = self._readings(r[..., None], a[..., None], p_spur[..., None],
+                           rng) if repeats == 1 else self._readings(r[..., None], a[..., None],
+                                                                    np.broadcast_to(p_spur[..., None],
+                                                                                    r.shape + (repeats,)), rng)
+        err = np.column_stack([rng.normal(0, self.pose_sd[0], (len(true_poses), 2)),
+                               rng.normal(0, self.pose_sd[1], len(true_poses))])
+        approx = true_poses + err
+        approx[:, 2] = (approx[:, 2] + np.pi) % (2 * np.pi) - np.pi
+        log = log_from_arrays(x, self.bearings, approx, nominal, source=f"NeatoRig(unit_seed={self.unit_seed})")
+        truth = {"true_poses": true_poses, "true_map": true_map, "bias": self.bias(), "blocked": self.blocked_mask(),
+                 "p_spur": p_spur}
+        return log, truth
+
+
+def sample_free_poses(segments: NDArray[np.float64], n: int, rng: np.random.Generator, clearance: float = 0.2,
+                      max_tries: int = 100) -> NDArray[np.float64]:
+    """``(n, 3)`` poses uniformly in the map's bounds, ``clearance`` [m] from walls and enclosed.
+
+    A position is enclosed when rays in four directions all hit a wall. Headings are uniform.
+
+    Raises:
+        ValueError: when fewer than ``n`` free positions are found.
+    """
+    lo, hi = segments.reshape(-1, 2).min(0), segments.reshape(-1, 2).max(0)
+    out: list[NDArray[np.float64]] = []
+    for _ in range(max_tries):
+        xy = rng.uniform(lo, hi, (4 * n, 2))
+        ok = point_segment_distance(xy, segments).min(axis=1) >= clearance
+        r, _, _ = raycast_pose(np.column_stack([xy, np.zeros(len(xy))]), np.arange(4) * np.pi / 2, segments)
+        ok &= np.isfinite(r).all(axis=1)
+        out.extend(xy[ok])
+        if len(out) >= n:
+            xy = np.asarray(out[:n])
+            return np.column_stack([xy, rng.uniform(-np.pi, np.pi, n)])
+    raise ValueError(f"map: found only {len(out)} of {n} free poses (clearance {clearance} m)")

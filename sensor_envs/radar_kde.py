@@ -1,0 +1,583 @@
+"""The KDE radar model of Hirsenkorn et al. (2016): two-stage sampling from recorded tuples.
+
+Tuples (from :func:`sensor_envs.radar_log.target_tuples`): state ``x = (c_x, c_y, z_{t-1,x}, z_{t-1,y})``
+(closest corner of the target and its previous output, sensor frame, metres) and output
+``z = measured position - closest corner`` [m], or a miss (object loss).
+
+Density (the seed's Eq. 10), with a relevance kernel ``K_rel`` on the state and a contribution
+kernel ``K_con`` on the output::
+
+    p(z | x, detected) = sum_{i detected} w_i(x) N(z; z_i, diag(h(x)^2)) / sum_{i detected} w_i(x)
+    P(miss | x) = (sum_{i missed} w_i(x) + a * m) / (sum_i w_i(x) + a)
+    w_i(x) = exp(-|S^-1 (x - x_i)|^2 / 2)  if |S^-1 (x - x_i)| <= radius, else 0
+
+with ``m`` the log's overall miss rate and ``a = miss_prior`` (``a = 0`` is exactly the seed's
+estimate; the default ``a = 1``, one kernel-peak weight, keeps both outcomes possible everywhere so
+held-out likelihoods stay finite).
+
+**Reading of "covariance diag(3, 3, 0.03, 0.03) in metres":** the numbers are variances [m^2] of
+the Gaussian relevance kernel, so ``S = diag(sqrt 3, sqrt 3, sqrt 0.03, sqrt 0.03)`` =
+``(1.73, 1.73, 0.17, 0.17)`` m standard deviations (``rel_variance``). States are scaled by ``S^-1``
+and a Euclidean ball of ``radius`` (default 3, i.e. 3 sigma) is the fixed-radius neighbour search
+(scipy ``cKDTree``); the kernel is truncated there, and sampling and ``log_prob`` use the same
+truncated weights, so they agree exactly.
+
+**Contribution bandwidths** ``h(x) = (h_x, h_y)`` come from leave-one-group-out (default: one
+track) cross-validation of the conditional density on a regular grid of corner positions, and are
+bilinearly interpolated (in log) at run time; see :func:`cv_bandwidth_table`.
+
+**Missing previous output** (new target, or missed last cycle): the "start" model - a separate tree
+over the 2-D corner state of the tuples whose own previous output is missing, with the corner part
+of ``K_rel``. Without ``z_{t-1}`` (``use_prev=False``, e.g. Astyx, which is no time series) every
+query uses a 2-D tree over all tuples.
+
+**Two-stage sampling**: ball query, pick one neighbour with probability ``w_i / sum w``, a missed
+tuple yields a miss (implemented as: draw the outcome with ``P(miss | x)``, then pick a tuple of
+that outcome with probability proportional to ``w_i``, which is the same for ``a = 0``), else draw
+``z ~ N(z_i, diag(h(x)^2))``. The index of the picked tuple is returned (traceability). A query
+whose ball is empty uses the ``fallback_k`` nearest tuples of the same tree (keeping the memory of
+``z_{t-1}`` in sparse regions). With ``k_max`` set, the search keeps only the ``k_max`` nearest
+tuples in the ball (constant cost in the number of tuples, but it truncates kernel mass: see the
+benchmark).
+
+**Clutter**: the number of clutter detections per cycle is resampled from the log's per-cycle
+counts; positions are clutter rows of the log plus Gaussian jitter ``clutter_jitter`` [m].
+"""
+
+from __future__ import annotations
+
+import os
+from itertools import chain
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+from scipy.special import ndtr
+
+from sensor_envs.modelio import load_model_file, save_model_file
+from sensor_envs.radar_log import RadarLog, TargetTuples, clutter_counts, target_tuples
+
+__all__ = ["KDERadarModel", "NotFittedError", "cv_bandwidth_table"]
+
+KIND = "radar_kde"
+FORMAT_VERSION = 1
+_LOG_2PI = np.log(2.0 * np.pi)
+
+
+class NotFittedError(RuntimeError):
+    """The model is used before ``fit`` or ``load``."""
+
+
+def _neighbour_lists(tree: cKDTree, q: NDArray, radius: float, k_max: int | None) -> tuple[
+    NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]
+]:
+    """Neighbours of every query within ``radius`` (all, or the ``k_max`` nearest).
+
+    Returns flat ``(index, squared distance, query id)`` arrays, sorted by query id.
+    """
+    if k_max is not None:
+        k = min(k_max, tree.n)
+        d, i = tree.query(q, k=k, distance_upper_bound=radius)
+        d, i = d.reshape(len(q), k), i.reshape(len(q), k)
+        ok = np.isfinite(d)
+        qid = np.broadcast_to(np.arange(len(q))[:, None], ok.shape)[ok]
+        return i[ok].astype(np.int64), d[ok] ** 2, qid.astype(np.int64)
+    lists = tree.query_ball_point(q, radius, return_sorted=False)
+    lengths = np.fromiter(map(len, lists), dtype=np.int64, count=len(lists))
+    idx = np.fromiter(chain.from_iterable(lists), dtype=np.int64, count=int(lengths.sum()))
+    qid = np.repeat(np.arange(len(q)), lengths)
+    d2 = np.sum((tree.data[idx] - q[qid]) ** 2, axis=1)
+    return idx, d2, qid
+
+
+def _interp_log_h(gx: NDArray, gy: NDArray, table: NDArray, pts: NDArray) -> NDArray[np.float64]:
+    """Bilinear interpolation of ``table (nx, ny, 2)`` (log bandwidths) at ``pts (n, 2)``, clamped.
+
+    ``gx``/``gy`` are the regular grid axes [m].
+    """
+    nx, ny = gx.size, gy.size
+    fx = np.clip((pts[:, 0] - gx[0]) / (gx[-1] - gx[0] if nx > 1 else 1.0) * (nx - 1), 0, nx - 1)
+    fy = np.clip((pts[:, 1] - gy[0]) / (gy[-1] - gy[0] if ny > 1 else 1.0) * (ny - 1), 0, ny - 1)
+    ix, iy = np.minimum(fx.astype(np.int64), max(nx - 2, 0)), np.minimum(fy.astype(np.int64), max(ny - 2, 0))
+    ax, ay = (fx - ix)[:, None], (fy - iy)[:, None]
+    jx, jy = np.minimum(ix + 1, nx - 1), np.minimum(iy + 1, ny - 1)
+    return ((1 - ax) * (1 - ay) * table[ix, iy] + ax * (1 - ay) * table[jx, iy]
+            + (1 - ax) * ay * table[ix, jy] + ax * ay * table[jx, jy])
+
+
+def _loo_score(xs: NDArray, zs: NDArray, v: NDArray, groups: NDArray, cand: NDArray) -> NDArray[np.float64]:
+    """Weighted leave-one-group-out log-likelihood ``(C, C)`` for bandwidth candidates ``(h_x, h_y)``.
+
+    ``xs (M, d)`` scaled states, ``zs (M, 2)`` outputs, ``v (M,)`` weights of each held-out tuple,
+    ``groups (M,)`` CV group ids: a held-out tuple is scored without every tuple of its group.
+    """
+    w = np.exp(-0.5 * np.sum((xs[:, None] - xs[None]) ** 2, axis=-1))  # w[i, j]: tuple i for query j
+    w[groups[:, None] == groups[None, :]] = 0.0
+    wsum = w.sum(axis=0)
+    dz = zs[:, None] - zs[None]
+    kx = np.exp(-0.5 * (dz[None, ..., 0] / cand[:, None, None]) ** 2) / cand[:, None, None]  # (C, M, M)
+    ky = np.exp(-0.5 * (dz[None, ..., 1] / cand[:, None, None]) ** 2) / cand[:, None, None]
+    dens = np.einsum("ij,aij,bij->abj", w, kx, ky, optimize=True) / (2 * np.pi * np.maximum(wsum, 1e-300))
+    ok = wsum > 1e-12
+    return np.sum(v[ok] * np.log(np.maximum(dens[..., ok], 1e-300)), axis=-1)
+
+
+def cv_bandwidth_table(xs: NDArray, zs: NDArray, groups: NDArray, grid_x: NDArray, grid_y: NDArray, scale: NDArray,
+                       radius: float, cand: NDArray, min_tuples: int, max_tuples: int,
+                       rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Leave-one-out CV of the output bandwidths on a grid of corner positions.
+
+    For each grid node ``g``, the detected tuples whose corner lies within ``radius`` relevance
+    sigmas of ``g`` (at most ``max_tuples``, subsampled) are held out one at a time; each is scored
+    by the conditional density of the tuples of OTHER groups (leave-one-group-out: consecutive
+    cycles of one track are near-duplicates, and plain leave-one-out then picks far too small
+    bandwidths), weighted by ``K_rel`` between full states; the held-out scores are weighted by
+    ``K_rel(corner - g)``. The pair ``(h_x, h_y)`` of ``cand`` with the best score is kept. Nodes
+    with fewer than ``min_tuples`` tuples take the value of the nearest node that has enough.
+
+    Args:
+        xs: ``(n, d)`` unscaled states of the detected tuples (corner first) [m].
+        zs: ``(n, 2)`` outputs [m].
+        groups: ``(n,)`` CV group id of each tuple (e.g. its track).
+        grid_x: grid axis [m] of corner x.
+        grid_y: grid axis [m] of corner y.
+        scale: ``(d,)`` relevance standard deviations [m].
+        radius: neighbourhood radius in relevance sigmas.
+        cand: ``(C,)`` candidate bandwidths [m] for each output dimension.
+        min_tuples: nodes with fewer tuples in reach take the median bandwidth of the others.
+        max_tuples: larger neighbourhoods are subsampled to this size.
+        rng: generator for subsampling.
+
+    Returns:
+        ``log_h (nx, ny, 2)`` log bandwidths [log m] and ``counts (nx, ny)`` tuples used per node.
+    """
+    s = xs / scale
+    tree = cKDTree(s[:, :2])
+    gx, gy = np.meshgrid(grid_x, grid_y, indexing="ij")
+    nodes = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    lists = tree.query_ball_point(nodes / scale[:2], radius)
+    log_h = np.full((nodes.shape[0], 2), np.nan)
+    counts = np.zeros(nodes.shape[0], dtype=np.int64)
+    for n, idx in enumerate(lists):  # one iteration per grid node (tens), not per tuple
+        idx = np.asarray(idx, dtype=np.int64)
+        if idx.size > max_tuples:
+            idx = rng.choice(idx, max_tuples, replace=False)
+        counts[n] = idx.size
+        if idx.size < min_tuples:
+            continue
+        v = np.exp(-0.5 * np.sum((s[idx, :2] - nodes[n] / scale[:2]) ** 2, axis=1))
+        score = _loo_score(s[idx], zs[idx], v, groups[idx], cand)
+        a, b = np.unravel_index(np.argmax(score), score.shape)
+        log_h[n] = np.log([cand[a], cand[b]])
+    good = ~np.isnan(log_h[:, 0])
+    if not good.any():
+        raise ValueError(f"no grid node has {min_tuples} tuples within reach; lower cv_min_tuples")
+    _, near = cKDTree(nodes[good]).query(nodes[~good], k=1)
+    log_h[~good] = log_h[good][near]
+    return log_h.reshape(grid_x.size, grid_y.size, 2), counts.reshape(grid_x.size, grid_y.size)
+
+
+class KDERadarModel:
+    """Joint-KDE radar model with two-stage sampling (implements ``RadarSensor``).
+
+    Args:
+        rel_variance: variances [m^2] of the relevance kernel on ``(c_x, c_y, z_{t-1,x}, z_{t-1,y})``.
+        use_prev: condition on the previous output ``z_{t-1}``.
+        radius: fixed search radius in relevance sigmas.
+        k_max: keep only the ``k_max`` nearest tuples in the ball (``None`` = exact).
+        cv_grid_step: spacing [m] of the LOO-CV bandwidth grid over corner positions.
+        cv_candidates: candidate output bandwidths [m] tried by the CV (per output dimension).
+        cv_min_tuples: grid nodes with fewer tuples in reach take the median bandwidth.
+        cv_max_tuples: larger CV neighbourhoods are subsampled to this size.
+        cv_group: CV hold-out unit: ``"track"`` (same sequence and target), ``"sequence"`` or ``"row"``
+            (plain leave-one-out).
+        fallback_k: a query with no tuple inside the ball uses its ``fallback_k`` nearest tuples of the
+            same tree, weighted ``exp(-(d^2 - d_min^2) / 2)`` (scaled distances ``d``).
+        miss_prior: pseudo-weight of the log's overall miss rate in ``P(miss | x)``
+            (``(w_miss + a * rate) / (w_sum + a)``); keeps both outcomes possible everywhere so that
+            held-out likelihoods are finite. ``0`` gives the seed's estimate.
+        clutter_jitter: std [m] of the Gaussian jitter added to resampled clutter positions.
+        random_state: seed or generator for the CV subsampling.
+    """
+
+    def __init__(self, *, rel_variance: tuple[float, float, float, float] = (3.0, 3.0, 0.03, 0.03),
+                 use_prev: bool = True, radius: float = 3.0, k_max: int | None = None,
+                 cv_grid_step: float = 4.0, cv_candidates: tuple[float, ...] | None = None,
+                 cv_min_tuples: int = 30, cv_max_tuples: int = 300, cv_group: str = "track", fallback_k: int = 8,
+                 miss_prior: float = 1.0,
+                 clutter_jitter: float = 0.5,
+                 random_state: int | np.random.Generator | None = None) -> None:
+        self.rel_variance = rel_variance
+        self.use_prev = use_prev
+        self.radius = radius
+        self.k_max = k_max
+        self.cv_grid_step = cv_grid_step
+        self.cv_candidates = cv_candidates
+        self.cv_min_tuples = cv_min_tuples
+        self.cv_max_tuples = cv_max_tuples
+        self.cv_group = cv_group
+        self.fallback_k = fallback_k
+        self.miss_prior = miss_prior
+        self.clutter_jitter = clutter_jitter
+        self.random_state = random_state
+
+    # ------------------------------------------------------------------ fit
+    def _check_params(self) -> None:
+        rv = np.asarray(self.rel_variance, dtype=np.float64)
+        if rv.shape != (4,) or not (np.isfinite(rv).all() and (rv > 0).all()):
+            raise ValueError(f"rel_variance must be 4 positive variances [m^2], got {self.rel_variance!r}")
+        if not self.radius > 0:
+            raise ValueError(f"radius must be > 0, got {self.radius!r}")
+        if not self.miss_prior >= 0:
+            raise ValueError(f"miss_prior must be >= 0, got {self.miss_prior!r}")
+        if self.cv_group not in ("track", "sequence", "row"):
+            raise ValueError(f"cv_group must be 'track', 'sequence' or 'row', got {self.cv_group!r}")
+        if self.k_max is not None and int(self.k_max) < 1:
+            raise ValueError(f"k_max must be >= 1 or None, got {self.k_max!r}")
+
+    def fit(self, log: RadarLog, cycle_time: float | None = None) -> KDERadarModel:
+        """Fit on a radar log: store the tuples, build the trees, run the LOO-CV bandwidth table.
+
+        Args:
+            log: the radar object log.
+            cycle_time: seconds between consecutive frames of the log (stored in the model card).
+
+        Returns:
+            self.
+        """
+        self._check_params()
+        rng = np.random.default_rng(self.random_state)
+        tt = target_tuples(log)
+        det = ~np.isnan(tt.z[:, 0])
+        if det.sum() < 2:
+            raise ValueError(f"{log.source}: fewer than 2 detected target rows; cannot fit a KDE")
+        self.states_ = np.concatenate([tt.corner, tt.z_prev], axis=1)
+        self.z_ = tt.z
+        self.log_row_ = tt.row
+        self.scale_ = np.sqrt(np.asarray(self.rel_variance, dtype=np.float64))
+        self.cand_ = (np.asarray(self.cv_candidates, dtype=np.float64) if self.cv_candidates is not None
+                      else np.geomspace(0.02, 2.0, 14))
+        dims = 4 if self.use_prev else 2
+        cv_rows = det & (~np.isnan(tt.z_prev[:, 0]) if self.use_prev else True)
+        if cv_rows.sum() < self.cv_min_tuples:
+            cv_rows = det
+            dims = 2
+        lo, hi = tt.corner.min(axis=0), tt.corner.max(axis=0)
+        self.grid_x_ = np.arange(lo[0], hi[0] + self.cv_grid_step, self.cv_grid_step)
+        self.grid_y_ = np.arange(lo[1], hi[1] + self.cv_grid_step, self.cv_grid_step)
+        groups = _cv_groups(tt, self.cv_group)
+        self.log_h_, self.cv_counts_ = cv_bandwidth_table(
+            self.states_[cv_rows, :dims], self.z_[cv_rows], groups[cv_rows], self.grid_x_, self.grid_y_,
+            self.scale_[:dims], self.radius, self.cand_, self.cv_min_tuples, self.cv_max_tuples, rng)
+        counts, xy = clutter_counts(log)
+        self.clutter_counts_, self.clutter_xy_ = counts, xy
+        self.cycle_time_ = float("nan") if cycle_time is None else float(cycle_time)
+        self._build()
+        return self
+
+    def _build(self) -> None:
+        """Build the search trees from the stored tuples (at fit and at load; never per call)."""
+        has_prev = ~np.isnan(self.states_[:, 2])
+        if self.use_prev:
+            self.main_idx_ = np.flatnonzero(has_prev)
+            self.start_idx_ = np.flatnonzero(~has_prev)
+            if self.start_idx_.size == 0:
+                self.start_idx_ = np.arange(self.states_.shape[0])
+        else:
+            self.main_idx_ = np.zeros(0, dtype=np.int64)
+            self.start_idx_ = np.arange(self.states_.shape[0])
+        self._main_tree = (cKDTree(self.states_[self.main_idx_] / self.scale_) if self.main_idx_.size else None)
+        self._start_tree = cKDTree(self.states_[self.start_idx_, :2] / self.scale_[:2])
+        self.miss_ = np.isnan(self.z_[:, 0])
+        self.miss_rate_ = float(self.miss_.mean())
+        self.det_idx_ = np.flatnonzero(~self.miss_)
+        self._det_tree = cKDTree(self.states_[self.det_idx_, :2] / self.scale_[:2])
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state.pop("_main_tree", None)
+        state.pop("_start_tree", None)
+        state.pop("_det_tree", None)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        if hasattr(self, "states_"):
+            self._build()
+
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "states_"):
+            raise NotFittedError("this KDERadarModel is not fitted yet; call fit(log) or KDERadarModel.load(path)")
+
+    # ------------------------------------------------------------------ query
+    def bandwidth(self, corners: NDArray) -> NDArray[np.float64]:
+        """Output bandwidths ``(n, 2)`` [m] interpolated from the CV table at ``corners (n, 2)`` [m]."""
+        self._check_fitted()
+        return np.exp(_interp_log_h(self.grid_x_, self.grid_y_, self.log_h_, np.atleast_2d(corners)))
+
+    def _neighbours(self, corners: NDArray, prev_z: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+        """Relevant tuples of each query: flat ``(global tuple index, weight, query id)``."""
+        corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
+        n = corners.shape[0]
+        prev = np.atleast_2d(np.asarray(prev_z, dtype=np.float64)) if prev_z is not None else np.full((n, 2), np.nan)
+        if prev.shape != (n, 2) or corners.shape != (n, 2):
+            raise ValueError(f"corners and prev_z must both be (n, 2); got {corners.shape} and {prev.shape}")
+        use_main = ~np.isnan(prev[:, 0]) & (self._main_tree is not None)
+        parts = []
+        for mask, tree, idx_map, q in (
+            (use_main, self._main_tree, self.main_idx_, np.concatenate([corners, prev], axis=1)),
+            (~use_main, self._start_tree, self.start_idx_, corners),
+        ):
+            qi = np.flatnonzero(mask)
+            if qi.size == 0:
+                continue
+            qs = q[qi] / self.scale_[: q.shape[1]]
+            j, d2, qid = _neighbour_lists(tree, qs, self.radius, self.k_max)
+            w = np.exp(-0.5 * d2)
+            empty = np.bincount(qid, weights=w, minlength=qi.size) <= 0.0
+            keep = ~empty[qid]
+            parts.append((idx_map[j[keep]], w[keep], qi[qid[keep]]))
+            if empty.any():  # no tuple in the ball: the fallback_k nearest tuples of the same tree
+                parts.append(self._fallback(tree, idx_map, qs[empty], qi[empty]))
+        gi, w, q = (np.concatenate(a) for a in zip(*parts, strict=True))
+        order = np.argsort(q, kind="stable")
+        return gi[order], w[order], q[order]
+
+    def _fallback(self, tree: cKDTree, idx_map: NDArray, qs: NDArray, qi: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+        """The ``fallback_k`` nearest tuples of scaled queries ``qs``, weighted ``exp(-(d^2 - d_min^2) / 2)``."""
+        k = min(self.fallback_k, tree.n)
+        d, j = tree.query(qs, k=k)
+        d, j = d.reshape(len(qs), k), j.reshape(len(qs), k)
+        w = np.exp(-0.5 * (d**2 - d[:, :1] ** 2))
+        return idx_map[j.ravel()], w.ravel(), np.repeat(qi, k)
+
+    def sample(self, state: NDArray, rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Two-stage sample for a batch of states.
+
+        Args:
+            state: ``(n, 2)`` corners or ``(n, 4)`` corners + previous outputs (``NaN`` = missing) [m],
+                sensor frame.
+            rng: generator.
+
+        Returns:
+            ``z (n, 2)`` [m] (``NaN`` rows = missed) and ``source (n,)`` the picked tuple's index.
+        """
+        self._check_fitted()
+        st = np.atleast_2d(np.asarray(state, dtype=np.float64))
+        prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
+        return self.sample_cycle(st[:, :2], prev, rng)
+
+    def _outcome(self, corners: NDArray, prev_z: NDArray | None) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+        """Neighbours ``(gi, w, q)`` and the miss probability ``(n,)`` of each query."""
+        gi, w, q = self._neighbours(corners, prev_z)
+        n = corners.shape[0]
+        wsum = np.bincount(q, weights=w, minlength=n)
+        wmiss = np.bincount(q, weights=w * self.miss_[gi], minlength=n)
+        p_miss = (wmiss + self.miss_prior * self.miss_rate_) / (wsum + self.miss_prior)
+        return gi, w, q, p_miss
+
+    @staticmethod
+    def _pick(gi: NDArray, w: NDArray, q: NDArray, groups: NDArray, rng: np.random.Generator) -> NDArray[np.int64]:
+        """One tuple per query, with probability ``w / sum w`` within the query's neighbour group.
+
+        ``gi, w, q`` are flat neighbour lists sorted by group id ``q``; ``groups (n,)`` is the group of
+        each query. Returns global tuple indices, ``-1`` where the group has zero weight.
+        """
+        n_groups = int(groups.max(initial=-1)) + 1
+        cw = np.cumsum(w)
+        g = np.arange(n_groups)
+        starts, ends = np.searchsorted(q, g, side="left"), np.searchsorted(q, g, side="right")
+        base = np.where(starts > 0, cw[np.maximum(starts - 1, 0)], 0.0)[groups]
+        top = np.where(ends > starts, cw[np.maximum(ends - 1, 0)], 0.0)[groups]
+        u = base + rng.random(groups.size) * (top - base)
+        pick = np.clip(np.searchsorted(cw, u, side="right"), starts[groups], np.maximum(ends[groups] - 1, 0))
+        ok = top > base
+        return np.where(ok, gi[np.minimum(pick, gi.size - 1)] if gi.size else -1, -1).astype(np.int64)
+
+    def _nearest_detected(self, corners: NDArray) -> NDArray[np.int64]:
+        """Global index of the detected tuple with the nearest corner (fallback of empty groups)."""
+        _, j = self._det_tree.query(corners / self.scale_[:2], k=1)
+        return self.det_idx_[j]
+
+    def sample_cycle(self, corners: NDArray, prev_z: NDArray | None, rng: np.random.Generator) -> tuple[
+        NDArray[np.float64], NDArray[np.int64]
+    ]:
+        """``RadarSensor.sample_cycle``: outputs for ``n`` targets of one cycle (see :meth:`sample`).
+
+        Stage 0 draws the outcome (miss with ``P(miss | x)``); stage 1 picks a tuple of that outcome
+        with probability proportional to its relevance weight; stage 2 draws ``z ~ N(z_i, diag(h^2))``.
+        With ``miss_prior = 0`` this is exactly the seed's pick-any-tuple sampler. ``source`` is -1
+        for a miss drawn from the ``miss_prior`` share where no missed tuple is in reach.
+        Identical states in a large batch share one neighbour search.
+        """
+        self._check_fitted()
+        corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
+        n = corners.shape[0]
+        if n == 0:
+            return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
+        prev = (np.full((n, 2), np.nan) if prev_z is None or not self.use_prev
+                else np.atleast_2d(np.asarray(prev_z, dtype=np.float64)))
+        rep, inv = _unique_states(corners, prev)
+        gi, w, q, p_miss = self._outcome(corners[rep], prev[rep])
+        miss = rng.random(n) < p_miss[inv]
+        miss_t = self.miss_[gi]
+        if rep.size == n:  # one group per query: pick among the tuples of the drawn outcome at once
+            src = self._pick(gi, w * (miss_t == miss[rep][q]), q, inv, rng)
+        else:
+            src = np.where(miss, self._pick(gi, w * miss_t, q, inv, rng), self._pick(gi, w * ~miss_t, q, inv, rng))
+        lost = ~miss & (src < 0)
+        if lost.any():
+            src[lost] = self._nearest_detected(corners[lost])
+        h = self.bandwidth(corners)
+        z = np.where(miss[:, None], np.nan, self.z_[np.maximum(src, 0)] + h * rng.standard_normal((n, 2)))
+        return z, src
+
+    def sample_clutter(self, rng: np.random.Generator) -> NDArray[np.float64]:
+        """Clutter of one cycle, ``(m, 2)`` sensor-frame positions [m] (empirical count and positions)."""
+        self._check_fitted()
+        m = int(rng.choice(self.clutter_counts_)) if self.clutter_counts_.size else 0
+        if m == 0 or self.clutter_xy_.shape[0] == 0:
+            return np.zeros((0, 2))
+        xy = self.clutter_xy_[rng.integers(0, self.clutter_xy_.shape[0], m)]
+        return xy + self.clutter_jitter * rng.standard_normal((m, 2))
+
+    def log_prob(self, z: NDArray, state: NDArray) -> NDArray[np.float64]:
+        """Log-probability of outcomes under the truncated-kernel density (the seed's Eq. 10).
+
+        Args:
+            z: ``(n, 2)`` outputs [m]; a ``NaN`` row is a miss and scores ``log P(miss | x)``.
+            state: ``(n, 2)`` or ``(n, 4)`` as in :meth:`sample`.
+
+        Returns:
+            ``(n,)``: ``log(1 - P(miss | x)) + log p(z | x, detected)`` [log 1/m^2] for detections,
+            ``log P(miss | x)`` for misses.
+        """
+        self._check_fitted()
+        st = np.atleast_2d(np.asarray(state, dtype=np.float64))
+        z = np.atleast_2d(np.asarray(z, dtype=np.float64))
+        n = st.shape[0]
+        prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
+        gi, w, q, p_miss = self._outcome(st[:, :2], prev)
+        gi, w, q = self._with_detected_fallback(gi, w, q, st[:, :2])
+        h = self.bandwidth(st[:, :2])
+        det_t = ~self.miss_[gi]
+        r = (z[q] - np.where(det_t[:, None], self.z_[gi], 0.0)) / h[q]
+        logk = -0.5 * np.sum(r**2, axis=1) - _LOG_2PI - np.log(h[q]).sum(axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            logk = np.where(det_t & ~np.isnan(z[q, 0]), logk + np.log(w), -np.inf)
+            log_wdet = np.log(np.bincount(q, weights=w * det_t, minlength=n))
+            dens = _group_logsumexp(logk, q, n) - log_wdet
+            return np.where(np.isnan(z[:, 0]), np.log(p_miss), np.log1p(-p_miss) + dens)
+
+    def _with_detected_fallback(self, gi: NDArray, w: NDArray, q: NDArray, corners: NDArray) -> tuple[
+        NDArray, NDArray, NDArray
+    ]:
+        """Add the nearest detected tuple (weight 1) to queries without a detected neighbour."""
+        n = corners.shape[0]
+        none = np.bincount(q, weights=(~self.miss_[gi]).astype(np.float64), minlength=n) == 0
+        if not none.any():
+            return gi, w, q
+        e = np.flatnonzero(none)
+        gi, w, q = np.concatenate([gi, self._nearest_detected(corners[e])]), np.concatenate([w, np.ones(e.size)]), \
+            np.concatenate([q, e])
+        order = np.argsort(q, kind="stable")
+        return gi[order], w[order], q[order]
+
+    def bin_probabilities(self, state: NDArray, edges_x: NDArray, edges_y: NDArray) -> tuple[
+        NDArray[np.float64], float
+    ]:
+        """Exact probability of each output bin for ONE state (for the chi-square check).
+
+        Args:
+            state: ``(2,)``/``(4,)`` state as in :meth:`sample` [m].
+            edges_x: bin edges [m] of ``z_x``.
+            edges_y: bin edges [m] of ``z_y``.
+
+        Returns:
+            ``(len(edges_x) - 1, len(edges_y) - 1)`` bin probabilities and ``P(miss)``.
+        """
+        self._check_fitted()
+        st = np.atleast_2d(np.asarray(state, dtype=np.float64))[:1]
+        prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
+        gi, w, q, p_miss = self._outcome(st[:, :2], prev)
+        gi, w, _ = self._with_detected_fallback(gi, w, q, st[:, :2])
+        h = self.bandwidth(st[:, :2])[0]
+        det = ~self.miss_[gi]
+        zi, wd = self.z_[gi[det]], w[det] / w[det].sum()
+        px = np.diff(ndtr((np.asarray(edges_x)[None, :] - zi[:, :1]) / h[0]), axis=1)
+        py = np.diff(ndtr((np.asarray(edges_y)[None, :] - zi[:, 1:]) / h[1]), axis=1)
+        return (1.0 - p_miss[0]) * np.einsum("i,ia,ib->ab", wd, px, py), float(p_miss[0])
+
+    # ------------------------------------------------------------------ files
+    def save(self, path: str | os.PathLike[str], card: dict[str, Any] | None = None) -> Path:
+        """Save to a pickle-free ``.npz`` model file (:mod:`sensor_envs.modelio`)."""
+        self._check_fitted()
+        params = {k: getattr(self, k) for k in ("use_prev", "radius", "k_max", "cv_grid_step",
+                                                 "cv_min_tuples", "cv_max_tuples", "cv_group", "fallback_k",
+                                                 "miss_prior", "clutter_jitter")}
+        params["rel_variance"] = [float(v) for v in self.rel_variance]
+        header = {"params": params, "cycle_time": self.cycle_time_, "card": card or {}}
+        arrays = {"states": self.states_, "z": self.z_, "log_row": self.log_row_, "grid_x": self.grid_x_,
+                  "grid_y": self.grid_y_, "log_h": self.log_h_, "cv_counts": self.cv_counts_,
+                  "cv_candidates": self.cand_, "clutter_counts": self.clutter_counts_,
+                  "clutter_xy": self.clutter_xy_}
+        return save_model_file(path, KIND, FORMAT_VERSION, header, arrays)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> KDERadarModel:
+        """Load a model file written by :meth:`save` (no pickle; trees rebuilt here)."""
+        schema = {"states": ("f", 2, False), "z": ("f", 2, False), "log_row": ("iu", 1, True),
+                  "grid_x": ("f", 1, True), "grid_y": ("f", 1, True), "log_h": ("f", 3, True),
+                  "cv_counts": ("iu", 2, True), "cv_candidates": ("f", 1, True),
+                  "clutter_counts": ("iu", 1, True), "clutter_xy": ("f", 2, True)}
+        header, a = load_model_file(path, KIND, (FORMAT_VERSION,), schema)
+        p = dict(header["params"])
+        p["rel_variance"] = tuple(p["rel_variance"])
+        model = cls(**p)
+        model.states_, model.z_, model.log_row_ = a["states"], a["z"], a["log_row"].astype(np.int64)
+        model.grid_x_, model.grid_y_, model.log_h_ = a["grid_x"], a["grid_y"], a["log_h"]
+        model.cv_counts_, model.cand_ = a["cv_counts"].astype(np.int64), a["cv_candidates"]
+        model.cv_candidates = tuple(float(c) for c in model.cand_)
+        model.clutter_counts_, model.clutter_xy_ = a["clutter_counts"].astype(np.int64), a["clutter_xy"]
+        model.scale_ = np.sqrt(np.asarray(model.rel_variance, dtype=np.float64))
+        model.cycle_time_ = float(header.get("cycle_time", float("nan")))
+        model.card_ = header.get("card", {})
+        if model.states_.shape[1] != 4 or model.z_.shape != (model.states_.shape[0], 2):
+            raise ValueError(f"{path}: field 'states'/'z' have inconsistent shapes")
+        model._build()
+        return model
+
+
+def _unique_states(corners: NDArray, prev: NDArray, min_n: int = 64) -> tuple[NDArray, NDArray]:
+    """Representative rows and inverse map of identical query states (only for batches >= ``min_n``)."""
+    n = corners.shape[0]
+    if n < min_n:
+        return np.arange(n), np.arange(n)
+    key = np.nan_to_num(np.concatenate([corners, prev], axis=1), nan=1e300)
+    _, rep, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    return rep, inv.ravel()
+
+
+def _cv_groups(tt: TargetTuples, kind: str) -> NDArray[np.int64]:
+    """CV group id of every tuple: its track, its sequence, or itself."""
+    if kind == "row":
+        return np.arange(tt.z.shape[0])
+    key = np.stack([tt.sequence, tt.target], axis=1) if kind == "track" else tt.sequence[:, None]
+    return np.unique(key, axis=0, return_inverse=True)[1].ravel().astype(np.int64)
+
+
+def _group_logsumexp(values: NDArray, groups: NDArray, n: int) -> NDArray[np.float64]:
+    """``logsumexp`` of ``values`` within each of ``n`` sorted groups (empty/-inf groups give -inf)."""
+    out = np.full(n, -np.inf)
+    if values.size == 0:
+        return out
+    mx = np.full(n, -np.inf)
+    np.maximum.at(mx, groups, values)
+    safe = np.where(np.isfinite(mx), mx, 0.0)
+    s = np.bincount(groups, weights=np.exp(values - safe[groups]), minlength=n)
+    with np.errstate(divide="ignore"):
+        out = np.where(s > 0, np.log(s) + safe, -np.inf)
+    return out
+

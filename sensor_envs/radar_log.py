@@ -1,0 +1,292 @@
+"""The radar object log: a CSV format of the project's own, its reader/writer and derived tuples.
+
+Format (UTF-8 CSV, header line, one row per (radar cycle, target)):
+
+============== ===== =====================================================================
+column         unit  meaning
+============== ===== =====================================================================
+sequence       -     integer id of a recording (a time series, or one Astyx frame block)
+frame          -     integer cycle index inside the sequence (consecutive cycles differ by 1)
+t              s     time stamp of the cycle
+target         -     integer id of the reference target inside the sequence; -1 for clutter
+ref_x, ref_y   m     centre of the reference box, sensor frame (x forward, y left)
+ref_heading    rad   heading of the reference box, counter-clockwise from the sensor x axis
+ref_length     m     box length (along its heading)
+ref_width      m     box width
+meas_x, meas_y m     the radar's reported object position, sensor frame
+============== ===== =====================================================================
+
+* ``meas_x``/``meas_y`` empty: the radar missed the target in this cycle (object loss).
+* all five ``ref_*`` empty: a detection that matches no target (clutter); ``meas`` must then be set.
+* an empty field is the only way to write "missing"; literal ``nan``/``inf`` text in a required
+  column is an error, and so are partly empty ``ref`` or ``meas`` groups.
+* any other column is a numeric covariate (empty = missing) kept for later analysis.
+
+The model tuples of Hirsenkorn et al. (2016) are derived by :func:`target_tuples`: the closest
+corner of each reference box (sensor at the origin), the output ``z = meas - corner`` and the
+previous output ``z_{t-1}`` of the same target (``NaN`` when the previous cycle is absent or missed).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sensor_envs.geometry import closest_corner, rectangle_corners
+
+__all__ = [
+    "REQUIRED_COLUMNS",
+    "REF_COLUMNS",
+    "MEAS_COLUMNS",
+    "RadarLog",
+    "RadarLogError",
+    "read_log",
+    "write_log",
+    "target_tuples",
+    "clutter_counts",
+]
+
+INT_COLUMNS = ("sequence", "frame", "target")
+REF_COLUMNS = ("ref_x", "ref_y", "ref_heading", "ref_length", "ref_width")
+MEAS_COLUMNS = ("meas_x", "meas_y")
+REQUIRED_COLUMNS = ("sequence", "frame", "t", "target", *REF_COLUMNS, *MEAS_COLUMNS)
+
+
+class RadarLogError(ValueError):
+    """A radar log is malformed; the message names the file, the column and the row."""
+
+
+@dataclass
+class RadarLog:
+    """A radar object log held as columns (see the module docstring for the format).
+
+    Attributes:
+        columns: name -> ``(n,)`` array; ``sequence``, ``frame``, ``target`` are int64, all others
+            float64 with ``NaN`` for empty fields.
+        source: where the log came from (file name or a description), used in error messages.
+    """
+
+    columns: dict[str, NDArray] = field(default_factory=dict)
+    source: str = "<memory>"
+
+    def __post_init__(self) -> None:
+        """Validate the columns (raises :class:`RadarLogError`)."""
+        self.columns = _validate(self.columns, self.source)
+
+    def __len__(self) -> int:
+        return int(self.columns["sequence"].shape[0])
+
+    def __getitem__(self, name: str) -> NDArray:
+        return self.columns[name]
+
+    @property
+    def covariates(self) -> list[str]:
+        """Names of the extra numeric columns."""
+        return [c for c in self.columns if c not in REQUIRED_COLUMNS]
+
+    @property
+    def is_clutter(self) -> NDArray[np.bool_]:
+        """``(n,)`` rows that are detections matching no target."""
+        return np.isnan(self.columns["ref_x"])
+
+    @property
+    def is_miss(self) -> NDArray[np.bool_]:
+        """``(n,)`` target rows the radar missed."""
+        return np.isnan(self.columns["meas_x"])
+
+    def select(self, mask: NDArray[np.bool_]) -> RadarLog:
+        """A new log with the rows where ``mask`` is true (raises if none are left)."""
+        return RadarLog({k: v[mask] for k, v in self.columns.items()}, source=f"{self.source}[subset]")
+
+
+def _as_column(name: str, values: NDArray, source: str) -> NDArray:
+    """Convert one column to its dtype, or raise naming the column and file."""
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise RadarLogError(f"{source}: column {name!r} is not numeric") from None
+    if arr.ndim != 1:
+        raise RadarLogError(f"{source}: column {name!r} must be 1-D, got shape {arr.shape}")
+    if name in INT_COLUMNS:
+        bad = ~np.isfinite(arr) | (arr != np.round(arr))
+        if bad.any():
+            raise RadarLogError(f"{source}: column {name!r} row {int(np.flatnonzero(bad)[0])} is not an integer")
+        return arr.astype(np.int64)
+    return arr
+
+
+def _first(mask: NDArray[np.bool_]) -> int:
+    return int(np.flatnonzero(mask)[0])
+
+
+def _validate(columns: dict[str, NDArray], source: str) -> dict[str, NDArray]:
+    """Check the required columns, dtypes, lengths and the empty-field rules."""
+    missing = [c for c in REQUIRED_COLUMNS if c not in columns]
+    if missing:
+        raise RadarLogError(f"{source}: required column {missing[0]!r} is missing")
+    out = {k: _as_column(k, v, source) for k, v in columns.items()}
+    n = {v.shape[0] for v in out.values()}
+    if len(n) != 1:
+        raise RadarLogError(f"{source}: columns have different lengths {sorted(n)}")
+    if n.pop() == 0:
+        raise RadarLogError(f"{source}: the log has no rows")
+    for name, arr in out.items():
+        if np.isinf(arr).any():
+            raise RadarLogError(f"{source}: column {name!r} row {_first(np.isinf(arr))} is infinite")
+    if np.isnan(out["t"]).any():
+        raise RadarLogError(f"{source}: column 't' row {_first(np.isnan(out['t']))} is empty")
+    ref_nan = np.stack([np.isnan(out[c]) for c in REF_COLUMNS], axis=1)
+    partial = ref_nan.any(axis=1) & ~ref_nan.all(axis=1)
+    if partial.any():
+        r = _first(partial)
+        col = REF_COLUMNS[int(np.argmax(ref_nan[r]))]
+        raise RadarLogError(f"{source}: column {col!r} row {r} is empty but other ref columns are not "
+                            "(ref must be all empty for clutter or all set)")
+    meas_nan = np.isnan(out["meas_x"])
+    if (meas_nan != np.isnan(out["meas_y"])).any():
+        raise RadarLogError(f"{source}: column 'meas_y' row {_first(meas_nan != np.isnan(out['meas_y']))} "
+                            "is empty while 'meas_x' is not (or vice versa)")
+    clutter = ref_nan[:, 0]
+    if (clutter & meas_nan).any():
+        raise RadarLogError(f"{source}: row {_first(clutter & meas_nan)} has neither ref nor meas columns set")
+    target_rows = ~clutter
+    for c in ("ref_length", "ref_width"):
+        bad = target_rows & ~(out[c] > 0)
+        if bad.any():
+            raise RadarLogError(f"{source}: column {c!r} row {_first(bad)} must be > 0")
+    if (out["target"][target_rows] < 0).any():
+        raise RadarLogError(f"{source}: column 'target' row {_first(target_rows & (out['target'] < 0))} "
+                            "is negative on a target row")
+    return out
+
+
+def _parse_cell(text: str, name: str, row: int, source: str, required: bool) -> float:
+    """One CSV field: empty -> NaN; literal nan/inf text in a required column is an error."""
+    s = text.strip()
+    if s == "":
+        return np.nan
+    try:
+        v = float(s)
+    except ValueError:
+        raise RadarLogError(f"{source}: column {name!r} row {row} holds {s!r}, which is not a number") from None
+    if required and not np.isfinite(v):
+        raise RadarLogError(f"{source}: column {name!r} row {row} holds {s!r}; write an empty field for "
+                            "'missing', not NaN/inf")
+    return v
+
+
+def read_log(path: str | os.PathLike[str]) -> RadarLog:
+    """Read and validate a radar log CSV.
+
+    Raises:
+        RadarLogError: naming the file, the column and the row of the first problem.
+        FileNotFoundError: when ``path`` does not exist.
+    """
+    path = Path(path)
+    src = str(path)
+    with path.open(newline="", encoding="utf-8") as fh:
+        reader = csv.reader(fh)
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration:
+            raise RadarLogError(f"{src}: the file is empty (no header line)") from None
+        if len(set(header)) != len(header):
+            raise RadarLogError(f"{src}: duplicate column names in the header")
+        rows = [r for r in reader if r]
+    req = [h in REQUIRED_COLUMNS for h in header]
+    cols: dict[str, list[float]] = {h: [] for h in header}
+    for i, r in enumerate(rows):
+        if len(r) != len(header):
+            raise RadarLogError(f"{src}: row {i} has {len(r)} fields, the header has {len(header)}")
+        for h, cell, rq in zip(header, r, req, strict=True):
+            cols[h].append(_parse_cell(cell, h, i, src, rq))
+    return RadarLog({h: np.asarray(v, dtype=np.float64) for h, v in cols.items()}, source=src)
+
+
+def write_log(log: RadarLog, path: str | os.PathLike[str]) -> Path:
+    """Write ``log`` as CSV (required columns first, then covariates); NaN is written as empty."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    names = list(REQUIRED_COLUMNS) + log.covariates
+    cols = [log.columns[c] for c in names]
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(names)
+        for i in range(len(log)):
+            w.writerow(["" if (c.dtype.kind == "f" and np.isnan(c[i])) else repr(c[i].item()) for c in cols])
+    return path
+
+
+@dataclass(frozen=True)
+class TargetTuples:
+    """Model tuples derived from the target rows of a log (all arrays aligned, ``n`` rows).
+
+    Attributes:
+        corner: ``(n, 2)`` closest corner of the reference box to the sensor, sensor frame [m].
+        z: ``(n, 2)`` output ``meas - corner`` [m]; ``NaN`` rows are misses.
+        z_prev: ``(n, 2)`` the same target's output in the previous cycle (``frame - 1``) [m];
+            ``NaN`` when that cycle is absent from the log or was a miss.
+        has_prev_row: ``(n,)`` whether the previous cycle of this target is in the log at all.
+        row: ``(n,)`` row index in the log (traceability).
+        sequence, frame, target: ``(n,)`` int64 ids copied from the log.
+    """
+
+    corner: NDArray[np.float64]
+    z: NDArray[np.float64]
+    z_prev: NDArray[np.float64]
+    has_prev_row: NDArray[np.bool_]
+    row: NDArray[np.int64]
+    sequence: NDArray[np.int64]
+    frame: NDArray[np.int64]
+    target: NDArray[np.int64]
+
+
+def target_tuples(log: RadarLog) -> TargetTuples:
+    """Derive the (corner, z, z_{t-1}) tuples of every target row of ``log`` (vectorised)."""
+    rows = np.flatnonzero(~log.is_clutter)
+    if rows.size == 0:
+        raise RadarLogError(f"{log.source}: the log has no target rows (only clutter)")
+    c = {k: log.columns[k][rows] for k in (*REF_COLUMNS, *MEAS_COLUMNS, "sequence", "frame", "target")}
+    box = rectangle_corners(c["ref_x"], c["ref_y"], c["ref_heading"], c["ref_length"], c["ref_width"])
+    corner, _ = closest_corner(box)
+    z = np.stack([c["meas_x"], c["meas_y"]], axis=1) - corner
+    key = np.stack([c["sequence"], c["target"], c["frame"]], axis=1)
+    order = np.lexsort((key[:, 2], key[:, 1], key[:, 0]))
+    ks = key[order]
+    dup = (np.diff(ks, axis=0) == 0).all(axis=1)
+    if dup.any():
+        r = int(rows[order[1:][dup][0]])
+        raise RadarLogError(f"{log.source}: row {r} repeats (sequence, frame, target) of an earlier row")
+    prev_ok = np.zeros(len(rows), dtype=bool)
+    prev_ok[1:] = (ks[1:, 0] == ks[:-1, 0]) & (ks[1:, 1] == ks[:-1, 1]) & (ks[1:, 2] == ks[:-1, 2] + 1)
+    z_sorted = z[order]
+    zp_sorted = np.full_like(z_sorted, np.nan)
+    zp_sorted[1:][prev_ok[1:]] = z_sorted[:-1][prev_ok[1:]]
+    z_prev = np.empty_like(z)
+    z_prev[order] = zp_sorted
+    has_prev = np.empty(len(rows), dtype=bool)
+    has_prev[order] = prev_ok
+    return TargetTuples(corner, z, z_prev, has_prev, rows.astype(np.int64), c["sequence"], c["frame"], c["target"])
+
+
+def clutter_counts(log: RadarLog) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Clutter detections per cycle and their positions.
+
+    Cycles are the distinct ``(sequence, frame)`` pairs present in the log (a cycle with neither
+    targets nor clutter cannot be represented and is not counted).
+
+    Returns:
+        ``counts (n_cycles,)`` number of clutter rows per cycle, and ``xy (m, 2)`` clutter
+        positions in the sensor frame [m].
+    """
+    seq, frame = log.columns["sequence"], log.columns["frame"]
+    cyc, inv = np.unique(np.stack([seq, frame], axis=1), axis=0, return_inverse=True)
+    cl = log.is_clutter
+    counts = np.bincount(inv.ravel()[cl], minlength=cyc.shape[0]).astype(np.int64)
+    xy = np.stack([log.columns["meas_x"][cl], log.columns["meas_y"][cl]], axis=1)
+    return counts, xy

@@ -1,0 +1,250 @@
+from __future__ import annotations
+
+import json
+import re
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from scipy import stats
+
+import sensor_envs  # noqa: F401  (registers the ids)
+from sensor_envs.cli import main as cli_main
+from sensor_envs.lidar_lwlr import (
+    P_EPS,
+    LearnedLidar,
+    LidarLWLR,
+    lidar_features,
+    load_learned_lidar,
+    lwlr,
+    mixture_log_prob,
+)
+from sensor_envs.maps import load_map
+from sensor_envs.modelio import ModelFileError
+from sensor_envs.neato_rig import NeatoRig
+
+ROOM = load_map("seed_room").segments
+SMALL = {"n_folds": 3, "h_range_grid": (0.4, 1.6), "h_alpha_grid": (0.5,), "h_bearing_grid": (0.0, 2.0),
+         "progress": False}
+ALPHA = 1e-3  # each goodness-of-fit test below fails with probability ~1e-3 under a correct sampler
+
+
+@pytest.fixture(scope="module")
+def rig_fit():
+    """An exact-pose rig (no pose/map error, so the per-bearing bias is identifiable) and fitted models."""
+    rig = NeatoRig(pose_sd=(0.0, 0.0), map_sd=0.0)
+    log, truth = rig.record(ROOM, np.random.default_rng(1), n_poses=30, repeats=20)
+    ext = LidarLWLR(variant="extended", **SMALL).fit(log)
+    clean_rig = NeatoRig(pose_sd=(0.0, 0.0), map_sd=0.0, spur_prone=0.0)
+    clean_log, _ = clean_rig.record(ROOM, np.random.default_rng(2), n_poses=30, repeats=20)
+    seed = LidarLWLR(variant="seed", **SMALL).fit(clean_log)
+    return log, truth, ext, seed
+
+
+def _table(model: LidarLWLR, name: str) -> np.ndarray:
+    return model.tables_[model.param_names_.index(name)]
+
+
+@pytest.mark.parametrize("variant", ["extended", "seed"])
+def test_fit_recovers_rig_bias_and_blocked_bearings(rig_fit, variant):
+    _, truth, ext, seed = rig_fit
+    model = ext if variant == "extended" else seed
+    ir = int(np.searchsorted(model.range_grid_, 1.0))
+    bias = _table(model, "bias")[:, ir, 2]  # r = 1 m, alpha ~ 0.4 rad
+    ok = ~truth["blocked"]
+    assert np.corrcoef(bias[ok], truth["bias"][ok])[0, 1] > 0.95
+    assert np.abs(bias[ok] - truth["bias"][ok]).mean() < 0.15 * truth["bias"].std()
+    p_null = _table(model, "p_null")
+    assert (p_null[truth["blocked"]] > 0.99).all()
+    assert p_null[ok][:, ir, 2].max() < 0.5
+
+
+def test_extended_sees_spurious_returns_near_posts(rig_fit):
+    _, _, ext, _ = rig_fit
+    rig = NeatoRig()
+    near, far = rig.near_posts(), ~rig.near_posts() & ~rig.blocked_mask()
+    p_spur = _table(ext, "p_spur")[:, :20].mean(axis=(1, 2))
+    assert p_spur[near].mean() > 5 * p_spur[far].mean()
+    assert abs(ext.spur_mu_ - rig.spur_value[0]) < 0.05
+
+
+def test_samples_match_params(rig_fit):
+    log, _, ext, _ = rig_fit
+    rng = np.random.default_rng(5)
+    p = ext.params_full(log.poses[:3], ROOM)
+    n = 400
+    pe = {k: v[..., None] for k, v in p.items()}
+    x = ext.sample_from_params(pe, rng, p["mu"].shape + (n,))
+    # null counts: chi-square over cells with 0 < p_null < 1
+    cells = (p["p_null"] > 0.01) & (p["p_null"] < 0.99)
+    obs = (x == 0).sum(-1)[cells]
+    exp = n * p["p_null"][cells]
+    chi2 = (((obs - exp) ** 2) / (exp * (1 - p["p_null"][cells]))).sum()
+    assert stats.chi2.sf(chi2, cells.sum()) > ALPHA
+    # spurious counts: pooled binomial
+    n_spur = (x > ext.spur_above).sum()
+    expected = n * p["p_spur"].sum()
+    assert abs(n_spur - expected) < 4 * np.sqrt(expected)
+    # in-range readings: standardised values are N(0, 1) (KS)
+    inr = (x > 0) & (x <= ext.spur_above)
+    z = ((x - pe["mu"]) / pe["sigma"])[inr]
+    assert stats.kstest(z, "norm").pvalue > ALPHA
+
+
+def test_log_prob_integrates_to_one(rig_fit):
+    log, _, ext, seed = rig_fit
+    grid = np.arange(-0.5, 25.0, 2e-5) + 1e-6  # never exactly 0 (that is the null atom)
+    for model in (ext, seed):
+        p = model.params_full(log.poses[:1], ROOM)
+        for k in (10, 45, 200):  # a few bearings (none blocked)
+            pk = {key: v[0, k] for key, v in p.items()}
+            dens = np.exp(mixture_log_prob(grid, pk, model.spur_mu_, model.spur_sigma_))
+            total = np.trapezoid(dens, grid) + np.exp(mixture_log_prob(np.array(0.0), pk, 0.0, 1.0))
+            assert total == pytest.approx(1.0, abs=2e-3)
+
+
+def test_log_prob_matches_brute_force(rig_fit):
+    log, _, ext, _ = rig_fit
+    p = {k: v[0, 7] for k, v in ext.params_full(log.poses[:1], ROOM).items()}
+    x = np.array([0.0, p["mu"] + 0.01, 16.8, np.nan])
+    lp = mixture_log_prob(x, p, ext.spur_mu_, ext.spur_sigma_)
+    s = np.hypot(p["sigma"], p["tau"])
+    main = (1 - p["p_out"]) * stats.norm.pdf(x[1:3], p["mu"], s) + p["p_out"] / p["out_range"] * (x[1:3] <= 5.0)
+    ref = (1 - p["p_null"] - p["p_spur"]) * main + p["p_spur"] * stats.norm.pdf(x[1:3], ext.spur_mu_, ext.spur_sigma_)
+    np.testing.assert_allclose(lp[0], np.log(p["p_null"]))
+    np.testing.assert_allclose(lp[1:3], np.log(ref), rtol=1e-9)
+    assert np.isnan(lp[3])
+    assert ext.log_prob(log.ranges[:2], log.poses[:2], ROOM).shape == log.ranges[:2].shape
+
+
+def test_lwlr_matches_brute_force_weighted_least_squares():
+    rng = np.random.default_rng(3)
+    t_r, t_a = rng.uniform(0.3, 3.0, (25, 4)), rng.uniform(0.0, 1.2, (25, 4))
+    y = (0.01 * t_r + 0.02 * t_a + 0.002 * rng.standard_normal((25, 4)))[..., None]
+    w = np.ones((25, 4))
+    q_r, q_a = np.array([[1.0, 2.0, 1.5, 0.7]]), np.array([[0.3, 0.6, 0.1, 1.0]])
+    got = lwlr(q_r, q_a, t_r, t_a, y, w, 0.5, 0.4)[0, 0, 0, :, 0]
+    const = lwlr(q_r, q_a, t_r, t_a, y, w, 0.5, 0.4, degrees=(0,))[0, 0, 0, :, 0]
+    for k in range(4):
+        dr, da = (t_r[:, k] - q_r[0, k]) / 0.5, (t_a[:, k] - q_a[0, k]) / 0.4
+        ww = np.exp(-0.5 * (dr**2 + da**2))
+        x = np.column_stack([np.ones(25), dr, da])
+        a = x.T @ (ww[:, None] * x) + np.diag([1e-3, 1e-2, 1e-2])
+        prior = y[:, k, 0].mean()
+        b = x.T @ (ww * y[:, k, 0]) + np.array([1e-3 * prior, 0, 0])
+        assert got[k] == pytest.approx(np.linalg.solve(a, b)[0], rel=1e-9)
+        assert const[k] == pytest.approx((ww @ y[:, k, 0] + 1e-3 * prior) / (ww.sum() + 1e-3), rel=1e-9)
+
+
+def test_save_load_round_trip(rig_fit, tmp_path):
+    log, _, ext, _ = rig_fit
+    path = ext.save(tmp_path / "m.npz")
+    back = LidarLWLR.load(path)
+    np.testing.assert_array_equal(back.tables_, ext.tables_)
+    assert back.h_ == ext.h_ and back.p_out_ == ext.p_out_ and back.spur_mu_ == ext.spur_mu_
+    a = ext.sample(log.poses[:2], ROOM, np.random.default_rng(9), n_repeats=3)
+    b = back.sample(log.poses[:2], ROOM, np.random.default_rng(9), n_repeats=3)
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(ext.log_prob(a, log.poses[:2], ROOM), back.log_prob(b, log.poses[:2], ROOM))
+
+
+def test_bad_model_files_name_the_field(rig_fit, tmp_path):
+    _, _, ext, _ = rig_fit
+    path = ext.save(tmp_path / "m.npz")
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["tables"] = arrays["tables"][:, :10]
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(ModelFileError, match=re.escape("field 'tables' has shape")):
+        LidarLWLR.load(tmp_path / "bad.npz")
+    with pytest.raises(ModelFileError, match="not found"):
+        LidarLWLR.load(tmp_path / "absent.npz")
+
+
+def test_estimator_contract():
+    m = LidarLWLR(variant="nope")
+    assert vars(m)["variant"] == "nope"  # __init__ only stores
+    with pytest.raises(RuntimeError, match="not fitted"):
+        m.params(np.zeros((1, 3)), ROOM)
+    log, _ = NeatoRig().record(ROOM, np.random.default_rng(0), n_poses=4, repeats=2)
+    with pytest.raises(ValueError, match=re.escape("variant: expected one of")):
+        m.fit(log)
+    with pytest.raises(ValueError, match=re.escape("n_folds: must be in [2, number of poses = 4]")):
+        LidarLWLR(n_folds=10).fit(log)
+    scans, _ = NeatoRig().record(ROOM, np.random.default_rng(0), n_poses=4, repeats=1)
+    with pytest.raises(ValueError, match=re.escape("field 'ranges' has one reading per pose and bearing")):
+        LidarLWLR(n_folds=2).fit(scans)
+
+
+def test_learned_lidar_in_neato_env(rig_fit, tmp_path):
+    _, _, ext, _ = rig_fit
+    path = ext.save(tmp_path / "m.npz")
+    sensor = load_learned_lidar(path)
+    r, a = lidar_features(np.array([[1.0, 0.9, 0.0]]), ext.bearings_, ROOM, 5.0)
+    rng = np.random.default_rng(0)
+    x = np.stack([sensor.measure(r[0], a[0], rng) for _ in range(200)])
+    assert x.shape == (200, 360) and np.isnan(x[:, NeatoRig().blocked_mask()]).mean() > 0.99
+    far = sensor.measure(np.full(360, np.inf), np.full(360, np.nan), np.random.default_rng(0))
+    assert np.isnan(far).mean() > 1 - 10 * P_EPS
+    with pytest.raises(ValueError, match="nominal_range: last axis has 10 bearings"):
+        sensor.measure(np.ones(10), np.zeros(10), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="takes only 'model'"):
+        load_learned_lidar(path, sigma0=1.0)
+    env = gym.make("sensor_envs/Neato-v0", lidar="learned", model=str(path))
+    obs, _ = env.reset(seed=0)
+    for _ in range(3):
+        obs, *_ = env.step(env.action_space.sample())
+        assert env.observation_space.contains(obs)
+    assert isinstance(env.unwrapped.lidar, LearnedLidar)
+
+
+def test_default_model_is_shipped_and_loads():
+    sensor = load_learned_lidar()
+    assert sensor.model.training_["source"].startswith("NeatoRig") or "rig" in sensor.model.training_["source"]
+    env = gym.make("sensor_envs/Neato-v0", lidar="learned")
+    obs, _ = env.reset(seed=1)
+    assert env.observation_space.contains(obs)
+
+
+def test_cli_record_fit_validate(tmp_path, capsys):
+    log = tmp_path / "rig.npz"
+    model = tmp_path / "m.npz"
+    assert cli_main(["record", "lidar", "--out", str(log), "--poses", "6", "--repeats", "5", "--seed", "3"]) == 0
+    assert cli_main(["fit", "lidar", str(log), "--out", str(model), "--folds", "2", "--variant", "seed"]) == 0
+    assert model.with_suffix(".md").exists()
+    assert cli_main(["validate", "lidar", str(model), str(log), "--out", str(tmp_path / "val"), "--card"]) == 0
+    rep = json.loads((tmp_path / "val" / "report.json").read_text())
+    assert set(rep["metrics"]) == {"model_seed", "ideal", "gaussian"}
+    for m in rep["metrics"].values():
+        assert np.isfinite(m["ll_per_reading_in_range"]) and m["all"]["mae_p_null"] >= 0
+    assert (tmp_path / "val" / "scan.png").exists() and (tmp_path / "val" / "per_bearing_error.png").exists()
+    assert "## Validation" in model.with_suffix(".md").read_text()
+    assert cli_main(["fit", "lidar", str(tmp_path / "absent.npz"), "--out", str(model)]) == 2
+    assert "not found" in capsys.readouterr().err
+
+
+def test_real_data_model_beats_baselines_on_held_out_poses(real_data):
+    from sensor_envs.lidar_log import load_log  # noqa: PLC0415
+    from sensor_envs.lidar_validate import baseline_params, fit_gaussian_lidar, table_one  # noqa: PLC0415
+
+    log = load_log(real_data / "neato_mar27_train.npz")
+    train, test = log.subset(np.arange(29) % 3 != 0), log.subset(np.arange(29) % 3 == 0)
+    model = LidarLWLR(variant="extended", **SMALL).fit(train)
+    r, a = lidar_features(test.poses, test.bearings, test.map_segments, 5.0)
+    ours = table_one(test, model.params_from_features(r, a), (model.spur_mu_, model.spur_sigma_))
+    gauss = table_one(test, baseline_params("gaussian", r, a, fit_gaussian_lidar(train)))
+    assert ours["all"]["mae_p_null"] < gauss["all"]["mae_p_null"]
+    assert ours["all"]["mae_sigma"] < gauss["all"]["mae_sigma"]
+    assert ours["ll_per_reading"] > gauss["ll_per_reading"]
+
+
+def test_cross_validated_table_runs_on_a_small_rig_log():
+    from sensor_envs.lidar_validate import cross_validate_log  # noqa: PLC0415
+
+    log, _ = NeatoRig().record(ROOM, np.random.default_rng(4), n_poses=6, repeats=10)
+    small = {k: v for k, v in SMALL.items() if k not in ("n_folds", "progress")}
+    table = cross_validate_log(log, n_folds=2, inner_folds=2, model_kwargs=small, progress=False)
+    assert set(table) == {"seed", "seed_without_spurious", "extended", "ideal", "gaussian"}
+    # the learned models see the blocked bearings and range-dependent dropout; the baselines do not
+    assert table["extended"]["all"]["mae_p_null"] < table["gaussian"]["all"]["mae_p_null"]
+    assert table["extended"]["ll_per_reading"] > table["gaussian"]["ll_per_reading"]

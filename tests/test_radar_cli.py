@@ -1,0 +1,23 @@
+import json
+
+from sensor_envs.cli import main
+
+
+def test_record_fit_validate_radar(tmp_path):
+    train, test, model = tmp_path / "train.csv", tmp_path / "test.csv", tmp_path / "kde.npz"
+    assert main(["record", "radar", "--out", str(train), "--sequences", "8", "--cycles", "20", "--seed", "1"]) == 0
+    assert main(["record", "radar", "--out", str(test), "--sequences", "4", "--cycles", "20", "--seed", "2"]) == 0
+    assert main(["fit", "radar", str(train), "--out", str(model), "--cycle-time", "1.0"]) == 0
+    assert (tmp_path / "kde_gaussian.npz").is_file()
+    assert main(["validate", "radar", str(model), str(test), "--out", str(tmp_path / "rep")]) == 0
+    rep = json.loads((tmp_path / "rep" / "report.json").read_text())
+    for key in ("model", "baseline_gaussian"):
+        assert {"nll_outcome", "per_range_bin", "lag1_autocorr_simulated", "lag1_autocorr_measured"} <= set(rep[key])
+    assert (tmp_path / "rep" / "pdf_heatmap.png").is_file()
+
+
+def test_bad_log_gives_exit_code_2_and_names_the_file(tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("sequence,frame\n0,0\n")
+    assert main(["fit", "radar", str(bad), "--out", str(tmp_path / "m.npz")]) == 2
+    assert f"{bad}: required column 't' is missing" in capsys.readouterr().err

@@ -1,0 +1,199 @@
+import pickle
+
+import numpy as np
+import pytest
+
+from sensor_envs.modelio import ModelFileError
+from sensor_envs.radar_kde import KDERadarModel, NotFittedError
+from sensor_envs.radar_log import REQUIRED_COLUMNS, RadarLog, target_tuples
+from sensor_envs.radar_rig import record_rig_log
+from sensor_envs.radar_validate import chi_square, lag1_autocorr, rollout, split_by_blocks
+
+P_MIN = 1e-3  # chi-square tests: a correct sampler fails each with probability 0.1 % (seeds are fixed)
+AUTOCORR_TOL = 0.15  # |lag-1 autocorrelation simulated - recorded| allowed with z_{t-1} (rig, 1 s cycles)
+
+
+@pytest.fixture(scope="module")
+def rig_split():
+    log = record_rig_log(60, 40, 8, np.random.default_rng(11))
+    return split_by_blocks(log, block=1000, n_folds=4, fold=0)
+
+
+@pytest.fixture(scope="module")
+def model(rig_split):
+    return KDERadarModel(random_state=0).fit(rig_split[0], cycle_time=1.0)
+
+
+def _states(model):
+    tt_idx = np.flatnonzero(~np.isnan(model.states_[:, 2]) & ~np.isnan(model.z_[:, 0]))
+    i = tt_idx[np.argsort(np.hypot(*model.states_[tt_idx, :2].T))]
+    picks = model.states_[i[[len(i) // 5, len(i) // 2, 4 * len(i) // 5]]]
+    start = picks[0].copy()
+    start[2:] = np.nan
+    return [*picks, start]
+
+
+def test_samples_follow_the_analytic_pdf(model):
+    for k, state in enumerate(_states(model)):
+        res = chi_square(model, state, np.random.default_rng(100 + k), n=95_000)
+        assert res["dof"] > 20
+        assert res["p_value"] > P_MIN, (state, res["statistic"], res["dof"])
+
+
+def test_without_previous_output_samples_follow_pdf(rig_split):
+    m = KDERadarModel(use_prev=False, random_state=0).fit(rig_split[0])
+    res = chi_square(m, np.array([30.0, 3.0]), np.random.default_rng(5), n=95_000)
+    assert res["p_value"] > P_MIN
+
+
+def test_chi_square_detects_a_wrong_sampler(model):
+    state = _states(model)[1]
+    class Shifted:
+        def sample(self, s, rng):
+            z, src = model.sample(s, rng)
+            return z + np.array([0.05, 0.0]), src
+
+        def bin_probabilities(self, s, ex, ey):
+            return model.bin_probabilities(s, ex, ey)
+
+    assert chi_square(Shifted(), state, np.random.default_rng(3), n=95_000)["p_value"] < P_MIN
+
+
+def _brute_log_prob(m, z, state):
+    """Slow reference: loop over every stored tuple (the 4-D tree only for states with z_{t-1})."""
+    out = []
+    for zz, st in zip(z, state, strict=True):
+        has_prev = m.use_prev and np.isfinite(st[2])
+        idx = m.main_idx_ if has_prev else m.start_idx_
+        d = 4 if has_prev else 2
+        w = np.array([np.exp(-0.5 * np.sum(((m.states_[i, :d] - st[:d]) / m.scale_[:d]) ** 2)) for i in idx])
+        r = np.array([np.sqrt(np.sum(((m.states_[i, :d] - st[:d]) / m.scale_[:d]) ** 2)) for i in idx])
+        w[r > m.radius] = 0.0
+        miss = np.isnan(m.z_[idx, 0])
+        p_miss = (w[miss].sum() + m.miss_prior * m.miss_rate_) / (w.sum() + m.miss_prior)
+        if np.isnan(zz[0]):
+            out.append(np.log(p_miss))
+            continue
+        h = m.bandwidth(st[None, :2])[0]
+        k = [np.exp(-0.5 * np.sum(((zz - m.z_[i]) / h) ** 2)) / (2 * np.pi * h[0] * h[1]) for i in idx[~miss]]
+        out.append(np.log1p(-p_miss) + np.log(np.dot(w[~miss], k) / w[~miss].sum()))
+    return np.array(out)
+
+
+def test_log_prob_matches_brute_force(model):
+    states = np.array(_states(model))
+    z = np.array([[0.1, -0.2], [np.nan, np.nan], [0.5, 0.3], [-0.3, 0.4]])
+    np.testing.assert_allclose(model.log_prob(z, states), _brute_log_prob(model, z, states), rtol=1e-9)
+
+
+@pytest.mark.parametrize("distinct", [False, True])
+def test_source_tuple_is_traceable(model, distinct):
+    # repeated states share one neighbour search; distinct ones (>= 64) go through the sorted-group path
+    states = model.states_[:300] if distinct else np.array(_states(model) * 50)
+    z, src = model.sample(states, np.random.default_rng(0))
+    det = ~np.isnan(z[:, 0])
+    assert (src[det] >= 0).all() and det.any() and (~det).any()
+    traced = src >= 0  # misses drawn from the miss_prior share have no source tuple
+    assert np.array_equal(np.isnan(z[traced, 0]), np.isnan(model.z_[src[traced], 0]))
+    h = model.bandwidth(states[det, :2])
+    assert np.all(np.abs(z[det] - model.z_[src[det]]) < 6 * h)
+
+
+def _uniform_miss_log(rate, rng, n=4000):
+    cols = {c: np.zeros(n) for c in REQUIRED_COLUMNS}
+    cols["frame"] = np.arange(n)
+    cols["target"] = np.arange(n)  # no z_{t-1}
+    cols["ref_x"], cols["ref_y"] = rng.uniform(10, 30, n), rng.uniform(-5, 5, n)
+    cols["ref_length"], cols["ref_width"] = np.full(n, 4.0), np.full(n, 2.0)
+    miss = rng.random(n) < rate
+    cols["meas_x"] = np.where(miss, np.nan, cols["ref_x"] - 2 + rng.normal(0, 0.3, n))
+    cols["meas_y"] = np.where(miss, np.nan, cols["ref_y"] + rng.normal(0, 0.3, n))
+    return RadarLog(cols), miss.mean()
+
+
+def test_missing_measurement_tuples_give_misses_at_the_recorded_rate():
+    log, recorded = _uniform_miss_log(0.3, np.random.default_rng(2))
+    m = KDERadarModel(use_prev=False, miss_prior=0.0, random_state=0).fit(log)
+    corners = target_tuples(log).corner
+    z, src = m.sample(np.repeat(corners, 10, axis=0), np.random.default_rng(3))
+    sim = np.isnan(z[:, 0]).mean()
+    n = z.shape[0]
+    # local kernel estimates average to the recorded rate (tolerance: 4 binomial sigmas of the log + sampling)
+    tol = 4 * np.sqrt(recorded * (1 - recorded) * (1 / len(log) + 1 / n))
+    assert abs(sim - recorded) < tol, (sim, recorded, tol)
+    assert np.isnan(m.z_[src[np.isnan(z[:, 0])], 0]).all()
+
+
+def test_autocorrelation_reproduced_with_previous_output(rig_split, model):
+    train, test = rig_split
+    tt = target_tuples(test)
+    measured = lag1_autocorr(tt.z, tt.z_prev)
+    with_prev = lag1_autocorr(*rollout(model, tt, np.random.default_rng(0)))
+    no_prev_model = KDERadarModel(use_prev=False, random_state=0).fit(train)
+    without = lag1_autocorr(*rollout(no_prev_model, tt, np.random.default_rng(0)))
+    assert np.all(np.abs(with_prev - measured) < AUTOCORR_TOL), (with_prev, measured)
+    assert np.all(without < with_prev - 0.1), (without, with_prev)
+
+
+def test_exact_and_capped_search_agree_when_cap_is_large(model, tmp_path):
+    path = model.save(tmp_path / "m.npz")
+    capped = KDERadarModel.load(path)
+    capped.k_max = 100_000
+    states = np.array(_states(model))
+    np.testing.assert_allclose(capped.log_prob(np.zeros((4, 2)), states), model.log_prob(np.zeros((4, 2)), states))
+
+
+def test_save_load_roundtrip_without_pickle(model, tmp_path):
+    path = model.save(tmp_path / "m.npz", card={"note": "test"})
+    with np.load(path, allow_pickle=False) as f:
+        assert all(f[k].dtype != object for k in f.files)
+    back = KDERadarModel.load(path)
+    states = np.array(_states(model) * 20)
+    for other in (back, pickle.loads(pickle.dumps(model))):
+        a = model.sample(states, np.random.default_rng(7))
+        b = other.sample(states, np.random.default_rng(7))
+        np.testing.assert_array_equal(a[0], b[0])
+        np.testing.assert_array_equal(a[1], b[1])
+    assert back.cycle_time_ == 1.0
+
+
+def test_bad_model_file_and_unfitted(tmp_path):
+    with pytest.raises(NotFittedError):
+        KDERadarModel().sample(np.zeros((1, 2)), np.random.default_rng(0))
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, x=np.zeros(3))
+    with pytest.raises(ModelFileError, match="__header__"):
+        KDERadarModel.load(bad)
+    with pytest.raises(ValueError, match="rel_variance"):
+        KDERadarModel(rel_variance=(1.0, -1.0, 1.0, 1.0)).fit(_uniform_miss_log(0.1, np.random.default_rng(0))[0])
+
+
+def test_same_seed_same_samples_and_clutter(model):
+    s = np.array(_states(model))
+    a, b = model.sample(s, np.random.default_rng(1)), model.sample(s, np.random.default_rng(1))
+    np.testing.assert_array_equal(a[0], b[0])
+    c = [model.sample_clutter(np.random.default_rng(2)) for _ in range(2)]
+    np.testing.assert_array_equal(*c)
+
+
+def test_row_order_invariance():
+    log = record_rig_log(8, 20, 6, np.random.default_rng(4))
+    perm = np.random.default_rng(0).permutation(len(log))
+    shuffled = RadarLog({k: v[perm] for k, v in log.columns.items()})
+    kw = {"cv_max_tuples": 10**6, "cv_min_tuples": 10, "random_state": 0}
+    a, b = KDERadarModel(**kw).fit(log), KDERadarModel(**kw).fit(shuffled)
+    tt = target_tuples(log)
+    st = np.concatenate([tt.corner, tt.z_prev], axis=1)[:200]
+    np.testing.assert_allclose(a.log_prob(tt.z[:200], st), b.log_prob(tt.z[:200], st), rtol=1e-10)
+
+
+def test_clutter_follows_the_log(rig_split, model):
+    from sensor_envs.radar_log import clutter_counts
+
+    counts, xy = clutter_counts(rig_split[0])
+    rng = np.random.default_rng(9)
+    sims = [model.sample_clutter(rng) for _ in range(4000)]
+    n = np.array([len(s) for s in sims])
+    assert abs(n.mean() - counts.mean()) < 4 * counts.std() / np.sqrt(len(n)) + 4 * counts.std() / np.sqrt(len(counts))
+    pts = np.concatenate(sims)
+    assert abs(np.median(np.hypot(*pts.T)) - np.median(np.hypot(*xy.T))) < 3.0
