@@ -232,25 +232,80 @@ def angular_interval(corners: NDArray[np.float64], origin: ArrayLike = (0.0, 0.0
     return centre + a.min(axis=1), centre + a.max(axis=1)
 
 
-def occluded_fraction(corners: NDArray[np.float64], origin: ArrayLike = (0.0, 0.0), n_rays: int = 16) -> NDArray[
-    np.float64
-]:
+def occluded_fraction(
+    corners: NDArray[np.float64],
+    origin: ArrayLike = (0.0, 0.0),
+    n_rays: int = 16,
+    *,
+    targets: ArrayLike | None = None,
+) -> NDArray[np.float64]:
     """Fraction of each rectangle's angular extent hidden behind the other rectangles.
 
     ``n_rays`` rays spread over each rectangle's extent (seen from ``origin``) are cast against
-    all other rectangles' edges; a ray counts as occluded when another box is hit before this one.
-    Returns ``(N,)`` in ``[0, 1]``.
+    all rectangles' edges; a ray counts as occluded when the nearest edge it hits belongs to
+    another box. The result is that of casting the rays with :func:`raycast`, which is what
+    happens when a ray is within ``1e-12`` of parallel to an edge; otherwise a lean ray-vs-edge
+    test (the same arithmetic, without incidence angles and collinear hits) gives the same bits.
+
+    Args:
+        corners: ``(N, 4, 2)`` rectangles from :func:`rectangle_corners` [m], any frame.
+        origin: ``(2,)`` the sensor position in the same frame [m].
+        n_rays: rays per rectangle.
+        targets: indices of the rectangles whose fraction is wanted (all of them still occlude;
+            negative indices count from the end); ``None`` = all.
+
+    Returns:
+        ``(N,)`` (or ``(len(targets),)``) hidden fractions in ``[0, 1]``, multiples of ``1 / n_rays``.
     """
     n = corners.shape[0]
-    if n < 2:
-        return np.zeros(n)
+    sel = np.arange(n) if targets is None else np.arange(n)[np.asarray(targets, dtype=np.int64).reshape(-1)]
+    if n < 2 or len(sel) == 0:
+        return np.zeros(len(sel))
     o = np.asarray(origin, dtype=np.float64)
-    lo, hi = angular_interval(corners, o)
+    lo, hi = angular_interval(corners[sel], o)
     f = (np.arange(n_rays) + 0.5) / n_rays
-    ang = lo[:, None] + (hi - lo)[:, None] * f[None, :]  # (N, R)
-    segs = rectangle_segments(corners)
-    owner = np.repeat(np.arange(n), 4)
-    rng, _, idx = raycast(np.broadcast_to(o, (n, 2)), ang, segs)
-    own = np.isfinite(rng) & (owner[np.maximum(idx, 0)] == np.arange(n)[:, None])
-    hit_other = np.isfinite(rng) & ~own
-    return hit_other.mean(axis=1)
+    ang = lo[:, None] + (hi - lo)[:, None] * f[None, :]  # (T, R) ray directions [rad]
+    found = _first_edge_hit(o, ang, corners)
+    if found is not None:
+        hit, first = found
+    else:  # a ray (nearly) parallel to an edge: the full raycast handles collinear hits
+        rng, _, first = raycast(np.broadcast_to(o, (len(sel), 2)), ang, rectangle_segments(corners))
+        hit = np.isfinite(rng)
+    hidden = hit & ((first >> 2) != sel[:, None])  # edge 4 i + k belongs to box i
+    return np.count_nonzero(hidden, axis=1) / n_rays
+
+
+def _first_edge_hit(origin: NDArray[np.float64], angles: NDArray[np.float64], corners: NDArray[np.float64]) -> tuple[
+    NDArray[np.bool_], NDArray[np.int64]
+] | None:
+    """Which rays hit a rectangle edge, and the index ``4 * box + edge`` of the first edge each hits.
+
+    The ray-vs-segment test of :func:`raycast` (the same operations, so the same bits) without
+    incidence angles or collinear hits: returns ``None`` when a ray is within
+    ``1e-12`` of parallel to an edge, where :func:`raycast`'s collinear rule may apply.
+
+    Args:
+        origin: ``(2,)`` ray origin [m].
+        angles: ``(T, R)`` absolute ray directions [rad], in the frame of ``corners``.
+        corners: ``(N, 4, 2)`` rectangles [m]; edge ``k`` of box ``i`` runs from corner ``k`` to
+            corner ``k + 1 (mod 4)``.
+
+    Returns:
+        ``hit (T, R)`` and ``index (T, R)`` (meaningless where there is no hit), or ``None``.
+    """
+    a = corners.reshape(-1, 2)  # (M, 2) edge starts
+    e = corners.take((1, 2, 3, 0), axis=1).reshape(-1, 2) - a
+    wx, wy = a[:, 0] - origin[0], a[:, 1] - origin[1]
+    dx, dy = np.cos(angles).reshape(-1, 1), np.sin(angles).reshape(-1, 1)  # (K, 1)
+    ey_wy = np.stack([e[:, 1], wy])[:, None, :]  # (2, 1, M)
+    ex_wx = np.stack([e[:, 0], wx])[:, None, :]
+    # [cross(d, e), cross(d, w)] = [ey, wy] dx - [ex, wx] dy, (2, K, M); cross(d, w) = -cross(w, d)
+    cross = ey_wy * dx - ex_wx * dy
+    den = cross[0].copy()
+    if not np.abs(den).min() > 1e-12:
+        return None
+    cross[0] = wx * e[:, 1] - wy * e[:, 0]  # cross(w, e)
+    t, neg_u = cross / den  # distance along the ray [m], minus the position along the edge
+    ok = (neg_u <= 0.0) & (neg_u >= -1.0) & (t > RAY_EPS)
+    first = np.argmin(np.where(ok, t, np.inf), axis=1)
+    return ok.any(axis=1).reshape(angles.shape), first.reshape(angles.shape)

@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from sensor_envs.geometry import (
+    angular_interval,
     as_segments,
     closest_corner,
     from_frame,
@@ -10,6 +11,7 @@ from sensor_envs.geometry import (
     raycast,
     raycast_pose,
     rectangle_corners,
+    rectangle_segments,
     to_frame,
 )
 
@@ -121,3 +123,69 @@ def test_closest_corner_and_occlusion():
     assert occ[0] == 0.0  # nearest box is free
     assert occ[1] == pytest.approx(1.0)  # directly behind the first, same size, farther: fully hidden
     assert occ[2] == 0.0  # off to the side
+
+
+# ---------------------------------------------------------------------- occlusion vs its reference
+
+
+def _occluded_fraction_reference(corners, origin=(0.0, 0.0), n_rays=16):
+    """The original implementation (full :func:`raycast`, incidence and collinear handling): the reference."""
+    n = corners.shape[0]
+    if n < 2:
+        return np.zeros(n)
+    o = np.asarray(origin, dtype=np.float64)
+    lo, hi = angular_interval(corners, o)
+    f = (np.arange(n_rays) + 0.5) / n_rays
+    ang = lo[:, None] + (hi - lo)[:, None] * f[None, :]
+    segs = rectangle_segments(corners)
+    owner = np.repeat(np.arange(n), 4)
+    rng, _, idx = raycast(np.broadcast_to(o, (n, 2)), ang, segs)
+    own = np.isfinite(rng) & (owner[np.maximum(idx, 0)] == np.arange(n)[:, None])
+    hit_other = np.isfinite(rng) & ~own
+    return hit_other.mean(axis=1)
+
+
+def _random_scene(rng, n):
+    """``n`` rectangles scattered around the origin: traffic-like (aligned lanes) or arbitrary headings, may overlap."""
+    if rng.random() < 0.5:
+        x, y = rng.uniform(-60.0, 80.0, n), rng.choice([-8.0, -4.0, 0.0, 4.0, 8.0], n) + rng.normal(0, 0.3, n)
+        heading = rng.normal(0.0, 0.05, n)
+    else:
+        r, a = rng.uniform(2.0, 40.0, n), rng.uniform(-np.pi, np.pi, n)
+        x, y, heading = r * np.cos(a), r * np.sin(a), rng.uniform(-np.pi, np.pi, n)
+    return rectangle_corners(x, y, heading, rng.uniform(1.0, 12.0, n), rng.uniform(0.5, 3.0, n))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_occluded_fraction_equals_the_raycast_reference(seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(100):
+        boxes = _random_scene(rng, int(rng.integers(0, 14)))
+        origin = rng.normal(0.0, 1.0, 2)
+        n_rays = int(rng.choice([1, 5, 16]))
+        expected = _occluded_fraction_reference(boxes, origin, n_rays)
+        assert np.array_equal(occluded_fraction(boxes, origin, n_rays), expected)
+        targets = np.flatnonzero(rng.random(len(boxes)) < 0.5)
+        assert np.array_equal(occluded_fraction(boxes, origin, n_rays, targets=targets), expected[targets])
+
+
+def test_occluded_fraction_with_rays_along_edges_matches_the_reference():
+    # Box 0 is symmetric about the x axis, so its single ray runs along the x axis: exactly along the
+    # lower edge of box 1 (y = 0, collinear) and parallel to box 2's edges (the raycast fallback).
+    boxes = rectangle_corners([10.0, 5.0, 7.0], [0.0, 1.0, 3.0], [0.0, 0.0, 0.0], [4.0, 2.0, 2.0], [2.0, 2.0, 2.0])
+    for n_rays in (1, 2, 16):
+        expected = _occluded_fraction_reference(boxes, (0.0, 0.0), n_rays)
+        assert np.array_equal(occluded_fraction(boxes, (0.0, 0.0), n_rays), expected)
+    assert occluded_fraction(boxes, (0.0, 0.0), 1)[0] == 1.0  # the collinear edge's near end hides it
+
+
+def test_occluded_fraction_edge_cases():
+    one = rectangle_corners([5.0], [0.0], [0.0], [4.0], [2.0])
+    assert occluded_fraction(one).shape == (1,) and occluded_fraction(one)[0] == 0.0
+    assert occluded_fraction(np.zeros((0, 4, 2))).shape == (0,)
+    two = rectangle_corners([5.0, 15.0], [0.0, 0.0], [0.0, 0.0], [4.0, 4.0], [2.0, 2.0])
+    assert occluded_fraction(two, targets=[]).shape == (0,)
+    assert occluded_fraction(two, targets=[1]).tolist() == [1.0]
+    assert occluded_fraction(two, targets=[-1, 0]).tolist() == [1.0, 0.0]
+    with pytest.raises(IndexError):
+        occluded_fraction(two, targets=[2])

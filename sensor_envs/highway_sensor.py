@@ -1,0 +1,233 @@
+"""What the radar of the highway wrapper can see: the model, the mount, the field of view and occlusion.
+
+Frames: the world frame is highway-env's road frame [m]; the sensor frame has x forward and y left
+[m], origin at the sensor, which is mounted at ``SensorSpec.pose`` in the ego frame (by default the
+middle of the front bumper). Angles are in radians, counter-clockwise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sensor_envs.geometry import closest_corner, occluded_fraction, rectangle_corners, to_frame, wrap_angle
+from sensor_envs.highway_frame import Truth
+from sensor_envs.radar_api import IdealRadar, RadarSensor
+
+__all__ = [
+    "RADARS",
+    "DEFAULT_FOV",
+    "DEFAULT_MAX_RANGE",
+    "SensorSpec",
+    "load_radar",
+    "truth_table",
+    "sensor_pose",
+    "reference_points",
+    "track_velocities",
+    "rotate",
+    "to_world",
+    "visible_targets",
+]
+
+RADARS = ("ideal", "gaussian", "kde")
+DEFAULT_FOV = float(np.deg2rad(100.0))
+"""Default full horizontal field of view [rad]: +-50 deg, that of the reference rig the shipped models are fitted on."""
+DEFAULT_MAX_RANGE = 120.0
+"""Default hard range limit [m]: past the rig's 90 m, where the fitted models' own detection fall-off decides."""
+_RADAR_CACHE: dict[tuple[str, str | None], RadarSensor] = {}
+
+
+def load_radar(radar: str, radar_model: str | Path | None = None) -> RadarSensor:
+    """Return the radar model ``radar`` (``"ideal" | "gaussian" | "kde"``), loading it once per process.
+
+    Args:
+        radar: model name.
+        radar_model: path of a fitted model file, or ``None`` for the shipped default.
+
+    Raises:
+        ValueError: naming ``radar`` or ``radar_model`` when the name is unknown or the ideal radar is
+            given a model file.
+    """
+    if radar not in RADARS:
+        raise ValueError(f"radar: expected one of {RADARS}, got {radar!r}")
+    path = None if radar_model is None else str(Path(radar_model).expanduser().resolve())
+    if radar == "ideal" and path is not None:
+        raise ValueError("radar_model: the ideal radar takes no model file")
+    key = (radar, path)
+    if key not in _RADAR_CACHE:
+        _RADAR_CACHE[key] = _build_radar(radar, path)
+    return _RADAR_CACHE[key]
+
+
+def _build_radar(radar: str, path: str | None) -> RadarSensor:
+    """Build a radar through :func:`sensor_envs.radar_api.make_radar` (the ideal radar needs no factory)."""
+    if radar == "ideal":
+        return IdealRadar()
+    from sensor_envs.radar_api import make_radar
+
+    return make_radar(radar, path)
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """Where the radar sits and what it can see.
+
+    Attributes:
+        pose: ``(x, y, yaw)`` of the sensor in the ego frame [m, m, rad]; ``None`` = middle of the
+            front bumper, ``(length / 2, 0, 0)``.
+        fov: full horizontal field of view [rad], symmetric about the sensor x axis, in ``(0, 2 pi]``.
+        max_range: maximum range [m] (``inf`` allowed).
+        occlusion_threshold: a target is hidden when at least this fraction of its angular extent is
+            behind nearer vehicles, in ``(0, 1]``; ``None`` disables occlusion.
+        reference: the point the radar measures: ``"corner"`` (closest corner) or ``"centre"``.
+        velocity: ``"difference"`` or ``"truth"`` (see the module docstring).
+        occlusion_rays: rays per target for the occlusion test.
+    """
+
+    pose: tuple[float, float, float] | None = None
+    fov: float = DEFAULT_FOV
+    max_range: float = DEFAULT_MAX_RANGE
+    occlusion_threshold: float | None = 0.5
+    reference: str = "corner"
+    velocity: str = "difference"
+    occlusion_rays: int = 16
+
+    def __post_init__(self) -> None:
+        """Validate every field, naming the bad one."""
+        if self.pose is not None:
+            pose = tuple(float(v) for v in self.pose)
+            if len(pose) != 3 or not np.all(np.isfinite(pose)):
+                raise ValueError(f"sensor_pose: expected finite (x, y, yaw), got {self.pose!r}")
+            object.__setattr__(self, "pose", pose)
+        if not 0.0 < float(self.fov) <= 2 * np.pi + 1e-12:
+            raise ValueError(f"fov: expected a field of view in (0, 2 pi] rad, got {self.fov!r}")
+        if not float(self.max_range) > 0.0:
+            raise ValueError(f"max_range: expected a positive range [m], got {self.max_range!r}")
+        t = self.occlusion_threshold
+        if t is not None and not 0.0 < float(t) <= 1.0:
+            raise ValueError(f"occlusion_threshold: expected a fraction in (0, 1] or None, got {t!r}")
+        if self.reference not in ("corner", "centre"):
+            raise ValueError(f"reference: expected 'corner' or 'centre', got {self.reference!r}")
+        if self.velocity not in ("difference", "truth"):
+            raise ValueError(f"velocity: expected 'difference' or 'truth', got {self.velocity!r}")
+        if int(self.occlusion_rays) < 1:
+            raise ValueError(f"occlusion_rays: expected a positive count, got {self.occlusion_rays!r}")
+
+    def in_view(self, points: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Which ``(n, 2)`` sensor-frame points [m] lie in the field of view and within range."""
+        r = np.hypot(points[:, 0], points[:, 1])
+        ok = r <= self.max_range
+        if self.fov < 2 * np.pi:
+            ok &= np.abs(np.arctan2(points[:, 1], points[:, 0])) <= 0.5 * self.fov
+        return ok
+
+
+def truth_table(base: Any, include_obstacles: bool) -> Truth:
+    """Road objects (not the ego) whose centre is within highway-env's perception distance."""
+    ego, road = base.vehicle, base.road
+    pool = [(v, False) for v in road.vehicles if v is not ego]
+    if include_obstacles:
+        pool += [(o, True) for o in road.objects]
+    every = np.array([o.position for o, _ in pool], dtype=np.float64).reshape(len(pool), 2)
+    near = np.linalg.norm(every - ego.position, axis=1) < base.PERCEPTION_DISTANCE  # highway-env's horizon
+    objs = [p for p, keep in zip(pool, near, strict=True) if keep]
+    n = len(objs)
+    centre = every[near]
+    heading = np.array([o.heading for o, _ in objs], dtype=np.float64)
+    velocity = np.array([o.velocity for o, _ in objs], dtype=np.float64).reshape(n, 2)
+    length = np.array([o.LENGTH for o, _ in objs], dtype=np.float64)
+    width = np.array([o.WIDTH for o, _ in objs], dtype=np.float64)
+    corners = rectangle_corners(centre[:, 0], centre[:, 1], heading, length, width) if n else np.zeros((0, 4, 2))
+    return Truth([o for o, _ in objs], np.array([ob for _, ob in objs], dtype=bool), centre, heading, velocity,
+                  corners)
+
+
+def sensor_pose(ego: Any, mount: tuple[float, float, float] | None) -> NDArray[np.float64]:
+    """World pose ``(x, y, yaw)`` of the sensor mounted at ``mount`` in the ego frame."""
+    mx, my, myaw = mount if mount is not None else (ego.LENGTH / 2.0, 0.0, 0.0)
+    c, s = np.cos(ego.heading), np.sin(ego.heading)
+    x, y = ego.position
+    return np.array([x + c * mx - s * my, y + s * mx + c * my, float(wrap_angle(ego.heading + myaw))])
+
+
+def reference_points(truth: Truth, pose: NDArray[np.float64], reference: str) -> tuple[
+    NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]
+]:
+    """The point the radar measures on each target, and the targets' corners, seen from the sensor at ``pose``.
+
+    Args:
+        truth: the ``n`` targets (world frame).
+        pose: the sensor's world pose ``(x, y, yaw)`` [m, m, rad].
+        reference: ``"corner"`` (closest corner to the sensor) or ``"centre"``.
+
+    Returns:
+        ``ref_s (n, 2)`` in the sensor frame [m], ``ref_w (n, 2)`` the same points in the world frame
+        [m], and ``corners_s (n, 4, 2)`` in the sensor frame [m].
+    """
+    corners_s = to_frame(truth.corners, pose)
+    n = len(truth.objects)
+    if reference == "corner" and n:
+        ref_s, k = closest_corner(corners_s)
+        return ref_s, truth.corners[np.arange(n), k], corners_s
+    return to_frame(truth.centre, pose).reshape(n, 2), truth.centre, corners_s
+
+
+def track_velocities(ego_velocity: Any, true_velocity: NDArray[np.float64], pose: NDArray[np.float64],
+                     meas_w: NDArray[np.float64], prev_w: NDArray[np.float64], dt: float) -> tuple[
+    NDArray[np.float64], NDArray[np.float64]
+]:
+    """World velocities [m/s] and headings [rad] of ``k`` detections, for ``velocity="difference"``.
+
+    Args:
+        ego_velocity: ``(2,)`` the ego's world velocity [m/s].
+        true_velocity: ``(k, 2)`` the detected targets' true world velocities [m/s].
+        pose: the sensor's world pose ``(x, y, yaw)`` [m, m, rad].
+        meas_w: ``(k, 2)`` measured world positions now [m].
+        prev_w: ``(k, 2)`` measured world positions at the previous policy step [m] (``nan`` = none).
+        dt: the policy step [s].
+
+    Returns:
+        The track difference ``(meas_w - prev_w) / dt`` where there is a previous position, else the
+        Doppler-like estimate (ego velocity plus the radial part of the true relative velocity along
+        the sensor's line of sight); and the direction of that velocity [rad].
+    """
+    ego_v = np.asarray(ego_velocity, dtype=np.float64)
+    los = meas_w - pose[:2]
+    u = los / np.maximum(np.linalg.norm(los, axis=1, keepdims=True), 1e-9)
+    radial = np.sum((true_velocity - ego_v) * u, axis=1, keepdims=True)
+    doppler = ego_v + radial * u
+    diff = (meas_w - prev_w) / dt
+    vel = np.where(np.isfinite(diff).all(axis=1, keepdims=True), diff, doppler)
+    return vel, np.arctan2(vel[:, 1], vel[:, 0])
+
+
+def rotate(v: NDArray[np.float64], yaw: float) -> NDArray[np.float64]:
+    """Rotate ``(n, 2)`` vectors by ``yaw`` [rad] (sensor frame offsets to world offsets)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], axis=-1)
+
+
+def visible_targets(spec: SensorSpec, ref_s: NDArray[np.float64], corners_s: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Targets whose reference point is in view and which are not hidden behind nearer targets."""
+    vis = spec.in_view(ref_s)
+    if spec.occlusion_threshold is None or not vis.any() or len(vis) < 2:
+        return vis
+    # An occluder is hit before the target it hides, so it has a point nearer than the farthest
+    # corner of a target in view; every point of a box is at least (nearest corner - diagonal) away.
+    dist = np.linalg.norm(corners_s, axis=-1)
+    diagonal = np.linalg.norm(corners_s[:, 0] - corners_s[:, 2], axis=-1)
+    idx = np.flatnonzero(dist.min(axis=1) - diagonal <= dist[vis].max())
+    targets = np.flatnonzero(vis[idx])  # rays are cast for the targets in view only
+    frac = occluded_fraction(corners_s[idx], (0.0, 0.0), int(spec.occlusion_rays), targets=targets)
+    hidden = np.zeros_like(vis)
+    hidden[idx[targets]] = frac >= spec.occlusion_threshold
+    return vis & ~hidden
+
+
+def to_world(points_s: NDArray[np.float64], pose: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Sensor-frame points ``(n, 2)`` [m] to the world frame."""
+    return pose[:2] + rotate(points_s, pose[2])
