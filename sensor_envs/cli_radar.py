@@ -28,6 +28,8 @@ def register(verbs: dict[str, "argparse._SubParsersAction[argparse.ArgumentParse
     fit.add_argument("--no-prev", action="store_true", help="do not condition on z_{t-1} (for non-time-series logs)")
     fit.add_argument("--cycle-time", type=float, default=None, help="seconds between frames of the log")
     fit.add_argument("--cv-group", default="track", choices=("track", "sequence", "row"))
+    fit.add_argument("--relevance", default="paper", choices=("paper", "cv"),
+                     help="relevance kernel: the seed's (paper) or corner variance chosen by CV on this log")
     fit.add_argument("--seed", type=int, default=0)
     fit.set_defaults(func=_fit)
     val = verbs["validate"].add_parser("radar", help="compare a KDE model and its baseline with a (held-out) log")
@@ -68,11 +70,13 @@ def _fit(args: argparse.Namespace) -> int:
 
     log = read_log(args.log)
     t0 = time.perf_counter()
-    model = KDERadarModel(use_prev=not args.no_prev, cv_group=args.cv_group, random_state=args.seed)
-    model.fit(log, cycle_time=args.cycle_time)
+    model = KDERadarModel(use_prev=not args.no_prev, cv_group=args.cv_group, relevance=args.relevance,
+                          random_state=args.seed)
+    model.fit(log, cycle_time=args.cycle_time, progress=args.relevance == "cv")
     fit_s = time.perf_counter() - t0
     card = {"log": str(args.log), "rows": len(log), "fit_seconds": round(fit_s, 2), "cv_group": args.cv_group,
-            "use_prev": not args.no_prev, "seed": args.seed}
+            "use_prev": not args.no_prev, "seed": args.seed,
+            "relevance": args.relevance, "rel_variance_fitted": list(model.rel_variance_)}
     path = model.save(args.out, card=card)
     base_path = args.baseline_out or _baseline_path(str(path))
     base = GaussianRadar().fit(log, cycle_time=args.cycle_time).save(base_path, card=card)

@@ -11,9 +11,14 @@ kernel ``K_con`` on the output::
     P(miss | x) = (sum_{i missed} w_i(x) + a * m) / (sum_i w_i(x) + a)
     w_i(x) = exp(-|S^-1 (x - x_i)|^2 / 2)  if |S^-1 (x - x_i)| <= radius, else 0
 
-with ``m`` the log's overall miss rate and ``a = miss_prior`` (``a = 0`` is exactly the seed's
-estimate; the default ``a = 1``, one kernel-peak weight, keeps both outcomes possible everywhere so
-held-out likelihoods stay finite).
+with ``a = miss_prior`` (``a = 0`` is exactly the seed's estimate; the default ``a = 1``, one
+kernel-peak weight, keeps both outcomes possible everywhere so held-out likelihoods stay finite) and
+``m`` the miss rate of the tuples the query is matched against (``prior_rate="tree"``: those with a
+previous output, or the start tuples) or the log's overall rate (``"global"``, format-1 models).
+
+**Relevance bandwidth**: ``relevance="paper"`` uses ``rel_variance`` as given; ``relevance="cv"``
+chooses the corner variance from ``relevance_candidates`` by cross-validation on the training log
+(:mod:`sensor_envs.radar_relevance`).
 
 **Reading of "covariance diag(3, 3, 0.03, 0.03) in metres":** the numbers are variances [m^2] of
 the Gaussian relevance kernel, so ``S = diag(sqrt 3, sqrt 3, sqrt 0.03, sqrt 0.03)`` =
@@ -31,14 +36,17 @@ over the 2-D corner state of the tuples whose own previous output is missing, wi
 of ``K_rel``. Without ``z_{t-1}`` (``use_prev=False``, e.g. Astyx, which is no time series) every
 query uses a 2-D tree over all tuples.
 
-**Two-stage sampling**: ball query, pick one neighbour with probability ``w_i / sum w``, a missed
-tuple yields a miss (implemented as: draw the outcome with ``P(miss | x)``, then pick a tuple of
-that outcome with probability proportional to ``w_i``, which is the same for ``a = 0``), else draw
+**Two-stage sampling** (``sampler="ball"``, the reference): ball query, pick one neighbour with
+probability ``w_i / sum w``, a missed tuple yields a miss (implemented as: draw the outcome with
+``P(miss | x)``, then pick a tuple of that outcome with probability proportional to ``w_i``, which
+is the same for ``a = 0``), else draw
 ``z ~ N(z_i, diag(h(x)^2))``. The index of the picked tuple is returned (traceability). A query
 whose ball is empty uses the ``fallback_k`` nearest tuples of the same tree (keeping the memory of
 ``z_{t-1}`` in sparse regions). With ``k_max`` set, the search keeps only the ``k_max`` nearest
 tuples in the ball (constant cost in the number of tuples, but it truncates kernel mass: see the
-benchmark).
+benchmark). ``sampler="bucket"`` draws from the same distribution by rejection sampling over grid
+buckets (:mod:`sensor_envs.radar_buckets`, :meth:`KDERadarModel._draw_bucket`), at a cost that
+follows the number of candidate buckets instead of neighbours; ``"auto"`` picks by model size.
 
 **Clutter**: the number of clutter detections per cycle is resampled from the log's per-cycle
 counts; positions are clutter rows of the log plus Gaussian jitter ``clutter_jitter`` [m].
@@ -57,12 +65,24 @@ from scipy.spatial import cKDTree
 from scipy.special import ndtr
 
 from sensor_envs.modelio import load_model_file, save_model_file
+from sensor_envs.radar_buckets import build_buckets, sample_proportional
 from sensor_envs.radar_log import RadarLog, TargetTuples, clutter_counts, target_tuples
+from sensor_envs.radar_relevance import select_corner_variance
 
 __all__ = ["KDERadarModel", "NotFittedError", "cv_bandwidth_table"]
 
 KIND = "radar_kde"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""Model file format: 1 = up to the ball sampler; 2 adds ``sampler``/``bucket_cell``, the relevance
+selection (``relevance*`` params, the fitted ``rel_variance_``) and ``start_split``. Version-1 files load
+with the defaults of the new parameters."""
+AUTO_BUCKET_MIN_NEIGHBOURS = 100
+"""``sampler="auto"`` uses the bucket sampler when the median number of tuples in the ball of a stored
+state is at least this (the ball sampler's cost follows it; benchmarks/bench_radar.py, 10-target
+cycles: 25 neighbours, ball 0.28 ms vs bucket 0.42 ms; 250 neighbours, 0.91 vs 0.45 ms)."""
+_PARAM_NAMES = ("rel_variance", "use_prev", "radius", "k_max", "cv_grid_step", "cv_candidates", "cv_min_tuples",
+                "cv_max_tuples", "cv_group", "fallback_k", "miss_prior", "clutter_jitter", "sampler", "bucket_cell",
+                "relevance", "relevance_candidates", "relevance_folds", "prior_rate", "random_state")
 _LOG_2PI = np.log(2.0 * np.pi)
 
 
@@ -195,10 +215,26 @@ class KDERadarModel:
             (plain leave-one-out).
         fallback_k: a query with no tuple inside the ball uses its ``fallback_k`` nearest tuples of the
             same tree, weighted ``exp(-(d^2 - d_min^2) / 2)`` (scaled distances ``d``).
-        miss_prior: pseudo-weight of the log's overall miss rate in ``P(miss | x)``
-            (``(w_miss + a * rate) / (w_sum + a)``); keeps both outcomes possible everywhere so that
+        miss_prior: pseudo-weight ``a`` of a prior miss rate ``m`` in ``P(miss | x)``
+            (``(w_miss + a * m) / (w_sum + a)``); keeps both outcomes possible everywhere so that
             held-out likelihoods are finite. ``0`` gives the seed's estimate.
+        prior_rate: ``m`` of ``miss_prior``: ``"tree"`` (the miss rate of the tuples the query is
+            matched against: those with a previous output, or the start tuples) or ``"global"`` (the
+            log's overall miss rate; format-1 models). Where neighbours are few (e.g. a simulated
+            ``z_{t-1}`` off the recorded ones), ``"global"`` pulls the detection rate after a
+            detection (rig: 81 %) toward the overall 52 %.
         clutter_jitter: std [m] of the Gaussian jitter added to resampled clutter positions.
+        sampler: ``"bucket"`` (exact rejection sampling over grid buckets of the scaled state space; cost
+            follows the number of candidate buckets, flat in the number of tuples), ``"ball"`` (the
+            reference: full ball query; cost follows the number of neighbours) or ``"auto"`` (bucket
+            from a median of :data:`AUTO_BUCKET_MIN_NEIGHBOURS` tuples per ball on). All sample the
+            same distribution; ``k_max`` forces ``"ball"``.
+        bucket_cell: side of the bucket grid cells in relevance sigmas.
+        relevance: ``"paper"`` (use ``rel_variance`` as given) or ``"cv"`` (choose the corner variance
+            of the relevance kernel from ``relevance_candidates`` by ``relevance_folds``-fold CV on the
+            training log, :mod:`sensor_envs.radar_relevance`; the ``z_{t-1}`` variances stay as given).
+        relevance_candidates: corner variances [m^2] tried by ``relevance="cv"``.
+        relevance_folds: folds of ``relevance="cv"`` (sequences dealt round-robin).
         random_state: seed or generator for the CV subsampling.
     """
 
@@ -207,7 +243,9 @@ class KDERadarModel:
                  cv_grid_step: float = 4.0, cv_candidates: tuple[float, ...] | None = None,
                  cv_min_tuples: int = 30, cv_max_tuples: int = 300, cv_group: str = "track", fallback_k: int = 8,
                  miss_prior: float = 1.0,
-                 clutter_jitter: float = 0.5,
+                 clutter_jitter: float = 0.5, sampler: str = "auto", bucket_cell: float = 3.0,
+                 relevance: str = "paper", relevance_candidates: tuple[float, ...] = (3.0, 6.0, 12.0, 24.0, 48.0),
+                 relevance_folds: int = 4, prior_rate: str = "tree",
                  random_state: int | np.random.Generator | None = None) -> None:
         self.rel_variance = rel_variance
         self.use_prev = use_prev
@@ -221,9 +259,19 @@ class KDERadarModel:
         self.fallback_k = fallback_k
         self.miss_prior = miss_prior
         self.clutter_jitter = clutter_jitter
+        self.sampler = sampler
+        self.bucket_cell = bucket_cell
+        self.relevance = relevance
+        self.relevance_candidates = relevance_candidates
+        self.relevance_folds = relevance_folds
+        self.prior_rate = prior_rate
         self.random_state = random_state
 
     # ------------------------------------------------------------------ fit
+    def get_params(self) -> dict[str, Any]:
+        """The constructor's hyper-parameters (as passed)."""
+        return {k: getattr(self, k) for k in _PARAM_NAMES}
+
     def _check_params(self) -> None:
         rv = np.asarray(self.rel_variance, dtype=np.float64)
         if rv.shape != (4,) or not (np.isfinite(rv).all() and (rv > 0).all()):
@@ -234,15 +282,27 @@ class KDERadarModel:
             raise ValueError(f"miss_prior must be >= 0, got {self.miss_prior!r}")
         if self.cv_group not in ("track", "sequence", "row"):
             raise ValueError(f"cv_group must be 'track', 'sequence' or 'row', got {self.cv_group!r}")
+        if self.sampler not in ("auto", "bucket", "ball"):
+            raise ValueError(f"sampler must be 'auto', 'bucket' or 'ball', got {self.sampler!r}")
+        if self.prior_rate not in ("tree", "global"):
+            raise ValueError(f"prior_rate must be 'tree' or 'global', got {self.prior_rate!r}")
+        if self.relevance not in ("paper", "cv"):
+            raise ValueError(f"relevance must be 'paper' or 'cv', got {self.relevance!r}")
+        if self.relevance == "cv" and (len(self.relevance_candidates) == 0 or min(self.relevance_candidates) <= 0
+                                       or int(self.relevance_folds) < 2):
+            raise ValueError("relevance='cv' needs positive relevance_candidates and relevance_folds >= 2")
+        if not self.bucket_cell > 0:
+            raise ValueError(f"bucket_cell must be > 0, got {self.bucket_cell!r}")
         if self.k_max is not None and int(self.k_max) < 1:
             raise ValueError(f"k_max must be >= 1 or None, got {self.k_max!r}")
 
-    def fit(self, log: RadarLog, cycle_time: float | None = None) -> KDERadarModel:
+    def fit(self, log: RadarLog, cycle_time: float | None = None, progress: bool = False) -> KDERadarModel:
         """Fit on a radar log: store the tuples, build the trees, run the LOO-CV bandwidth table.
 
         Args:
             log: the radar object log.
             cycle_time: seconds between consecutive frames of the log (stored in the model card).
+            progress: show a progress bar of the ``relevance="cv"`` selection.
 
         Returns:
             self.
@@ -256,7 +316,13 @@ class KDERadarModel:
         self.states_ = np.concatenate([tt.corner, tt.z_prev], axis=1)
         self.z_ = tt.z
         self.log_row_ = tt.row
-        self.scale_ = np.sqrt(np.asarray(self.rel_variance, dtype=np.float64))
+        self.rel_variance_ = tuple(float(v) for v in self.rel_variance)
+        self.relevance_scores_ = np.zeros(0)
+        if self.relevance == "cv":
+            v, self.relevance_scores_ = select_corner_variance(
+                log, self.get_params(), tuple(self.relevance_candidates), int(self.relevance_folds), progress)
+            self.rel_variance_ = (v, v, *self.rel_variance_[2:])
+        self.scale_ = np.sqrt(np.asarray(self.rel_variance_, dtype=np.float64))
         self.cand_ = (np.asarray(self.cv_candidates, dtype=np.float64) if self.cv_candidates is not None
                       else np.geomspace(0.02, 2.0, 14))
         dims = 4 if self.use_prev else 2
@@ -292,14 +358,28 @@ class KDERadarModel:
         self._start_tree = cKDTree(self.states_[self.start_idx_, :2] / self.scale_[:2])
         self.miss_ = np.isnan(self.z_[:, 0])
         self.miss_rate_ = float(self.miss_.mean())
+        tree_rate = self.prior_rate == "tree"
+        self.prior_rate_main_ = float(self.miss_[self.main_idx_].mean()) if tree_rate and self.main_idx_.size \
+            else self.miss_rate_
+        self.prior_rate_start_ = float(self.miss_[self.start_idx_].mean()) if tree_rate else self.miss_rate_
         self.det_idx_ = np.flatnonzero(~self.miss_)
         self._det_tree = cKDTree(self.states_[self.det_idx_, :2] / self.scale_[:2])
+        self._main_buckets = (None if self._main_tree is None else build_buckets(
+            self._main_tree.data, self.bucket_cell, self.radius, flag=self.miss_[self.main_idx_]))
+        self._start_buckets = build_buckets(self._start_tree.data, self.bucket_cell, self.radius,
+                                            flag=self.miss_[self.start_idx_])
+        tree = self._main_tree if self._main_tree is not None else self._start_tree
+        probe = tree.data[:: max(1, tree.n // 256)]  # a deterministic sample of stored states
+        self.median_neighbours_ = float(np.median(tree.query_ball_point(probe, self.radius, return_length=True)))
+        self._auto_bucket = self.median_neighbours_ >= AUTO_BUCKET_MIN_NEIGHBOURS
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         state.pop("_main_tree", None)
         state.pop("_start_tree", None)
         state.pop("_det_tree", None)
+        state.pop("_main_buckets", None)
+        state.pop("_start_buckets", None)
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -375,7 +455,10 @@ class KDERadarModel:
         n = corners.shape[0]
         wsum = np.bincount(q, weights=w, minlength=n)
         wmiss = np.bincount(q, weights=w * self.miss_[gi], minlength=n)
-        p_miss = (wmiss + self.miss_prior * self.miss_rate_) / (wsum + self.miss_prior)
+        main = (np.zeros(n, dtype=bool) if prev_z is None or self._main_tree is None
+                else ~np.isnan(np.atleast_2d(np.asarray(prev_z, dtype=np.float64))[:, 0]))
+        rate = np.where(main, self.prior_rate_main_, self.prior_rate_start_)
+        p_miss = (wmiss + self.miss_prior * rate) / (wsum + self.miss_prior)
         return gi, w, q, p_miss
 
     @staticmethod
@@ -406,11 +489,11 @@ class KDERadarModel:
     ]:
         """``RadarSensor.sample_cycle``: outputs for ``n`` targets of one cycle (see :meth:`sample`).
 
-        Stage 0 draws the outcome (miss with ``P(miss | x)``); stage 1 picks a tuple of that outcome
-        with probability proportional to its relevance weight; stage 2 draws ``z ~ N(z_i, diag(h^2))``.
-        With ``miss_prior = 0`` this is exactly the seed's pick-any-tuple sampler. ``source`` is -1
-        for a miss drawn from the ``miss_prior`` share where no missed tuple is in reach.
-        Identical states in a large batch share one neighbour search.
+        The outcome has ``P(miss | x)``; a detected outcome comes from a detected tuple picked with
+        probability proportional to its relevance weight, then ``z ~ N(z_i, diag(h^2))``. With
+        ``miss_prior = 0`` this is exactly the seed's pick-any-tuple sampler. ``source`` is -1 for a
+        miss drawn from the ``miss_prior`` share (``"bucket"``: always; ``"ball"``: where no missed
+        tuple is in reach). Identical states in a large batch share one neighbour/bucket search.
         """
         self._check_fitted()
         corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
@@ -419,6 +502,17 @@ class KDERadarModel:
             return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
         prev = (np.full((n, 2), np.nan) if prev_z is None or not self.use_prev
                 else np.atleast_2d(np.asarray(prev_z, dtype=np.float64)))
+        if self.k_max is None and (self.sampler == "bucket" or (self.sampler == "auto" and self._auto_bucket)):
+            miss, src = self._draw_bucket(corners, prev, rng)
+        else:
+            miss, src = self._draw_ball(corners, prev, rng)
+        h = self.bandwidth(corners)
+        z = np.where(miss[:, None], np.nan, self.z_[np.maximum(src, 0)] + h * rng.standard_normal((n, 2)))
+        return z, src
+
+    def _draw_ball(self, corners: NDArray, prev: NDArray, rng: np.random.Generator) -> tuple[NDArray, NDArray]:
+        """Reference sampler (``sampler="ball"``): full ball query, outcome, then tuple; ``(miss, source)``."""
+        n = corners.shape[0]
         rep, inv = _unique_states(corners, prev)
         gi, w, q, p_miss = self._outcome(corners[rep], prev[rep])
         miss = rng.random(n) < p_miss[inv]
@@ -430,9 +524,59 @@ class KDERadarModel:
         lost = ~miss & (src < 0)
         if lost.any():
             src[lost] = self._nearest_detected(corners[lost])
-        h = self.bandwidth(corners)
-        z = np.where(miss[:, None], np.nan, self.z_[np.maximum(src, 0)] + h * rng.standard_normal((n, 2)))
-        return z, src
+        return miss, src
+
+    def _pick_detected_ball(self, corners: NDArray, prev: NDArray, rng: np.random.Generator) -> NDArray[np.int64]:
+        """A detected tuple with probability ``w_i / sum_{detected} w`` (reference search), per query."""
+        gi, w, q = self._neighbours(corners, prev)
+        src = self._pick(gi, w * ~self.miss_[gi], q, np.arange(corners.shape[0]), rng)
+        lost = src < 0
+        if lost.any():
+            src[lost] = self._nearest_detected(corners[lost])
+        return src
+
+    def _draw_bucket(self, corners: NDArray, prev: NDArray, rng: np.random.Generator) -> tuple[NDArray, NDArray]:
+        """Exact bucket-rejection sampler (``sampler="bucket"``), same distribution as :meth:`_draw_ball`.
+
+        One proposal stage picks tuple ``i`` with probability ``w_i / (sum w + a)`` or the ``miss_prior``
+        pseudo-tuple with ``a / (sum w + a)`` (:func:`sensor_envs.radar_buckets.sample_proportional`);
+        the pseudo-tuple is a miss with the log's miss rate ``m``, else a detected tuple is drawn with
+        ``w_i / sum_{detected} w``. Hence ``P(miss) = (w_miss + a m) / (sum w + a)`` and, given a
+        detection, tuple ``i`` has probability ``w_i / sum_{detected} w``: Eq. 10 exactly. Queries
+        with an empty ball (fallback tuples), rejection give-ups and the detected-after-pseudo draws
+        use the reference search.
+        """
+        n = corners.shape[0]
+        miss, src = np.zeros(n, dtype=bool), np.full(n, -1, dtype=np.int64)
+        todo, need_det = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        use_main = ~np.isnan(prev[:, 0]) & (self._main_tree is not None)
+        for mask, tree, buckets, idx_map, rate, q in (
+            (use_main, self._main_tree, self._main_buckets, self.main_idx_, self.prior_rate_main_,
+             np.concatenate([corners, prev], axis=1)),
+            (~use_main, self._start_tree, self._start_buckets, self.start_idx_, self.prior_rate_start_, corners),
+        ):
+            qi = np.flatnonzero(mask)
+            if qi.size == 0 or buckets is None:  # no queries, or a grid too large for memory
+                todo[qi] = True
+                continue
+            qs = q[qi] / self.scale_[: q.shape[1]]
+            rep, inv = _unique_rows(qs)
+            pick, done, via = sample_proportional(buckets, qs[rep], self.miss_prior, rng, allowed=~buckets.flag,
+                                                  pseudo_stop=rate, inv=inv)
+            if via.any():  # the pseudo-tuple is only right when the ball holds a tuple (else: fallback_k)
+                near, _ = tree.query(qs[via], k=1, distance_upper_bound=self.radius)
+                empty = np.flatnonzero(via)[~np.isfinite(near)]
+                done[empty], via[empty] = False, False
+            todo[qi[~done & ~via]] = True
+            need_det[qi[~done & via]] = True
+            tup = done & (pick >= 0)
+            src[qi[tup]] = idx_map[pick[tup]]
+            miss[qi[done]] = np.where(tup[done], self.miss_[idx_map[np.maximum(pick[done], 0)]], True)
+        if todo.any():
+            miss[todo], src[todo] = self._draw_ball(corners[todo], prev[todo], rng)
+        if need_det.any():  # pseudo-tuple drawn as a detection, rejection gave up: reference pick
+            src[need_det] = self._pick_detected_ball(corners[need_det], prev[need_det], rng)
+        return miss, src
 
     def sample_clutter(self, rng: np.random.Generator) -> NDArray[np.float64]:
         """Clutter of one cycle, ``(m, 2)`` sensor-frame positions [m] (empirical count and positions)."""
@@ -514,11 +658,12 @@ class KDERadarModel:
     def save(self, path: str | os.PathLike[str], card: dict[str, Any] | None = None) -> Path:
         """Save to a pickle-free ``.npz`` model file (:mod:`sensor_envs.modelio`)."""
         self._check_fitted()
-        params = {k: getattr(self, k) for k in ("use_prev", "radius", "k_max", "cv_grid_step",
-                                                 "cv_min_tuples", "cv_max_tuples", "cv_group", "fallback_k",
-                                                 "miss_prior", "clutter_jitter")}
+        params = {k: getattr(self, k) for k in _PARAM_NAMES if k not in ("cv_candidates", "random_state")}
         params["rel_variance"] = [float(v) for v in self.rel_variance]
-        header = {"params": params, "cycle_time": self.cycle_time_, "card": card or {}}
+        params["relevance_candidates"] = [float(v) for v in self.relevance_candidates]
+        header = {"params": params, "cycle_time": self.cycle_time_, "card": card or {},
+                  "rel_variance_fitted": list(self.rel_variance_),
+                  "relevance_scores": [float(v) for v in self.relevance_scores_]}
         arrays = {"states": self.states_, "z": self.z_, "log_row": self.log_row_, "grid_x": self.grid_x_,
                   "grid_y": self.grid_y_, "log_h": self.log_h_, "cv_counts": self.cv_counts_,
                   "cv_candidates": self.cand_, "clutter_counts": self.clutter_counts_,
@@ -532,16 +677,23 @@ class KDERadarModel:
                   "grid_x": ("f", 1, True), "grid_y": ("f", 1, True), "log_h": ("f", 3, True),
                   "cv_counts": ("iu", 2, True), "cv_candidates": ("f", 1, True),
                   "clutter_counts": ("iu", 1, True), "clutter_xy": ("f", 2, True)}
-        header, a = load_model_file(path, KIND, (FORMAT_VERSION,), schema)
+        header, a = load_model_file(path, KIND, (1, FORMAT_VERSION), schema)
         p = dict(header["params"])
         p["rel_variance"] = tuple(p["rel_variance"])
+        if "relevance_candidates" in p:
+            p["relevance_candidates"] = tuple(p["relevance_candidates"])
+        p.setdefault("prior_rate", "global")  # format 1
         model = cls(**p)
         model.states_, model.z_, model.log_row_ = a["states"], a["z"], a["log_row"].astype(np.int64)
         model.grid_x_, model.grid_y_, model.log_h_ = a["grid_x"], a["grid_y"], a["log_h"]
         model.cv_counts_, model.cand_ = a["cv_counts"].astype(np.int64), a["cv_candidates"]
         model.cv_candidates = tuple(float(c) for c in model.cand_)
         model.clutter_counts_, model.clutter_xy_ = a["clutter_counts"].astype(np.int64), a["clutter_xy"]
-        model.scale_ = np.sqrt(np.asarray(model.rel_variance, dtype=np.float64))
+        model.rel_variance_ = tuple(float(v) for v in header.get("rel_variance_fitted", model.rel_variance))
+        model.relevance_scores_ = np.asarray(header.get("relevance_scores", []), dtype=np.float64)
+        if len(model.rel_variance_) != 4 or min(model.rel_variance_) <= 0:
+            raise ValueError(f"{path}: header 'rel_variance_fitted' must be 4 positive variances")
+        model.scale_ = np.sqrt(np.asarray(model.rel_variance_, dtype=np.float64))
         model.cycle_time_ = float(header.get("cycle_time", float("nan")))
         model.card_ = header.get("card", {})
         if model.states_.shape[1] != 4 or model.z_.shape != (model.states_.shape[0], 2):
@@ -552,11 +704,15 @@ class KDERadarModel:
 
 def _unique_states(corners: NDArray, prev: NDArray, min_n: int = 64) -> tuple[NDArray, NDArray]:
     """Representative rows and inverse map of identical query states (only for batches >= ``min_n``)."""
-    n = corners.shape[0]
+    return _unique_rows(np.nan_to_num(np.concatenate([corners, prev], axis=1), nan=1e300), min_n)
+
+
+def _unique_rows(a: NDArray, min_n: int = 64) -> tuple[NDArray, NDArray]:
+    """Representative rows and inverse map of identical rows of ``a`` (only for batches >= ``min_n``)."""
+    n = a.shape[0]
     if n < min_n:
         return np.arange(n), np.arange(n)
-    key = np.nan_to_num(np.concatenate([corners, prev], axis=1), nan=1e300)
-    _, rep, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    _, rep, inv = np.unique(a, axis=0, return_index=True, return_inverse=True)
     return rep, inv.ravel()
 
 

@@ -31,6 +31,7 @@ __all__ = [
     "energy_distance_2d",
     "lag1_autocorr",
     "rollout",
+    "detection_by_previous",
     "nll",
     "evaluate",
     "validate",
@@ -115,6 +116,19 @@ def rollout(model: _Model, tt: TargetTuples, rng: np.random.Generator) -> tuple[
     return z, zp
 
 
+def detection_by_previous(tt: TargetTuples, z: NDArray, z_prev: NDArray) -> dict[str, dict[str, float]]:
+    """Detection rate and row count split by the previous cycle of each target.
+
+    Parts: ``new`` (no previous row in the log), ``after_miss`` and ``after_detection`` (judged on the
+    outputs ``z``/``z_prev`` given: recorded, or simulated by :func:`rollout`).
+    """
+    det, prev_det = ~np.isnan(z[:, 0]), ~np.isnan(z_prev[:, 0])
+    parts = {"new": ~tt.has_prev_row, "after_miss": tt.has_prev_row & ~prev_det,
+             "after_detection": tt.has_prev_row & prev_det}
+    return {k: {"rate": float(det[v].mean()) if v.any() else float("nan"), "n": int(v.sum())}
+            for k, v in parts.items()}
+
+
 def nll(model: _Model, tt: TargetTuples) -> dict[str, float]:
     """Mean negative log-likelihoods [nats] of the log's outcomes (see the module docstring)."""
     state = np.concatenate([tt.corner, tt.z_prev], axis=1)
@@ -158,6 +172,8 @@ def evaluate(model: _Model, log: RadarLog, rng: np.random.Generator, edges: tupl
         res["lag1_autocorr_measured"] = lag1_autocorr(tt.z, tt.z_prev).tolist()
         res["lag1_autocorr_simulated"] = lag1_autocorr(zr, zpr).tolist()
         res["detection_rate_rollout"] = float(np.mean(~np.isnan(zr[:, 0])))
+        res["detection_rate_by_previous"] = {"recorded": detection_by_previous(tt, tt.z, tt.z_prev),
+                                             "rollout": detection_by_previous(tt, zr, zpr)}
     res["detection_rate_measured"] = float(np.mean(~np.isnan(tt.z[:, 0])))
     return res
 

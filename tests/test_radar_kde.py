@@ -33,10 +33,21 @@ def _states(model):
     return [*picks, start]
 
 
-def test_samples_follow_the_analytic_pdf(model):
+@pytest.mark.parametrize("sampler", ["bucket", "ball"])  # "ball" = the reference sampler
+def test_samples_follow_the_analytic_pdf(model, sampler):
+    m = pickle.loads(pickle.dumps(model))
+    m.sampler = sampler
     for k, state in enumerate(_states(model)):
-        res = chi_square(model, state, np.random.default_rng(100 + k), n=95_000)
+        res = chi_square(m, state, np.random.default_rng(100 + k), n=95_000)
         assert res["dof"] > 20
+        assert res["p_value"] > P_MIN, (state, res["statistic"], res["dof"])
+
+
+def test_bucket_sampler_with_strong_miss_prior_and_fine_grid(rig_split):
+    # a large pseudo-weight makes the pseudo-tuple paths (miss / detected-after-pseudo) frequent
+    m = KDERadarModel(miss_prior=30.0, bucket_cell=1.5, sampler="bucket", random_state=0).fit(rig_split[0])
+    for k, state in enumerate(_states(m)[2:]):  # one state with z_{t-1}, one start state
+        res = chi_square(m, state, np.random.default_rng(200 + k), n=95_000)
         assert res["p_value"] > P_MIN, (state, res["statistic"], res["dof"])
 
 
@@ -70,7 +81,8 @@ def _brute_log_prob(m, z, state):
         r = np.array([np.sqrt(np.sum(((m.states_[i, :d] - st[:d]) / m.scale_[:d]) ** 2)) for i in idx])
         w[r > m.radius] = 0.0
         miss = np.isnan(m.z_[idx, 0])
-        p_miss = (w[miss].sum() + m.miss_prior * m.miss_rate_) / (w.sum() + m.miss_prior)
+        rate = np.isnan(m.z_[idx, 0]).mean() if m.prior_rate == "tree" else np.isnan(m.z_[:, 0]).mean()
+        p_miss = (w[miss].sum() + m.miss_prior * rate) / (w.sum() + m.miss_prior)
         if np.isnan(zz[0]):
             out.append(np.log(p_miss))
             continue
@@ -133,6 +145,38 @@ def test_autocorrelation_reproduced_with_previous_output(rig_split, model):
     without = lag1_autocorr(*rollout(no_prev_model, tt, np.random.default_rng(0)))
     assert np.all(np.abs(with_prev - measured) < AUTOCORR_TOL), (with_prev, measured)
     assert np.all(without < with_prev - 0.1), (without, with_prev)
+
+
+def test_detection_rate_after_a_detection_is_kept_in_closed_loop(rig_split, model):
+    # simulated z_{t-1} often has few recorded neighbours; the miss prior must then shrink toward the
+    # miss rate of tuples WITH a previous output, not the log's overall rate (measured: 0.65-0.68 vs 0.79)
+    tt = target_tuples(rig_split[1])
+    after = tt.has_prev_row & ~np.isnan(tt.z_prev[:, 0])
+    recorded = np.mean(~np.isnan(tt.z[after, 0]))
+    z, zp = rollout(model, tt, np.random.default_rng(0))
+    sim_after = tt.has_prev_row & ~np.isnan(zp[:, 0])
+    assert abs(np.mean(~np.isnan(z[sim_after, 0])) - recorded) < 0.04, recorded
+
+
+def _offset_log(rng, sharp, n=800):
+    """Outputs independent of position (``sharp=False``) or flipping sign every 2 m of ``ref_y``."""
+    cols = {c: np.zeros(n) for c in REQUIRED_COLUMNS}
+    cols["sequence"], cols["frame"], cols["target"] = np.arange(n) % 8, np.arange(n), np.zeros(n)
+    cols["ref_x"], cols["ref_y"] = rng.uniform(10, 40, n), rng.uniform(-8, 8, n)
+    cols["ref_length"], cols["ref_width"] = np.full(n, 4.0), np.full(n, 2.0)
+    sign = np.where(np.floor(cols["ref_y"] / 2) % 2 == 0, 1.0, -1.0) if sharp else rng.choice([-1.0, 1.0], n)
+    cols["meas_x"] = cols["ref_x"] - 2 + 0.1 * rng.standard_normal(n)
+    cols["meas_y"] = cols["ref_y"] + sign + 0.1 * rng.standard_normal(n)
+    return RadarLog(cols)
+
+
+@pytest.mark.parametrize(("sharp", "expected"), [(True, 1.0), (False, 48.0)])
+def test_relevance_cv_picks_the_kernel_width_the_data_support(sharp, expected):
+    log = _offset_log(np.random.default_rng(3), sharp)
+    m = KDERadarModel(use_prev=False, cv_group="sequence", relevance="cv", relevance_candidates=(1.0, 48.0),
+                      relevance_folds=2, cv_grid_step=8.0, cv_max_tuples=100, random_state=0).fit(log)
+    assert m.rel_variance_[:2] == (expected, expected), m.relevance_scores_
+    assert m.rel_variance == (3.0, 3.0, 0.03, 0.03)  # the hyper-parameter is untouched
 
 
 def test_exact_and_capped_search_agree_when_cap_is_large(model, tmp_path):
