@@ -40,7 +40,7 @@ def main() -> None:
                                    n_poses=log.n_poses, repeats=log.ranges.shape[2])
     stats = {"real": log_statistics(log), "rig": log_statistics(rig_log)}
     print("## Real vs rig statistics (rig: same number of poses and repeats, seed_room)")
-    for k in ("null_fraction", "spurious_fraction", "cells_with_spurious", "blocked_bearings",
+    for k in ("null_fraction", "spurious_fraction", "cells_with_spurious", "blocked_bearings", "mixed_null_cells",
               "mae_mean_minus_nominal", "median_cell_std"):
         print(f"{k:28s} real {stats['real'][k]:.4g}   rig {stats['rig'][k]:.4g}")
     for a, b in zip(stats["real"]["by_range"], stats["rig"]["by_range"], strict=True):

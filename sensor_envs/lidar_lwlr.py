@@ -15,7 +15,13 @@ the ray, computed from the (approximate) sensor pose and the nominal map.
   cell's mean around ``mu`` when the pose is approximate (regressed on the squared out-of-fold
   residuals), widens the density of :meth:`LidarLWLR.log_prob` and :meth:`LidarLWLR.sample` to
   ``sqrt(sigma^2 + tau^2)``. The world's sensor (:class:`LearnedLidar`) knows the true pose and
-  samples without ``tau``.
+  samples without ``tau``. Nulls persist per cell: the readings of one pose and bearing are
+  not independent Bernoulli draws (on the real Neato log most cells are all-null or never null), so
+  the extended variant also fits ``null_rho_``, the intra-cell correlation of nulls (a beta-binomial
+  over a cell's repeats with mean ``p_null``, chosen by leave-poses-out likelihood). :meth:`LidarLWLR.sample`
+  draws each cell's null probability once from ``Beta(p_null c, (1 - p_null) c)``, ``c = 1 / rho - 1``,
+  shared by its repeats; :func:`null_count_log_prob` scores a cell's null count. The per-reading
+  :meth:`LidarLWLR.log_prob` and the world's sensor use the marginal ``p_null`` (unchanged).
 
 Each parameter is regressed per bearing by locally weighted linear regression (LWLR) on
 ``(r, alpha)`` of the training cells (one cell = one pose and one bearing, summarised by its
@@ -42,6 +48,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy import stats as sps
 from tqdm.auto import tqdm
 
 from sensor_envs.geometry import as_segments, raycast_pose
@@ -49,7 +56,8 @@ from sensor_envs.lidar_log import LidarLog
 from sensor_envs.modelio import ModelFileError, load_model_file, save_model_file
 
 __all__ = ["LidarLWLR", "LearnedLidar", "load_learned_lidar", "lidar_features", "cell_statistics",
-           "mixture_log_prob", "P_EPS", "SIGMA_FLOOR", "VARIANTS", "MODEL_KIND", "FORMAT_VERSION"]
+           "mixture_log_prob", "null_count_log_prob", "RHO_GRID", "P_EPS", "SIGMA_FLOOR", "VARIANTS", "MODEL_KIND",
+           "FORMAT_VERSION"]
 
 P_EPS = 1e-3
 """Probabilities of null are clipped to ``[P_EPS, 1 - P_EPS]`` so that log-likelihoods stay finite."""
@@ -61,7 +69,10 @@ TAU_CLIP = 0.5
 """Cell-mean residuals [m] are clipped to this before their variance ``tau^2`` is regressed."""
 VARIANTS = ("seed", "extended")
 MODEL_KIND = "sensor_envs.lidar_lwlr"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""2 adds ``null_rho`` to the header (version 1 files load with ``null_rho = 0``, independent nulls)."""
+RHO_GRID = (0.0, 0.01, 0.03, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95)
+"""Candidate intra-cell correlations of nulls (extended variant)."""
 _PARAMS = {"seed": ("p_null", "bias", "sigma"), "extended": ("p_null", "p_spur", "bias", "log_sigma")}
 _TABLES = {"seed": _PARAMS["seed"], "extended": _PARAMS["extended"] + ("tau2",)}
 _RIDGE = (1e-3, 1e-2)  # (intercept pull to the bearing's mean, slope shrinkage) in kernel-weight units
@@ -344,6 +355,8 @@ class LidarLWLR:
         del self._bias_oof
         if self.variant == "seed":
             self.p_out_ = 0.0
+        self.null_rho_ = self._fit_null_rho(stats, r) if self.variant == "extended" else 0.0
+        del self._p_null_oof
         self._fit_spurious(log)
         self.training_ = {"source": Path(log.source).name, "n_poses": log.n_poses, "n_bearings": log.n_bearings,
                           "n_readings": int((~np.isnan(log.ranges)).sum()),
@@ -383,6 +396,22 @@ class LidarLWLR:
         e2 = np.minimum((y[..., 0] - self._bias_oof) ** 2, TAU_CLIP**2)
         return ("tau2",), e2[..., None], w, False
 
+    def _fit_null_rho(self, stats: dict[str, NDArray[np.float64]], r: NDArray[np.float64]) -> float:
+        """Intra-cell correlation of nulls (``0`` = independent readings).
+
+        The ``RHO_GRID`` value maximising the beta-binomial likelihood of the training cells' null counts
+        around the out-of-fold ``p_null`` of the chosen kernel widths.
+        """
+        m = np.isfinite(r) & (stats["n"] > 0)
+        n = stats["n"][m]
+        k = np.round(stats["p_null"][m] * n)
+        q = self._p_null_oof[m]
+        ll = [null_count_log_prob(k, n, q, rho).sum() for rho in RHO_GRID]
+        self.cv_scores_["null_rho"] = {"ll_per_reading_best": float(max(ll) / n.sum()),
+                                       "ll_per_reading_independent": float(ll[0] / n.sum()),
+                                       "n_candidates": len(RHO_GRID)}
+        return float(RHO_GRID[int(np.argmax(ll))])
+
     def _folds(self, n: int) -> NDArray[np.int64]:
         rng = np.random.default_rng(self.random_state)
         return rng.permutation(np.arange(n) % self.n_folds)
@@ -399,6 +428,7 @@ class LidarLWLR:
         per = len(degs) * len(hb)
         err = {n: np.zeros(len(grid)) for g in groups for n in g[0]}
         oof = np.zeros((len(grid),) + r.shape)  # out-of-fold bias predictions (for tau)
+        oof_p = np.zeros((len(grid),) + r.shape)  # out-of-fold p_null predictions (for null_rho)
         cnt = {n: np.zeros(len(grid)) for g in groups for n in g[0]}
         for f in tqdm(range(self.n_folds), desc=f"CV lidar LWLR ({self.variant})", disable=not self.progress):
             tr, te = fold != f, fold == f
@@ -410,6 +440,8 @@ class LidarLWLR:
                     pred = pred.reshape((per,) + pred.shape[2:])  # (degrees x bearing widths, Q, K, n)
                     if names[0] == "bias":
                         oof[i * per:(i + 1) * per, te] = pred[..., 0]
+                    if names[0] == "p_null":
+                        oof_p[i * per:(i + 1) * per, te] = _finish("p_null", pred[..., 0])
                     for j, n in enumerate(names):
                         for b in range(per):
                             e, c = _cv_loss(n, pred[b, ..., j], y[te][..., j], m_te)
@@ -423,6 +455,8 @@ class LidarLWLR:
             scores[n] = {"cv_mae_best": float(mae[i]), "cv_mae_worst": float(mae.max()), "n_candidates": len(grid)}
             if n == "bias":
                 self._bias_oof = oof[i]
+            if n == "p_null":
+                self._p_null_oof = oof_p[i]
         return best, scores
 
     def _grid(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -501,7 +535,8 @@ class LidarLWLR:
         sigma = np.exp(out["log_sigma"]) if "log_sigma" in out else out["sigma"]
         tau = np.sqrt(np.maximum(out["tau2"], 0.0)) if "tau2" in out else np.zeros_like(rq)
         return {"p_null": p_null, "p_spur": p_spur, "mu": rq + out["bias"], "sigma": sigma, "tau": tau,
-                "p_out": np.full(rq.shape, self.p_out_), "out_range": np.full(rq.shape, self.max_range)}
+                "p_out": np.full(rq.shape, self.p_out_), "out_range": np.full(rq.shape, self.max_range),
+                "null_rho": np.full(rq.shape, self.null_rho_)}
 
     def params(self, poses: ArrayLike, map_segments: ArrayLike) -> tuple[
         NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]
@@ -525,21 +560,25 @@ class LidarLWLR:
 
         With ``pose_uncertainty``, the in-range component's mean is drawn once per entry of ``p`` (one
         cell), shared by the repeats along the extra axes of ``shape``: with probability ``p_out``
-        uniform on ``[0, out_range]`` (a ray whose nominal hit is another surface), else ``mu + tau z``.
+        uniform on ``[0, out_range]`` (a ray whose nominal hit is another surface), else ``mu + tau z``;
+        and so is the cell's null probability, from ``Beta(p_null c, (1 - p_null) c)``, ``c = 1 / null_rho - 1``
+        (persistent nulls; ``p_null`` itself where ``null_rho`` is 0 or absent).
         """
         shape = p["mu"].shape if shape is None else shape
         u = rng.random(shape)
         z = rng.standard_normal(shape)
-        mu = p["mu"]
+        mu, p_null, p_spur = p["mu"], p["p_null"], p["p_spur"]
         if pose_uncertainty:
             cell = p["tau"].shape
             mu = np.where(rng.random(cell) < p["p_out"], rng.uniform(0.0, 1.0, cell) * p["out_range"],
                           mu + p["tau"] * rng.standard_normal(cell))
+            p_null = _cell_null_probability(p_null, p.get("null_rho"), rng)
+            p_spur = np.minimum(p_spur, 1 - p_null)
         x = np.maximum(mu + p["sigma"] * z, 1e-4)
         if self.variant == "extended":
-            spur = (u >= p["p_null"]) & (u < p["p_null"] + p["p_spur"])
+            spur = (u >= p_null) & (u < p_null + p_spur)
             x = np.where(spur, self.spur_mu_ + self.spur_sigma_ * z, x)
-        return np.where(u < p["p_null"], 0.0, x)
+        return np.where(u < p_null, 0.0, x)
 
     def sample(self, poses: ArrayLike, map_segments: ArrayLike, rng: np.random.Generator,
                n_repeats: int | None = None) -> NDArray[np.float64]:
@@ -547,7 +586,9 @@ class LidarLWLR:
 
         Each cell's mean is drawn once (``mu + tau z``, the extended variant's spread of cell means
         around ``mu`` at an approximate pose) and shared by its repeats; this matches :meth:`log_prob`
-        reading by reading.
+        reading by reading. So is each cell's null probability (``Beta`` with mean ``p_null`` and
+        intra-cell correlation ``null_rho_``): the null counts of the cells follow
+        :func:`null_count_log_prob`, while each reading's marginal null probability stays ``p_null``.
         """
         p = self.params_full(poses, map_segments)
         if n_repeats is None:
@@ -580,7 +621,8 @@ class LidarLWLR:
                  if not k.endswith("_") and not k.startswith("_") and k not in ("random_state", "progress")}
         card = {"training": self.training_, "cv_scores": self.cv_scores_, **getattr(self, "card_extra_", {})}
         return {"params": hyper, "h": self.h_, "param_names": self.param_names_, "spur_mu": self.spur_mu_,
-                "spur_sigma": self.spur_sigma_, "p_out": self.p_out_, "card": card}
+                "spur_sigma": self.spur_sigma_, "p_out": self.p_out_, "null_rho": self.null_rho_,
+                "card": card}
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the model file (tables + JSON header, no pickle, no training readings)."""
@@ -598,12 +640,13 @@ class LidarLWLR:
         """
         schema = {"tables": ("f", 4, True), "bearings": ("f", 1, True), "range_grid": ("f", 1, True),
                   "alpha_grid": ("f", 1, True)}
-        header, arr = load_model_file(path, MODEL_KIND, (FORMAT_VERSION,), schema)
+        header, arr = load_model_file(path, MODEL_KIND, (1, FORMAT_VERSION), schema)
         try:
             model = cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in header["params"].items()})
             model.h_, model.param_names_ = header["h"], list(header["param_names"])
             model.spur_mu_, model.spur_sigma_ = float(header["spur_mu"]), float(header["spur_sigma"])
             model.p_out_ = float(header["p_out"])
+            model.null_rho_ = float(header.get("null_rho", 0.0))
             card = dict(header["card"])
         except (KeyError, TypeError) as exc:
             raise ModelFileError(f"{path}: field '__header__' lacks or misstates {exc}") from None
@@ -633,6 +676,32 @@ def _bilinear(tables: NDArray[np.float64], rg: NDArray[np.float64], ag: NDArray[
     v00, v01 = flat[:, base], flat[:, base + 1]
     v10, v11 = flat[:, base + na], flat[:, base + na + 1]
     return (v00 * (1 - wa) + v01 * wa) * (1 - wr) + (v10 * (1 - wa) + v11 * wa) * wr
+
+
+def _cell_null_probability(p_null: NDArray[np.float64], rho: NDArray[np.float64] | None,
+                           rng: np.random.Generator) -> NDArray[np.float64]:
+    """One null probability per cell, ``Beta(p_null c, (1 - p_null) c)`` with ``c = 1 / rho - 1`` (mean ``p_null``)."""
+    if rho is None or not np.any(rho > 0):
+        return p_null
+    c = 1 / np.maximum(rho, 1e-9) - 1
+    q = np.clip(p_null, P_EPS, 1 - P_EPS)
+    draw = rng.beta(q * c, (1 - q) * c)
+    return np.where(rho > 0, draw, p_null)
+
+
+def null_count_log_prob(k: ArrayLike, n: ArrayLike, p_null: ArrayLike, rho: ArrayLike) -> NDArray[np.float64]:
+    """Log-probability of ``k`` nulls among a cell's ``n`` readings, beta-binomial with mean ``p_null``.
+
+    ``rho`` is the intra-cell correlation of nulls (``0`` = independent readings, binomial); shapes broadcast.
+    """
+    k, n = np.asarray(k, dtype=np.float64), np.asarray(n, dtype=np.float64)
+    q = np.clip(np.asarray(p_null, dtype=np.float64), P_EPS, 1 - P_EPS)
+    rho = np.asarray(rho, dtype=np.float64)
+    out = sps.binom.logpmf(k, n, q)
+    if not np.any(rho > 0):
+        return out
+    c = 1 / np.clip(rho, 1e-6, 1 - 1e-6) - 1
+    return np.where(rho > 0, sps.betabinom.logpmf(k, n, q * c, (1 - q) * c), out)
 
 
 def _norm_logpdf(x: NDArray[np.float64], mu: ArrayLike, sigma: ArrayLike) -> NDArray[np.float64]:

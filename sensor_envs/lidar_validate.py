@@ -11,6 +11,10 @@ Definitions (written into every ``report.json``):
   without any spurious reading.
 * Log-likelihood: mean over readings of ``log p_null`` (nulls) or the log density [1/m] of the
   reading, on all readings and on the in-range readings only.
+* Null-count log-likelihood: mean over readings of the log-probability of each cell's number of
+  nulls among its readings, beta-binomial with mean ``p_null`` and the model's intra-cell correlation
+  ``null_rho`` (persistent nulls); ``..._independent`` uses ``null_rho = 0`` (binomial: readings
+  independent, as the per-reading log-likelihood assumes). Baselines have ``null_rho = 0``.
 * Baselines (same features): ``ideal`` has ``mu = r``, ``sigma = IDEAL_SIGMA`` (the 1 mm range quantum:
   a floor that keeps its likelihood finite) and ``p_null = P_EPS`` on a hit (``1 - P_EPS`` without);
   ``gaussian`` is :class:`~sensor_envs.lidars.GaussianLidar` with its ``sigma0``, ``k_range``,
@@ -34,12 +38,15 @@ from tqdm.auto import tqdm
 from sensor_envs.geometry import to_frame
 from sensor_envs.lidar_log import LidarLog
 from sensor_envs.lidar_lwlr import (
+    FORMAT_VERSION,
+    MODEL_KIND,
     P_EPS,
     SIGMA_FLOOR,
     LidarLWLR,
     cell_statistics,
     lidar_features,
     mixture_log_prob,
+    null_count_log_prob,
 )
 from sensor_envs.lidars import GaussianLidar
 
@@ -112,6 +119,11 @@ def table_one(log: LidarLog, p: Params, spur: tuple[Any, Any] = (0.0, 1.0), spur
                     "n_cells_mu_sigma": int((ms & sel).sum()), "n_cells_p_null": int((has & sel).sum())}
     out["mae_p_spur"] = float(np.abs(p["p_spur"] - st["p_spur"])[has].mean())
     out.update(_ll(log, p, spur, spur_above))
+    k, n = np.round(st["p_null"][has] * st["n"][has]), st["n"][has]
+    rho = p["null_rho"][has] if "null_rho" in p else 0.0
+    out["ll_null_counts_per_reading"] = float(null_count_log_prob(k, n, p["p_null"][has], rho).sum() / n.sum())
+    out["ll_null_counts_per_reading_independent"] = float(null_count_log_prob(k, n, p["p_null"][has], 0.0).sum()
+                                                          / n.sum())
     return out
 
 
@@ -156,12 +168,14 @@ def validate(model: LidarLWLR, log: LidarLog, out_dir: str | os.PathLike[str],
 def metrics_markdown(metrics: dict[str, dict[str, Any]]) -> str:
     """A Markdown table of :func:`table_one` results keyed by model name."""
     lines = ["| model | MAE mu [m] | MAE sigma [m] | MAE p_null | clean: MAE mu | clean: MAE sigma | "
-             "clean: MAE p_null | MAE p_spur | LL/reading | LL/reading in range |", "|" + "---|" * 10]
+             "clean: MAE p_null | MAE p_spur | LL/reading | LL/reading in range | null-count LL/reading | "
+             "null-count LL/reading (independent) |", "|" + "---|" * 12]
     for k, m in metrics.items():
         a, c = m["all"], m["clean"]
         lines.append(f"| {k} | {a['mae_mu']:.4f} | {a['mae_sigma']:.4f} | {a['mae_p_null']:.4f} | {c['mae_mu']:.4f} | "
                      f"{c['mae_sigma']:.4f} | {c['mae_p_null']:.4f} | {m['mae_p_spur']:.4f} | "
-                     f"{m['ll_per_reading']:.4g} | {m['ll_per_reading_in_range']:.4g} |")
+                     f"{m['ll_per_reading']:.4g} | {m['ll_per_reading_in_range']:.4g} | "
+                     f"{m['ll_null_counts_per_reading']:.4g} | {m['ll_null_counts_per_reading_independent']:.4g} |")
     return "\n".join(lines) + "\n"
 
 
@@ -276,7 +290,11 @@ def _put(dst: Params, idx: NDArray[np.bool_], src: Params) -> None:
 
 # ------------------------------------------------------------------------------------- statistics, card
 def log_statistics(log: LidarLog, max_range: float = 5.0, spur_above: float = 6.0) -> dict[str, Any]:
-    """Summary statistics of a static-pose log (for calibrating the rig against real data)."""
+    """Summary statistics of a static-pose log (for calibrating the rig against real data).
+
+    ``mixed_null_cells`` is the share of unblocked hit cells that are neither always nor never null
+    (null fraction in ``[0.05, 0.95]``): low when nulls persist per cell.
+    """
     r, _ = lidar_features(log.poses, log.bearings, log.require_map(), max_range)
     st = cell_statistics(log, spur_above, split_spurious=True)
     valid = ~np.isnan(log.ranges)
@@ -294,8 +312,14 @@ def log_statistics(log: LidarLog, max_range: float = 5.0, spur_above: float = 6.
             "spurious_fraction": float((log.ranges[valid] > spur_above).mean()),
             "cells_with_spurious": float((st["p_spur"] > 0).mean()),
             "blocked_bearings": int(blocked.sum()),
+            "mixed_null_cells": float(_mixed(st["p_null"][np.isfinite(r) & ~blocked[None] & (st["n"] > 0)])),
             "mae_mean_minus_nominal": float(np.abs(st["mean"] - r)[ok].mean()),
             "median_cell_std": float(np.median(st["std"][ok])), "by_range": by_r}
+
+
+def _mixed(p_null: NDArray[np.float64]) -> float:
+    """Share of cells whose null fraction is in ``[0.05, 0.95]`` (neither always nor never null)."""
+    return float(((p_null >= 0.05) & (p_null <= 0.95)).mean()) if p_null.size else float("nan")
 
 
 def model_card_markdown(model: LidarLWLR, commands: list[str], validation: dict[str, Any] | None = None) -> str:
@@ -316,6 +340,13 @@ def model_card_markdown(model: LidarLWLR, commands: list[str], validation: dict[
                      f"{s.get('cv_mae_worst', float('nan')):.5f} |")
     lines += ["", "CV MAE of `log_sigma` is in metres of sigma; of `bias` in metres of mu; `tau2` (spread of cell "
               "means at an approximate pose) reuses the widths of `bias` and is not cross-validated.", ""]
+    s = model.cv_scores_.get("null_rho")
+    if s:
+        lines += [f"Persistent nulls: intra-cell correlation `null_rho` = {model.null_rho_} (beta-binomial over a "
+                  f"cell's repeats; chosen among {s['n_candidates']} values by the likelihood of the training cells' "
+                  f"null counts around the out-of-fold `p_null`: {s['ll_per_reading_best']:.4f} per reading vs "
+                  f"{s['ll_per_reading_independent']:.4f} for independent readings).", ""]
+    lines += [f"File format version {FORMAT_VERSION} (`{MODEL_KIND}`).", ""]
     if validation is not None:
         lines += ["## Validation", "", f"On `{validation.get('log')}` ({validation.get('n_poses')} poses):", "",
                   metrics_markdown(validation["metrics"])]

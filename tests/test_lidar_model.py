@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 
@@ -18,6 +19,7 @@ from sensor_envs.lidar_lwlr import (
     load_learned_lidar,
     lwlr,
     mixture_log_prob,
+    null_count_log_prob,
 )
 from sensor_envs.maps import load_map
 from sensor_envs.modelio import ModelFileError
@@ -32,10 +34,10 @@ ALPHA = 1e-3  # each goodness-of-fit test below fails with probability ~1e-3 und
 @pytest.fixture(scope="module")
 def rig_fit():
     """An exact-pose rig (no pose/map error, so the per-bearing bias is identifiable) and fitted models."""
-    rig = NeatoRig(pose_sd=(0.0, 0.0), map_sd=0.0)
+    rig = NeatoRig(pose_sd=(0.0, 0.0), map_sd=0.0, null_rho=0.0)
     log, truth = rig.record(ROOM, np.random.default_rng(1), n_poses=30, repeats=20)
     ext = LidarLWLR(variant="extended", **SMALL).fit(log)
-    clean_rig = NeatoRig(pose_sd=(0.0, 0.0), map_sd=0.0, spur_prone=0.0)
+    clean_rig = NeatoRig(pose_sd=(0.0, 0.0), map_sd=0.0, spur_prone=0.0, null_rho=0.0)
     clean_log, _ = clean_rig.record(ROOM, np.random.default_rng(2), n_poses=30, repeats=20)
     seed = LidarLWLR(variant="seed", **SMALL).fit(clean_log)
     return log, truth, ext, seed
@@ -117,6 +119,65 @@ def test_log_prob_matches_brute_force(rig_fit):
     assert ext.log_prob(log.ranges[:2], log.poses[:2], ROOM).shape == log.ranges[:2].shape
 
 
+def test_null_count_log_prob_is_a_beta_binomial():
+    n, q = 12, 0.3
+    k = np.arange(n + 1)
+    np.testing.assert_allclose(null_count_log_prob(k, n, q, 0.0), stats.binom.logpmf(k, n, q), rtol=1e-12)
+    grid = np.linspace(0.0, 1.0, 200_001)
+    for rho in (0.1, 0.2):  # brute force: the binomial mixed over Beta(q c, (1 - q) c), c = 1 / rho - 1
+        c = 1 / rho - 1
+        dens = stats.beta.pdf(grid, q * c, (1 - q) * c)
+        ref = np.array([np.trapezoid(stats.binom.pmf(kk, n, grid) * dens, grid) for kk in k])
+        np.testing.assert_allclose(np.exp(null_count_log_prob(k, n, q, rho)), ref, rtol=1e-5)
+    for rho in (0.7, 0.95):  # U-shaped mixing density: check normalisation, mean and variance
+        pmf = np.exp(null_count_log_prob(k, n, q, rho))
+        assert pmf.sum() == pytest.approx(1.0, abs=1e-12)
+        assert pmf @ k == pytest.approx(n * q, rel=1e-9)
+        assert pmf @ (k - n * q) ** 2 == pytest.approx(n * q * (1 - q) * (1 + (n - 1) * rho), rel=1e-9)
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.5])
+def test_sampled_null_counts_follow_the_beta_binomial(rig_fit, rho):
+    _, _, ext, _ = rig_fit
+    cells, n, q = 4000, 20, 0.3
+    p = {"p_null": np.full((cells, 1), q), "p_spur": np.full((cells, 1), 1e-4), "mu": np.full((cells, 1), 2.0),
+         "sigma": np.full((cells, 1), 0.01), "tau": np.zeros((cells, 1)), "p_out": np.zeros((cells, 1)),
+         "out_range": np.full((cells, 1), 5.0), "null_rho": np.full((cells, 1), rho)}
+    x = ext.sample_from_params(p, np.random.default_rng(11), (cells, n), pose_uncertainty=True)
+    obs = np.bincount((x == 0).sum(1), minlength=n + 1)
+    exp = cells * np.exp(null_count_log_prob(np.arange(n + 1), n, q, rho))
+    keep = exp >= 5  # pool the sparse tails into one bin
+    o, e = np.append(obs[keep], obs[~keep].sum()), np.append(exp[keep], exp[~keep].sum())
+    o, e = o[e > 0], e[e > 0]
+    assert stats.chi2.sf(((o - e) ** 2 / e).sum(), o.size - 1) > ALPHA
+
+
+def test_fit_finds_persistent_nulls(rig_fit):
+    log, _, _, _ = rig_fit
+    rng = np.random.default_rng(4)
+    dead_cells = np.where(rng.random(log.ranges.shape[:2] + (1,)) < 0.3, 0.0, log.ranges)
+    dead_readings = np.where(rng.random(log.ranges.shape) < 0.3, 0.0, log.ranges)
+    kw = dict(SMALL, h_bearing_grid=(0.0,), degree_grid=(1,))
+    persistent = LidarLWLR(variant="extended", **kw).fit(dataclasses.replace(log, ranges=dead_cells))
+    independent = LidarLWLR(variant="extended", **kw).fit(dataclasses.replace(log, ranges=dead_readings))
+    assert persistent.null_rho_ >= 0.5
+    assert independent.null_rho_ <= 0.1
+    s = persistent.cv_scores_["null_rho"]
+    assert s["ll_per_reading_best"] > s["ll_per_reading_independent"]
+
+
+def test_rig_nulls_persist_per_cell_and_the_fit_finds_them():
+    from sensor_envs.lidar_validate import log_statistics  # noqa: PLC0415
+
+    log, _ = NeatoRig(null_rho=0.9).record(ROOM, np.random.default_rng(6), n_poses=12, repeats=40)
+    independent, _ = NeatoRig().record(ROOM, np.random.default_rng(6), n_poses=12, repeats=40)
+    mixed, mixed_ind = log_statistics(log)["mixed_null_cells"], log_statistics(independent)["mixed_null_cells"]
+    assert mixed < 0.5 * mixed_ind
+    assert abs(log_statistics(log)["null_fraction"] - log_statistics(independent)["null_fraction"]) < 0.02
+    kw = dict(SMALL, h_bearing_grid=(0.0,), degree_grid=(1,))
+    assert LidarLWLR(variant="extended", **kw).fit(log).null_rho_ >= 0.5
+
+
 def test_lwlr_matches_brute_force_weighted_least_squares():
     rng = np.random.default_rng(3)
     t_r, t_a = rng.uniform(0.3, 3.0, (25, 4)), rng.uniform(0.0, 1.2, (25, 4))
@@ -142,10 +203,32 @@ def test_save_load_round_trip(rig_fit, tmp_path):
     back = LidarLWLR.load(path)
     np.testing.assert_array_equal(back.tables_, ext.tables_)
     assert back.h_ == ext.h_ and back.p_out_ == ext.p_out_ and back.spur_mu_ == ext.spur_mu_
+    assert back.null_rho_ == ext.null_rho_
     a = ext.sample(log.poses[:2], ROOM, np.random.default_rng(9), n_repeats=3)
     b = back.sample(log.poses[:2], ROOM, np.random.default_rng(9), n_repeats=3)
     np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(ext.log_prob(a, log.poses[:2], ROOM), back.log_prob(b, log.poses[:2], ROOM))
+
+
+def test_format_version_1_files_load_with_independent_nulls(rig_fit, tmp_path):
+    _, _, ext, _ = rig_fit
+    path = ext.save(tmp_path / "m.npz")
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(arrays["__header__"].tobytes().decode("utf-8"))
+    assert header["format_version"] == 2
+    del header["null_rho"]
+    header["format_version"] = 1
+    arrays["__header__"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
+    np.savez(tmp_path / "v1.npz", **arrays)
+    old = LidarLWLR.load(tmp_path / "v1.npz")
+    assert old.null_rho_ == 0.0
+    np.testing.assert_array_equal(old.tables_, ext.tables_)
+    header["format_version"] = 3
+    arrays["__header__"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
+    np.savez(tmp_path / "v3.npz", **arrays)
+    with pytest.raises(ModelFileError, match=re.escape("field 'format_version' is 3")):
+        LidarLWLR.load(tmp_path / "v3.npz")
 
 
 def test_bad_model_files_name_the_field(rig_fit, tmp_path):
@@ -236,6 +319,9 @@ def test_real_data_model_beats_baselines_on_held_out_poses(real_data):
     assert ours["all"]["mae_p_null"] < gauss["all"]["mae_p_null"]
     assert ours["all"]["mae_sigma"] < gauss["all"]["mae_sigma"]
     assert ours["ll_per_reading"] > gauss["ll_per_reading"]
+    # real nulls persist per cell: the fitted intra-cell correlation scores held-out null counts better
+    assert model.null_rho_ >= 0.3
+    assert ours["ll_null_counts_per_reading"] > ours["ll_null_counts_per_reading_independent"] + 0.05
 
 
 def test_cross_validated_table_runs_on_a_small_rig_log():
