@@ -36,14 +36,23 @@ def register(verbs: dict[str, "argparse._SubParsersAction[argparse.ArgumentParse
     val.add_argument("model", help="KDE model file (.npz)")
     val.add_argument("log", help="radar log CSV")
     val.add_argument("--out", required=True, help="output folder for report.json and figures")
-    val.add_argument("--baseline", default=None, help="Gaussian baseline file (default <model>_gaussian.npz)")
+    val.add_argument("--baseline", default=None,
+                     help="Gaussian baseline (default <model>_gaussian.npz; <name>_gaussian.npz for <name>_kde.npz)")
     val.add_argument("--seed", type=int, default=0)
     val.set_defaults(func=_validate)
 
 
 def _baseline_path(model: str) -> Path:
+    """The Gaussian baseline beside ``model``.
+
+    ``<stem>_gaussian.npz``, else ``<name>_gaussian.npz`` for a model called ``<name>_kde.npz`` (the
+    shipped pair ``radar_kde.npz`` / ``radar_gaussian.npz``).
+    """
     p = Path(model)
-    return p.with_name(p.stem + "_gaussian.npz")
+    candidates = [p.with_name(p.stem + "_gaussian.npz")]
+    if p.stem.endswith("_kde"):
+        candidates.append(p.with_name(p.stem.removesuffix("_kde") + "_gaussian.npz"))
+    return next((c for c in candidates if c.exists()), candidates[0])
 
 
 def _record(args: argparse.Namespace) -> int:

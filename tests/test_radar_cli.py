@@ -21,3 +21,13 @@ def test_bad_log_gives_exit_code_2_and_names_the_file(tmp_path, capsys):
     bad.write_text("sequence,frame\n0,0\n")
     assert main(["fit", "radar", str(bad), "--out", str(tmp_path / "m.npz")]) == 2
     assert f"{bad}: required column 't' is missing" in capsys.readouterr().err
+
+
+def test_validate_the_shipped_model_finds_its_shipped_baseline(tmp_path):
+    from sensor_envs.radar_api import default_model_path
+
+    test = tmp_path / "test.csv"
+    assert main(["record", "radar", "--out", str(test), "--sequences", "3", "--cycles", "10", "--seed", "2"]) == 0
+    assert main(["validate", "radar", str(default_model_path("kde")), str(test), "--out", str(tmp_path / "r")]) == 0
+    rep = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert rep["baseline_file"] == str(default_model_path("gaussian"))
