@@ -115,6 +115,7 @@ from sensor_envs.highway_sensor import (
     visible_targets,
 )
 from sensor_envs.radar_api import RadarSensor
+from sensor_envs.rng import sensor_rng
 
 __all__ = [
     "RADARS",
@@ -205,7 +206,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self.radar = radar
         low, high = self.layout.bounds()
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
-        self._rng = np.random.default_rng(np.random.SeedSequence())
+        self._rng = sensor_rng(None, RNG_TAG, None)
         self._tracks: dict[Any, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
         self._features_range: dict[str, tuple[float, float]] | None = None
         self.last_frame: RadarFrame | None = None
@@ -225,8 +226,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         base = self.env.unwrapped
         if options and "config" in options and KinematicsLayout.from_config(base.config["observation"]) != self.layout:
             raise ValueError("options.config.observation: the observation layout is fixed when the wrapper is built")
-        if seed is not None:
-            self._rng = np.random.default_rng(np.random.SeedSequence([int(seed), RNG_TAG]))
+        self._rng = sensor_rng(seed, RNG_TAG, self._rng)
         self._tracks = {}
         self._features_range = None
         base.observation_type = _ObservationHook(base.observation_type, self._observe)

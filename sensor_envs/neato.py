@@ -38,16 +38,12 @@ from sensor_envs.geometry import point_segment_distance, raycast_pose, to_frame,
 from sensor_envs.lidars import LidarSensor, make_lidar
 from sensor_envs.maps import SegmentMap, load_map
 from sensor_envs.render import render_world
+from sensor_envs.rng import sensor_rng
 
-__all__ = ["NeatoEnv", "NULL_VALUES", "sensor_seed_sequence"]
+__all__ = ["NeatoEnv", "NULL_VALUES"]
 
 NULL_VALUES = ("zero", "nan", "max")
 _LIDAR_TAG = 0x4C494441  # "LIDA": tags the lidar's stream derived from the reset seed
-
-
-def sensor_seed_sequence(seed: int, tag: int) -> np.random.SeedSequence:
-    """The seed sequence of a sensor's own generator, derived from an env's reset ``seed``."""
-    return np.random.SeedSequence([int(seed), int(tag)])
 
 
 class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
@@ -113,10 +109,7 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     ]:
         """Start a new episode; ``options`` may fix ``start`` and/or ``goal`` poses ``(x, y, theta)``."""
         super().reset(seed=seed)
-        if seed is not None:
-            self._sensor_rng = np.random.default_rng(sensor_seed_sequence(seed, _LIDAR_TAG))
-        elif self._sensor_rng is None:
-            self._sensor_rng = np.random.default_rng()
+        self._sensor_rng = sensor_rng(seed, _LIDAR_TAG, self._sensor_rng)
         options = dict(options or {})
         unknown = set(options) - {"start", "goal"}
         if unknown:
