@@ -24,7 +24,7 @@ import highway_env  # noqa: F401
 import numpy as np
 
 import sensor_envs  # noqa: F401
-from sensor_envs.highway import RadarObservation
+from sensor_envs.envs.highway import RadarObservation
 
 RADARS = ("ideal", "gaussian", "kde")
 
@@ -106,15 +106,19 @@ def main(argv: list[str] | None = None) -> None:
                 results[k].append(run_once(make, args.steps, args.seed + rep))
     base_step = np.median([r[0] for r in results["kinematics (highway-env)"]])
     print(f"highway-fast-v0, {args.steps} steps x {args.repeats} repeats (medians), seed {args.seed}")
-    print(f"{'configuration':<26}{'steps/s':>9}{'ms/step':>9}{'obs ms/step':>13}{'model ms':>10}{'step ratio':>12}"
-          f"{'obs % of base step':>20}{'wrapper %':>11}")
+    print(
+        f"{'configuration':<26}{'steps/s':>9}{'ms/step':>9}{'obs ms/step':>13}{'model ms':>10}{'step ratio':>12}"
+        f"{'obs % of base step':>20}{'wrapper %':>11}"
+    )
     for k, res in results.items():
         step, obs, model = (float(np.median([r[i] for r in res])) for i in range(3))
         radar = k.startswith("radar=")
         model_col = f"{model * 1e3:>10.3f}" if radar else f"{'-':>10}"
         wrapper_col = f"{100 * (obs - model) / base_step:>10.1f}%" if radar else f"{'-':>11}"
-        print(f"{k:<26}{1 / step:>9.1f}{step * 1e3:>9.2f}{obs * 1e3:>13.3f}{model_col}"
-              f"{step / base_step:>12.3f}{100 * obs / base_step:>19.1f}%{wrapper_col}")
+        print(
+            f"{k:<26}{1 / step:>9.1f}{step * 1e3:>9.2f}{obs * 1e3:>13.3f}{model_col}"
+            f"{step / base_step:>12.3f}{100 * obs / base_step:>19.1f}%{wrapper_col}"
+        )
 
 
 if __name__ == "__main__":

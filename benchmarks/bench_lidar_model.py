@@ -14,10 +14,10 @@ import time
 import numpy as np
 
 from sensor_envs.geometry import raycast_pose
-from sensor_envs.lidar_log import load_log
-from sensor_envs.lidar_lwlr import LearnedLidar, LidarLWLR, default_model_path
+from sensor_envs.lidar.log import load_log
+from sensor_envs.lidar.lwlr import LearnedLidar, LidarLWLR, default_model_path
+from sensor_envs.lidar.rig import NeatoRig, sample_free_poses
 from sensor_envs.maps import load_map
-from sensor_envs.neato_rig import NeatoRig, sample_free_poses
 
 
 def per_scan_us(model: LidarLWLR, n: int, rng: np.random.Generator) -> dict[str, float]:
@@ -60,8 +60,7 @@ def main() -> None:
     for variant in ("seed", "extended"):
         t0 = time.perf_counter()
         LidarLWLR(variant=variant, progress=False).fit(log)
-        print(f"fit with 10-fold CV, {variant}: {time.perf_counter() - t0:.1f} s on {log.n_poses} poses "
-              f"({log.source})")
+        print(f"fit with 10-fold CV, {variant}: {time.perf_counter() - t0:.1f} s on {log.n_poses} poses ({log.source})")
 
 
 if __name__ == "__main__":

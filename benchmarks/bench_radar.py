@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sensor_envs.radar_kde import KDERadarModel
-from sensor_envs.radar_log import target_tuples
-from sensor_envs.radar_rig import record_rig_log
-from sensor_envs.radar_validate import chi_square
+from sensor_envs.radar.kde import KDERadarModel
+from sensor_envs.radar.log import target_tuples
+from sensor_envs.radar.rig import record_rig_log
+from sensor_envs.radar.validate import chi_square
 
 
 def rig_log_with(n_tuples: int, seed: int):
@@ -51,7 +51,7 @@ def time_sampling(model: KDERadarModel, states: np.ndarray, batch: int, repeats:
     rng = np.random.default_rng(0)
     times = []
     for r in range(repeats):
-        s = states[(r * batch) % (len(states) - batch):][:batch]
+        s = states[(r * batch) % (len(states) - batch) :][:batch]
         t0 = time.perf_counter()
         model.sample_cycle(s[:, :2], s[:, 2:], rng)
         times.append(time.perf_counter() - t0)
@@ -89,9 +89,11 @@ def main() -> None:
             other.sampler, other.k_max = sampler, k
             both = SamplesVsExact(other, model)
             row[f"chi2_p_{label}_vs_exact_pdf"] = [
-                round(chi_square(both, states[i], np.random.default_rng(i))["p_value"], 4) for i in range(3)]
-        row["chi2_p_ball"] = [round(chi_square(model, states[i], np.random.default_rng(i))["p_value"], 4)
-                              for i in range(3)]
+                round(chi_square(both, states[i], np.random.default_rng(i))["p_value"], 4) for i in range(3)
+            ]
+        row["chi2_p_ball"] = [
+            round(chi_square(model, states[i], np.random.default_rng(i))["p_value"], 4) for i in range(3)
+        ]
         print(json.dumps(row))
         results.append(row)
     print(json.dumps(results, indent=1))

@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sensor_envs.astyx import detection_statistics, load_astyx
-from sensor_envs.radar_gaussian import GaussianRadar
-from sensor_envs.radar_kde import KDERadarModel
-from sensor_envs.radar_validate import evaluate, split_by_blocks, write_report
+from sensor_envs.radar.astyx import detection_statistics, load_astyx
+from sensor_envs.radar.gaussian import GaussianRadar
+from sensor_envs.radar.kde import KDERadarModel
+from sensor_envs.radar.validate import evaluate, split_by_blocks, write_report
 
 DEFAULT = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real" / "astyx_hires2019"
 
@@ -45,13 +45,19 @@ def main() -> None:
     ap.add_argument("--block", type=int, default=10)
     ap.add_argument("--folds", type=int, default=5)
     ap.add_argument("--position", default="nearest", choices=("nearest", "centroid"))
-    ap.add_argument("--corner-variance", nargs="+", type=float, default=[3.0, 6.0, 12.0, 24.0, 48.0],
-                    help="candidate corner variances [m^2] of relevance='cv'")
+    ap.add_argument(
+        "--corner-variance",
+        nargs="+",
+        type=float,
+        default=[3.0, 6.0, 12.0, 24.0, 48.0],
+        help="candidate corner variances [m^2] of relevance='cv'",
+    )
     ap.add_argument("--inner-folds", type=int, default=4)
     args = ap.parse_args()
     log = load_astyx(args.data, block=args.block, position=args.position, progress=True)
-    stats = detection_statistics(log, np.array([0, 15, 30, 50, 75, 100, 150.0]),
-                                 np.deg2rad([-60, -40, -20, -5, 5, 20, 40, 60.0]))
+    stats = detection_statistics(
+        log, np.array([0, 15, 30, 50, 75, 100, 150.0]), np.deg2rad([-60, -40, -20, -5, 5, 20, 40, 60.0])
+    )
     folds, kde = [], None
     for k in range(args.folds):
         train, test = split_by_blocks(log, block=args.block, n_folds=args.folds, fold=k)
@@ -60,19 +66,38 @@ def main() -> None:
         row = {"fold": k, "gaussian": evaluate(gauss, test, rng, time_series=False)}
         kde = KDERadarModel(use_prev=False, cv_group="sequence", random_state=k).fit(train)
         row["kde"] = evaluate(kde, test, rng, time_series=False)
-        sel = KDERadarModel(use_prev=False, cv_group="sequence", relevance="cv",
-                            relevance_candidates=tuple(args.corner_variance), relevance_folds=args.inner_folds,
-                            random_state=k).fit(train, progress=True)
+        sel = KDERadarModel(
+            use_prev=False,
+            cv_group="sequence",
+            relevance="cv",
+            relevance_candidates=tuple(args.corner_variance),
+            relevance_folds=args.inner_folds,
+            random_state=k,
+        ).fit(train, progress=True)
         row["kde_cv"] = evaluate(sel, test, rng, time_series=False)
         row["kde_cv"]["corner_variance_chosen"] = sel.rel_variance_[0]
-        row["kde_cv"]["inner_cv_loglik_per_row"] = dict(zip(map(str, args.corner_variance),
-                                                            sel.relevance_scores_.round(4).tolist(), strict=True))
+        row["kde_cv"]["inner_cv_loglik_per_row"] = dict(
+            zip(map(str, args.corner_variance), sel.relevance_scores_.round(4).tolist(), strict=True)
+        )
         folds.append(row)
-        print(f"fold {k}: chosen corner variance {sel.rel_variance_[0]:g} m^2; NLL(z|det) mean/median "
-              + ", ".join(f"{key} {v['nll_z_given_detected']:.3f}/{v['nll_z_given_detected_median']:.3f}"
-                          for key, v in row.items() if key != "fold"), flush=True)
-    report = {"data": str(args.data), "block": args.block, "folds": args.folds, "position": args.position,
-              "detection": stats, "held_out": summarise(folds), "per_fold": folds}
+        print(
+            f"fold {k}: chosen corner variance {sel.rel_variance_[0]:g} m^2; NLL(z|det) mean/median "
+            + ", ".join(
+                f"{key} {v['nll_z_given_detected']:.3f}/{v['nll_z_given_detected_median']:.3f}"
+                for key, v in row.items()
+                if key != "fold"
+            ),
+            flush=True,
+        )
+    report = {
+        "data": str(args.data),
+        "block": args.block,
+        "folds": args.folds,
+        "position": args.position,
+        "detection": stats,
+        "held_out": summarise(folds),
+        "per_fold": folds,
+    }
     out = Path(args.out)
     last = {"model": folds[-1]["kde"], "baseline_gaussian": folds[-1]["gaussian"]}
     write_report(last, out / "last_fold", model=kde, log=test)

@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sensor_envs.lidar_log import load_log
-from sensor_envs.lidar_validate import cross_validate_log, log_statistics, metrics_markdown
+from sensor_envs.lidar.log import load_log
+from sensor_envs.lidar.rig import NeatoRig
+from sensor_envs.lidar.validate import cross_validate_log, log_statistics, metrics_markdown
 from sensor_envs.maps import load_map
-from sensor_envs.neato_rig import NeatoRig
 
 
 def main() -> None:
@@ -36,16 +36,29 @@ def main() -> None:
     if not path.exists():
         raise SystemExit(f"{path} is absent: nothing to report")
     log = load_log(path)
-    rig_log, _ = NeatoRig().record(load_map("seed_room").segments, np.random.default_rng(args.seed),
-                                   n_poses=log.n_poses, repeats=log.ranges.shape[2])
+    rig_log, _ = NeatoRig().record(
+        load_map("seed_room").segments,
+        np.random.default_rng(args.seed),
+        n_poses=log.n_poses,
+        repeats=log.ranges.shape[2],
+    )
     stats = {"real": log_statistics(log), "rig": log_statistics(rig_log)}
     print("## Real vs rig statistics (rig: same number of poses and repeats, seed_room)")
-    for k in ("null_fraction", "spurious_fraction", "cells_with_spurious", "blocked_bearings", "mixed_null_cells",
-              "mae_mean_minus_nominal", "median_cell_std"):
+    for k in (
+        "null_fraction",
+        "spurious_fraction",
+        "cells_with_spurious",
+        "blocked_bearings",
+        "mixed_null_cells",
+        "mae_mean_minus_nominal",
+        "median_cell_std",
+    ):
         print(f"{k:28s} real {stats['real'][k]:.4g}   rig {stats['rig'][k]:.4g}")
     for a, b in zip(stats["real"]["by_range"], stats["rig"]["by_range"], strict=True):
-        print(f"r {a['r']} m: p_null real {a['p_null']}  rig {b['p_null']};  median std real {a['median_std']}  "
-              f"rig {b['median_std']}")
+        print(
+            f"r {a['r']} m: p_null real {a['p_null']}  rig {b['p_null']};  median std real {a['median_std']}  "
+            f"rig {b['median_std']}"
+        )
     t0 = time.perf_counter()
     table = cross_validate_log(log, n_folds=args.folds, inner_folds=args.inner_folds, random_state=args.seed)
     secs = time.perf_counter() - t0
@@ -53,8 +66,9 @@ def main() -> None:
     print(metrics_markdown(table))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "real_cv_report.json").write_text(json.dumps({"statistics": stats, "cv_table": table, "seconds": secs,
-                                                         "args": vars(args)}, indent=2))
+    (out / "real_cv_report.json").write_text(
+        json.dumps({"statistics": stats, "cv_table": table, "seconds": secs, "args": vars(args)}, indent=2)
+    )
     print(f"wrote {out / 'real_cv_report.json'}")
 
 

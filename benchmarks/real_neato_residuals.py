@@ -42,20 +42,31 @@ from scipy import special, stats
 from sklearn.ensemble import HistGradientBoostingRegressor
 
 from sensor_envs.geometry import raycast_pose
-from sensor_envs.lidar_log import LidarLog, load_log
-from sensor_envs.lidar_lwlr import P_EPS, LidarLWLR, cell_statistics, lwlr
+from sensor_envs.lidar.log import LidarLog, load_log
+from sensor_envs.lidar.lwlr import P_EPS, LidarLWLR, cell_statistics, lwlr
 
-DIRECT = {"bearing": ["bearing"], "range": ["r"], "incidence": ["alpha"], "range+incidence": ["r", "alpha"],
-          "bearing+range+incidence": ["bearing", "r", "alpha"]}
-ON_RESIDUAL = {"segment+side": ["segment", "board_side"], "segment end (dist, margin)": ["edge_dist", "edge_margin"],
-               "scan break distance": ["break_dist"], "range+incidence+scan break": ["r", "alpha", "break_dist"],
-               "hit position (x, y)": ["hx", "hy"], "world direction": ["world_dir"],
-               "neighbour residuals (same pose, diagnostic)": ["nb_res"]}
+DIRECT = {
+    "bearing": ["bearing"],
+    "range": ["r"],
+    "incidence": ["alpha"],
+    "range+incidence": ["r", "alpha"],
+    "bearing+range+incidence": ["bearing", "r", "alpha"],
+}
+ON_RESIDUAL = {
+    "segment+side": ["segment", "board_side"],
+    "segment end (dist, margin)": ["edge_dist", "edge_margin"],
+    "scan break distance": ["break_dist"],
+    "range+incidence+scan break": ["r", "alpha", "break_dist"],
+    "hit position (x, y)": ["hx", "hy"],
+    "world direction": ["world_dir"],
+    "neighbour residuals (same pose, diagnostic)": ["nb_res"],
+}
 Cells = dict[str, NDArray[np.float64]]
 
 
-def scan_break_distance(r: NDArray[np.float64], alpha: NDArray[np.float64], cap: float = 16.0, jump: float = 0.1,
-                        corner: float = 0.15) -> NDArray[np.float64]:
+def scan_break_distance(
+    r: NDArray[np.float64], alpha: NDArray[np.float64], cap: float = 16.0, jump: float = 0.1, corner: float = 0.15
+) -> NDArray[np.float64]:
     """Distance [bearing steps] of each bearing to the nearest break of the nominal scan ``(..., K)`` (circular).
 
     A break lies between bearings ``k`` and ``k + 1`` when one ray hits and the other does not, when the
@@ -71,8 +82,8 @@ def scan_break_distance(r: NDArray[np.float64], alpha: NDArray[np.float64], cap:
     b3 = np.concatenate([brk] * 3, axis=-1)
     last = np.maximum.accumulate(np.where(b3, idx, -np.inf), axis=-1)  # break i lies at bearing i + 0.5
     nxt = np.minimum.accumulate(np.where(b3, idx, np.inf)[..., ::-1], axis=-1)[..., ::-1]
-    j = idx[k:2 * k]
-    return np.minimum(np.minimum(j - last[..., k - 1:2 * k - 1] - 0.5, nxt[..., k:2 * k] - j + 0.5), cap)
+    j = idx[k : 2 * k]
+    return np.minimum(np.minimum(j - last[..., k - 1 : 2 * k - 1] - 0.5, nxt[..., k : 2 * k] - j + 0.5), cap)
 
 
 def cell_table(log: LidarLog, max_range: float = 5.0) -> Cells:
@@ -84,17 +95,27 @@ def cell_table(log: LidarLog, max_range: float = 5.0) -> Cells:
     hx, hy = log.poses[:, :1] + r * np.cos(th), log.poses[:, 1:2] + r * np.sin(th)
     ends = segs.reshape(-1, 2)
     ang = np.arctan2(ends[:, 1] - log.poses[:, 1:2], ends[:, 0] - log.poses[:, :1])  # (P, E)
-    return {"p_null": st["p_null"], "n": st["n"], "r": r, "alpha": a, "segment": idx.astype(float),
-            "board_side": np.where(idx == len(segs) - 1, np.sign(log.poses[:, 1:2] - segs[-1, 0, 1]), 0.0),
-            "edge_dist": np.hypot(hx[..., None] - ends[:, 0], hy[..., None] - ends[:, 1]).min(-1),
-            "edge_margin": np.abs((th[..., None] - ang[:, None] + np.pi) % (2 * np.pi) - np.pi).min(-1),
-            "break_dist": scan_break_distance(r, a), "hx": hx, "hy": hy, "world_dir": np.mod(th, 2 * np.pi),
-            "bearing": np.broadcast_to(np.rad2deg(log.bearings), r.shape).copy(),
-            "pose": np.broadcast_to(np.arange(log.n_poses)[:, None], r.shape).astype(float)}
+    return {
+        "p_null": st["p_null"],
+        "n": st["n"],
+        "r": r,
+        "alpha": a,
+        "segment": idx.astype(float),
+        "board_side": np.where(idx == len(segs) - 1, np.sign(log.poses[:, 1:2] - segs[-1, 0, 1]), 0.0),
+        "edge_dist": np.hypot(hx[..., None] - ends[:, 0], hy[..., None] - ends[:, 1]).min(-1),
+        "edge_margin": np.abs((th[..., None] - ang[:, None] + np.pi) % (2 * np.pi) - np.pi).min(-1),
+        "break_dist": scan_break_distance(r, a),
+        "hx": hx,
+        "hy": hy,
+        "world_dir": np.mod(th, 2 * np.pi),
+        "bearing": np.broadcast_to(np.rad2deg(log.bearings), r.shape).copy(),
+        "pose": np.broadcast_to(np.arange(log.n_poses)[:, None], r.shape).astype(float),
+    }
 
 
-def lwlr_p_null_oof(log: LidarLog, r: NDArray[np.float64], a: NDArray[np.float64], fold: NDArray[np.int64],
-                    inner: int) -> tuple[NDArray[np.float64], list[list[float]]]:
+def lwlr_p_null_oof(
+    log: LidarLog, r: NDArray[np.float64], a: NDArray[np.float64], fold: NDArray[np.int64], inner: int
+) -> tuple[NDArray[np.float64], list[list[float]]]:
     """Out-of-fold ``p_null`` ``(P, K)`` of the extended LWLR, widths by the model's inner CV per fold."""
     hit = np.isfinite(r)
     r0, a0 = np.where(hit, r, 0.0), np.nan_to_num(a)
@@ -115,20 +136,26 @@ def _r2(y: NDArray[np.float64], pred: NDArray[np.float64]) -> float:
     return float(1 - ((y - pred) ** 2).sum() / ((y - y.mean()) ** 2).sum())
 
 
-def _boosted_oof(x: NDArray[np.float64], y: NDArray[np.float64], f: NDArray[np.int64], cat: list[bool]) -> NDArray[
-    np.float64
-]:
+def _boosted_oof(
+    x: NDArray[np.float64], y: NDArray[np.float64], f: NDArray[np.int64], cat: list[bool]
+) -> NDArray[np.float64]:
     """Leave-poses-out predictions of ``y`` from features ``x`` (folds ``f`` per cell)."""
     out = np.zeros_like(y)
     for k in np.unique(f):
-        est = HistGradientBoostingRegressor(max_iter=100, learning_rate=0.1, min_samples_leaf=40, random_state=0,
-                                            categorical_features=cat if any(cat) else None)
+        est = HistGradientBoostingRegressor(
+            max_iter=100,
+            learning_rate=0.1,
+            min_samples_leaf=40,
+            random_state=0,
+            categorical_features=cat if any(cat) else None,
+        )
         out[f == k] = est.fit(x[f != k], y[f != k]).predict(x[f == k])
     return out
 
 
-def _explained(cells: Cells, m: NDArray[np.bool_], f: NDArray[np.int64], target: NDArray[np.float64],
-               sets: dict[str, list[str]]) -> dict[str, float]:
+def _explained(
+    cells: Cells, m: NDArray[np.bool_], f: NDArray[np.int64], target: NDArray[np.float64], sets: dict[str, list[str]]
+) -> dict[str, float]:
     out = {}
     for name, cols in sets.items():
         x = np.column_stack([cells[c][m] for c in cols])
@@ -151,14 +178,23 @@ def diagnose(log: LidarLog, n_folds: int, seed: int, inner: int) -> tuple[dict[s
     pose = cells["pose"][m].astype(int)
     pose_mean = np.bincount(pose, res) / np.maximum(np.bincount(pose), 1)
     d: dict[str, Any] = {
-        "n_cells": int(m.sum()), "blocked_bearings": int(blocked.sum()), "var_p_null": float(y.var()),
+        "n_cells": int(m.sum()),
+        "blocked_bearings": int(blocked.sum()),
+        "var_p_null": float(y.var()),
         "binomial_noise_var": float((y * (1 - y) / cells["n"][m]).mean()),
-        "lwlr": {"mae_all_hit_cells": float(np.abs(cells["p_null"] - q_all)[hit].mean()),
-                 "mae": float(np.abs(res).mean()), "cv_r2": _r2(y, q), "widths_per_fold": widths,
-                 "expected_mae_if_all_or_nothing": float((2 * q * (1 - q)).mean()),
-                 "mae_hard_0_1": float(np.abs(y - (q > 0.5)).mean())},
-        "bimodality": {"p<0.05": float((y < 0.05).mean()), "0.05<=p<=0.95": float(((y >= 0.05) & (y <= 0.95)).mean()),
-                       "p>0.95": float((y > 0.95).mean())},
+        "lwlr": {
+            "mae_all_hit_cells": float(np.abs(cells["p_null"] - q_all)[hit].mean()),
+            "mae": float(np.abs(res).mean()),
+            "cv_r2": _r2(y, q),
+            "widths_per_fold": widths,
+            "expected_mae_if_all_or_nothing": float((2 * q * (1 - q)).mean()),
+            "mae_hard_0_1": float(np.abs(y - (q > 0.5)).mean()),
+        },
+        "bimodality": {
+            "p<0.05": float((y < 0.05).mean()),
+            "0.05<=p<=0.95": float(((y >= 0.05) & (y <= 0.95)).mean()),
+            "p>0.95": float((y > 0.95).mean()),
+        },
         "direct_cv_r2": _explained(cells, m, f, y, DIRECT),
         "residual_cv_r2": _explained(cells, m, f, res, ON_RESIDUAL),
         "residual_per_pose_constant_share": float(pose_mean[pose].var() / res.var()),
@@ -166,10 +202,14 @@ def diagnose(log: LidarLog, n_folds: int, seed: int, inner: int) -> tuple[dict[s
         "null_count_ll_per_reading": persistence_ll(np.round(y * cells["n"][m]), cells["n"][m], q, f),
         "break_offset": break_offset_mae(y, q, cells["break_dist"][m], f),
     }
-    d["mae_by_empirical_p"] = {k: {"share_of_cells": float(s.mean()), "mae": float(np.abs(res[s]).mean()),
-                                   "share_of_abs_error": float(np.abs(res[s]).sum() / np.abs(res).sum())}
-                               for k, s in (("p<0.05", y < 0.05), ("0.05<=p<=0.95", (y >= 0.05) & (y <= 0.95)),
-                                            ("p>0.95", y > 0.95))}
+    d["mae_by_empirical_p"] = {
+        k: {
+            "share_of_cells": float(s.mean()),
+            "mae": float(np.abs(res[s]).mean()),
+            "share_of_abs_error": float(np.abs(res[s]).sum() / np.abs(res).sum()),
+        }
+        for k, s in (("p<0.05", y < 0.05), ("0.05<=p<=0.95", (y >= 0.05) & (y <= 0.95)), ("p>0.95", y > 0.95))
+    }
     d["reliability"] = _by_bins(q, {"empirical": y, "predicted": q}, (0, 0.1, 0.3, 0.5, 0.7, 0.9, 1.01))
     cols = {"empirical": y, "predicted": q, "abs_error": np.abs(res)}
     d["by_break_distance"] = _by_bins(cells["break_dist"][m], cols, (0, 1, 2, 4, 8, 17))
@@ -177,8 +217,9 @@ def diagnose(log: LidarLog, n_folds: int, seed: int, inner: int) -> tuple[dict[s
     return d, (y, q, cells["r"][m], cells["break_dist"][m], res_all)
 
 
-def persistence_ll(k: NDArray[np.float64], n: NDArray[np.float64], q: NDArray[np.float64],
-                   f: NDArray[np.int64]) -> dict[str, float]:
+def persistence_ll(
+    k: NDArray[np.float64], n: NDArray[np.float64], q: NDArray[np.float64], f: NDArray[np.int64]
+) -> dict[str, float]:
     """Held-out log-likelihood per reading of the cells' null counts ``k`` of ``n``: independent readings
     (binomial with the model's ``q``, what the model assumes) vs. persistent cells (beta-binomial with the
     same mean ``q`` and an intra-cell correlation ``rho`` fitted on the training folds)."""
@@ -194,12 +235,16 @@ def persistence_ll(k: NDArray[np.float64], n: NDArray[np.float64], q: NDArray[np
         rho = float(grid[np.argmax([ll(g, f != j).sum() for g in grid])])
         bb[f == j] = ll(rho, f == j)
         rhos.append(rho)
-    return {"independent": float(stats.binom.logpmf(k, n, q).sum() / n.sum()), "persistent": float(bb.sum() / n.sum()),
-            "rho_per_fold": rhos}
+    return {
+        "independent": float(stats.binom.logpmf(k, n, q).sum() / n.sum()),
+        "persistent": float(bb.sum() / n.sum()),
+        "rho_per_fold": rhos,
+    }
 
 
-def break_offset_mae(y: NDArray[np.float64], q: NDArray[np.float64], brk: NDArray[np.float64],
-                     f: NDArray[np.int64]) -> dict[str, float]:
+def break_offset_mae(
+    y: NDArray[np.float64], q: NDArray[np.float64], brk: NDArray[np.float64], f: NDArray[np.int64]
+) -> dict[str, float]:
     """MAE of ``q`` and of ``q`` with a pooled logit offset by scan-break distance (nested: offsets fitted
     on the other folds' held-out residuals, kernel width 0.5 bearing on knots 0.5..16)."""
     knots = np.array([0.5, 1.5, 2.5, 3.5, 5.5, 8.5, 16.0])
@@ -225,8 +270,10 @@ def _by_bins(x: NDArray[np.float64], vals: dict[str, NDArray[np.float64]], edges
     out = {}
     for lo, hi in zip(edges[:-1], edges[1:], strict=True):
         s = (x >= lo) & (x < hi)
-        out[f"[{lo}, {hi})"] = {"cells": int(s.sum()), **{k: float(v[s].mean()) if s.any() else None
-                                                         for k, v in vals.items()}}
+        out[f"[{lo}, {hi})"] = {
+            "cells": int(s.sum()),
+            **{k: float(v[s].mean()) if s.any() else None for k, v in vals.items()},
+        }
     return out
 
 
@@ -242,24 +289,28 @@ def _table(title: str, rows: dict[str, dict[str, Any]]) -> list[str]:
 def markdown(d: dict[str, Any]) -> str:
     """The report as Markdown."""
     lw, ll, bo = d["lwlr"], d["null_count_ll_per_reading"], d["break_offset"]
-    lines = [f"# p_null residual diagnosis ({d['n_cells']} hit cells; {d['blocked_bearings']} blocked bearings "
-             "left out)", "",
-             f"- variance of the empirical p_null {d['var_p_null']:.4f}; binomial noise {d['binomial_noise_var']:.5f}",
-             "- bimodality: " + ", ".join(f"{k} {v:.3f}" for k, v in d["bimodality"].items()),
-             f"- extended LWLR p_null (held out): MAE {lw['mae']:.4f} (all hit cells incl. blocked "
-             f"{lw['mae_all_hit_cells']:.4f}), CV R2 {lw['cv_r2']:.3f}",
-             f"- MAE a calibrated q must have if cells were all-or-nothing, mean 2q(1-q): "
-             f"{lw['expected_mae_if_all_or_nothing']:.4f}; MAE of the hard 0/1 prediction q > 0.5: "
-             f"{lw['mae_hard_0_1']:.4f}",
-             f"- per-pose constant share of the residual variance: {d['residual_per_pose_constant_share']:.3f}",
-             "- residual autocorrelation across bearings at a pose (lag: r): " +
-             ", ".join(f"{k}: {v:.3f}" for k, v in d["residual_autocorrelation_by_bearing_lag"].items()),
-             "- held-out LL per reading of the cells' null counts: independent readings (the model) "
-             f"{ll['independent']:.4f}, persistent cells (beta-binomial, same mean) {ll['persistent']:.4f} "
-             f"(rho per fold {ll['rho_per_fold']})",
-             f"- p_null MAE {bo['mae']:.4f}; with a pooled logit offset by scan-break distance (nested CV) "
-             f"{bo['mae_with_break_offset']:.4f}", "",
-             "| features -> empirical p_null | CV R2 |", "|---|---|"]
+    lines = [
+        f"# p_null residual diagnosis ({d['n_cells']} hit cells; {d['blocked_bearings']} blocked bearings left out)",
+        "",
+        f"- variance of the empirical p_null {d['var_p_null']:.4f}; binomial noise {d['binomial_noise_var']:.5f}",
+        "- bimodality: " + ", ".join(f"{k} {v:.3f}" for k, v in d["bimodality"].items()),
+        f"- extended LWLR p_null (held out): MAE {lw['mae']:.4f} (all hit cells incl. blocked "
+        f"{lw['mae_all_hit_cells']:.4f}), CV R2 {lw['cv_r2']:.3f}",
+        f"- MAE a calibrated q must have if cells were all-or-nothing, mean 2q(1-q): "
+        f"{lw['expected_mae_if_all_or_nothing']:.4f}; MAE of the hard 0/1 prediction q > 0.5: "
+        f"{lw['mae_hard_0_1']:.4f}",
+        f"- per-pose constant share of the residual variance: {d['residual_per_pose_constant_share']:.3f}",
+        "- residual autocorrelation across bearings at a pose (lag: r): "
+        + ", ".join(f"{k}: {v:.3f}" for k, v in d["residual_autocorrelation_by_bearing_lag"].items()),
+        "- held-out LL per reading of the cells' null counts: independent readings (the model) "
+        f"{ll['independent']:.4f}, persistent cells (beta-binomial, same mean) {ll['persistent']:.4f} "
+        f"(rho per fold {ll['rho_per_fold']})",
+        f"- p_null MAE {bo['mae']:.4f}; with a pooled logit offset by scan-break distance (nested CV) "
+        f"{bo['mae_with_break_offset']:.4f}",
+        "",
+        "| features -> empirical p_null | CV R2 |",
+        "|---|---|",
+    ]
     lines += [f"| {k} | {v:.3f} |" for k, v in d["direct_cv_r2"].items()]
     lines += ["", "| features -> LWLR residual | CV R2 |", "|---|---|"]
     lines += [f"| {k} | {v:.3f} |" for k, v in d["residual_cv_r2"].items()]

@@ -205,9 +205,9 @@ def rectangle_segments(corners: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.stack([corners, nxt], axis=2).reshape(-1, 2, 2)
 
 
-def closest_corner(corners: NDArray[np.float64], origin: ArrayLike = (0.0, 0.0)) -> tuple[
-    NDArray[np.float64], NDArray[np.int64]
-]:
+def closest_corner(
+    corners: NDArray[np.float64], origin: ArrayLike = (0.0, 0.0)
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Closest corner of each rectangle to ``origin`` (the sensor), and its index 0..3.
 
     For a convex box seen from outside, the closest corner is always visible. ``corners`` is
@@ -218,9 +218,9 @@ def closest_corner(corners: NDArray[np.float64], origin: ArrayLike = (0.0, 0.0))
     return corners[np.arange(corners.shape[0]), i], i
 
 
-def angular_interval(corners: NDArray[np.float64], origin: ArrayLike = (0.0, 0.0)) -> tuple[
-    NDArray[np.float64], NDArray[np.float64]
-]:
+def angular_interval(
+    corners: NDArray[np.float64], origin: ArrayLike = (0.0, 0.0)
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Angular extent ``(lo, hi)`` [rad] of each rectangle seen from ``origin``.
 
     Angles are relative to the bearing of the rectangle's centre, so intervals do not wrap;
@@ -275,9 +275,9 @@ def occluded_fraction(
     return np.count_nonzero(hidden, axis=1) / n_rays
 
 
-def _first_edge_hit(origin: NDArray[np.float64], angles: NDArray[np.float64], corners: NDArray[np.float64]) -> tuple[
-    NDArray[np.bool_], NDArray[np.int64]
-] | None:
+def _first_edge_hit(
+    origin: NDArray[np.float64], angles: NDArray[np.float64], corners: NDArray[np.float64]
+) -> tuple[NDArray[np.bool_], NDArray[np.int64]] | None:
     """Which rays hit a rectangle edge, and the index ``4 * box + edge`` of the first edge each hits.
 
     The ray-vs-segment test of :func:`raycast` (the same operations, so the same bits) without

@@ -55,18 +55,30 @@ def _seed_room() -> list[list[float]]:
 
 
 def _corridor() -> list[list[float]]:
-    south = [[0.0, 0.0, 2.0, 0.0], [2.0, 0.0, 2.0, -0.4], [2.0, -0.4, 2.9, -0.4], [2.9, -0.4, 2.9, 0.0],
-             [2.9, 0.0, 6.0, 0.0]]
-    north = [[0.0, 1.2, 3.8, 1.2], [3.8, 1.2, 3.8, 1.6], [3.8, 1.6, 4.7, 1.6], [4.7, 1.6, 4.7, 1.2],
-             [4.7, 1.2, 6.0, 1.2]]
+    south = [
+        [0.0, 0.0, 2.0, 0.0],
+        [2.0, 0.0, 2.0, -0.4],
+        [2.0, -0.4, 2.9, -0.4],
+        [2.9, -0.4, 2.9, 0.0],
+        [2.9, 0.0, 6.0, 0.0],
+    ]
+    north = [
+        [0.0, 1.2, 3.8, 1.2],
+        [3.8, 1.2, 3.8, 1.6],
+        [3.8, 1.6, 4.7, 1.6],
+        [4.7, 1.6, 4.7, 1.2],
+        [4.7, 1.2, 6.0, 1.2],
+    ]
     return south + north + [[6.0, 0.0, 6.0, 1.2], [0.0, 1.2, 0.0, 0.0]]
 
 
 def _cluttered() -> list[list[float]]:
     segs = _box(0.0, 0.0, 4.0, 3.0) + _box(0.8, 0.7, 1.3, 1.1) + _box(2.6, 1.8, 3.2, 2.2)
     segs += [[1.8, 2.4, 2.3, 2.1], [2.9, 0.5, 3.5, 0.9]]  # two slanted boards
-    pillar = [[2.0 + 0.15 * np.cos(a), 1.2 + 0.15 * np.sin(a), 2.0 + 0.15 * np.cos(b), 1.2 + 0.15 * np.sin(b)]
-              for a, b in zip(np.linspace(0, 2 * np.pi, 9)[:-1], np.linspace(0, 2 * np.pi, 9)[1:], strict=True)]
+    pillar = [
+        [2.0 + 0.15 * np.cos(a), 1.2 + 0.15 * np.sin(a), 2.0 + 0.15 * np.cos(b), 1.2 + 0.15 * np.sin(b)]
+        for a, b in zip(np.linspace(0, 2 * np.pi, 9)[:-1], np.linspace(0, 2 * np.pi, 9)[1:], strict=True)
+    ]
     return segs + pillar
 
 
@@ -189,13 +201,13 @@ def _parse_pgm(raw: bytes, path: Path) -> NDArray[np.float64]:
     tokens: list[bytes] = []
     pos = 2
     while len(tokens) < 3:
-        while pos < len(raw) and raw[pos:pos + 1].isspace():
+        while pos < len(raw) and raw[pos : pos + 1].isspace():
             pos += 1
-        if raw[pos:pos + 1] == b"#":
+        if raw[pos : pos + 1] == b"#":
             pos = raw.index(b"\n", pos) + 1
             continue
         start = pos
-        while pos < len(raw) and not raw[pos:pos + 1].isspace():
+        while pos < len(raw) and not raw[pos : pos + 1].isspace():
             pos += 1
         tokens.append(raw[start:pos])
     width, height, maxval = (int(t) for t in tokens)

@@ -23,8 +23,13 @@ class ModelFileError(ValueError):
     """A model file is unreadable, of the wrong kind or version, or holds a malformed field."""
 
 
-def save_model_file(path: str | os.PathLike[str], kind: str, format_version: int, header: dict[str, Any],
-                    arrays: dict[str, NDArray[Any]]) -> Path:
+def save_model_file(
+    path: str | os.PathLike[str],
+    kind: str,
+    format_version: int,
+    header: dict[str, Any],
+    arrays: dict[str, NDArray[Any]],
+) -> Path:
     """Write ``arrays`` and a JSON ``header`` to ``path`` (``.npz``); returns the path written.
 
     The header gets ``kind`` and ``format_version`` added; it must be JSON-serialisable.
@@ -42,8 +47,12 @@ def save_model_file(path: str | os.PathLike[str], kind: str, format_version: int
     return path
 
 
-def load_model_file(path: str | os.PathLike[str], kind: str, supported_versions: tuple[int, ...],
-                    schema: dict[str, tuple[str, int | None, bool]]) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
+def load_model_file(
+    path: str | os.PathLike[str],
+    kind: str,
+    supported_versions: tuple[int, ...],
+    schema: dict[str, tuple[str, int | None, bool]],
+) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
     """Read a model file written by :func:`save_model_file`, without pickle, and check it.
 
     Args:

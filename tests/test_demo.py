@@ -1,6 +1,6 @@
 import json
 
-from sensor_envs.cli import main
+from sensor_envs.cli.main import main
 
 
 def test_demo_main_job_writes_pictures_and_report(tmp_path):

@@ -81,7 +81,7 @@ def test_raycast_matches_brute_force_reference():
     for k, a in enumerate(angles):
         best = np.inf
         d = np.array([np.cos(a), np.sin(a)])
-        for (p, q) in segs:
+        for p, q in segs:
             m = np.column_stack([d, p - q])
             if abs(np.linalg.det(m)) < 1e-12:
                 continue

@@ -1,4 +1,4 @@
-"""Tests of the radar wrapper for highway-env (sensor_envs.highway)."""
+"""Tests of the radar wrapper for highway-env (sensor_envs.envs.highway)."""
 
 import pickle
 import re
@@ -13,9 +13,9 @@ from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import sensor_envs  # noqa: F401  (registers the ids)
+from sensor_envs.envs.highway import IDEAL_KINEMATICS, RadarObservation, load_radar, make_highway
 from sensor_envs.geometry import occluded_fraction, rectangle_corners, to_frame
-from sensor_envs.highway import IDEAL_KINEMATICS, RadarObservation, load_radar, make_highway
-from sensor_envs.radar_api import default_model_path
+from sensor_envs.radar.sensors import default_model_path
 
 FAST = "sensor_envs/HighwayFast-v0"
 # Small scenes keep the slower worlds (merge 15 Hz, intersection) cheap.
@@ -32,8 +32,10 @@ def _model_available(radar: str) -> bool:
     return radar == "ideal" or default_model_path(radar).is_file()
 
 
-RADARS = [pytest.param(r, marks=pytest.mark.skipif(not _model_available(r), reason=f"no shipped {r} model yet"))
-          for r in ("ideal", "gaussian", "kde")]
+RADARS = [
+    pytest.param(r, marks=pytest.mark.skipif(not _model_available(r), reason=f"no shipped {r} model yet"))
+    for r in ("ideal", "gaussian", "kde")
+]
 
 
 @dataclass(frozen=True)
@@ -109,7 +111,9 @@ def test_checkers_pass_for_each_radar(radar):
     _check(env)
 
 
-HIGHWAY_IDS = sorted(k for k, s in gym.registry.items() if s.entry_point == "sensor_envs.highway:make_highway")
+HIGHWAY_IDS = sorted(
+    k for k, s in gym.registry.items() if s.entry_point == "sensor_envs.envs.highway.wrapper:make_highway"
+)
 
 
 def test_every_highway_id_is_checked():
@@ -177,9 +181,14 @@ def test_ideal_radar_reproduces_kinematics_to_the_bit(base_id):
 
 
 def test_ideal_radar_reproduces_kinematics_with_options():
-    obs_cfg = {"type": "Kinematics", "vehicles_count": 7, "features": ["presence", "x", "y", "vx", "vy", "heading",
-                                                                          "cos_h", "sin_h"],
-               "absolute": True, "see_behind": True, "normalize": False}
+    obs_cfg = {
+        "type": "Kinematics",
+        "vehicles_count": 7,
+        "features": ["presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h"],
+        "absolute": True,
+        "see_behind": True,
+        "normalize": False,
+    }
     cfg = {"vehicles_count": 10, "observation": obs_cfg}
     ref = gym.make("highway-fast-v0", config=cfg)
     env = make_highway("highway-fast-v0", config=cfg, **IDEAL_KINEMATICS)
@@ -235,8 +244,16 @@ def _check_frame(env, info, fov, max_range):
     base = env.unwrapped
     by_position = {tuple(o.position): o for o in base.road.vehicles if o is not base.vehicle}
     tobj = [by_position[tuple(p)] for p in r.truth_position]
-    boxes = to_frame(rectangle_corners(r.truth_position[:, 0], r.truth_position[:, 1], [o.heading for o in tobj],
-                                       [o.LENGTH for o in tobj], [o.WIDTH for o in tobj]), r.sensor_pose)
+    boxes = to_frame(
+        rectangle_corners(
+            r.truth_position[:, 0],
+            r.truth_position[:, 1],
+            [o.heading for o in tobj],
+            [o.LENGTH for o in tobj],
+            [o.WIDTH for o in tobj],
+        ),
+        r.sensor_pose,
+    )
     ref_in = _in_fov(r.truth_reference, fov, max_range)
     assert not r.detected[~ref_in].any()
     n_det = n_hidden = 0
@@ -289,7 +306,7 @@ def _place(env, positions):
     others = [v for v in base.road.vehicles if v is not base.vehicle]
     for v, p in zip(others, positions, strict=False):
         v.position, v.heading = np.array(p, dtype=float), 0.0
-    for v in others[len(positions):]:
+    for v in others[len(positions) :]:
         v.position = np.array([-1000.0, 0.0])
     return base
 
@@ -390,19 +407,24 @@ def test_clutter_and_misses_reach_the_observation():
     assert differ >= 4
 
 
-@pytest.mark.parametrize(("kwargs", "message"), [
-    ({"config": {"bogus": 1}}, "config.bogus: unknown highway-env key"),
-    ({"config": {"observation": {"type": "Kinematics", "foo": 1}}}, "observation.foo: unknown key"),
-    ({"config": {"observation": {"type": "Kinematics", "features": ["presence", "long_off"]}}},
-     "observation.features: 'long_off' is not a radar feature"),
-    ({"fov": 0.0}, "fov: expected"),
-    ({"max_range": -1.0}, "max_range: expected"),
-    ({"occlusion_threshold": 1.5}, "occlusion_threshold: expected"),
-    ({"reference": "edge"}, "reference: expected"),
-    ({"velocity": "doppler"}, "velocity: expected"),
-    ({"radar": "lidar"}, "radar: expected one of"),
-    ({"radar": "ideal", "radar_model": "x.npz"}, "radar_model: the ideal radar takes no model file"),
-])
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"config": {"bogus": 1}}, "config.bogus: unknown highway-env key"),
+        ({"config": {"observation": {"type": "Kinematics", "foo": 1}}}, "observation.foo: unknown key"),
+        (
+            {"config": {"observation": {"type": "Kinematics", "features": ["presence", "long_off"]}}},
+            "observation.features: 'long_off' is not a radar feature",
+        ),
+        ({"fov": 0.0}, "fov: expected"),
+        ({"max_range": -1.0}, "max_range: expected"),
+        ({"occlusion_threshold": 1.5}, "occlusion_threshold: expected"),
+        ({"reference": "edge"}, "reference: expected"),
+        ({"velocity": "doppler"}, "velocity: expected"),
+        ({"radar": "lidar"}, "radar: expected one of"),
+        ({"radar": "ideal", "radar_model": "x.npz"}, "radar_model: the ideal radar takes no model file"),
+    ],
+)
 def test_bad_configuration_names_the_key(kwargs, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         make_highway("highway-fast-v0", **{"radar": "ideal", **kwargs})
@@ -462,8 +484,13 @@ def test_sb3_subproc_vec_env_runs():
     from stable_baselines3.common.vec_env import SubprocVecEnv
 
     # "module:id" makes gymnasium import sensor_envs (which registers the ids) in the worker processes
-    venv = make_vec_env(f"sensor_envs:{FAST}", n_envs=2, seed=0, vec_env_cls=SubprocVecEnv,
-                        env_kwargs={"radar": "ideal", "config": {"vehicles_count": 10}})
+    venv = make_vec_env(
+        f"sensor_envs:{FAST}",
+        n_envs=2,
+        seed=0,
+        vec_env_cls=SubprocVecEnv,
+        env_kwargs={"radar": "ideal", "config": {"vehicles_count": 10}},
+    )
     try:
         obs = venv.reset()
         obs, *_ = venv.step(np.array([1, 1]))
@@ -508,14 +535,14 @@ def test_render_overlays_detections():
 
 @pytest.mark.skipif(not _model_available("kde"), reason="no shipped kde model yet")
 def test_public_names_of_the_split_modules():
-    import sensor_envs.highway as hw
+    import sensor_envs.envs.highway as hw
 
     for name in hw.__all__:
         assert getattr(hw, name) is not None
-    for module in ("highway_sensor", "highway_frame", "highway_observation", "highway_render"):
-        mod = __import__(f"sensor_envs.{module}", fromlist=["__all__"])
+    for module in ("sensor", "frame", "observation", "render", "wrapper"):
+        mod = __import__(f"sensor_envs.envs.highway.{module}", fromlist=["__all__"])
         assert all(hasattr(mod, name) for name in mod.__all__), module
-    assert hw.RadarInfo.__module__ == "sensor_envs.highway_frame"
+    assert hw.RadarInfo.__module__ == "sensor_envs.envs.highway.frame"
 
 
 def test_user_model_file_is_loaded_once_per_path(tmp_path):

@@ -6,15 +6,19 @@ import re
 import numpy as np
 import pytest
 
-from sensor_envs.lidar_log import LidarLogError, load_log, log_from_arrays, save_log
+from sensor_envs.lidar.log import LidarLogError, load_log, log_from_arrays, save_log
 
 SEGS = np.array([[[0, 0], [4, 0]], [[4, 0], [4, 3]], [[4, 3], [0, 3]], [[0, 3], [0, 0]]], dtype=float)
 
 
 def _arrays(p: int = 3, k: int = 8, r: int = 4) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(0)
-    return {"ranges": rng.uniform(0.5, 2.0, (p, k, r)), "bearings": np.linspace(0, 2 * np.pi, k, endpoint=False),
-            "poses": np.tile([2.0, 1.5, 0.1], (p, 1)), "map_segments": SEGS}
+    return {
+        "ranges": rng.uniform(0.5, 2.0, (p, k, r)),
+        "bearings": np.linspace(0, 2 * np.pi, k, endpoint=False),
+        "poses": np.tile([2.0, 1.5, 0.1], (p, 1)),
+        "map_segments": SEGS,
+    }
 
 
 def _write(tmp_path, **arrays) -> str:
@@ -33,8 +37,14 @@ def test_real_log_loads_as_is(real_data):
 
 def test_scan_log_becomes_one_repeat_and_round_trips(tmp_path):
     a = _arrays()
-    log = log_from_arrays(a["ranges"][:, :, 0], a["bearings"], a["poses"], a["map_segments"], t=[0.0, 0.1, 0.2],
-                          covariates={"temp": [20.0, 21.0, 22.0]})
+    log = log_from_arrays(
+        a["ranges"][:, :, 0],
+        a["bearings"],
+        a["poses"],
+        a["map_segments"],
+        t=[0.0, 0.1, 0.2],
+        covariates={"temp": [20.0, 21.0, 22.0]},
+    )
     assert log.ranges.shape == (3, 8, 1)
     back = load_log(save_log(log, tmp_path / "x.npz"))
     np.testing.assert_allclose(back.ranges, log.ranges.astype(np.float32))
@@ -73,8 +83,10 @@ def test_missing_field_is_named(tmp_path):
 
 def test_carmen_flaser_and_robotlaser(tmp_path):
     fl = "FLASER 4 1.0 2.0 81.0 0.5 1.0 2.0 0.3 1.0 2.0 0.3 12.5 host 12.5\n"
-    rl = ("ROBOTLASER1 0 -1.5708 3.1416 1.5708 20.0 0.01 0 3 1.0 25.0 0.0 0 1.1 2.1 0.4 1.0 2.0 0.3 0 0 0 0 0 "
-          "13.0 host 13.0\n")
+    rl = (
+        "ROBOTLASER1 0 -1.5708 3.1416 1.5708 20.0 0.01 0 3 1.0 25.0 0.0 0 1.1 2.1 0.4 1.0 2.0 0.3 0 0 0 0 0 "
+        "13.0 host 13.0\n"
+    )
     path = tmp_path / "x.log.gz"
     with gzip.open(path, "wt") as f:
         f.write("# comment\nODOM 0 0 0 0 0 0 1.0 h 1.0\n" + fl + fl)

@@ -10,8 +10,8 @@ import pytest
 from scipy import stats
 
 import sensor_envs  # noqa: F401  (registers the ids)
-from sensor_envs.cli import main as cli_main
-from sensor_envs.lidar_lwlr import (
+from sensor_envs.cli.main import main as cli_main
+from sensor_envs.lidar.lwlr import (
     P_EPS,
     LearnedLidar,
     LidarLWLR,
@@ -21,13 +21,18 @@ from sensor_envs.lidar_lwlr import (
     mixture_log_prob,
     null_count_log_prob,
 )
+from sensor_envs.lidar.rig import NeatoRig
 from sensor_envs.maps import load_map
 from sensor_envs.modelio import ModelFileError
-from sensor_envs.neato_rig import NeatoRig
 
 ROOM = load_map("seed_room").segments
-SMALL = {"n_folds": 3, "h_range_grid": (0.4, 1.6), "h_alpha_grid": (0.5,), "h_bearing_grid": (0.0, 2.0),
-         "progress": False}
+SMALL = {
+    "n_folds": 3,
+    "h_range_grid": (0.4, 1.6),
+    "h_alpha_grid": (0.5,),
+    "h_bearing_grid": (0.0, 2.0),
+    "progress": False,
+}
 ALPHA = 1e-3  # each goodness-of-fit test below fails with probability ~1e-3 under a correct sampler
 
 
@@ -140,9 +145,16 @@ def test_null_count_log_prob_is_a_beta_binomial():
 def test_sampled_null_counts_follow_the_beta_binomial(rig_fit, rho):
     _, _, ext, _ = rig_fit
     cells, n, q = 4000, 20, 0.3
-    p = {"p_null": np.full((cells, 1), q), "p_spur": np.full((cells, 1), 1e-4), "mu": np.full((cells, 1), 2.0),
-         "sigma": np.full((cells, 1), 0.01), "tau": np.zeros((cells, 1)), "p_out": np.zeros((cells, 1)),
-         "out_range": np.full((cells, 1), 5.0), "null_rho": np.full((cells, 1), rho)}
+    p = {
+        "p_null": np.full((cells, 1), q),
+        "p_spur": np.full((cells, 1), 1e-4),
+        "mu": np.full((cells, 1), 2.0),
+        "sigma": np.full((cells, 1), 0.01),
+        "tau": np.zeros((cells, 1)),
+        "p_out": np.zeros((cells, 1)),
+        "out_range": np.full((cells, 1), 5.0),
+        "null_rho": np.full((cells, 1), rho),
+    }
     x = ext.sample_from_params(p, np.random.default_rng(11), (cells, n), pose_uncertainty=True)
     obs = np.bincount((x == 0).sum(1), minlength=n + 1)
     exp = cells * np.exp(null_count_log_prob(np.arange(n + 1), n, q, rho))
@@ -167,7 +179,7 @@ def test_fit_finds_persistent_nulls(rig_fit):
 
 
 def test_rig_nulls_persist_per_cell_and_the_fit_finds_them():
-    from sensor_envs.lidar_validate import log_statistics  # noqa: PLC0415
+    from sensor_envs.lidar.validate import log_statistics  # noqa: PLC0415
 
     log, _ = NeatoRig(null_rho=0.9).record(ROOM, np.random.default_rng(6), n_poses=12, repeats=40)
     independent, _ = NeatoRig().record(ROOM, np.random.default_rng(6), n_poses=12, repeats=40)
@@ -307,8 +319,8 @@ def test_cli_record_fit_validate(tmp_path, capsys):
 
 
 def test_real_data_model_beats_baselines_on_held_out_poses(real_data):
-    from sensor_envs.lidar_log import load_log  # noqa: PLC0415
-    from sensor_envs.lidar_validate import baseline_params, fit_gaussian_lidar, table_one  # noqa: PLC0415
+    from sensor_envs.lidar.log import load_log  # noqa: PLC0415
+    from sensor_envs.lidar.validate import baseline_params, fit_gaussian_lidar, table_one  # noqa: PLC0415
 
     log = load_log(real_data / "neato_mar27_train.npz")
     train, test = log.subset(np.arange(29) % 3 != 0), log.subset(np.arange(29) % 3 == 0)
@@ -325,7 +337,7 @@ def test_real_data_model_beats_baselines_on_held_out_poses(real_data):
 
 
 def test_cross_validated_table_runs_on_a_small_rig_log():
-    from sensor_envs.lidar_validate import cross_validate_log  # noqa: PLC0415
+    from sensor_envs.lidar.validate import cross_validate_log  # noqa: PLC0415
 
     log, _ = NeatoRig().record(ROOM, np.random.default_rng(4), n_poses=6, repeats=10)
     small = {k: v for k, v in SMALL.items() if k not in ("n_folds", "progress")}

@@ -69,8 +69,9 @@ def test_occupancy_grid_boundaries_and_ros_map(tmp_path):
     img = np.full((4, 5), 254, dtype=np.uint8)
     img[::-1][grid] = 0
     (tmp_path / "m.pgm").write_bytes(b"P5\n# test\n5 4\n255\n" + img.tobytes())
-    (tmp_path / "m.yaml").write_text("image: m.pgm\nresolution: 0.5\norigin: [1.0, 2.0, 0.0]\nnegate: 0\n"
-                                     "occupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    (tmp_path / "m.yaml").write_text(
+        "image: m.pgm\nresolution: 0.5\norigin: [1.0, 2.0, 0.0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
     m = read_ros_map(tmp_path / "m.yaml")
     assert m.bounds == pytest.approx((1.5, 2.5, 3.0, 3.5))
     assert load_map(tmp_path / "m.yaml").segments == pytest.approx(m.segments)

@@ -8,8 +8,8 @@ from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import sensor_envs  # noqa: F401  (registers the ids)
-from sensor_envs.lidars import GaussianLidar
-from sensor_envs.neato import NeatoEnv
+from sensor_envs.envs.neato import NeatoEnv
+from sensor_envs.lidar.sensors import GaussianLidar
 
 LIDARS = ["ideal", "gaussian", "learned"]
 
@@ -63,8 +63,14 @@ def test_ideal_scan_is_exact_in_the_seed_room():
 
 
 def test_null_value_modes_and_range_cut():
-    segs = np.array([[[10.0, -5.0], [10.0, 5.0]], [[-1.0, -5.0], [-1.0, 5.0]], [[-1.0, 5.0], [10.0, 5.0]],
-                     [[-1.0, -5.0], [10.0, -5.0]]])
+    segs = np.array(
+        [
+            [[10.0, -5.0], [10.0, 5.0]],
+            [[-1.0, -5.0], [-1.0, 5.0]],
+            [[-1.0, 5.0], [10.0, 5.0]],
+            [[-1.0, -5.0], [10.0, -5.0]],
+        ]
+    )
     for mode, fill in (("zero", 0.0), ("max", 5.0)):
         env = NeatoEnv(map=segs, null_value=mode)
         obs, info = env.reset(seed=0, options={"start": [0.0, 0.0, 0.0], "goal": [2.0, 0.0, 0.0]})

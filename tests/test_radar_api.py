@@ -3,7 +3,7 @@ import pickle
 import numpy as np
 import pytest
 
-from sensor_envs.radar_api import IdealRadar, RadarSensor, default_model_path, make_radar
+from sensor_envs.radar.sensors import IdealRadar, RadarSensor, default_model_path, make_radar
 
 
 def test_unknown_name_is_named():

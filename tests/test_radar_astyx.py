@@ -1,15 +1,22 @@
 import numpy as np
 import pytest
 
-from sensor_envs.astyx import detection_statistics, frame_rows, load_astyx
-from sensor_envs.radar_kde import KDERadarModel
-from sensor_envs.radar_log import target_tuples
+from sensor_envs.radar.astyx import detection_statistics, frame_rows, load_astyx
+from sensor_envs.radar.kde import KDERadarModel
+from sensor_envs.radar.log import target_tuples
 
 
 def test_frame_rows_on_a_synthetic_frame():
     boxes = np.array([[20.0, 0.0, 0.0, 4.0, 2.0, 0, 0, 0], [40.0, 5.0, 0.0, 4.0, 2.0, 0, 0, 0]])
-    pts = np.array([[18.2, 0.1, 0, 0, 50], [18.6, -0.4, 0, 0, 40], [19.0, 0.5, 0, 0, 45],  # on box 0
-                    [70.0, -20.0, 0, 0, 30], [70.5, -20.3, 0, 0, 30]])  # clutter cluster
+    pts = np.array(
+        [
+            [18.2, 0.1, 0, 0, 50],
+            [18.6, -0.4, 0, 0, 40],
+            [19.0, 0.5, 0, 0, 45],  # on box 0
+            [70.0, -20.0, 0, 0, 30],
+            [70.5, -20.3, 0, 0, 30],
+        ]
+    )  # clutter cluster
     rows, clutter = frame_rows(pts, boxes, ["Car", "Car"])
     assert rows.shape == (2, 9)
     np.testing.assert_allclose(rows[0, 5:7], [18.2, 0.1])  # nearest detection to the sensor

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from sensor_envs.radar_buckets import build_buckets, sample_proportional
+from sensor_envs.radar.buckets import build_buckets, sample_proportional
 
 P_MIN = 1e-3  # a correct sampler fails each chi-square test with probability 0.1 % (seeds are fixed)
 
@@ -15,8 +15,9 @@ def _chi2_p(counts, probs):
     return chi2.sf(stat, keep.sum() - 1)
 
 
-@pytest.mark.parametrize(("dim", "cell", "pseudo", "stop"), [(2, 1.0, 0.0, 1.0), (4, 3.0, 1.0, 1.0),
-                                                             (4, 2.0, 2.0, 0.3), (2, 5.0, 0.5, 0.0)])
+@pytest.mark.parametrize(
+    ("dim", "cell", "pseudo", "stop"), [(2, 1.0, 0.0, 1.0), (4, 3.0, 1.0, 1.0), (4, 2.0, 2.0, 0.3), (2, 5.0, 0.5, 0.0)]
+)
 def test_picks_follow_the_truncated_kernel_weights(dim, cell, pseudo, stop):
     rng = np.random.default_rng(dim)
     pts = rng.normal(0, 2.0, (60, dim))
@@ -30,8 +31,9 @@ def test_picks_follow_the_truncated_kernel_weights(dim, cell, pseudo, stop):
     p = w / (w.sum() + pseudo) + (pseudo * (1 - stop) / (w.sum() + pseudo)) * wa / wa.sum()
     probs = np.append(p, pseudo * stop / (w.sum() + pseudo))
     n = 20_000
-    pick, done, _ = sample_proportional(index, np.repeat(q[None], n, axis=0), pseudo, rng, allowed=~flag,
-                                        pseudo_stop=stop)
+    pick, done, _ = sample_proportional(
+        index, np.repeat(q[None], n, axis=0), pseudo, rng, allowed=~flag, pseudo_stop=stop
+    )
     assert done.all()
     counts = np.bincount(np.where(pick < 0, 60, pick), minlength=61)
     assert _chi2_p(counts, probs) > P_MIN

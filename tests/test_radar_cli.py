@@ -1,6 +1,6 @@
 import json
 
-from sensor_envs.cli import main
+from sensor_envs.cli.main import main
 
 
 def test_record_fit_validate_radar(tmp_path):
@@ -24,7 +24,7 @@ def test_bad_log_gives_exit_code_2_and_names_the_file(tmp_path, capsys):
 
 
 def test_validate_the_shipped_model_finds_its_shipped_baseline(tmp_path):
-    from sensor_envs.radar_api import default_model_path
+    from sensor_envs.radar.sensors import default_model_path
 
     test = tmp_path / "test.csv"
     assert main(["record", "radar", "--out", str(test), "--sequences", "3", "--cycles", "10", "--seed", "2"]) == 0

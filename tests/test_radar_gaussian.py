@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
-from sensor_envs.radar_gaussian import GaussianRadar
-from sensor_envs.radar_log import target_tuples
-from sensor_envs.radar_rig import record_rig_log
+from sensor_envs.radar.gaussian import GaussianRadar
+from sensor_envs.radar.log import target_tuples
+from sensor_envs.radar.rig import record_rig_log
 
 
 @pytest.fixture(scope="module")
@@ -44,8 +44,9 @@ def test_save_load_roundtrip(fitted, tmp_path):
     g, _ = fitted
     back = GaussianRadar.load(g.save(tmp_path / "g.npz"))
     c = np.array([[10.0, 0.0], [60.0, -5.0]])
-    np.testing.assert_array_equal(g.sample_cycle(c, None, np.random.default_rng(1))[0],
-                                  back.sample_cycle(c, None, np.random.default_rng(1))[0])
+    np.testing.assert_array_equal(
+        g.sample_cycle(c, None, np.random.default_rng(1))[0], back.sample_cycle(c, None, np.random.default_rng(1))[0]
+    )
     assert back.cycle_time_ == 1.0
 
 

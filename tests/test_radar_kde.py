@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from sensor_envs.modelio import ModelFileError
-from sensor_envs.radar_kde import KDERadarModel, NotFittedError
-from sensor_envs.radar_log import REQUIRED_COLUMNS, RadarLog, target_tuples
-from sensor_envs.radar_rig import record_rig_log
-from sensor_envs.radar_validate import chi_square, lag1_autocorr, rollout, split_by_blocks
+from sensor_envs.radar.kde import KDERadarModel, NotFittedError
+from sensor_envs.radar.log import REQUIRED_COLUMNS, RadarLog, target_tuples
+from sensor_envs.radar.rig import record_rig_log
+from sensor_envs.radar.validate import chi_square, lag1_autocorr, rollout, split_by_blocks
 
 P_MIN = 1e-3  # chi-square tests: a correct sampler fails each with probability 0.1 % (seeds are fixed)
 AUTOCORR_TOL = 0.15  # |lag-1 autocorrelation simulated - recorded| allowed with z_{t-1} (rig, 1 s cycles)
@@ -59,6 +59,7 @@ def test_without_previous_output_samples_follow_pdf(rig_split):
 
 def test_chi_square_detects_a_wrong_sampler(model):
     state = _states(model)[1]
+
     class Shifted:
         def sample(self, s, rng):
             z, src = model.sample(s, rng)
@@ -173,8 +174,16 @@ def _offset_log(rng, sharp, n=800):
 @pytest.mark.parametrize(("sharp", "expected"), [(True, 1.0), (False, 48.0)])
 def test_relevance_cv_picks_the_kernel_width_the_data_support(sharp, expected):
     log = _offset_log(np.random.default_rng(3), sharp)
-    m = KDERadarModel(use_prev=False, cv_group="sequence", relevance="cv", relevance_candidates=(1.0, 48.0),
-                      relevance_folds=2, cv_grid_step=8.0, cv_max_tuples=100, random_state=0).fit(log)
+    m = KDERadarModel(
+        use_prev=False,
+        cv_group="sequence",
+        relevance="cv",
+        relevance_candidates=(1.0, 48.0),
+        relevance_folds=2,
+        cv_grid_step=8.0,
+        cv_max_tuples=100,
+        random_state=0,
+    ).fit(log)
     assert m.rel_variance_[:2] == (expected, expected), m.relevance_scores_
     assert m.rel_variance == (3.0, 3.0, 0.03, 0.03)  # the hyper-parameter is untouched
 
@@ -232,7 +241,7 @@ def test_row_order_invariance():
 
 
 def test_clutter_follows_the_log(rig_split, model):
-    from sensor_envs.radar_log import clutter_counts
+    from sensor_envs.radar.log import clutter_counts
 
     counts, xy = clutter_counts(rig_split[0])
     rng = np.random.default_rng(9)

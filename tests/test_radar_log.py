@@ -3,7 +3,7 @@ import re
 import numpy as np
 import pytest
 
-from sensor_envs.radar_log import REQUIRED_COLUMNS, RadarLog, RadarLogError, read_log, target_tuples, write_log
+from sensor_envs.radar.log import REQUIRED_COLUMNS, RadarLog, RadarLogError, read_log, target_tuples, write_log
 
 HEADER = ",".join(REQUIRED_COLUMNS)
 
@@ -15,11 +15,19 @@ def _write(tmp_path, lines, header=HEADER):
 
 
 def _cols(**over):
-    base = {"sequence": [0, 0, 0, 0], "frame": [0, 1, 2, 2], "t": [0.0, 1.0, 2.0, 2.0], "target": [3, 3, 3, -1],
-            "ref_x": [10.0, 11.0, 12.0, np.nan], "ref_y": [0.0, 0.0, 0.0, np.nan],
-            "ref_heading": [0.0, 0.0, 0.0, np.nan], "ref_length": [4.0, 4.0, 4.0, np.nan],
-            "ref_width": [2.0, 2.0, 2.0, np.nan], "meas_x": [8.5, np.nan, 10.3, 30.0],
-            "meas_y": [1.2, np.nan, -0.9, 5.0]}
+    base = {
+        "sequence": [0, 0, 0, 0],
+        "frame": [0, 1, 2, 2],
+        "t": [0.0, 1.0, 2.0, 2.0],
+        "target": [3, 3, 3, -1],
+        "ref_x": [10.0, 11.0, 12.0, np.nan],
+        "ref_y": [0.0, 0.0, 0.0, np.nan],
+        "ref_heading": [0.0, 0.0, 0.0, np.nan],
+        "ref_length": [4.0, 4.0, 4.0, np.nan],
+        "ref_width": [2.0, 2.0, 2.0, np.nan],
+        "meas_x": [8.5, np.nan, 10.3, 30.0],
+        "meas_y": [1.2, np.nan, -0.9, 5.0],
+    }
     base.update(over)
     return {k: np.asarray(v, dtype=float) for k, v in base.items()}
 

@@ -1,14 +1,16 @@
 import numpy as np
 
-from sensor_envs.radar_log import clutter_counts, target_tuples
-from sensor_envs.radar_rig import RadarRig, RigConfig, generate_scenario, record_rig_log
+from sensor_envs.radar.log import clutter_counts, target_tuples
+from sensor_envs.radar.rig import RadarRig, RigConfig, generate_scenario, record_rig_log
 
 
 def test_detection_probability_falls_with_range_azimuth_and_occlusion():
     rig = RadarRig()
-    p = rig.detection_probability(np.array([20.0, 85.0, 120.0, 20.0, 20.0]),
-                                  np.array([0.0, 0.0, 0.0, np.deg2rad(45), np.deg2rad(70)]),
-                                  np.array([0.0, 0.0, 0.0, 0.0, 0.0]))
+    p = rig.detection_probability(
+        np.array([20.0, 85.0, 120.0, 20.0, 20.0]),
+        np.array([0.0, 0.0, 0.0, np.deg2rad(45), np.deg2rad(70)]),
+        np.array([0.0, 0.0, 0.0, 0.0, 0.0]),
+    )
     assert p[0] > p[1] > p[2] and p[0] > p[3] > p[4] == 0.0
     assert rig.detection_probability(np.array([20.0]), np.array([0.0]), np.array([0.8]))[0] < p[0]
 

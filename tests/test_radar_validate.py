@@ -1,7 +1,7 @@
 import numpy as np
 from scipy.stats import energy_distance
 
-from sensor_envs.radar_validate import energy_distance_2d, lag1_autocorr
+from sensor_envs.radar.validate import energy_distance_2d, lag1_autocorr
 
 
 def test_energy_distance_matches_scipy_in_1d():

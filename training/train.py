@@ -63,8 +63,14 @@ def train(env_id: str, cfg: dict[str, Any], out: Path, seed: int) -> dict[str, A
     every = max(1, int(cfg.get("eval_freq", 10_000)) // n_envs)
     callbacks = [
         CheckpointCallback(save_freq=every, save_path=str(out / "checkpoints"), name_prefix="model"),
-        EvalCallback(eval_env, best_model_save_path=str(out), log_path=str(out), eval_freq=every,
-                     n_eval_episodes=int(cfg.get("eval_episodes", 5)), deterministic=True),
+        EvalCallback(
+            eval_env,
+            best_model_save_path=str(out),
+            log_path=str(out),
+            eval_freq=every,
+            n_eval_episodes=int(cfg.get("eval_episodes", 5)),
+            deterministic=True,
+        ),
     ]
     warnings.filterwarnings("ignore", category=TqdmExperimentalWarning)  # SB3's rich progress bar
     model.learn(total_timesteps=int(cfg["n_timesteps"]), callback=callbacks, progress_bar=True)
@@ -72,8 +78,13 @@ def train(env_id: str, cfg: dict[str, Any], out: Path, seed: int) -> dict[str, A
     mean, std = evaluate_policy(model, eval_env, n_eval_episodes=int(cfg.get("eval_episodes", 5)))
     venv.close()
     eval_env.close()
-    return {"env_id": env_id, "seed": seed, "mean_return": float(mean), "std_return": float(std),
-            "n_timesteps": int(cfg["n_timesteps"])}
+    return {
+        "env_id": env_id,
+        "seed": seed,
+        "mean_return": float(mean),
+        "std_return": float(std),
+        "n_timesteps": int(cfg["n_timesteps"]),
+    }
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:

@@ -82,9 +82,15 @@ def _drive(lidar: str, seed: int, episodes: int, out: Path, map_name: str = "see
         returns.append(total)
         steps.append(t)
     env.close()
-    return {"map": map_name, "episodes": episodes, "success_rate": outcomes.count("success") / episodes,
-            "collision_rate": outcomes.count("collision") / episodes, "mean_return": round(float(np.mean(returns)), 3),
-            "mean_steps": round(float(np.mean(steps)), 1), "null_share": round(nulls / max(readings, 1), 4)}
+    return {
+        "map": map_name,
+        "episodes": episodes,
+        "success_rate": outcomes.count("success") / episodes,
+        "collision_rate": outcomes.count("collision") / episodes,
+        "mean_return": round(float(np.mean(returns)), 3),
+        "mean_steps": round(float(np.mean(steps)), 1),
+        "null_share": round(nulls / max(readings, 1), 4),
+    }
 
 
 def _scan_figure(lidars: tuple[str, ...], seed: int, path: Path) -> None:
@@ -123,9 +129,13 @@ def _highway(radar: str, seed: int, steps: int, out: Path) -> dict[str, Any]:
             break
     env.close()
     err = np.concatenate(errors) if errors else np.zeros(0)
-    return {"steps": t + 1, "visible_targets": visible, "detection_rate": round(detected / max(visible, 1), 4),
-            "clutter_per_step": round(clutter / (t + 1), 3),
-            "median_position_error_m": round(float(np.median(err)), 3) if err.size else None}
+    return {
+        "steps": t + 1,
+        "visible_targets": visible,
+        "detection_rate": round(detected / max(visible, 1), 4),
+        "clutter_per_step": round(clutter / (t + 1), 3),
+        "median_position_error_m": round(float(np.median(err)), 3) if err.size else None,
+    }
 
 
 def run_demo(out: str | Path, seed: int = 0, episodes: int = 10) -> dict[str, Any]:

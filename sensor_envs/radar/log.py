@@ -145,12 +145,16 @@ def _validate(columns: dict[str, NDArray], source: str) -> dict[str, NDArray]:
     if partial.any():
         r = _first(partial)
         col = REF_COLUMNS[int(np.argmax(ref_nan[r]))]
-        raise RadarLogError(f"{source}: column {col!r} row {r} is empty but other ref columns are not "
-                            "(ref must be all empty for clutter or all set)")
+        raise RadarLogError(
+            f"{source}: column {col!r} row {r} is empty but other ref columns are not "
+            "(ref must be all empty for clutter or all set)"
+        )
     meas_nan = np.isnan(out["meas_x"])
     if (meas_nan != np.isnan(out["meas_y"])).any():
-        raise RadarLogError(f"{source}: column 'meas_y' row {_first(meas_nan != np.isnan(out['meas_y']))} "
-                            "is empty while 'meas_x' is not (or vice versa)")
+        raise RadarLogError(
+            f"{source}: column 'meas_y' row {_first(meas_nan != np.isnan(out['meas_y']))} "
+            "is empty while 'meas_x' is not (or vice versa)"
+        )
     clutter = ref_nan[:, 0]
     if (clutter & meas_nan).any():
         raise RadarLogError(f"{source}: row {_first(clutter & meas_nan)} has neither ref nor meas columns set")
@@ -160,8 +164,9 @@ def _validate(columns: dict[str, NDArray], source: str) -> dict[str, NDArray]:
         if bad.any():
             raise RadarLogError(f"{source}: column {c!r} row {_first(bad)} must be > 0")
     if (out["target"][target_rows] < 0).any():
-        raise RadarLogError(f"{source}: column 'target' row {_first(target_rows & (out['target'] < 0))} "
-                            "is negative on a target row")
+        raise RadarLogError(
+            f"{source}: column 'target' row {_first(target_rows & (out['target'] < 0))} is negative on a target row"
+        )
     return out
 
 
@@ -175,8 +180,9 @@ def _parse_cell(text: str, name: str, row: int, source: str, required: bool) -> 
     except ValueError:
         raise RadarLogError(f"{source}: column {name!r} row {row} holds {s!r}, which is not a number") from None
     if required and not np.isfinite(v):
-        raise RadarLogError(f"{source}: column {name!r} row {row} holds {s!r}; write an empty field for "
-                            "'missing', not NaN/inf")
+        raise RadarLogError(
+            f"{source}: column {name!r} row {row} holds {s!r}; write an empty field for 'missing', not NaN/inf"
+        )
     return v
 
 

@@ -46,11 +46,22 @@ class RadarFrame:
     det_obstacle: NDArray[np.bool_]
 
     @classmethod
-    def assemble(cls, truth: Truth, pose: NDArray[np.float64], reference_s: NDArray[np.float64],
-                 visible: NDArray[np.bool_], detected: NDArray[np.bool_], target: NDArray[np.int64],
-                 det_s: NDArray[np.float64], det_w: NDArray[np.float64], velocity: NDArray[np.float64],
-                 heading: NDArray[np.float64], source: NDArray[np.int64], clutter_s: NDArray[np.float64],
-                 clutter_w: NDArray[np.float64]) -> RadarFrame:
+    def assemble(
+        cls,
+        truth: Truth,
+        pose: NDArray[np.float64],
+        reference_s: NDArray[np.float64],
+        visible: NDArray[np.bool_],
+        detected: NDArray[np.bool_],
+        target: NDArray[np.int64],
+        det_s: NDArray[np.float64],
+        det_w: NDArray[np.float64],
+        velocity: NDArray[np.float64],
+        heading: NDArray[np.float64],
+        source: NDArray[np.int64],
+        clutter_s: NDArray[np.float64],
+        clutter_w: NDArray[np.float64],
+    ) -> RadarFrame:
         """Stack the ``k`` target detections and ``m`` clutter points (stationary, heading 0, target and source -1).
 
         ``det_s``/``clutter_s`` are sensor-frame points [m], ``det_w``/``clutter_w`` world points [m],
@@ -58,9 +69,15 @@ class RadarFrame:
         """
         m = len(clutter_s)
         return cls(
-            truth=truth, sensor_pose=pose, reference_s=reference_s, visible=visible, detected=detected,
-            det_s=np.concatenate([det_s, clutter_s]), det_w=np.concatenate([det_w, clutter_w]),
-            det_v=np.concatenate([velocity, np.zeros((m, 2))]), det_heading=np.concatenate([heading, np.zeros(m)]),
+            truth=truth,
+            sensor_pose=pose,
+            reference_s=reference_s,
+            visible=visible,
+            detected=detected,
+            det_s=np.concatenate([det_s, clutter_s]),
+            det_w=np.concatenate([det_w, clutter_w]),
+            det_v=np.concatenate([velocity, np.zeros((m, 2))]),
+            det_heading=np.concatenate([heading, np.zeros(m)]),
             det_target=np.concatenate([target, np.full(m, -1)]).astype(np.int64),
             det_source=np.concatenate([np.asarray(source, dtype=np.int64), np.full(m, -1, dtype=np.int64)]),
             det_obstacle=np.concatenate([truth.obstacle[target], np.zeros(m, dtype=bool)]),
@@ -69,13 +86,21 @@ class RadarFrame:
     def info(self) -> dict[str, RadarInfo]:
         """The per-step ``info`` entry ``{"radar": RadarInfo}`` (fresh arrays)."""
         vis, det = self.visible, self.detected
-        return {"radar": RadarInfo(
-            truth_position=self.truth.centre.copy(), truth_velocity=self.truth.velocity.copy(),
-            truth_reference=self.reference_s.copy(), visible=vis.copy(), detected=det.copy(), missed=vis & ~det,
-            detections=self.det_s.copy(), detections_world=self.det_w.copy(),
-            detection_target=self.det_target.copy(), source=self.det_source.copy(),
-            sensor_pose=self.sensor_pose.copy(),
-        )}
+        return {
+            "radar": RadarInfo(
+                truth_position=self.truth.centre.copy(),
+                truth_velocity=self.truth.velocity.copy(),
+                truth_reference=self.reference_s.copy(),
+                visible=vis.copy(),
+                detected=det.copy(),
+                missed=vis & ~det,
+                detections=self.det_s.copy(),
+                detections_world=self.det_w.copy(),
+                detection_target=self.det_target.copy(),
+                source=self.det_source.copy(),
+                sensor_pose=self.sensor_pose.copy(),
+            )
+        }
 
 
 @dataclass(frozen=True, eq=False)

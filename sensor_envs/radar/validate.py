@@ -23,7 +23,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.radar_log import RadarLog, TargetTuples, target_tuples
+from sensor_envs.radar.log import RadarLog, TargetTuples, target_tuples
 
 __all__ = [
     "RANGE_BINS",
@@ -43,8 +43,9 @@ RANGE_BINS = (0.0, 15.0, 30.0, 50.0, 75.0, 120.0)
 
 
 class _Model(Protocol):
-    def sample_cycle(self, corners: NDArray, prev_z: NDArray | None, rng: np.random.Generator) -> tuple[
-        NDArray, NDArray]: ...
+    def sample_cycle(
+        self, corners: NDArray, prev_z: NDArray | None, rng: np.random.Generator
+    ) -> tuple[NDArray, NDArray]: ...
 
     def log_prob(self, z: NDArray, state: NDArray) -> NDArray: ...
 
@@ -123,10 +124,12 @@ def detection_by_previous(tt: TargetTuples, z: NDArray, z_prev: NDArray) -> dict
     outputs ``z``/``z_prev`` given: recorded, or simulated by :func:`rollout`).
     """
     det, prev_det = ~np.isnan(z[:, 0]), ~np.isnan(z_prev[:, 0])
-    parts = {"new": ~tt.has_prev_row, "after_miss": tt.has_prev_row & ~prev_det,
-             "after_detection": tt.has_prev_row & prev_det}
-    return {k: {"rate": float(det[v].mean()) if v.any() else float("nan"), "n": int(v.sum())}
-            for k, v in parts.items()}
+    parts = {
+        "new": ~tt.has_prev_row,
+        "after_miss": tt.has_prev_row & ~prev_det,
+        "after_detection": tt.has_prev_row & prev_det,
+    }
+    return {k: {"rate": float(det[v].mean()) if v.any() else float("nan"), "n": int(v.sum())} for k, v in parts.items()}
 
 
 def nll(model: _Model, tt: TargetTuples) -> dict[str, float]:
@@ -138,10 +141,14 @@ def nll(model: _Model, tt: TargetTuples) -> dict[str, float]:
     with np.errstate(divide="ignore", invalid="ignore"):
         lp_det = np.log1p(-np.exp(lp_miss))
     cond = lp[det] - lp_det[det]
-    return {"nll_outcome": float(-np.mean(lp)), "nll_z_given_detected": float(-np.mean(cond)),
-            "nll_z_given_detected_median": float(-np.median(cond)),
-            "n_rows": int(lp.size), "n_detected": int(det.sum()),
-            "n_infinite": int((~np.isfinite(lp)).sum())}
+    return {
+        "nll_outcome": float(-np.mean(lp)),
+        "nll_z_given_detected": float(-np.mean(cond)),
+        "nll_z_given_detected_median": float(-np.median(cond)),
+        "n_rows": int(lp.size),
+        "n_detected": int(det.sum()),
+        "n_infinite": int((~np.isfinite(lp)).sum()),
+    }
 
 
 def _per_bin(tt: TargetTuples, z_sim: NDArray, edges: NDArray, rng: np.random.Generator) -> list[dict[str, Any]]:
@@ -151,15 +158,26 @@ def _per_bin(tt: TargetTuples, z_sim: NDArray, edges: NDArray, rng: np.random.Ge
         sel = (r >= lo) & (r < hi)
         rec, sim = tt.z[sel], z_sim[sel]
         rd, sd = ~np.isnan(rec[:, 0]), ~np.isnan(sim[:, 0])
-        out.append({"range_lo": float(lo), "range_hi": float(hi), "n": int(sel.sum()),
-                    "detection_rate_measured": float(rd.mean()) if sel.any() else float("nan"),
-                    "detection_rate_simulated": float(sd.mean()) if sel.any() else float("nan"),
-                    "energy_distance": energy_distance_2d(sim[sd], rec[rd], rng)})
+        out.append(
+            {
+                "range_lo": float(lo),
+                "range_hi": float(hi),
+                "n": int(sel.sum()),
+                "detection_rate_measured": float(rd.mean()) if sel.any() else float("nan"),
+                "detection_rate_simulated": float(sd.mean()) if sel.any() else float("nan"),
+                "energy_distance": energy_distance_2d(sim[sd], rec[rd], rng),
+            }
+        )
     return out
 
 
-def evaluate(model: _Model, log: RadarLog, rng: np.random.Generator, edges: tuple[float, ...] = RANGE_BINS,
-             time_series: bool | None = None) -> dict[str, Any]:
+def evaluate(
+    model: _Model,
+    log: RadarLog,
+    rng: np.random.Generator,
+    edges: tuple[float, ...] = RANGE_BINS,
+    time_series: bool | None = None,
+) -> dict[str, Any]:
     """All metrics of one model on ``log`` (see the module docstring)."""
     tt = target_tuples(log)
     state = np.concatenate([tt.corner, tt.z_prev], axis=1)
@@ -172,21 +190,28 @@ def evaluate(model: _Model, log: RadarLog, rng: np.random.Generator, edges: tupl
         res["lag1_autocorr_measured"] = lag1_autocorr(tt.z, tt.z_prev).tolist()
         res["lag1_autocorr_simulated"] = lag1_autocorr(zr, zpr).tolist()
         res["detection_rate_rollout"] = float(np.mean(~np.isnan(zr[:, 0])))
-        res["detection_rate_by_previous"] = {"recorded": detection_by_previous(tt, tt.z, tt.z_prev),
-                                             "rollout": detection_by_previous(tt, zr, zpr)}
+        res["detection_rate_by_previous"] = {
+            "recorded": detection_by_previous(tt, tt.z, tt.z_prev),
+            "rollout": detection_by_previous(tt, zr, zpr),
+        }
     res["detection_rate_measured"] = float(np.mean(~np.isnan(tt.z[:, 0])))
     return res
 
 
 def validate(model: _Model, baseline: _Model, log: RadarLog, seed: int = 0) -> dict[str, Any]:
     """Metrics of ``model`` and ``baseline`` on the same (held-out) ``log``."""
-    return {"log": log.source, "n_rows": len(log), "seed": seed,
-            "model": evaluate(model, log, np.random.default_rng([seed, 1])),
-            "baseline_gaussian": evaluate(baseline, log, np.random.default_rng([seed, 2]))}
+    return {
+        "log": log.source,
+        "n_rows": len(log),
+        "seed": seed,
+        "model": evaluate(model, log, np.random.default_rng([seed, 1])),
+        "baseline_gaussian": evaluate(baseline, log, np.random.default_rng([seed, 2])),
+    }
 
 
-def write_report(report: dict[str, Any], out_dir: str | os.PathLike[str], model: Any = None,
-                 log: RadarLog | None = None) -> Path:
+def write_report(
+    report: dict[str, Any], out_dir: str | os.PathLike[str], model: Any = None, log: RadarLog | None = None
+) -> Path:
     """Write ``report.json`` (and figures when ``model``/``log`` are given) into ``out_dir``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -197,8 +222,9 @@ def write_report(report: dict[str, Any], out_dir: str | os.PathLike[str], model:
     return path
 
 
-def chi_square(model: Any, state: NDArray, rng: np.random.Generator, n: int = 95_000, n_bins: int = 12,
-               min_expected: float = 5.0) -> dict[str, Any]:
+def chi_square(
+    model: Any, state: NDArray, rng: np.random.Generator, n: int = 95_000, n_bins: int = 12, min_expected: float = 5.0
+) -> dict[str, Any]:
     """Chi-square test of ``n`` two-stage samples against the binned analytic PDF at one state.
 
     Bins: ``n_bins x n_bins`` over the central 99.8 % of the analytic output range, plus one bin for
@@ -226,8 +252,17 @@ def chi_square(model: Any, state: NDArray, rng: np.random.Generator, n: int = 95
     keep = e_pool > 0
     stat = float(np.sum((o_pool[keep] - e_pool[keep]) ** 2 / e_pool[keep]))
     dof = int(keep.sum() - 1)
-    return {"statistic": stat, "dof": dof, "p_value": float(chi2.sf(stat, dof)), "expected": p * n,
-            "observed": obs, "edges_x": ex, "edges_y": ey, "p_miss": p_miss, "miss_share": float((~det).mean())}
+    return {
+        "statistic": stat,
+        "dof": dof,
+        "p_value": float(chi2.sf(stat, dof)),
+        "expected": p * n,
+        "observed": obs,
+        "edges_x": ex,
+        "edges_y": ey,
+        "p_miss": p_miss,
+        "miss_share": float((~det).mean()),
+    }
 
 
 def plot_pdf_vs_samples(model: Any, state: NDArray, rng: np.random.Generator, path: Path, n: int = 95_000) -> dict:
@@ -238,14 +273,18 @@ def plot_pdf_vs_samples(model: Any, state: NDArray, rng: np.random.Generator, pa
     fig, ax = plt.subplots(1, 2, figsize=(9, 4), sharex=True, sharey=True)
     ext = [res["edges_x"][0], res["edges_x"][-1], res["edges_y"][0], res["edges_y"][-1]]
     vmax = max(res["expected"].max(), res["observed"].max())
-    for a, img, title in ((ax[0], res["expected"], "analytic (Eq. 10), binned"),
-                          (ax[1], res["observed"], f"{n} two-stage samples")):
+    for a, img, title in (
+        (ax[0], res["expected"], "analytic (Eq. 10), binned"),
+        (ax[1], res["observed"], f"{n} two-stage samples"),
+    ):
         a.imshow(img.T, origin="lower", extent=ext, aspect="auto", vmin=0, vmax=vmax)
         a.set_title(title)
         a.set_xlabel("z_x [m]")
     ax[0].set_ylabel("z_y [m]")
-    fig.suptitle(f"state {np.round(state, 2).tolist()}: chi2 = {res['statistic']:.1f}, dof {res['dof']}, "
-                 f"p = {res['p_value']:.3f}")
+    fig.suptitle(
+        f"state {np.round(state, 2).tolist()}: chi2 = {res['statistic']:.1f}, dof {res['dof']}, "
+        f"p = {res['p_value']:.3f}"
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
@@ -316,4 +355,5 @@ def plot_all(report: dict[str, Any], model: Any, log: RadarLog, out: Path) -> No
         if hasattr(model, "bin_probabilities"):
             st = np.concatenate([tt.corner[i], tt.z_prev[i]])
             report["model"]["chi_square_at_example_state"] = plot_pdf_vs_samples(
-                model, st, np.random.default_rng(0), out / "pdf_vs_samples.png")
+                model, st, np.random.default_rng(0), out / "pdf_vs_samples.png"
+            )

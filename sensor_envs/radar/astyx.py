@@ -40,7 +40,7 @@ from sklearn.cluster import DBSCAN
 from tqdm import tqdm
 
 from sensor_envs.geometry import to_frame
-from sensor_envs.radar_log import REQUIRED_COLUMNS, RadarLog
+from sensor_envs.radar.log import REQUIRED_COLUMNS, RadarLog
 
 __all__ = ["CLASS_CODES", "read_frame", "frame_rows", "load_astyx", "detection_statistics"]
 
@@ -75,8 +75,18 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
     for k, o in enumerate(objs):
         try:
             c, d = o["center3d"], o["dimension3d"]
-            boxes.append([c[0], c[1], _yaw(o["orientation_quat"]), d[0], d[1], c[2],
-                          float(o.get("occlusion", np.nan)), float(o.get("label_certainty", np.nan))])
+            boxes.append(
+                [
+                    c[0],
+                    c[1],
+                    _yaw(o["orientation_quat"]),
+                    d[0],
+                    d[1],
+                    c[2],
+                    float(o.get("occlusion", np.nan)),
+                    float(o.get("label_certainty", np.nan)),
+                ]
+            )
             names.append(str(o["classname"]))
         except (KeyError, IndexError, TypeError) as exc:
             raise ValueError(f"{gt_path}: object {k} lacks field {exc}") from None
@@ -92,10 +102,17 @@ def _points_in_boxes(xy: NDArray, boxes: NDArray, margin: float) -> NDArray[np.b
     return inside
 
 
-def frame_rows(pts: NDArray, boxes: NDArray, names: list[str], *, eps: float = 1.5, min_samples: int = 2,
-               margin: float = 0.5, classes: tuple[str, ...] = ("Car",), position: str = "nearest") -> tuple[
-    NDArray[np.float64], NDArray[np.float64]
-]:
+def frame_rows(
+    pts: NDArray,
+    boxes: NDArray,
+    names: list[str],
+    *,
+    eps: float = 1.5,
+    min_samples: int = 2,
+    margin: float = 0.5,
+    classes: tuple[str, ...] = ("Car",),
+    position: str = "nearest",
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Target rows and clutter positions of one frame.
 
     Returns:
@@ -133,8 +150,14 @@ def frame_rows(pts: NDArray, boxes: NDArray, names: list[str], *, eps: float = 1
     return np.asarray(rows, dtype=np.float64).reshape(-1, 9), np.concatenate([cl_pos, size[cl, None]], axis=1)
 
 
-def load_astyx(root: str | os.PathLike[str], *, frames: range | None = None, block: int = 10,
-               progress: bool = False, **cluster_args: Any) -> RadarLog:
+def load_astyx(
+    root: str | os.PathLike[str],
+    *,
+    frames: range | None = None,
+    block: int = 10,
+    progress: bool = False,
+    **cluster_args: Any,
+) -> RadarLog:
     """Turn Astyx frames into a radar object log (see the module docstring).
 
     Args:
@@ -159,11 +182,19 @@ def load_astyx(root: str | os.PathLike[str], *, frames: range | None = None, blo
         pts, boxes, names = read_frame(root, f)
         tgt, clutter = frame_rows(pts, boxes, names, **cluster_args)
         box_idx = tgt[:, 8].astype(int)
-        cov = np.stack([boxes[box_idx, 5], boxes[box_idx, 6], boxes[box_idx, 7], tgt[:, 7],
-                        [CLASS_CODES.index(names[j]) if names[j] in CLASS_CODES else -1 for j in box_idx]],
-                       axis=1).reshape(-1, 5)
-        ids = np.stack([np.full(len(tgt), f // block), np.full(len(tgt), f), np.full(len(tgt), f),
-                        f * 1000 + box_idx], axis=1)
+        cov = np.stack(
+            [
+                boxes[box_idx, 5],
+                boxes[box_idx, 6],
+                boxes[box_idx, 7],
+                tgt[:, 7],
+                [CLASS_CODES.index(names[j]) if names[j] in CLASS_CODES else -1 for j in box_idx],
+            ],
+            axis=1,
+        ).reshape(-1, 5)
+        ids = np.stack(
+            [np.full(len(tgt), f // block), np.full(len(tgt), f), np.full(len(tgt), f), f * 1000 + box_idx], axis=1
+        )
         t_rows = np.concatenate([ids, tgt[:, :7], cov], axis=1)
         c_rows = np.full((len(clutter), 16), np.nan)
         c_rows[:, :4] = [f // block, f, f, -1]
@@ -190,14 +221,25 @@ def detection_statistics(log: RadarLog, range_edges: NDArray, azimuth_edges: NDA
         res = []
         for k in range(len(edges) - 1):  # one iteration per bin
             s = b == k
-            res.append({"lo": float(edges[k]), "hi": float(edges[k + 1]), "n": int(s.sum()),
-                        "detected_share": float(det[s].mean()) if s.any() else float("nan")})
+            res.append(
+                {
+                    "lo": float(edges[k]),
+                    "hi": float(edges[k + 1]),
+                    "n": int(s.sum()),
+                    "detected_share": float(det[s].mean()) if s.any() else float("nan"),
+                }
+            )
         return res
 
     n_cycles = np.unique(np.stack([log["sequence"], log["frame"]], axis=1), axis=0).shape[0]
-    res = {"n_targets": int(tgt.sum()), "detected_share": float(det.mean()),
-           "by_range": share(r, np.asarray(range_edges)), "by_azimuth": share(az, np.asarray(azimuth_edges)),
-           "n_cycles": int(n_cycles), "clutter_per_cycle": float(log.is_clutter.sum() / n_cycles)}
+    res = {
+        "n_targets": int(tgt.sum()),
+        "detected_share": float(det.mean()),
+        "by_range": share(r, np.asarray(range_edges)),
+        "by_azimuth": share(az, np.asarray(azimuth_edges)),
+        "n_cycles": int(n_cycles),
+        "clutter_per_cycle": float(log.is_clutter.sum() / n_cycles),
+    }
     if "n_points" in log.columns:
         multi = log.is_clutter & (log["n_points"] >= 2)
         res["clutter_per_cycle_min2_points"] = float(multi.sum() / n_cycles)

@@ -6,7 +6,8 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from sensor_envs import cli_lidar, cli_radar
+from sensor_envs.cli import lidar as cli_lidar
+from sensor_envs.cli import radar as cli_radar
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -19,8 +20,11 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--episodes", type=int, default=10, help="episodes per env and sensor (default: 10)")
     demo.set_defaults(func=_run_demo)
     verbs = {}
-    for verb, text in (("record", "record a log from a reference rig"), ("fit", "fit a sensor model to a log"),
-                       ("validate", "compare a model with a log and its baselines")):
+    for verb, text in (
+        ("record", "record a log from a reference rig"),
+        ("fit", "fit a sensor model to a log"),
+        ("validate", "compare a model with a log and its baselines"),
+    ):
         p = sub.add_parser(verb, help=text)
         verbs[verb] = p.add_subparsers(dest="kind", required=True)
     cli_lidar.register(verbs)
@@ -29,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_demo(args: argparse.Namespace) -> int:
-    from sensor_envs.demo import run_demo  # noqa: PLC0415
+    from sensor_envs.cli.demo import run_demo  # noqa: PLC0415
 
     run_demo(args.out, seed=args.seed, episodes=args.episodes)
     return 0

@@ -49,28 +49,32 @@ def _command() -> str:
 
 
 def _record(args: argparse.Namespace) -> int:
-    from sensor_envs.lidar_log import save_log  # noqa: PLC0415
+    from sensor_envs.lidar.log import save_log  # noqa: PLC0415
+    from sensor_envs.lidar.rig import NeatoRig  # noqa: PLC0415
     from sensor_envs.maps import load_map  # noqa: PLC0415
-    from sensor_envs.neato_rig import NeatoRig  # noqa: PLC0415
 
-    log, _ = NeatoRig(unit_seed=args.unit_seed).record(load_map(args.map).segments, np.random.default_rng(args.seed),
-                                                       n_poses=args.poses, repeats=args.repeats)
+    log, _ = NeatoRig(unit_seed=args.unit_seed).record(
+        load_map(args.map).segments, np.random.default_rng(args.seed), n_poses=args.poses, repeats=args.repeats
+    )
     path = save_log(log, args.out)
     print(f"wrote {path}: {log.n_poses} poses x {log.n_bearings} bearings x {log.ranges.shape[2]} repeats")
     return 0
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from sensor_envs.lidar_log import load_log  # noqa: PLC0415
-    from sensor_envs.lidar_lwlr import LidarLWLR  # noqa: PLC0415
-    from sensor_envs.lidar_validate import fit_gaussian_lidar, model_card_markdown  # noqa: PLC0415
+    from sensor_envs.lidar.log import load_log  # noqa: PLC0415
+    from sensor_envs.lidar.lwlr import LidarLWLR  # noqa: PLC0415
+    from sensor_envs.lidar.validate import fit_gaussian_lidar, model_card_markdown  # noqa: PLC0415
 
     log = load_log(args.log)
     t0 = time.perf_counter()
     model = LidarLWLR(variant=args.variant, n_folds=args.folds, random_state=args.seed).fit(log)
     g = fit_gaussian_lidar(log, model.spur_above, model.max_range)
-    model.card_extra_ = {"gaussian_baseline": {k: float(v) for k, v in vars(g).items()},
-                         "fit_seconds": time.perf_counter() - t0, "commands": [*args.note, _command()]}
+    model.card_extra_ = {
+        "gaussian_baseline": {k: float(v) for k, v in vars(g).items()},
+        "fit_seconds": time.perf_counter() - t0,
+        "commands": [*args.note, _command()],
+    }
     path = model.save(args.out)
     path.with_suffix(".md").write_text(model_card_markdown(model, model.card_extra_["commands"]))
     print(f"wrote {path} and {path.with_suffix('.md')} in {time.perf_counter() - t0:.1f} s; kernel widths {model.h_}")
@@ -78,9 +82,9 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from sensor_envs.lidar_log import load_log  # noqa: PLC0415
-    from sensor_envs.lidar_lwlr import LidarLWLR  # noqa: PLC0415
-    from sensor_envs.lidar_validate import metrics_markdown, model_card_markdown, validate  # noqa: PLC0415
+    from sensor_envs.lidar.log import load_log  # noqa: PLC0415
+    from sensor_envs.lidar.lwlr import LidarLWLR  # noqa: PLC0415
+    from sensor_envs.lidar.validate import metrics_markdown, model_card_markdown, validate  # noqa: PLC0415
 
     model = LidarLWLR.load(args.model)
     report = validate(model, load_log(args.log), args.out)

@@ -17,7 +17,7 @@ Definitions (written into every ``report.json``):
   independent, as the per-reading log-likelihood assumes). Baselines have ``null_rho = 0``.
 * Baselines (same features): ``ideal`` has ``mu = r``, ``sigma = IDEAL_SIGMA`` (the 1 mm range quantum:
   a floor that keeps its likelihood finite) and ``p_null = P_EPS`` on a hit (``1 - P_EPS`` without);
-  ``gaussian`` is :class:`~sensor_envs.lidars.GaussianLidar` with its ``sigma0``, ``k_range``,
+  ``gaussian`` is :class:`~sensor_envs.lidar.sensors.GaussianLidar` with its ``sigma0``, ``k_range``,
   ``k_incidence`` and ``p_null_floor`` refitted to the training data (:func:`fit_gaussian_lidar`).
 """
 
@@ -36,8 +36,8 @@ from scipy.optimize import nnls
 from tqdm.auto import tqdm
 
 from sensor_envs.geometry import to_frame
-from sensor_envs.lidar_log import LidarLog
-from sensor_envs.lidar_lwlr import (
+from sensor_envs.lidar.log import LidarLog
+from sensor_envs.lidar.lwlr import (
     FORMAT_VERSION,
     MODEL_KIND,
     P_EPS,
@@ -48,10 +48,18 @@ from sensor_envs.lidar_lwlr import (
     mixture_log_prob,
     null_count_log_prob,
 )
-from sensor_envs.lidars import GaussianLidar
+from sensor_envs.lidar.sensors import GaussianLidar
 
-__all__ = ["IDEAL_SIGMA", "fit_gaussian_lidar", "baseline_params", "table_one", "validate", "cross_validate_log",
-           "model_card_markdown", "log_statistics"]
+__all__ = [
+    "IDEAL_SIGMA",
+    "fit_gaussian_lidar",
+    "baseline_params",
+    "table_one",
+    "validate",
+    "cross_validate_log",
+    "model_card_markdown",
+    "log_statistics",
+]
 
 IDEAL_SIGMA = 1e-3
 """Standard deviation [m] given to the ideal baseline for its likelihood (the 1 mm range quantum)."""
@@ -73,12 +81,14 @@ def fit_gaussian_lidar(log: LidarLog, spur_above: float = 6.0, max_range: float 
     coef, _ = nnls(np.column_stack([np.ones(m.sum()), rm**2, rm * np.tan(am)]), st["std"][m])
     n = st["n"][hit]
     p_null = float((st["p_null"][hit] * n).sum() / max(n.sum(), 1))
-    return GaussianLidar(sigma0=float(max(coef[0], SIGMA_FLOOR)), k_range=float(coef[1]), k_incidence=float(coef[2]),
-                         p_null_floor=p_null)
+    return GaussianLidar(
+        sigma0=float(max(coef[0], SIGMA_FLOOR)), k_range=float(coef[1]), k_incidence=float(coef[2]), p_null_floor=p_null
+    )
 
 
-def baseline_params(name: str, r: NDArray[np.float64], a: NDArray[np.float64],
-                    gaussian: GaussianLidar | None = None) -> Params:
+def baseline_params(
+    name: str, r: NDArray[np.float64], a: NDArray[np.float64], gaussian: GaussianLidar | None = None
+) -> Params:
     """Parameters ``p_null, p_spur, mu, sigma`` ``(..., K)`` of the ``"ideal"`` or ``"gaussian"`` baseline."""
     hit = np.isfinite(r)
     mu = np.where(hit, r, 0.0)
@@ -97,12 +107,19 @@ def _ll(log: LidarLog, p: Params, spur: tuple[Any, Any], spur_above: float) -> d
     """Mean log-likelihood per reading, all readings and in-range readings only."""
     x = log.ranges
     pe = {k: v[..., None] for k, v in p.items()}
-    lp = mixture_log_prob(x, pe, np.asarray(spur[0])[..., None, None] if np.ndim(spur[0]) else spur[0],
-                          np.asarray(spur[1])[..., None, None] if np.ndim(spur[1]) else spur[1])
+    lp = mixture_log_prob(
+        x,
+        pe,
+        np.asarray(spur[0])[..., None, None] if np.ndim(spur[0]) else spur[0],
+        np.asarray(spur[1])[..., None, None] if np.ndim(spur[1]) else spur[1],
+    )
     valid = ~np.isnan(x)
     inr = valid & (x <= spur_above)
-    return {"ll_per_reading": float(lp[valid].mean()), "ll_per_reading_in_range": float(lp[inr].mean()),
-            "n_readings": int(valid.sum())}
+    return {
+        "ll_per_reading": float(lp[valid].mean()),
+        "ll_per_reading_in_range": float(lp[inr].mean()),
+        "n_readings": int(valid.sum()),
+    }
 
 
 def table_one(log: LidarLog, p: Params, spur: tuple[Any, Any] = (0.0, 1.0), spur_above: float = 6.0) -> dict[str, Any]:
@@ -113,17 +130,21 @@ def table_one(log: LidarLog, p: Params, spur: tuple[Any, Any] = (0.0, 1.0), spur
     clean = st["p_spur"] == 0
     out: dict[str, Any] = {}
     for tag, sel in (("all", np.ones_like(has)), ("clean", clean)):
-        out[tag] = {"mae_mu": float(np.abs(p["mu"] - st["mean"])[ms & sel].mean()),
-                    "mae_sigma": float(np.abs(p["sigma"] - st["std"])[ms & sel].mean()),
-                    "mae_p_null": float(np.abs(p["p_null"] - st["p_null"])[has & sel].mean()),
-                    "n_cells_mu_sigma": int((ms & sel).sum()), "n_cells_p_null": int((has & sel).sum())}
+        out[tag] = {
+            "mae_mu": float(np.abs(p["mu"] - st["mean"])[ms & sel].mean()),
+            "mae_sigma": float(np.abs(p["sigma"] - st["std"])[ms & sel].mean()),
+            "mae_p_null": float(np.abs(p["p_null"] - st["p_null"])[has & sel].mean()),
+            "n_cells_mu_sigma": int((ms & sel).sum()),
+            "n_cells_p_null": int((has & sel).sum()),
+        }
     out["mae_p_spur"] = float(np.abs(p["p_spur"] - st["p_spur"])[has].mean())
     out.update(_ll(log, p, spur, spur_above))
     k, n = np.round(st["p_null"][has] * st["n"][has]), st["n"][has]
     rho = p["null_rho"][has] if "null_rho" in p else 0.0
     out["ll_null_counts_per_reading"] = float(null_count_log_prob(k, n, p["p_null"][has], rho).sum() / n.sum())
-    out["ll_null_counts_per_reading_independent"] = float(null_count_log_prob(k, n, p["p_null"][has], 0.0).sum()
-                                                          / n.sum())
+    out["ll_null_counts_per_reading_independent"] = float(
+        null_count_log_prob(k, n, p["p_null"][has], 0.0).sum() / n.sum()
+    )
     return out
 
 
@@ -131,8 +152,13 @@ def _model_spur(model: LidarLWLR) -> tuple[float, float]:
     return model.spur_mu_, model.spur_sigma_
 
 
-def validate(model: LidarLWLR, log: LidarLog, out_dir: str | os.PathLike[str],
-             gaussian: GaussianLidar | None = None, rng: np.random.Generator | None = None) -> dict[str, Any]:
+def validate(
+    model: LidarLWLR,
+    log: LidarLog,
+    out_dir: str | os.PathLike[str],
+    gaussian: GaussianLidar | None = None,
+    rng: np.random.Generator | None = None,
+) -> dict[str, Any]:
     """Compare a fitted model and the baselines with a log; write ``report.json``, ``report.md`` and plots.
 
     Args:
@@ -150,14 +176,22 @@ def validate(model: LidarLWLR, log: LidarLog, out_dir: str | os.PathLike[str],
     r, a = lidar_features(log.poses, log.bearings, log.require_map(), model.max_range)
     if gaussian is None and "gaussian_baseline" in getattr(model, "card_extra_", {}):
         gaussian = GaussianLidar(**model.card_extra_["gaussian_baseline"])
-    params = {f"model_{model.variant}": model.params_from_features(r, a), "ideal": baseline_params("ideal", r, a),
-              "gaussian": baseline_params("gaussian", r, a, gaussian)}
+    params = {
+        f"model_{model.variant}": model.params_from_features(r, a),
+        "ideal": baseline_params("ideal", r, a),
+        "gaussian": baseline_params("gaussian", r, a, gaussian),
+    }
     spur = {f"model_{model.variant}": _model_spur(model)}
     metrics = {k: table_one(log, p, spur.get(k, (0.0, 1.0)), model.spur_above) for k, p in params.items()}
-    report = {"log": log.source, "n_poses": log.n_poses, "model_training": model.training_,
-              "model_h": model.h_, "gaussian_baseline": vars(gaussian) if gaussian else vars(GaussianLidar()),
-              "definitions": __doc__.split("Definitions (written into every ``report.json``):")[1].strip(),
-              "metrics": metrics}
+    report = {
+        "log": log.source,
+        "n_poses": log.n_poses,
+        "model_training": model.training_,
+        "model_h": model.h_,
+        "gaussian_baseline": vars(gaussian) if gaussian else vars(GaussianLidar()),
+        "definitions": __doc__.split("Definitions (written into every ``report.json``):")[1].strip(),
+        "metrics": metrics,
+    }
     (out / "report.json").write_text(json.dumps(report, indent=2, default=float))
     (out / "report.md").write_text(metrics_markdown(metrics))
     plot_scan(model, log, params, out / "scan.png", rng or np.random.default_rng(0))
@@ -167,15 +201,20 @@ def validate(model: LidarLWLR, log: LidarLog, out_dir: str | os.PathLike[str],
 
 def metrics_markdown(metrics: dict[str, dict[str, Any]]) -> str:
     """A Markdown table of :func:`table_one` results keyed by model name."""
-    lines = ["| model | MAE mu [m] | MAE sigma [m] | MAE p_null | clean: MAE mu | clean: MAE sigma | "
-             "clean: MAE p_null | MAE p_spur | LL/reading | LL/reading in range | null-count LL/reading | "
-             "null-count LL/reading (independent) |", "|" + "---|" * 12]
+    lines = [
+        "| model | MAE mu [m] | MAE sigma [m] | MAE p_null | clean: MAE mu | clean: MAE sigma | "
+        "clean: MAE p_null | MAE p_spur | LL/reading | LL/reading in range | null-count LL/reading | "
+        "null-count LL/reading (independent) |",
+        "|" + "---|" * 12,
+    ]
     for k, m in metrics.items():
         a, c = m["all"], m["clean"]
-        lines.append(f"| {k} | {a['mae_mu']:.4f} | {a['mae_sigma']:.4f} | {a['mae_p_null']:.4f} | {c['mae_mu']:.4f} | "
-                     f"{c['mae_sigma']:.4f} | {c['mae_p_null']:.4f} | {m['mae_p_spur']:.4f} | "
-                     f"{m['ll_per_reading']:.4g} | {m['ll_per_reading_in_range']:.4g} | "
-                     f"{m['ll_null_counts_per_reading']:.4g} | {m['ll_null_counts_per_reading_independent']:.4g} |")
+        lines.append(
+            f"| {k} | {a['mae_mu']:.4f} | {a['mae_sigma']:.4f} | {a['mae_p_null']:.4f} | {c['mae_mu']:.4f} | "
+            f"{c['mae_sigma']:.4f} | {c['mae_p_null']:.4f} | {m['mae_p_spur']:.4f} | "
+            f"{m['ll_per_reading']:.4g} | {m['ll_per_reading_in_range']:.4g} | "
+            f"{m['ll_null_counts_per_reading']:.4g} | {m['ll_null_counts_per_reading_independent']:.4g} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -185,8 +224,14 @@ def _sample(p: Params, rng: np.random.Generator) -> NDArray[np.float64]:
     return np.where(u < p["p_null"], 0.0, np.maximum(p["mu"] + p["sigma"] * z, 1e-4))
 
 
-def plot_scan(model: LidarLWLR, log: LidarLog, params: dict[str, Params], path: Path,
-              rng: np.random.Generator, pose_index: int = 0) -> None:
+def plot_scan(
+    model: LidarLWLR,
+    log: LidarLog,
+    params: dict[str, Params],
+    path: Path,
+    rng: np.random.Generator,
+    pose_index: int = 0,
+) -> None:
     """The seed's Fig. 2: one real scan and one simulated scan per model at a pose (sensor frame, x fwd)."""
     import matplotlib  # noqa: PLC0415
 
@@ -197,11 +242,15 @@ def plot_scan(model: LidarLWLR, log: LidarLog, params: dict[str, Params], path: 
     fig, axes = plt.subplots(1, len(params) + 1, figsize=(4.2 * (len(params) + 1), 4.2), sharex=True, sharey=True)
     real = log.ranges[pose_index, :, 0]
     name = next(iter(params))
-    scans = {f"log {Path(log.source).name} (repeat 0)": real,
-             **{f"{name} (sampled)": model.sample_from_params({k: v[pose_index] for k, v in params[name].items()},
-                                                                rng)},
-             **{f"{k} (sampled)": _sample({kk: v[pose_index] for kk, v in p.items()}, rng)
-                for k, p in params.items() if k != name}}
+    scans = {
+        f"log {Path(log.source).name} (repeat 0)": real,
+        **{f"{name} (sampled)": model.sample_from_params({k: v[pose_index] for k, v in params[name].items()}, rng)},
+        **{
+            f"{k} (sampled)": _sample({kk: v[pose_index] for kk, v in p.items()}, rng)
+            for k, p in params.items()
+            if k != name
+        },
+    }
     walls = to_frame(log.require_map(), log.poses[pose_index])  # (M, 2, 2) in the sensor frame
     for ax, (title, x) in zip(axes, scans.items(), strict=False):
         for seg in walls:
@@ -249,8 +298,14 @@ def plot_per_bearing(log: LidarLog, params: dict[str, Params], path: Path, spur_
 
 
 # ------------------------------------------------------------------------------- cross-validated table
-def cross_validate_log(log: LidarLog, n_folds: int = 10, inner_folds: int = 10, random_state: int = 0,
-                       model_kwargs: dict[str, Any] | None = None, progress: bool = True) -> dict[str, Any]:
+def cross_validate_log(
+    log: LidarLog,
+    n_folds: int = 10,
+    inner_folds: int = 10,
+    random_state: int = 0,
+    model_kwargs: dict[str, Any] | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
     """Leave-poses-out cross-validated Table I of the seed and extended models and both baselines.
 
     ``seed_without_spurious`` is the seed model fitted with the spurious far returns removed from the
@@ -267,10 +322,18 @@ def cross_validate_log(log: LidarLog, n_folds: int = 10, inner_folds: int = 10, 
     for f in tqdm(range(n_folds), desc="outer CV folds", disable=not progress):
         tr, te = fold != f, fold == f
         train = log.subset(tr)
-        for name, v, data in (("seed", "seed", train), ("seed_without_spurious", "seed", _drop_spurious(train)),
-                              ("extended", "extended", train)):
-            m = LidarLWLR(variant=v, n_folds=min(inner_folds, int(tr.sum())), progress=False,
-                          random_state=random_state, **(model_kwargs or {})).fit(data)
+        for name, v, data in (
+            ("seed", "seed", train),
+            ("seed_without_spurious", "seed", _drop_spurious(train)),
+            ("extended", "extended", train),
+        ):
+            m = LidarLWLR(
+                variant=v,
+                n_folds=min(inner_folds, int(tr.sum())),
+                progress=False,
+                random_state=random_state,
+                **(model_kwargs or {}),
+            ).fit(data)
             _put(pred[name], te, m.params_from_features(r[te], a[te]))
             spur[name][0][te], spur[name][1][te] = m.spur_mu_, m.spur_sigma_
         _put(pred["ideal"], te, baseline_params("ideal", r[te], a[te]))
@@ -305,16 +368,24 @@ def log_statistics(log: LidarLog, max_range: float = 5.0, spur_above: float = 6.
     for lo, hi in zip(bins[:-1], bins[1:], strict=True):
         s = (r >= lo) & (r < hi) & ~blocked[None]
         so = s & ok & (st["p_spur"] == 0)
-        by_r.append({"r": f"{lo:.1f}-{hi:.1f}", "cells": int(s.sum()),
-                     "p_null": float(st["p_null"][s].mean()) if s.any() else None,
-                     "median_std": float(np.median(st["std"][so])) if so.any() else None})
-    return {"null_fraction": float((log.ranges[valid] == 0).mean()),
-            "spurious_fraction": float((log.ranges[valid] > spur_above).mean()),
-            "cells_with_spurious": float((st["p_spur"] > 0).mean()),
-            "blocked_bearings": int(blocked.sum()),
-            "mixed_null_cells": float(_mixed(st["p_null"][np.isfinite(r) & ~blocked[None] & (st["n"] > 0)])),
-            "mae_mean_minus_nominal": float(np.abs(st["mean"] - r)[ok].mean()),
-            "median_cell_std": float(np.median(st["std"][ok])), "by_range": by_r}
+        by_r.append(
+            {
+                "r": f"{lo:.1f}-{hi:.1f}",
+                "cells": int(s.sum()),
+                "p_null": float(st["p_null"][s].mean()) if s.any() else None,
+                "median_std": float(np.median(st["std"][so])) if so.any() else None,
+            }
+        )
+    return {
+        "null_fraction": float((log.ranges[valid] == 0).mean()),
+        "spurious_fraction": float((log.ranges[valid] > spur_above).mean()),
+        "cells_with_spurious": float((st["p_spur"] > 0).mean()),
+        "blocked_bearings": int(blocked.sum()),
+        "mixed_null_cells": float(_mixed(st["p_null"][np.isfinite(r) & ~blocked[None] & (st["n"] > 0)])),
+        "mae_mean_minus_nominal": float(np.abs(st["mean"] - r)[ok].mean()),
+        "median_cell_std": float(np.median(st["std"][ok])),
+        "by_range": by_r,
+    }
 
 
 def _mixed(p_null: NDArray[np.float64]) -> float:
@@ -325,30 +396,52 @@ def _mixed(p_null: NDArray[np.float64]) -> float:
 def model_card_markdown(model: LidarLWLR, commands: list[str], validation: dict[str, Any] | None = None) -> str:
     """The model card (Markdown): data used, hyperparameters, CV scores, validation metrics, commands."""
     t = model.training_
-    lines = [f"# Learned Neato lidar model ({model.variant} variant)", "",
-             "Per-bearing LWLR model of `sensor_envs.lidar_lwlr` (seed: Tallavajhula & Kelly), stored as "
-             "per-bearing (range, incidence) parameter tables; no training readings are stored.", "",
-             "## Data", "", f"- source: `{t.get('source')}`; {t.get('n_poses')} poses x {t.get('n_bearings')} "
-             f"bearings, {t.get('n_readings')} readings, null fraction {t.get('null_fraction', float('nan')):.3f}",
-             f"- sha256 of the ranges array: `{t.get('sha256_of_ranges')}`", "", "## Hyperparameters (by CV)", "",
-             "| parameter | h_range [m] | h_alpha [rad] | h_bearing [steps] | degree | CV MAE (best) | "
-             "CV MAE (worst) |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        f"# Learned Neato lidar model ({model.variant} variant)",
+        "",
+        "Per-bearing LWLR model of `sensor_envs.lidar.lwlr` (seed: Tallavajhula & Kelly), stored as "
+        "per-bearing (range, incidence) parameter tables; no training readings are stored.",
+        "",
+        "## Data",
+        "",
+        f"- source: `{t.get('source')}`; {t.get('n_poses')} poses x {t.get('n_bearings')} "
+        f"bearings, {t.get('n_readings')} readings, null fraction {t.get('null_fraction', float('nan')):.3f}",
+        f"- sha256 of the ranges array: `{t.get('sha256_of_ranges')}`",
+        "",
+        "## Hyperparameters (by CV)",
+        "",
+        "| parameter | h_range [m] | h_alpha [rad] | h_bearing [steps] | degree | CV MAE (best) | CV MAE (worst) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for n, h in model.h_.items():
         s = model.cv_scores_.get(n, {})
-        lines.append(f"| {n} | {h[0]} | {h[1]} | {h[2]} | {int(h[3])} | {s.get('cv_mae_best', float('nan')):.5f} | "
-                     f"{s.get('cv_mae_worst', float('nan')):.5f} |")
-    lines += ["", "CV MAE of `log_sigma` is in metres of sigma; of `bias` in metres of mu; `tau2` (spread of cell "
-              "means at an approximate pose) reuses the widths of `bias` and is not cross-validated.", ""]
+        lines.append(
+            f"| {n} | {h[0]} | {h[1]} | {h[2]} | {int(h[3])} | {s.get('cv_mae_best', float('nan')):.5f} | "
+            f"{s.get('cv_mae_worst', float('nan')):.5f} |"
+        )
+    lines += [
+        "",
+        "CV MAE of `log_sigma` is in metres of sigma; of `bias` in metres of mu; `tau2` (spread of cell "
+        "means at an approximate pose) reuses the widths of `bias` and is not cross-validated.",
+        "",
+    ]
     s = model.cv_scores_.get("null_rho")
     if s:
-        lines += [f"Persistent nulls: intra-cell correlation `null_rho` = {model.null_rho_} (beta-binomial over a "
-                  f"cell's repeats; chosen among {s['n_candidates']} values by the likelihood of the training cells' "
-                  f"null counts around the out-of-fold `p_null`: {s['ll_per_reading_best']:.4f} per reading vs "
-                  f"{s['ll_per_reading_independent']:.4f} for independent readings).", ""]
+        lines += [
+            f"Persistent nulls: intra-cell correlation `null_rho` = {model.null_rho_} (beta-binomial over a "
+            f"cell's repeats; chosen among {s['n_candidates']} values by the likelihood of the training cells' "
+            f"null counts around the out-of-fold `p_null`: {s['ll_per_reading_best']:.4f} per reading vs "
+            f"{s['ll_per_reading_independent']:.4f} for independent readings).",
+            "",
+        ]
     lines += [f"File format version {FORMAT_VERSION} (`{MODEL_KIND}`).", ""]
     if validation is not None:
-        lines += ["## Validation", "", f"On `{validation.get('log')}` ({validation.get('n_poses')} poses):", "",
-                  metrics_markdown(validation["metrics"])]
+        lines += [
+            "## Validation",
+            "",
+            f"On `{validation.get('log')}` ({validation.get('n_poses')} poses):",
+            "",
+            metrics_markdown(validation["metrics"]),
+        ]
     lines += ["## Reproduce", ""] + [f"    {c}" for c in commands] + [""]
     return "\n".join(lines)

@@ -5,7 +5,7 @@ a candidate list by K-fold cross-validation on the TRAINING log only: the log's 
 Astyx: blocks of consecutive frames; for the rig: recordings) are dealt round-robin into ``folds``;
 for each candidate, a model is fitted on ``folds - 1`` of them (with its own leave-one-group-out
 output bandwidths) and the held-out log-likelihood of all outcomes (detections and misses, the
-model's :meth:`~sensor_envs.radar_kde.KDERadarModel.log_prob`) is summed over the folds. The
+model's :meth:`~sensor_envs.radar.kde.KDERadarModel.log_prob`) is summed over the folds. The
 candidate with the highest held-out log-likelihood wins. Used by ``KDERadarModel(relevance="cv")``;
 when nested inside an outer train/test split, the outer test part is never seen.
 """
@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from sensor_envs.radar_log import RadarLog, target_tuples
+from sensor_envs.radar.log import RadarLog, target_tuples
 
 __all__ = ["inner_folds", "select_corner_variance"]
 
@@ -29,14 +29,15 @@ def inner_folds(log: RadarLog, n_folds: int) -> NDArray[np.int64]:
     return (inv.ravel() % n_folds).astype(np.int64)
 
 
-def select_corner_variance(log: RadarLog, params: dict[str, Any], candidates: tuple[float, ...], n_folds: int,
-                           progress: bool = False) -> tuple[float, NDArray[np.float64]]:
+def select_corner_variance(
+    log: RadarLog, estimator: Any, candidates: tuple[float, ...], n_folds: int, progress: bool = False
+) -> tuple[float, NDArray[np.float64]]:
     """Pick the corner variance [m^2] with the best ``n_folds``-fold held-out log-likelihood on ``log``.
 
     Args:
         log: the training log.
-        params: keyword arguments of the inner ``KDERadarModel`` (``rel_variance`` gives the
-            ``z_{t-1}`` variances; ``relevance`` is forced to ``"paper"``).
+        estimator: the (unfitted) model whose hyperparameters the inner models copy
+            (``rel_variance`` gives the ``z_{t-1}`` variances; ``relevance`` is forced to ``"paper"``).
         candidates: corner variances [m^2] to try.
         n_folds: inner folds (sequences dealt round-robin; needs at least ``n_folds`` sequences).
         progress: show a tqdm bar over the ``len(candidates) * n_folds`` inner fits.
@@ -44,8 +45,7 @@ def select_corner_variance(log: RadarLog, params: dict[str, Any], candidates: tu
     Returns:
         The chosen variance and ``scores (len(candidates),)``: mean held-out log-likelihood per target row [nats].
     """
-    from sensor_envs.radar_kde import KDERadarModel  # noqa: PLC0415  (radar_kde imports this module)
-
+    params = estimator.get_params()
     fold = inner_folds(log, n_folds)
     if np.unique(fold).size < n_folds:
         raise ValueError(f"{log.source}: relevance CV needs at least {n_folds} sequences")
@@ -60,7 +60,7 @@ def select_corner_variance(log: RadarLog, params: dict[str, Any], candidates: tu
         for j, v in enumerate(candidates):  # one inner fit per candidate
             rv = params.get("rel_variance", (3.0, 3.0, 0.03, 0.03))
             p = {**params, "relevance": "paper", "rel_variance": (v, v, rv[2], rv[3])}
-            lp = KDERadarModel(**p).fit(train).log_prob(tt.z, state)
+            lp = type(estimator)(**p).fit(train).log_prob(tt.z, state)
             total[j] += float(np.sum(lp))
             bar.update()
     bar.close()

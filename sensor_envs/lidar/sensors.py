@@ -3,7 +3,7 @@
 A lidar sensor turns per-bearing geometry (nominal range and angle of incidence, from
 :func:`sensor_envs.geometry.raycast_pose` on the TRUE pose) into a reading per bearing. Readings are
 ranges [m] with ``NaN`` meaning a null (no return); the world maps nulls to its configured
-``null_value``. The learned per-bearing model (:mod:`sensor_envs.lidar_lwlr`) implements the same
+``null_value``. The learned per-bearing model (:mod:`sensor_envs.lidar.lwlr`) implements the same
 interface.
 """
 
@@ -23,8 +23,9 @@ __all__ = ["LidarSensor", "IdealLidar", "GaussianLidar", "make_lidar", "LIDAR_NA
 class LidarSensor(Protocol):
     """What a world needs from a lidar sensor model."""
 
-    def measure(self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64],
-                rng: np.random.Generator) -> NDArray[np.float64]:
+    def measure(
+        self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64], rng: np.random.Generator
+    ) -> NDArray[np.float64]:
         """Sample one scan.
 
         Args:
@@ -43,8 +44,9 @@ class LidarSensor(Protocol):
 class IdealLidar:
     """Perfect lidar: the nominal range where the ray hits within range, else a null."""
 
-    def measure(self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64],
-                rng: np.random.Generator) -> NDArray[np.float64]:
+    def measure(
+        self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64], rng: np.random.Generator
+    ) -> NDArray[np.float64]:
         """Return the nominal ranges [m], ``NaN`` where no hit (``rng`` is unused)."""
         r = np.asarray(nominal_range, dtype=np.float64)
         return np.where(np.isfinite(r), r, np.nan)
@@ -64,7 +66,7 @@ class GaussianLidar:
       the returned range (the incidence term of the noise models discussed by Tallavajhula & Kelly and
       by Pomerleau et al., "Noise characterization of depth sensors for surface inspections", 2012).
       ``k_incidence = 5 mm/m`` is a chosen default (about 1 cm at 2 m and 45 degrees), not a fit.
-    * These are defaults: the validation (:mod:`sensor_envs.lidar_validate`) refits the baseline's
+    * These are defaults: the validation (:mod:`sensor_envs.lidar.validate`) refits the baseline's
       parameters to the training part of each log, so the comparison with the learned model is fair.
 
     Null readings happen only where the ray has no hit within range (``p_null_floor`` adds a constant
@@ -86,8 +88,9 @@ class GaussianLidar:
         s = self.sigma0 + self.k_range * rh**2 + self.k_incidence * rh * np.tan(a)
         return np.where(hit, s, np.nan)
 
-    def measure(self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64],
-                rng: np.random.Generator) -> NDArray[np.float64]:
+    def measure(
+        self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64], rng: np.random.Generator
+    ) -> NDArray[np.float64]:
         """Sample ranges [m]: ``Normal(r, sigma(r, alpha))``, ``NaN`` where no hit or dropped."""
         r = np.asarray(nominal_range, dtype=np.float64)
         hit = np.isfinite(r)
@@ -126,6 +129,6 @@ def make_lidar(name: str | LidarSensor, model: str | PathLike[str] | None = None
         return IdealLidar()
     if name == "gaussian":
         return GaussianLidar(**kwargs)
-    from sensor_envs.lidar_lwlr import load_learned_lidar  # noqa: PLC0415  (heavy, optional path)
+    from sensor_envs.lidar.lwlr import load_learned_lidar  # noqa: PLC0415  (heavy, optional path)
 
     return load_learned_lidar(model, **kwargs)

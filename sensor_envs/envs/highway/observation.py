@@ -1,7 +1,7 @@
 """The observation layout of highway-env's ``KinematicObservation``, rebuilt from radar detections.
 
 Selection, sorting, normalisation and clipping follow highway-env's ``Kinematics`` to the bit, so the
-ideal radar (see :data:`sensor_envs.highway.IDEAL_KINEMATICS`) reproduces it exactly. Positions are
+ideal radar (see :data:`sensor_envs.envs.highway.IDEAL_KINEMATICS`) reproduces it exactly. Positions are
 world positions [m] (or world offsets from the ego, not rotated, when ``absolute=False``), velocities
 [m/s], headings [rad].
 """
@@ -14,14 +14,26 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.highway_frame import RadarFrame
+from sensor_envs.envs.highway.frame import RadarFrame
 
 __all__ = ["SUPPORTED_FEATURES", "KinematicsLayout", "select", "feature_table", "normalise", "default_features_range"]
 
 SUPPORTED_FEATURES = ("presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h")
 _KINEMATICS_KEYS = frozenset(
-    {"type", "features", "vehicles_count", "features_range", "absolute", "order", "normalize", "clip",
-     "see_behind", "observe_intentions", "include_obstacles", "flatten"}
+    {
+        "type",
+        "features",
+        "vehicles_count",
+        "features_range",
+        "absolute",
+        "order",
+        "normalize",
+        "clip",
+        "see_behind",
+        "observe_intentions",
+        "include_obstacles",
+        "flatten",
+    }
 )
 _UNBOUNDED = 1.0e6  # finite bound [m, m/s, rad] of features that are not normalised and clipped
 
@@ -58,8 +70,9 @@ class KinematicsLayout:
         features = tuple(config.get("features") or cls.features)
         bad = [f for f in features if f not in SUPPORTED_FEATURES]
         if bad:
-            raise ValueError(f"observation.features: {bad[0]!r} is not a radar feature "
-                             f"(supported: {SUPPORTED_FEATURES})")
+            raise ValueError(
+                f"observation.features: {bad[0]!r} is not a radar feature (supported: {SUPPORTED_FEATURES})"
+            )
         count = int(config.get("vehicles_count", cls.vehicles_count))
         if count < 1:
             raise ValueError(f"observation.vehicles_count: expected >= 1, got {count}")
@@ -69,11 +82,17 @@ class KinematicsLayout:
         ranges = config.get("features_range") or None
         if ranges is not None:
             ranges = {k: (v[0], v[1]) for k, v in ranges.items()}
-        return cls(features=features, vehicles_count=count, features_range=ranges,
-                   absolute=bool(config.get("absolute", cls.absolute)), order=order,
-                   normalize=bool(config.get("normalize", cls.normalize)), clip=bool(config.get("clip", cls.clip)),
-                   see_behind=bool(config.get("see_behind", cls.see_behind)),
-                   include_obstacles=bool(config.get("include_obstacles", cls.include_obstacles)))
+        return cls(
+            features=features,
+            vehicles_count=count,
+            features_range=ranges,
+            absolute=bool(config.get("absolute", cls.absolute)),
+            order=order,
+            normalize=bool(config.get("normalize", cls.normalize)),
+            clip=bool(config.get("clip", cls.clip)),
+            see_behind=bool(config.get("see_behind", cls.see_behind)),
+            include_obstacles=bool(config.get("include_obstacles", cls.include_obstacles)),
+        )
 
     def bounds(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
         """Finite ``(vehicles_count, n_features)`` bounds of the observation."""
@@ -114,9 +133,7 @@ def select(base: Any, frame: RadarFrame, lay: KinematicsLayout) -> NDArray[np.in
     return cand[: lay.vehicles_count - 1]
 
 
-def feature_table(ego: Any, frame: RadarFrame, rows: NDArray[np.int64], lay: KinematicsLayout) -> NDArray[
-    np.float64
-]:
+def feature_table(ego: Any, frame: RadarFrame, rows: NDArray[np.int64], lay: KinematicsLayout) -> NDArray[np.float64]:
     """``(1 + len(rows), n_features)``: the ego's true state, then the reported objects."""
     ego_p, ego_v = np.asarray(ego.position, dtype=np.float64), np.asarray(ego.velocity, dtype=np.float64)
     pos, vel, head = frame.det_w[rows], frame.det_v[rows], frame.det_heading[rows]
@@ -138,9 +155,9 @@ def feature_table(ego: Any, frame: RadarFrame, rows: NDArray[np.int64], lay: Kin
     return table
 
 
-def normalise(table: NDArray[np.float64], lay: KinematicsLayout, ranges: dict[str, tuple[float, float]]) -> NDArray[
-    np.float64
-]:
+def normalise(
+    table: NDArray[np.float64], lay: KinematicsLayout, ranges: dict[str, tuple[float, float]]
+) -> NDArray[np.float64]:
     """highway-env's ``lmap`` to ``[-1, 1]`` (same operation order, so the same bits) and optional clip.
 
     Args:

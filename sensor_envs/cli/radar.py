@@ -28,16 +28,23 @@ def register(verbs: dict[str, "argparse._SubParsersAction[argparse.ArgumentParse
     fit.add_argument("--no-prev", action="store_true", help="do not condition on z_{t-1} (for non-time-series logs)")
     fit.add_argument("--cycle-time", type=float, default=None, help="seconds between frames of the log")
     fit.add_argument("--cv-group", default="track", choices=("track", "sequence", "row"))
-    fit.add_argument("--relevance", default="paper", choices=("paper", "cv"),
-                     help="relevance kernel: the seed's (paper) or corner variance chosen by CV on this log")
+    fit.add_argument(
+        "--relevance",
+        default="paper",
+        choices=("paper", "cv"),
+        help="relevance kernel: the seed's (paper) or corner variance chosen by CV on this log",
+    )
     fit.add_argument("--seed", type=int, default=0)
     fit.set_defaults(func=_fit)
     val = verbs["validate"].add_parser("radar", help="compare a KDE model and its baseline with a (held-out) log")
     val.add_argument("model", help="KDE model file (.npz)")
     val.add_argument("log", help="radar log CSV")
     val.add_argument("--out", required=True, help="output folder for report.json and figures")
-    val.add_argument("--baseline", default=None,
-                     help="Gaussian baseline (default <model>_gaussian.npz; <name>_gaussian.npz for <name>_kde.npz)")
+    val.add_argument(
+        "--baseline",
+        default=None,
+        help="Gaussian baseline (default <model>_gaussian.npz; <name>_gaussian.npz for <name>_kde.npz)",
+    )
     val.add_argument("--seed", type=int, default=0)
     val.set_defaults(func=_validate)
 
@@ -56,36 +63,50 @@ def _baseline_path(model: str) -> Path:
 
 
 def _record(args: argparse.Namespace) -> int:
-    from sensor_envs.radar_log import write_log  # noqa: PLC0415
+    from sensor_envs.radar.log import write_log  # noqa: PLC0415
 
     if args.astyx:
-        from sensor_envs.astyx import load_astyx  # noqa: PLC0415
+        from sensor_envs.radar.astyx import load_astyx  # noqa: PLC0415
 
         log = load_astyx(args.astyx, progress=True)
     else:
-        from sensor_envs.radar_rig import RigConfig, record_rig_log  # noqa: PLC0415
+        from sensor_envs.radar.rig import RigConfig, record_rig_log  # noqa: PLC0415
 
-        log = record_rig_log(args.sequences, args.cycles, args.targets, np.random.default_rng(args.seed),
-                             RigConfig(cycle_time=args.cycle_time), progress=True)
+        log = record_rig_log(
+            args.sequences,
+            args.cycles,
+            args.targets,
+            np.random.default_rng(args.seed),
+            RigConfig(cycle_time=args.cycle_time),
+            progress=True,
+        )
     path = write_log(log, args.out)
     print(f"wrote {len(log)} rows to {path}")
     return 0
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from sensor_envs.radar_gaussian import GaussianRadar  # noqa: PLC0415
-    from sensor_envs.radar_kde import KDERadarModel  # noqa: PLC0415
-    from sensor_envs.radar_log import read_log  # noqa: PLC0415
+    from sensor_envs.radar.gaussian import GaussianRadar  # noqa: PLC0415
+    from sensor_envs.radar.kde import KDERadarModel  # noqa: PLC0415
+    from sensor_envs.radar.log import read_log  # noqa: PLC0415
 
     log = read_log(args.log)
     t0 = time.perf_counter()
-    model = KDERadarModel(use_prev=not args.no_prev, cv_group=args.cv_group, relevance=args.relevance,
-                          random_state=args.seed)
+    model = KDERadarModel(
+        use_prev=not args.no_prev, cv_group=args.cv_group, relevance=args.relevance, random_state=args.seed
+    )
     model.fit(log, cycle_time=args.cycle_time, progress=args.relevance == "cv")
     fit_s = time.perf_counter() - t0
-    card = {"log": str(args.log), "rows": len(log), "fit_seconds": round(fit_s, 2), "cv_group": args.cv_group,
-            "use_prev": not args.no_prev, "seed": args.seed,
-            "relevance": args.relevance, "rel_variance_fitted": list(model.rel_variance_)}
+    card = {
+        "log": str(args.log),
+        "rows": len(log),
+        "fit_seconds": round(fit_s, 2),
+        "cv_group": args.cv_group,
+        "use_prev": not args.no_prev,
+        "seed": args.seed,
+        "relevance": args.relevance,
+        "rel_variance_fitted": list(model.rel_variance_),
+    }
     path = model.save(args.out, card=card)
     base_path = args.baseline_out or _baseline_path(str(path))
     base = GaussianRadar().fit(log, cycle_time=args.cycle_time).save(base_path, card=card)
@@ -94,10 +115,10 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from sensor_envs.radar_gaussian import GaussianRadar  # noqa: PLC0415
-    from sensor_envs.radar_kde import KDERadarModel  # noqa: PLC0415
-    from sensor_envs.radar_log import read_log  # noqa: PLC0415
-    from sensor_envs.radar_validate import validate, write_report  # noqa: PLC0415
+    from sensor_envs.radar.gaussian import GaussianRadar  # noqa: PLC0415
+    from sensor_envs.radar.kde import KDERadarModel  # noqa: PLC0415
+    from sensor_envs.radar.log import read_log  # noqa: PLC0415
+    from sensor_envs.radar.validate import validate, write_report  # noqa: PLC0415
 
     model = KDERadarModel.load(args.model)
     base_path = Path(args.baseline) if args.baseline else _baseline_path(args.model)

@@ -36,12 +36,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, point_segment_distance, raycast_pose
-from sensor_envs.lidar_log import LidarLog, log_from_arrays
+from sensor_envs.lidar.log import LidarLog, log_from_arrays
 
 __all__ = ["NeatoRig", "POST_BEARINGS", "BLOCKED_BEARINGS", "sample_free_poses"]
 
-BLOCKED_BEARINGS = tuple(list(range(30, 33)) + list(range(81, 86)) + list(range(165, 171))
-                         + list(range(250, 257)) + list(range(326, 331)))
+BLOCKED_BEARINGS = tuple(
+    list(range(30, 33)) + list(range(81, 86)) + list(range(165, 171)) + list(range(250, 257)) + list(range(326, 331))
+)
 """Bearing indices (degrees) that never return in the real data (the casing's posts)."""
 POST_BEARINGS = (31.0, 83.0, 167.5, 253.0, 328.0)
 """Centres of the blocked bearing groups [deg]."""
@@ -111,9 +112,9 @@ class NeatoRig:
         return np.where(hit & ~self.blocked_mask(), p, 1.0)
 
     # ------------------------------------------------------------------------------------ readings
-    def cell_p_null(self, r: NDArray[np.float64], alpha: NDArray[np.float64], rng: np.random.Generator) -> NDArray[
-        np.float64
-    ]:
+    def cell_p_null(
+        self, r: NDArray[np.float64], alpha: NDArray[np.float64], rng: np.random.Generator
+    ) -> NDArray[np.float64]:
         """One null probability per cell ``(..., K)``: ``Beta`` with mean :meth:`p_null`, correlation ``null_rho``."""
         p = self.p_null(r, alpha)
         if self.null_rho <= 0:
@@ -122,8 +123,14 @@ class NeatoRig:
         q = np.clip(p, 1e-6, 1 - 1e-6)
         return np.where((p > 0) & (p < 1), rng.beta(q * c, (1 - q) * c), p)
 
-    def _readings(self, r: NDArray[np.float64], alpha: NDArray[np.float64], p_spur: NDArray[np.float64],
-                  rng: np.random.Generator, p_null: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    def _readings(
+        self,
+        r: NDArray[np.float64],
+        alpha: NDArray[np.float64],
+        p_spur: NDArray[np.float64],
+        rng: np.random.Generator,
+        p_null: NDArray[np.float64] | None = None,
+    ) -> NDArray[np.float64]:
         """Readings ``(..., K, R)`` [m], 0 = null, from true features ``(..., K, 1)`` and spurious rates.
 
         ``p_null (..., K)`` overrides :meth:`p_null` (per-cell null probabilities).
@@ -138,19 +145,28 @@ class NeatoRig:
         x = np.where(x > 0, np.maximum(np.round(x / self.quantum) * self.quantum, self.quantum), 0.0)
         return np.where((x > self.max_range) & (x < self.spur_value[0] - 1.0), 0.0, x)
 
-    def measure(self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64],
-                rng: np.random.Generator) -> NDArray[np.float64]:
-        """One scan ``(K,)`` [m], NaN = null, from true features (a :class:`~sensor_envs.lidars.LidarSensor`).
+    def measure(
+        self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64], rng: np.random.Generator
+    ) -> NDArray[np.float64]:
+        """One scan ``(K,)`` [m], NaN = null, from true features (a :class:`~sensor_envs.lidar.sensors.LidarSensor`).
 
         A scan has no pose identity, so each near-post bearing is spurious with the average rate.
         """
         p_spur = self.near_posts() * self.spur_prone * float(np.mean(self.spur_frac))
-        x = self._readings(np.asarray(nominal_range, float)[:, None], np.asarray(incidence, float)[:, None],
-                           p_spur[:, None], rng)[:, 0]
+        x = self._readings(
+            np.asarray(nominal_range, float)[:, None], np.asarray(incidence, float)[:, None], p_spur[:, None], rng
+        )[:, 0]
         return np.where(x == 0, np.nan, x)
 
-    def record(self, map_segments: ArrayLike, rng: np.random.Generator, *, n_poses: int = 30, repeats: int = 200,
-               poses: ArrayLike | None = None) -> tuple[LidarLog, dict[str, NDArray[np.float64]]]:
+    def record(
+        self,
+        map_segments: ArrayLike,
+        rng: np.random.Generator,
+        *,
+        n_poses: int = 30,
+        repeats: int = 200,
+        poses: ArrayLike | None = None,
+    ) -> tuple[LidarLog, dict[str, NDArray[np.float64]]]:
         """Record a static-pose log, as the real data set was made.
 
         Args:
@@ -166,27 +182,38 @@ class NeatoRig:
         """
         nominal = as_segments(map_segments, name="map_segments")
         true_map = nominal + rng.normal(0.0, self.map_sd, nominal.shape)
-        true_poses = (sample_free_poses(nominal, n_poses, rng) if poses is None
-                      else np.atleast_2d(np.asarray(poses, dtype=np.float64)))
+        true_poses = (
+            sample_free_poses(nominal, n_poses, rng)
+            if poses is None
+            else np.atleast_2d(np.asarray(poses, dtype=np.float64))
+        )
         r, a, _ = raycast_pose(true_poses, self.bearings, true_map, self.max_range)
         unit = np.random.default_rng([self.unit_seed, 2])  # prone cells belong to the unit and the place
         prone = (rng.random(r.shape) < self.spur_prone) & self.near_posts()[None]
         p_spur = np.where(prone, unit.uniform(*self.spur_frac, r.shape), 0.0)
         pn = self.cell_p_null(r, a, rng)
-        x = self._readings(r[..., None], a[..., None], np.broadcast_to(p_spur[..., None], r.shape + (repeats,)), rng,
-                           pn)
-        err = np.column_stack([rng.normal(0, self.pose_sd[0], (len(true_poses), 2)),
-                               rng.normal(0, self.pose_sd[1], len(true_poses))])
+        x = self._readings(
+            r[..., None], a[..., None], np.broadcast_to(p_spur[..., None], r.shape + (repeats,)), rng, pn
+        )
+        err = np.column_stack(
+            [rng.normal(0, self.pose_sd[0], (len(true_poses), 2)), rng.normal(0, self.pose_sd[1], len(true_poses))]
+        )
         approx = true_poses + err
         approx[:, 2] = (approx[:, 2] + np.pi) % (2 * np.pi) - np.pi
         log = log_from_arrays(x, self.bearings, approx, nominal, source=f"NeatoRig(unit_seed={self.unit_seed})")
-        truth = {"true_poses": true_poses, "true_map": true_map, "bias": self.bias(), "blocked": self.blocked_mask(),
-                 "p_spur": p_spur}
+        truth = {
+            "true_poses": true_poses,
+            "true_map": true_map,
+            "bias": self.bias(),
+            "blocked": self.blocked_mask(),
+            "p_spur": p_spur,
+        }
         return log, truth
 
 
-def sample_free_poses(segments: NDArray[np.float64], n: int, rng: np.random.Generator, clearance: float = 0.2,
-                      max_tries: int = 100) -> NDArray[np.float64]:
+def sample_free_poses(
+    segments: NDArray[np.float64], n: int, rng: np.random.Generator, clearance: float = 0.2, max_tries: int = 100
+) -> NDArray[np.float64]:
     """``(n, 3)`` poses uniformly in the map's bounds, ``clearance`` [m] from walls and enclosed.
 
     A position is enclosed when rays in four directions all hit a wall. Headings are uniform.

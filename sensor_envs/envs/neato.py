@@ -34,10 +34,10 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
+from sensor_envs.envs.neato_render import render_world
 from sensor_envs.geometry import point_segment_distance, raycast_pose, to_frame, wrap_angle
-from sensor_envs.lidars import LidarSensor, make_lidar
+from sensor_envs.lidar.sensors import LidarSensor, make_lidar
 from sensor_envs.maps import SegmentMap, load_map
-from sensor_envs.render import render_world
 from sensor_envs.rng import sensor_rng
 
 __all__ = ["NeatoEnv", "NULL_VALUES"]
@@ -77,10 +77,17 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         if null_value not in NULL_VALUES:
             raise ValueError(f"null_value: expected one of {NULL_VALUES}, got {null_value!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode: expected one of {self.metadata['render_modes']} or None, "
-                             f"got {render_mode!r}")
-        for name, val in (("n_bearings", n_bearings), ("max_range", max_range), ("dt", dt), ("v_max", v_max),
-                          ("omega_max", omega_max), ("robot_radius", robot_radius)):
+            raise ValueError(
+                f"render_mode: expected one of {self.metadata['render_modes']} or None, got {render_mode!r}"
+            )
+        for name, val in (
+            ("n_bearings", n_bearings),
+            ("max_range", max_range),
+            ("dt", dt),
+            ("v_max", v_max),
+            ("omega_max", omega_max),
+            ("robot_radius", robot_radius),
+        ):
             if not val > 0:
                 raise ValueError(f"{name}: must be > 0, got {val!r}")
         self.world_map = load_map(map)
@@ -104,9 +111,9 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self._last: dict[str, Any] = {}
 
     # ----------------------------------------------------------------------------------- gym API
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[
-        NDArray[np.float32], dict[str, Any]
-    ]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         """Start a new episode; ``options`` may fix ``start`` and/or ``goal`` poses ``(x, y, theta)``."""
         super().reset(seed=seed)
         self._sensor_rng = sensor_rng(seed, _LIDAR_TAG, self._sensor_rng)
@@ -142,8 +149,14 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         """An RGB image of map, robot, goal, rays and hits (``render_mode="rgb_array"``)."""
         if self.render_mode != "rgb_array":
             return None
-        return render_world(self.world_map.segments, self.pose, self.goal, self.bearings,
-                            self._last.get("scan", np.zeros(self.bearings.shape)), self.robot_radius)
+        return render_world(
+            self.world_map.segments,
+            self.pose,
+            self.goal,
+            self.bearings,
+            self._last.get("scan", np.zeros(self.bearings.shape)),
+            self.robot_radius,
+        )
 
     # ----------------------------------------------------------------------------------- internals
     def _observe(self, collision: bool) -> tuple[NDArray[np.float32], dict[str, Any]]:
@@ -156,11 +169,21 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         obs = np.concatenate([ranges, goal_rel, [dth]]).astype(np.float32)
         obs = np.clip(obs, self.observation_space.low, self.observation_space.high)
         dist = float(np.hypot(*(self.goal[:2] - self.pose[:2])))
-        success = dist <= self.goal_tolerance and not collision and (
-            self.goal_heading_tolerance is None or abs(dth) <= self.goal_heading_tolerance)
-        info = {"pose": self.pose.copy(), "ideal_scan": nominal, "incidence": np.nan_to_num(incidence, nan=0.0),
-                "scan": np.nan_to_num(raw, nan=0.0), "goal": self.goal.copy(), "distance_to_goal": dist,
-                "is_success": bool(success), "collision": bool(collision)}
+        success = (
+            dist <= self.goal_tolerance
+            and not collision
+            and (self.goal_heading_tolerance is None or abs(dth) <= self.goal_heading_tolerance)
+        )
+        info = {
+            "pose": self.pose.copy(),
+            "ideal_scan": nominal,
+            "incidence": np.nan_to_num(incidence, nan=0.0),
+            "scan": np.nan_to_num(raw, nan=0.0),
+            "goal": self.goal.copy(),
+            "distance_to_goal": dist,
+            "is_success": bool(success),
+            "collision": bool(collision),
+        }
         self._last = info
         return obs, info
 
@@ -190,12 +213,15 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
                 continue
             if away_from is not None and np.hypot(*(p[:2] - away_from)) < self.min_goal_distance:
                 continue
-            if not np.isfinite(raycast_pose(p, np.linspace(0, 2 * np.pi, 8, endpoint=False),
-                                            self.world_map.segments)[0]).all():
+            if not np.isfinite(
+                raycast_pose(p, np.linspace(0, 2 * np.pi, 8, endpoint=False), self.world_map.segments)[0]
+            ).all():
                 continue  # outside the map's enclosure
             return p
-        raise ValueError(f"map {self.world_map.name!r}: found no free pose with {clearance:.2f} m clearance "
-                         f"in {tries} tries; is the map enclosed and large enough for the robot?")
+        raise ValueError(
+            f"map {self.world_map.name!r}: found no free pose with {clearance:.2f} m clearance "
+            f"in {tries} tries; is the map enclosed and large enough for the robot?"
+        )
 
 
 def unicycle_step(pose: NDArray[np.float64], v: float, omega: float, dt: float) -> NDArray[np.float64]:

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from sensor_envs.geometry import occluded_fraction, rectangle_corners
-from sensor_envs.radar_log import REQUIRED_COLUMNS, RadarLog
+from sensor_envs.radar.log import REQUIRED_COLUMNS, RadarLog
 
 __all__ = ["RigConfig", "Scenario", "generate_scenario", "RadarRig", "record_rig_log"]
 
@@ -84,8 +84,14 @@ def generate_scenario(n_targets: int, n_cycles: int, cycle_time: float, rng: np.
     t = np.arange(n_cycles) * cycle_time
     xy = np.stack([x0, y0], axis=1)[None] + t[:, None, None] * vel[None]
     dims = np.stack([rng.uniform(3.8, 5.0, n_targets), rng.uniform(1.7, 2.0, n_targets)], axis=1)
-    boxes = np.concatenate([xy, np.broadcast_to(heading[None, :, None], (n_cycles, n_targets, 1)),
-                            np.broadcast_to(dims[None], (n_cycles, n_targets, 2))], axis=2)
+    boxes = np.concatenate(
+        [
+            xy,
+            np.broadcast_to(heading[None, :, None], (n_cycles, n_targets, 1)),
+            np.broadcast_to(dims[None], (n_cycles, n_targets, 2)),
+        ],
+        axis=2,
+    )
     return Scenario(t, boxes, vel)
 
 
@@ -180,8 +186,14 @@ def _rows_to_log(rows: NDArray[np.float64], source: str) -> RadarLog:
     return RadarLog({name: rows[:, j] for j, name in enumerate(REQUIRED_COLUMNS)}, source=source)
 
 
-def record_rig_log(n_sequences: int, n_cycles: int, n_targets: int, rng: np.random.Generator,
-                   config: RigConfig | None = None, progress: bool = False) -> RadarLog:
+def record_rig_log(
+    n_sequences: int,
+    n_cycles: int,
+    n_targets: int,
+    rng: np.random.Generator,
+    config: RigConfig | None = None,
+    progress: bool = False,
+) -> RadarLog:
     """Record ``n_sequences`` independent rig sequences into one log (sequence ids 0..n-1).
 
     Args:

@@ -73,8 +73,9 @@ class BucketIndex:
     flag: NDArray[np.bool_]
 
 
-def build_buckets(points: NDArray, cell: float, radius: float, flag: NDArray[np.bool_] | None = None
-                  ) -> BucketIndex | None:
+def build_buckets(
+    points: NDArray, cell: float, radius: float, flag: NDArray[np.bool_] | None = None
+) -> BucketIndex | None:
     """Group ``points (n, d)`` into grid cells of side ``cell`` for kernel ``radius`` (vectorised).
 
     ``flag (n,)`` is stored with the points (default all false).
@@ -101,8 +102,23 @@ def build_buckets(points: NDArray, cell: float, radius: float, flag: NDArray[np.
     dense = np.full(int(np.prod(shape)), -1, dtype=np.int32)
     dense[keys] = np.arange(keys.size, dtype=np.int32)
     offs = np.stack(np.meshgrid(*([np.arange(span)] * d), indexing="ij"), axis=-1).reshape(-1, d) @ strides
-    return BucketIndex(points, float(cell), float(radius), span, origin, shape, strides, offs, dense, order, start,
-                       count, lo, hi, np.zeros(len(points), dtype=bool) if flag is None else np.asarray(flag, bool))
+    return BucketIndex(
+        points,
+        float(cell),
+        float(radius),
+        span,
+        origin,
+        shape,
+        strides,
+        offs,
+        dense,
+        order,
+        start,
+        count,
+        lo,
+        hi,
+        np.zeros(len(points), dtype=bool) if flag is None else np.asarray(flag, bool),
+    )
 
 
 def _candidates(index: BucketIndex, qs: NDArray) -> tuple[NDArray, NDArray, NDArray]:
@@ -113,8 +129,9 @@ def _candidates(index: BucketIndex, qs: NDArray) -> tuple[NDArray, NDArray, NDAr
     partly outside the grid is shifted inside; the cells it gains are pruned by that distance, the
     cells it loses lie in the empty padding or beyond.
     """
-    first = np.clip(np.floor((qs - index.radius) / index.cell).astype(np.int64) - index.origin, 0,
-                    index.shape - index.span)
+    first = np.clip(
+        np.floor((qs - index.radius) / index.cell).astype(np.int64) - index.origin, 0, index.shape - index.span
+    )
     b = index.dense[(first @ index.strides)[:, None] + index.offsets[None]]
     qid, k = np.nonzero(b >= 0)
     b = b[qid, k].astype(np.int64)
@@ -125,10 +142,17 @@ def _candidates(index: BucketIndex, qs: NDArray) -> tuple[NDArray, NDArray, NDAr
     return b[keep], d2[keep], qid[keep]
 
 
-def sample_proportional(index: BucketIndex, qs: NDArray, pseudo: float, rng: np.random.Generator,
-                        allowed: NDArray[np.bool_] | None = None, pseudo_stop: float = 1.0,
-                        inv: NDArray[np.int64] | None = None, per_round: int = 32,
-                        max_rounds: int = 16) -> tuple[NDArray[np.int64], NDArray[np.bool_], NDArray[np.bool_]]:
+def sample_proportional(
+    index: BucketIndex,
+    qs: NDArray,
+    pseudo: float,
+    rng: np.random.Generator,
+    allowed: NDArray[np.bool_] | None = None,
+    pseudo_stop: float = 1.0,
+    inv: NDArray[np.int64] | None = None,
+    per_round: int = 32,
+    max_rounds: int = 16,
+) -> tuple[NDArray[np.int64], NDArray[np.bool_], NDArray[np.bool_]]:
     """One point per query with probability ``w_i / (sum w + pseudo)`` (see the module docstring).
 
     When the pseudo outcome is drawn, it is final with probability ``pseudo_stop``; otherwise the
@@ -178,8 +202,10 @@ def sample_proportional(index: BucketIndex, qs: NDArray, pseudo: float, rng: np.
         r = rng.random((3, pending.size, per_round))
         u = r[0] * (tp + ps[pending, None])
         is_pseudo = u >= tp
-        j = np.minimum(np.maximum(np.searchsorted(cw, base[pending, None] + u, side="right"),
-                                  starts[pending, None]), last[pending, None])
+        j = np.minimum(
+            np.maximum(np.searchsorted(cw, base[pending, None] + u, side="right"), starts[pending, None]),
+            last[pending, None],
+        )
         bb = b[j]
         member = index.order[index.start[bb] + (r[1] * index.count[bb]).astype(np.int64)]
         diff = index.points[member] - qs[inv[pending], None]

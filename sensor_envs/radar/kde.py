@@ -1,6 +1,6 @@
 """The KDE radar model of Hirsenkorn et al. (2016): two-stage sampling from recorded tuples.
 
-Tuples (from :func:`sensor_envs.radar_log.target_tuples`): state ``x = (c_x, c_y, z_{t-1,x}, z_{t-1,y})``
+Tuples (from :func:`sensor_envs.radar.log.target_tuples`): state ``x = (c_x, c_y, z_{t-1,x}, z_{t-1,y})``
 (closest corner of the target and its previous output, sensor frame, metres) and output
 ``z = measured position - closest corner`` [m], or a miss (object loss).
 
@@ -18,7 +18,7 @@ previous output, or the start tuples) or the log's overall rate (``"global"``, f
 
 **Relevance bandwidth**: ``relevance="paper"`` uses ``rel_variance`` as given; ``relevance="cv"``
 chooses the corner variance from ``relevance_candidates`` by cross-validation on the training log
-(:mod:`sensor_envs.radar_relevance`).
+(:mod:`sensor_envs.radar.relevance`).
 
 **Reading of "covariance diag(3, 3, 0.03, 0.03) in metres":** the numbers are variances [m^2] of
 the Gaussian relevance kernel, so ``S = diag(sqrt 3, sqrt 3, sqrt 0.03, sqrt 0.03)`` =
@@ -45,7 +45,7 @@ whose ball is empty uses the ``fallback_k`` nearest tuples of the same tree (kee
 ``z_{t-1}`` in sparse regions). With ``k_max`` set, the search keeps only the ``k_max`` nearest
 tuples in the ball (constant cost in the number of tuples, but it truncates kernel mass: see the
 benchmark). ``sampler="bucket"`` draws from the same distribution by rejection sampling over grid
-buckets (:mod:`sensor_envs.radar_buckets`, :meth:`KDERadarModel._draw_bucket`), at a cost that
+buckets (:mod:`sensor_envs.radar.buckets`, :meth:`KDERadarModel._draw_bucket`), at a cost that
 follows the number of candidate buckets instead of neighbours; ``"auto"`` picks by model size.
 
 **Clutter**: the number of clutter detections per cycle is resampled from the log's per-cycle
@@ -65,9 +65,9 @@ from scipy.spatial import cKDTree
 from scipy.special import ndtr
 
 from sensor_envs.modelio import load_model_file, save_model_file
-from sensor_envs.radar_buckets import build_buckets, sample_proportional
-from sensor_envs.radar_log import RadarLog, TargetTuples, clutter_counts, target_tuples
-from sensor_envs.radar_relevance import select_corner_variance
+from sensor_envs.radar.buckets import build_buckets, sample_proportional
+from sensor_envs.radar.log import RadarLog, TargetTuples, clutter_counts, target_tuples
+from sensor_envs.radar.relevance import select_corner_variance
 
 __all__ = ["KDERadarModel", "NotFittedError", "cv_bandwidth_table"]
 
@@ -80,9 +80,27 @@ AUTO_BUCKET_MIN_NEIGHBOURS = 100
 """``sampler="auto"`` uses the bucket sampler when the median number of tuples in the ball of a stored
 state is at least this (the ball sampler's cost follows it; benchmarks/bench_radar.py, 10-target
 cycles: 25 neighbours, ball 0.28 ms vs bucket 0.42 ms; 250 neighbours, 0.91 vs 0.45 ms)."""
-_PARAM_NAMES = ("rel_variance", "use_prev", "radius", "k_max", "cv_grid_step", "cv_candidates", "cv_min_tuples",
-                "cv_max_tuples", "cv_group", "fallback_k", "miss_prior", "clutter_jitter", "sampler", "bucket_cell",
-                "relevance", "relevance_candidates", "relevance_folds", "prior_rate", "random_state")
+_PARAM_NAMES = (
+    "rel_variance",
+    "use_prev",
+    "radius",
+    "k_max",
+    "cv_grid_step",
+    "cv_candidates",
+    "cv_min_tuples",
+    "cv_max_tuples",
+    "cv_group",
+    "fallback_k",
+    "miss_prior",
+    "clutter_jitter",
+    "sampler",
+    "bucket_cell",
+    "relevance",
+    "relevance_candidates",
+    "relevance_folds",
+    "prior_rate",
+    "random_state",
+)
 _LOG_2PI = np.log(2.0 * np.pi)
 
 
@@ -90,9 +108,9 @@ class NotFittedError(RuntimeError):
     """The model is used before ``fit`` or ``load``."""
 
 
-def _neighbour_lists(tree: cKDTree, q: NDArray, radius: float, k_max: int | None) -> tuple[
-    NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]
-]:
+def _neighbour_lists(
+    tree: cKDTree, q: NDArray, radius: float, k_max: int | None
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]:
     """Neighbours of every query within ``radius`` (all, or the ``k_max`` nearest).
 
     Returns flat ``(index, squared distance, query id)`` arrays, sorted by query id.
@@ -123,8 +141,12 @@ def _interp_log_h(gx: NDArray, gy: NDArray, table: NDArray, pts: NDArray) -> NDA
     ix, iy = np.minimum(fx.astype(np.int64), max(nx - 2, 0)), np.minimum(fy.astype(np.int64), max(ny - 2, 0))
     ax, ay = (fx - ix)[:, None], (fy - iy)[:, None]
     jx, jy = np.minimum(ix + 1, nx - 1), np.minimum(iy + 1, ny - 1)
-    return ((1 - ax) * (1 - ay) * table[ix, iy] + ax * (1 - ay) * table[jx, iy]
-            + (1 - ax) * ay * table[ix, jy] + ax * ay * table[jx, jy])
+    return (
+        (1 - ax) * (1 - ay) * table[ix, iy]
+        + ax * (1 - ay) * table[jx, iy]
+        + (1 - ax) * ay * table[ix, jy]
+        + ax * ay * table[jx, jy]
+    )
 
 
 def _loo_score(xs: NDArray, zs: NDArray, v: NDArray, groups: NDArray, cand: NDArray) -> NDArray[np.float64]:
@@ -144,9 +166,19 @@ def _loo_score(xs: NDArray, zs: NDArray, v: NDArray, groups: NDArray, cand: NDAr
     return np.sum(v[ok] * np.log(np.maximum(dens[..., ok], 1e-300)), axis=-1)
 
 
-def cv_bandwidth_table(xs: NDArray, zs: NDArray, groups: NDArray, grid_x: NDArray, grid_y: NDArray, scale: NDArray,
-                       radius: float, cand: NDArray, min_tuples: int, max_tuples: int,
-                       rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+def cv_bandwidth_table(
+    xs: NDArray,
+    zs: NDArray,
+    groups: NDArray,
+    grid_x: NDArray,
+    grid_y: NDArray,
+    scale: NDArray,
+    radius: float,
+    cand: NDArray,
+    min_tuples: int,
+    max_tuples: int,
+    rng: np.random.Generator,
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Leave-one-out CV of the output bandwidths on a grid of corner positions.
 
     For each grid node ``g``, the detected tuples whose corner lies within ``radius`` relevance
@@ -232,21 +264,35 @@ class KDERadarModel:
         bucket_cell: side of the bucket grid cells in relevance sigmas.
         relevance: ``"paper"`` (use ``rel_variance`` as given) or ``"cv"`` (choose the corner variance
             of the relevance kernel from ``relevance_candidates`` by ``relevance_folds``-fold CV on the
-            training log, :mod:`sensor_envs.radar_relevance`; the ``z_{t-1}`` variances stay as given).
+            training log, :mod:`sensor_envs.radar.relevance`; the ``z_{t-1}`` variances stay as given).
         relevance_candidates: corner variances [m^2] tried by ``relevance="cv"``.
         relevance_folds: folds of ``relevance="cv"`` (sequences dealt round-robin).
         random_state: seed or generator for the CV subsampling.
     """
 
-    def __init__(self, *, rel_variance: tuple[float, float, float, float] = (3.0, 3.0, 0.03, 0.03),
-                 use_prev: bool = True, radius: float = 3.0, k_max: int | None = None,
-                 cv_grid_step: float = 4.0, cv_candidates: tuple[float, ...] | None = None,
-                 cv_min_tuples: int = 30, cv_max_tuples: int = 300, cv_group: str = "track", fallback_k: int = 8,
-                 miss_prior: float = 1.0,
-                 clutter_jitter: float = 0.5, sampler: str = "auto", bucket_cell: float = 3.0,
-                 relevance: str = "paper", relevance_candidates: tuple[float, ...] = (3.0, 6.0, 12.0, 24.0, 48.0),
-                 relevance_folds: int = 4, prior_rate: str = "tree",
-                 random_state: int | np.random.Generator | None = None) -> None:
+    def __init__(
+        self,
+        *,
+        rel_variance: tuple[float, float, float, float] = (3.0, 3.0, 0.03, 0.03),
+        use_prev: bool = True,
+        radius: float = 3.0,
+        k_max: int | None = None,
+        cv_grid_step: float = 4.0,
+        cv_candidates: tuple[float, ...] | None = None,
+        cv_min_tuples: int = 30,
+        cv_max_tuples: int = 300,
+        cv_group: str = "track",
+        fallback_k: int = 8,
+        miss_prior: float = 1.0,
+        clutter_jitter: float = 0.5,
+        sampler: str = "auto",
+        bucket_cell: float = 3.0,
+        relevance: str = "paper",
+        relevance_candidates: tuple[float, ...] = (3.0, 6.0, 12.0, 24.0, 48.0),
+        relevance_folds: int = 4,
+        prior_rate: str = "tree",
+        random_state: int | np.random.Generator | None = None,
+    ) -> None:
         self.rel_variance = rel_variance
         self.use_prev = use_prev
         self.radius = radius
@@ -288,8 +334,9 @@ class KDERadarModel:
             raise ValueError(f"prior_rate must be 'tree' or 'global', got {self.prior_rate!r}")
         if self.relevance not in ("paper", "cv"):
             raise ValueError(f"relevance must be 'paper' or 'cv', got {self.relevance!r}")
-        if self.relevance == "cv" and (len(self.relevance_candidates) == 0 or min(self.relevance_candidates) <= 0
-                                       or int(self.relevance_folds) < 2):
+        if self.relevance == "cv" and (
+            len(self.relevance_candidates) == 0 or min(self.relevance_candidates) <= 0 or int(self.relevance_folds) < 2
+        ):
             raise ValueError("relevance='cv' needs positive relevance_candidates and relevance_folds >= 2")
         if not self.bucket_cell > 0:
             raise ValueError(f"bucket_cell must be > 0, got {self.bucket_cell!r}")
@@ -320,11 +367,15 @@ class KDERadarModel:
         self.relevance_scores_ = np.zeros(0)
         if self.relevance == "cv":
             v, self.relevance_scores_ = select_corner_variance(
-                log, self.get_params(), tuple(self.relevance_candidates), int(self.relevance_folds), progress)
+                log, self, tuple(self.relevance_candidates), int(self.relevance_folds), progress
+            )
             self.rel_variance_ = (v, v, *self.rel_variance_[2:])
         self.scale_ = np.sqrt(np.asarray(self.rel_variance_, dtype=np.float64))
-        self.cand_ = (np.asarray(self.cv_candidates, dtype=np.float64) if self.cv_candidates is not None
-                      else np.geomspace(0.02, 2.0, 14))
+        self.cand_ = (
+            np.asarray(self.cv_candidates, dtype=np.float64)
+            if self.cv_candidates is not None
+            else np.geomspace(0.02, 2.0, 14)
+        )
         dims = 4 if self.use_prev else 2
         cv_rows = det & (~np.isnan(tt.z_prev[:, 0]) if self.use_prev else True)
         if cv_rows.sum() < self.cv_min_tuples:
@@ -335,8 +386,18 @@ class KDERadarModel:
         self.grid_y_ = np.arange(lo[1], hi[1] + self.cv_grid_step, self.cv_grid_step)
         groups = _cv_groups(tt, self.cv_group)
         self.log_h_, self.cv_counts_ = cv_bandwidth_table(
-            self.states_[cv_rows, :dims], self.z_[cv_rows], groups[cv_rows], self.grid_x_, self.grid_y_,
-            self.scale_[:dims], self.radius, self.cand_, self.cv_min_tuples, self.cv_max_tuples, rng)
+            self.states_[cv_rows, :dims],
+            self.z_[cv_rows],
+            groups[cv_rows],
+            self.grid_x_,
+            self.grid_y_,
+            self.scale_[:dims],
+            self.radius,
+            self.cand_,
+            self.cv_min_tuples,
+            self.cv_max_tuples,
+            rng,
+        )
         counts, xy = clutter_counts(log)
         self.clutter_counts_, self.clutter_xy_ = counts, xy
         self.cycle_time_ = float("nan") if cycle_time is None else float(cycle_time)
@@ -354,20 +415,25 @@ class KDERadarModel:
         else:
             self.main_idx_ = np.zeros(0, dtype=np.int64)
             self.start_idx_ = np.arange(self.states_.shape[0])
-        self._main_tree = (cKDTree(self.states_[self.main_idx_] / self.scale_) if self.main_idx_.size else None)
+        self._main_tree = cKDTree(self.states_[self.main_idx_] / self.scale_) if self.main_idx_.size else None
         self._start_tree = cKDTree(self.states_[self.start_idx_, :2] / self.scale_[:2])
         self.miss_ = np.isnan(self.z_[:, 0])
         self.miss_rate_ = float(self.miss_.mean())
         tree_rate = self.prior_rate == "tree"
-        self.prior_rate_main_ = float(self.miss_[self.main_idx_].mean()) if tree_rate and self.main_idx_.size \
-            else self.miss_rate_
+        self.prior_rate_main_ = (
+            float(self.miss_[self.main_idx_].mean()) if tree_rate and self.main_idx_.size else self.miss_rate_
+        )
         self.prior_rate_start_ = float(self.miss_[self.start_idx_].mean()) if tree_rate else self.miss_rate_
         self.det_idx_ = np.flatnonzero(~self.miss_)
         self._det_tree = cKDTree(self.states_[self.det_idx_, :2] / self.scale_[:2])
-        self._main_buckets = (None if self._main_tree is None else build_buckets(
-            self._main_tree.data, self.bucket_cell, self.radius, flag=self.miss_[self.main_idx_]))
-        self._start_buckets = build_buckets(self._start_tree.data, self.bucket_cell, self.radius,
-                                            flag=self.miss_[self.start_idx_])
+        self._main_buckets = (
+            None
+            if self._main_tree is None
+            else build_buckets(self._main_tree.data, self.bucket_cell, self.radius, flag=self.miss_[self.main_idx_])
+        )
+        self._start_buckets = build_buckets(
+            self._start_tree.data, self.bucket_cell, self.radius, flag=self.miss_[self.start_idx_]
+        )
         tree = self._main_tree if self._main_tree is not None else self._start_tree
         probe = tree.data[:: max(1, tree.n // 256)]  # a deterministic sample of stored states
         self.median_neighbours_ = float(np.median(tree.query_ball_point(probe, self.radius, return_length=True)))
@@ -455,8 +521,11 @@ class KDERadarModel:
         n = corners.shape[0]
         wsum = np.bincount(q, weights=w, minlength=n)
         wmiss = np.bincount(q, weights=w * self.miss_[gi], minlength=n)
-        main = (np.zeros(n, dtype=bool) if prev_z is None or self._main_tree is None
-                else ~np.isnan(np.atleast_2d(np.asarray(prev_z, dtype=np.float64))[:, 0]))
+        main = (
+            np.zeros(n, dtype=bool)
+            if prev_z is None or self._main_tree is None
+            else ~np.isnan(np.atleast_2d(np.asarray(prev_z, dtype=np.float64))[:, 0])
+        )
         rate = np.where(main, self.prior_rate_main_, self.prior_rate_start_)
         p_miss = (wmiss + self.miss_prior * rate) / (wsum + self.miss_prior)
         return gi, w, q, p_miss
@@ -484,9 +553,9 @@ class KDERadarModel:
         _, j = self._det_tree.query(corners / self.scale_[:2], k=1)
         return self.det_idx_[j]
 
-    def sample_cycle(self, corners: NDArray, prev_z: NDArray | None, rng: np.random.Generator) -> tuple[
-        NDArray[np.float64], NDArray[np.int64]
-    ]:
+    def sample_cycle(
+        self, corners: NDArray, prev_z: NDArray | None, rng: np.random.Generator
+    ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """``RadarSensor.sample_cycle``: outputs for ``n`` targets of one cycle (see :meth:`sample`).
 
         The outcome has ``P(miss | x)``; a detected outcome comes from a detected tuple picked with
@@ -500,8 +569,11 @@ class KDERadarModel:
         n = corners.shape[0]
         if n == 0:
             return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
-        prev = (np.full((n, 2), np.nan) if prev_z is None or not self.use_prev
-                else np.atleast_2d(np.asarray(prev_z, dtype=np.float64)))
+        prev = (
+            np.full((n, 2), np.nan)
+            if prev_z is None or not self.use_prev
+            else np.atleast_2d(np.asarray(prev_z, dtype=np.float64))
+        )
         if self.k_max is None and (self.sampler == "bucket" or (self.sampler == "auto" and self._auto_bucket)):
             miss, src = self._draw_bucket(corners, prev, rng)
         else:
@@ -539,7 +611,7 @@ class KDERadarModel:
         """Exact bucket-rejection sampler (``sampler="bucket"``), same distribution as :meth:`_draw_ball`.
 
         One proposal stage picks tuple ``i`` with probability ``w_i / (sum w + a)`` or the ``miss_prior``
-        pseudo-tuple with ``a / (sum w + a)`` (:func:`sensor_envs.radar_buckets.sample_proportional`);
+        pseudo-tuple with ``a / (sum w + a)`` (:func:`sensor_envs.radar.buckets.sample_proportional`);
         the pseudo-tuple is a miss with the log's miss rate ``m``, else a detected tuple is drawn with
         ``w_i / sum_{detected} w``. Hence ``P(miss) = (w_miss + a m) / (sum w + a)`` and, given a
         detection, tuple ``i`` has probability ``w_i / sum_{detected} w``: Eq. 10 exactly. Queries
@@ -551,8 +623,14 @@ class KDERadarModel:
         todo, need_det = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
         use_main = ~np.isnan(prev[:, 0]) & (self._main_tree is not None)
         for mask, tree, buckets, idx_map, rate, q in (
-            (use_main, self._main_tree, self._main_buckets, self.main_idx_, self.prior_rate_main_,
-             np.concatenate([corners, prev], axis=1)),
+            (
+                use_main,
+                self._main_tree,
+                self._main_buckets,
+                self.main_idx_,
+                self.prior_rate_main_,
+                np.concatenate([corners, prev], axis=1),
+            ),
             (~use_main, self._start_tree, self._start_buckets, self.start_idx_, self.prior_rate_start_, corners),
         ):
             qi = np.flatnonzero(mask)
@@ -561,8 +639,9 @@ class KDERadarModel:
                 continue
             qs = q[qi] / self.scale_[: q.shape[1]]
             rep, inv = _unique_rows(qs)
-            pick, done, via = sample_proportional(buckets, qs[rep], self.miss_prior, rng, allowed=~buckets.flag,
-                                                  pseudo_stop=rate, inv=inv)
+            pick, done, via = sample_proportional(
+                buckets, qs[rep], self.miss_prior, rng, allowed=~buckets.flag, pseudo_stop=rate, inv=inv
+            )
             if via.any():  # the pseudo-tuple is only right when the ball holds a tuple (else: fallback_k)
                 near, _ = tree.query(qs[via], k=1, distance_upper_bound=self.radius)
                 empty = np.flatnonzero(via)[~np.isfinite(near)]
@@ -615,23 +694,26 @@ class KDERadarModel:
             dens = _group_logsumexp(logk, q, n) - log_wdet
             return np.where(np.isnan(z[:, 0]), np.log(p_miss), np.log1p(-p_miss) + dens)
 
-    def _with_detected_fallback(self, gi: NDArray, w: NDArray, q: NDArray, corners: NDArray) -> tuple[
-        NDArray, NDArray, NDArray
-    ]:
+    def _with_detected_fallback(
+        self, gi: NDArray, w: NDArray, q: NDArray, corners: NDArray
+    ) -> tuple[NDArray, NDArray, NDArray]:
         """Add the nearest detected tuple (weight 1) to queries without a detected neighbour."""
         n = corners.shape[0]
         none = np.bincount(q, weights=(~self.miss_[gi]).astype(np.float64), minlength=n) == 0
         if not none.any():
             return gi, w, q
         e = np.flatnonzero(none)
-        gi, w, q = np.concatenate([gi, self._nearest_detected(corners[e])]), np.concatenate([w, np.ones(e.size)]), \
-            np.concatenate([q, e])
+        gi, w, q = (
+            np.concatenate([gi, self._nearest_detected(corners[e])]),
+            np.concatenate([w, np.ones(e.size)]),
+            np.concatenate([q, e]),
+        )
         order = np.argsort(q, kind="stable")
         return gi[order], w[order], q[order]
 
-    def bin_probabilities(self, state: NDArray, edges_x: NDArray, edges_y: NDArray) -> tuple[
-        NDArray[np.float64], float
-    ]:
+    def bin_probabilities(
+        self, state: NDArray, edges_x: NDArray, edges_y: NDArray
+    ) -> tuple[NDArray[np.float64], float]:
         """Exact probability of each output bin for ONE state (for the chi-square check).
 
         Args:
@@ -661,22 +743,42 @@ class KDERadarModel:
         params = {k: getattr(self, k) for k in _PARAM_NAMES if k not in ("cv_candidates", "random_state")}
         params["rel_variance"] = [float(v) for v in self.rel_variance]
         params["relevance_candidates"] = [float(v) for v in self.relevance_candidates]
-        header = {"params": params, "cycle_time": self.cycle_time_, "card": card or {},
-                  "rel_variance_fitted": list(self.rel_variance_),
-                  "relevance_scores": [float(v) for v in self.relevance_scores_]}
-        arrays = {"states": self.states_, "z": self.z_, "log_row": self.log_row_, "grid_x": self.grid_x_,
-                  "grid_y": self.grid_y_, "log_h": self.log_h_, "cv_counts": self.cv_counts_,
-                  "cv_candidates": self.cand_, "clutter_counts": self.clutter_counts_,
-                  "clutter_xy": self.clutter_xy_}
+        header = {
+            "params": params,
+            "cycle_time": self.cycle_time_,
+            "card": card or {},
+            "rel_variance_fitted": list(self.rel_variance_),
+            "relevance_scores": [float(v) for v in self.relevance_scores_],
+        }
+        arrays = {
+            "states": self.states_,
+            "z": self.z_,
+            "log_row": self.log_row_,
+            "grid_x": self.grid_x_,
+            "grid_y": self.grid_y_,
+            "log_h": self.log_h_,
+            "cv_counts": self.cv_counts_,
+            "cv_candidates": self.cand_,
+            "clutter_counts": self.clutter_counts_,
+            "clutter_xy": self.clutter_xy_,
+        }
         return save_model_file(path, KIND, FORMAT_VERSION, header, arrays)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> KDERadarModel:
         """Load a model file written by :meth:`save` (no pickle; trees rebuilt here)."""
-        schema = {"states": ("f", 2, False), "z": ("f", 2, False), "log_row": ("iu", 1, True),
-                  "grid_x": ("f", 1, True), "grid_y": ("f", 1, True), "log_h": ("f", 3, True),
-                  "cv_counts": ("iu", 2, True), "cv_candidates": ("f", 1, True),
-                  "clutter_counts": ("iu", 1, True), "clutter_xy": ("f", 2, True)}
+        schema = {
+            "states": ("f", 2, False),
+            "z": ("f", 2, False),
+            "log_row": ("iu", 1, True),
+            "grid_x": ("f", 1, True),
+            "grid_y": ("f", 1, True),
+            "log_h": ("f", 3, True),
+            "cv_counts": ("iu", 2, True),
+            "cv_candidates": ("f", 1, True),
+            "clutter_counts": ("iu", 1, True),
+            "clutter_xy": ("f", 2, True),
+        }
         header, a = load_model_file(path, KIND, (1, FORMAT_VERSION), schema)
         p = dict(header["params"])
         p["rel_variance"] = tuple(p["rel_variance"])
@@ -736,4 +838,3 @@ def _group_logsumexp(values: NDArray, groups: NDArray, n: int) -> NDArray[np.flo
     with np.errstate(divide="ignore"):
         out = np.where(s > 0, np.log(s) + safe, -np.inf)
     return out
-

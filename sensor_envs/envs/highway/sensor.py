@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sensor_envs.envs.highway.frame import Truth
 from sensor_envs.geometry import closest_corner, occluded_fraction, rectangle_corners, to_frame, wrap_angle
-from sensor_envs.highway_frame import Truth
-from sensor_envs.radar_api import IdealRadar, RadarSensor
+from sensor_envs.radar.sensors import IdealRadar, RadarSensor
 
 __all__ = [
     "RADARS",
@@ -64,10 +64,10 @@ def load_radar(radar: str, radar_model: str | Path | None = None) -> RadarSensor
 
 
 def _build_radar(radar: str, path: str | None) -> RadarSensor:
-    """Build a radar through :func:`sensor_envs.radar_api.make_radar` (the ideal radar needs no factory)."""
+    """Build a radar through :func:`sensor_envs.radar.sensors.make_radar` (the ideal radar needs no factory)."""
     if radar == "ideal":
         return IdealRadar()
-    from sensor_envs.radar_api import make_radar
+    from sensor_envs.radar.sensors import make_radar
 
     return make_radar(radar, path)
 
@@ -142,8 +142,7 @@ def truth_table(base: Any, include_obstacles: bool) -> Truth:
     length = np.array([o.LENGTH for o, _ in objs], dtype=np.float64)
     width = np.array([o.WIDTH for o, _ in objs], dtype=np.float64)
     corners = rectangle_corners(centre[:, 0], centre[:, 1], heading, length, width) if n else np.zeros((0, 4, 2))
-    return Truth([o for o, _ in objs], np.array([ob for _, ob in objs], dtype=bool), centre, heading, velocity,
-                  corners)
+    return Truth([o for o, _ in objs], np.array([ob for _, ob in objs], dtype=bool), centre, heading, velocity, corners)
 
 
 def sensor_pose(ego: Any, mount: tuple[float, float, float] | None) -> NDArray[np.float64]:
@@ -154,9 +153,9 @@ def sensor_pose(ego: Any, mount: tuple[float, float, float] | None) -> NDArray[n
     return np.array([x + c * mx - s * my, y + s * mx + c * my, float(wrap_angle(ego.heading + myaw))])
 
 
-def reference_points(truth: Truth, pose: NDArray[np.float64], reference: str) -> tuple[
-    NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]
-]:
+def reference_points(
+    truth: Truth, pose: NDArray[np.float64], reference: str
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The point the radar measures on each target, and the targets' corners, seen from the sensor at ``pose``.
 
     Args:
@@ -176,10 +175,14 @@ def reference_points(truth: Truth, pose: NDArray[np.float64], reference: str) ->
     return to_frame(truth.centre, pose).reshape(n, 2), truth.centre, corners_s
 
 
-def track_velocities(ego_velocity: Any, true_velocity: NDArray[np.float64], pose: NDArray[np.float64],
-                     meas_w: NDArray[np.float64], prev_w: NDArray[np.float64], dt: float) -> tuple[
-    NDArray[np.float64], NDArray[np.float64]
-]:
+def track_velocities(
+    ego_velocity: Any,
+    true_velocity: NDArray[np.float64],
+    pose: NDArray[np.float64],
+    meas_w: NDArray[np.float64],
+    prev_w: NDArray[np.float64],
+    dt: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """World velocities [m/s] and headings [rad] of ``k`` detections, for ``velocity="difference"``.
 
     Args:

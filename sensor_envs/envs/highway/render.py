@@ -11,8 +11,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.highway_frame import RadarFrame
-from sensor_envs.highway_sensor import SensorSpec, to_world
+from sensor_envs.envs.highway.frame import RadarFrame
+from sensor_envs.envs.highway.sensor import SensorSpec, to_world
 
 __all__ = ["draw_radar"]
 
@@ -27,10 +27,11 @@ def _to_pixels(surface: Any, points_w: NDArray[np.float64]) -> tuple[NDArray[np.
     return rows, cols
 
 
-def _paint(img: NDArray[np.uint8], rows: NDArray[np.int64], cols: NDArray[np.int64], color: tuple[int, int, int],
-           half: int = 0) -> None:
+def _paint(
+    img: NDArray[np.uint8], rows: NDArray[np.int64], cols: NDArray[np.int64], color: tuple[int, int, int], half: int = 0
+) -> None:
     """Paint squares of side ``2 * half + 1`` px centred on the pixels, clipped to the image."""
-    dr, dc = np.mgrid[-half:half + 1, -half:half + 1]
+    dr, dc = np.mgrid[-half : half + 1, -half : half + 1]
     r, c = (rows[:, None] + dr.ravel()).ravel(), (cols[:, None] + dc.ravel()).ravel()
     ok = (r >= 0) & (r < img.shape[0]) & (c >= 0) & (c < img.shape[1])
     img[r[ok], c[ok]] = color

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.modelio import load_model_file, save_model_file
-from sensor_envs.radar_log import RadarLog, clutter_counts, target_tuples
+from sensor_envs.radar.log import RadarLog, clutter_counts, target_tuples
 
 __all__ = ["GaussianRadar"]
 
@@ -34,8 +34,13 @@ class GaussianRadar:
         cov_floor: variance [m^2] added to every covariance diagonal (keeps it positive definite).
     """
 
-    def __init__(self, *, range_edges: tuple[float, ...] = (0.0, 10.0, 20.0, 30.0, 45.0, 60.0, 80.0, 100.0, 150.0),
-                 min_count: int = 20, cov_floor: float = 1e-4) -> None:
+    def __init__(
+        self,
+        *,
+        range_edges: tuple[float, ...] = (0.0, 10.0, 20.0, 30.0, 45.0, 60.0, 80.0, 100.0, 150.0),
+        min_count: int = 20,
+        cov_floor: float = 1e-4,
+    ) -> None:
         self.range_edges = range_edges
         self.min_count = min_count
         self.cov_floor = cov_floor
@@ -85,9 +90,9 @@ class GaussianRadar:
         self._check_fitted()
         return self.p_detect_[self._bin(np.atleast_2d(corners), self.edges_)]
 
-    def sample_cycle(self, corners: NDArray, prev_z: NDArray | None, rng: np.random.Generator) -> tuple[
-        NDArray[np.float64], NDArray[np.int64]
-    ]:
+    def sample_cycle(
+        self, corners: NDArray, prev_z: NDArray | None, rng: np.random.Generator
+    ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """``RadarSensor.sample_cycle``; ``prev_z`` is ignored; ``source`` is always -1."""
         self._check_fitted()
         corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
@@ -126,19 +131,38 @@ class GaussianRadar:
     def save(self, path: str | os.PathLike[str], card: dict[str, Any] | None = None) -> Path:
         """Save to a pickle-free model file."""
         self._check_fitted()
-        header = {"params": {"range_edges": [float(e) for e in self.range_edges], "min_count": self.min_count,
-                             "cov_floor": self.cov_floor}, "cycle_time": self.cycle_time_, "card": card or {}}
-        arrays = {"edges": self.edges_, "mean": self.mean_, "cov": self.cov_, "p_detect": self.p_detect_,
-                  "clutter_rate": np.array([self.clutter_rate_]), "clutter_mean": self.clutter_mean_,
-                  "clutter_cov": self.clutter_cov_}
+        header = {
+            "params": {
+                "range_edges": [float(e) for e in self.range_edges],
+                "min_count": self.min_count,
+                "cov_floor": self.cov_floor,
+            },
+            "cycle_time": self.cycle_time_,
+            "card": card or {},
+        }
+        arrays = {
+            "edges": self.edges_,
+            "mean": self.mean_,
+            "cov": self.cov_,
+            "p_detect": self.p_detect_,
+            "clutter_rate": np.array([self.clutter_rate_]),
+            "clutter_mean": self.clutter_mean_,
+            "clutter_cov": self.clutter_cov_,
+        }
         return save_model_file(path, KIND, FORMAT_VERSION, header, arrays)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> GaussianRadar:
         """Load a model file written by :meth:`save` (no pickle)."""
-        schema = {"edges": ("f", 1, True), "mean": ("f", 2, True), "cov": ("f", 3, True),
-                  "p_detect": ("f", 1, True), "clutter_rate": ("f", 1, True), "clutter_mean": ("f", 1, True),
-                  "clutter_cov": ("f", 2, True)}
+        schema = {
+            "edges": ("f", 1, True),
+            "mean": ("f", 2, True),
+            "cov": ("f", 3, True),
+            "p_detect": ("f", 1, True),
+            "clutter_rate": ("f", 1, True),
+            "clutter_mean": ("f", 1, True),
+            "clutter_cov": ("f", 2, True),
+        }
         header, a = load_model_file(path, KIND, (FORMAT_VERSION,), schema)
         p = dict(header["params"])
         p["range_edges"] = tuple(p["range_edges"])

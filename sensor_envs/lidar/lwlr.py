@@ -52,12 +52,24 @@ from scipy import stats as sps
 from tqdm.auto import tqdm
 
 from sensor_envs.geometry import as_segments, raycast_pose
-from sensor_envs.lidar_log import LidarLog
+from sensor_envs.lidar.log import LidarLog
 from sensor_envs.modelio import ModelFileError, load_model_file, save_model_file
 
-__all__ = ["LidarLWLR", "LearnedLidar", "load_learned_lidar", "lidar_features", "cell_statistics",
-           "mixture_log_prob", "null_count_log_prob", "RHO_GRID", "P_EPS", "SIGMA_FLOOR", "VARIANTS", "MODEL_KIND",
-           "FORMAT_VERSION"]
+__all__ = [
+    "LidarLWLR",
+    "LearnedLidar",
+    "load_learned_lidar",
+    "lidar_features",
+    "cell_statistics",
+    "mixture_log_prob",
+    "null_count_log_prob",
+    "RHO_GRID",
+    "P_EPS",
+    "SIGMA_FLOOR",
+    "VARIANTS",
+    "MODEL_KIND",
+    "FORMAT_VERSION",
+]
 
 P_EPS = 1e-3
 """Probabilities of null are clipped to ``[P_EPS, 1 - P_EPS]`` so that log-likelihoods stay finite."""
@@ -68,7 +80,7 @@ SIGMA_FLOOR = 5e-4
 TAU_CLIP = 0.5
 """Cell-mean residuals [m] are clipped to this before their variance ``tau^2`` is regressed."""
 VARIANTS = ("seed", "extended")
-MODEL_KIND = "sensor_envs.lidar_lwlr"
+MODEL_KIND = "sensor_envs.lidar_lwlr"  # the file format's kind string (kept: shipped files carry it)
 FORMAT_VERSION = 2
 """2 adds ``null_rho`` to the header (version 1 files load with ``null_rho = 0``, independent nulls)."""
 RHO_GRID = (0.0, 0.01, 0.03, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95)
@@ -79,9 +91,9 @@ _RIDGE = (1e-3, 1e-2)  # (intercept pull to the bearing's mean, slope shrinkage)
 
 
 # --------------------------------------------------------------------------------------------- features
-def lidar_features(poses: ArrayLike, bearings: ArrayLike, segments: ArrayLike, max_range: float) -> tuple[
-    NDArray[np.float64], NDArray[np.float64]
-]:
+def lidar_features(
+    poses: ArrayLike, bearings: ArrayLike, segments: ArrayLike, max_range: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Nominal range and incidence per pose and bearing.
 
     Args:
@@ -120,14 +132,20 @@ def cell_statistics(log: LidarLog, spur_above: float, split_spurious: bool) -> d
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = xs.sum(2) / n_ok
         var = np.where(ok, (x - mean[..., None]) ** 2, 0.0).sum(2) / (n_ok - 1)
-        out = {"n": n, "n_ok": n_ok, "p_null": null.sum(2) / n, "p_spur": spur.sum(2) / n,
-               "mean": np.where(n_ok >= 1, mean, np.nan), "std": np.where(n_ok >= 2, np.sqrt(var), np.nan)}
+        out = {
+            "n": n,
+            "n_ok": n_ok,
+            "p_null": null.sum(2) / n,
+            "p_spur": spur.sum(2) / n,
+            "mean": np.where(n_ok >= 1, mean, np.nan),
+            "std": np.where(n_ok >= 2, np.sqrt(var), np.nan),
+        }
     return out
 
 
-def _targets(stats: dict[str, NDArray[np.float64]], r: NDArray[np.float64], name: str) -> tuple[
-    NDArray[np.float64], NDArray[np.bool_]
-]:
+def _targets(
+    stats: dict[str, NDArray[np.float64]], r: NDArray[np.float64], name: str
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Regression target ``(P, K)`` of parameter ``name`` and the mask of cells that inform it."""
     hit = np.isfinite(r)
     if name in ("p_null", "p_spur"):
@@ -140,9 +158,18 @@ def _targets(stats: dict[str, NDArray[np.float64]], r: NDArray[np.float64], name
 
 
 # ------------------------------------------------------------------------------------------------- LWLR
-def lwlr(q_r: NDArray[np.float64], q_a: NDArray[np.float64], t_r: NDArray[np.float64], t_a: NDArray[np.float64],
-         y: NDArray[np.float64], weight: NDArray[np.float64], h_r: float, h_a: float,
-         h_bearings: tuple[float, ...] = (0.0,), degrees: tuple[int, ...] = (1,)) -> NDArray[np.float64]:
+def lwlr(
+    q_r: NDArray[np.float64],
+    q_a: NDArray[np.float64],
+    t_r: NDArray[np.float64],
+    t_a: NDArray[np.float64],
+    y: NDArray[np.float64],
+    weight: NDArray[np.float64],
+    h_r: float,
+    h_a: float,
+    h_bearings: tuple[float, ...] = (0.0,),
+    degrees: tuple[int, ...] = (1,),
+) -> NDArray[np.float64]:
     """Locally weighted linear (or constant) regression per bearing, evaluated at query features.
 
     Args:
@@ -220,8 +247,9 @@ def _bearing_offsets(h_max: float, fine: int = 6, coarse_step: int = 3) -> list[
     return out
 
 
-def _target_sums(w: NDArray[np.float64], wdr: NDArray[np.float64], wda: NDArray[np.float64],
-                 sy: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+def _target_sums(
+    w: NDArray[np.float64], wdr: NDArray[np.float64], wda: NDArray[np.float64], sy: NDArray[np.float64]
+) -> list[NDArray[np.float64]]:
     """Sums over training cells of ``w y``, ``w dr y``, ``w da y`` per target: ``3 n`` arrays ``(Q, K)``."""
     out = []
     for v in (w, wdr, wda):
@@ -229,8 +257,9 @@ def _target_sums(w: NDArray[np.float64], wdr: NDArray[np.float64], wda: NDArray[
     return out
 
 
-def _robust_weights(t_r: NDArray[np.float64], t_a: NDArray[np.float64], y: NDArray[np.float64],
-                    weight: NDArray[np.float64]) -> NDArray[np.float64]:
+def _robust_weights(
+    t_r: NDArray[np.float64], t_a: NDArray[np.float64], y: NDArray[np.float64], weight: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """Bisquare robustness weights (as in LOWESS) from a pilot LWLR fit, ``(T, K)``.
 
     Cells whose target lies more than 6 median absolute residuals from the pilot fit (e.g. rays that
@@ -257,9 +286,7 @@ def _finish(name: str, v: NDArray[np.float64]) -> NDArray[np.float64]:
     return v
 
 
-def _cv_loss(name: str, pred: NDArray[np.float64], y: NDArray[np.float64], m: NDArray[np.bool_]) -> tuple[
-    float, float
-]:
+def _cv_loss(name: str, pred: NDArray[np.float64], y: NDArray[np.float64], m: NDArray[np.bool_]) -> tuple[float, float]:
     """Sum of absolute errors (in the parameter's natural unit) over ``m`` and the cell count."""
     p = _finish(name, pred)
     if name == "log_sigma":
@@ -287,13 +314,22 @@ class LidarLWLR:
         progress: show tqdm progress bars.
     """
 
-    def __init__(self, *, variant: str = "extended", n_folds: int = 10,
-                 h_range_grid: tuple[float, ...] = (0.1, 0.25, 0.6, 1.6, 6.4),
-                 h_alpha_grid: tuple[float, ...] = (0.15, 0.5, 4.0),
-                 h_bearing_grid: tuple[float, ...] = (0.0, 1.0, 3.0, 12.0), degree_grid: tuple[int, ...] = (0, 1),
-                 max_range: float = 5.0,
-                 spur_above: float = 6.0, table_range_step: float = 0.125, table_alpha_steps: int = 9,
-                 random_state: int | np.random.Generator | None = 0, progress: bool = True) -> None:
+    def __init__(
+        self,
+        *,
+        variant: str = "extended",
+        n_folds: int = 10,
+        h_range_grid: tuple[float, ...] = (0.1, 0.25, 0.6, 1.6, 6.4),
+        h_alpha_grid: tuple[float, ...] = (0.15, 0.5, 4.0),
+        h_bearing_grid: tuple[float, ...] = (0.0, 1.0, 3.0, 12.0),
+        degree_grid: tuple[int, ...] = (0, 1),
+        max_range: float = 5.0,
+        spur_above: float = 6.0,
+        table_range_step: float = 0.125,
+        table_alpha_steps: int = 9,
+        random_state: int | np.random.Generator | None = 0,
+        progress: bool = True,
+    ) -> None:
         self.variant = variant
         self.n_folds = n_folds
         self.h_range_grid = h_range_grid
@@ -322,14 +358,16 @@ class LidarLWLR:
         if not self.max_range > 0 or not self.spur_above > 0:
             raise ValueError("max_range and spur_above must be > 0")
         if log.ranges.shape[2] < 2:
-            raise ValueError(f"{log.source}: field 'ranges' has one reading per pose and bearing; the model "
-                             "needs repeated readings at static poses, shape (P, K, R >= 2)")
+            raise ValueError(
+                f"{log.source}: field 'ranges' has one reading per pose and bearing; the model "
+                "needs repeated readings at static poses, shape (P, K, R >= 2)"
+            )
 
     def fit(self, log: LidarLog) -> LidarLWLR:
         """Fit the model to a log (approximate poses + nominal map), choosing kernel widths by CV.
 
         Args:
-            log: a :class:`~sensor_envs.lidar_log.LidarLog` with a map.
+            log: a :class:`~sensor_envs.lidar.log.LidarLog` with a map.
 
         Returns:
             ``self``, with ``tables_`` ``(n_params, K, n_r, n_alpha)``, ``param_names_``, ``range_grid_`` [m],
@@ -358,16 +396,19 @@ class LidarLWLR:
         self.null_rho_ = self._fit_null_rho(stats, r) if self.variant == "extended" else 0.0
         del self._p_null_oof
         self._fit_spurious(log)
-        self.training_ = {"source": Path(log.source).name, "n_poses": log.n_poses, "n_bearings": log.n_bearings,
-                          "n_readings": int((~np.isnan(log.ranges)).sum()),
-                          "null_fraction": float(np.nanmean(np.where(np.isnan(log.ranges), np.nan,
-                                                                     log.ranges == 0))),
-                          "sha256_of_ranges": hashlib.sha256(np.ascontiguousarray(log.ranges)).hexdigest()}
+        self.training_ = {
+            "source": Path(log.source).name,
+            "n_poses": log.n_poses,
+            "n_bearings": log.n_bearings,
+            "n_readings": int((~np.isnan(log.ranges)).sum()),
+            "null_fraction": float(np.nanmean(np.where(np.isnan(log.ranges), np.nan, log.ranges == 0))),
+            "sha256_of_ranges": hashlib.sha256(np.ascontiguousarray(log.ranges)).hexdigest(),
+        }
         return self
 
-    def _groups(self, stats: dict[str, NDArray[np.float64]], r: NDArray[np.float64]) -> list[
-        tuple[tuple[str, ...], NDArray[np.float64], NDArray[np.float64], bool]
-    ]:
+    def _groups(
+        self, stats: dict[str, NDArray[np.float64]], r: NDArray[np.float64]
+    ) -> list[tuple[tuple[str, ...], NDArray[np.float64], NDArray[np.float64], bool]]:
         """Parameters sharing cell weights: ``(names, y (P, K, n), weight (P, K), robust)``.
 
         The extended variant down-weights outlying cells of ``bias``/``log_sigma`` (bisquare, LOWESS-style).
@@ -376,14 +417,14 @@ class LidarLWLR:
         out = []
         for grp in (names[:-2], names[-2:]):
             ys, ms = zip(*(_targets(stats, r, n) for n in grp), strict=True)
-            out.append((grp, np.stack(ys, axis=-1), ms[0].astype(np.float64),
-                        self.variant == "extended" and grp[0] == "bias"))
+            out.append(
+                (grp, np.stack(ys, axis=-1), ms[0].astype(np.float64), self.variant == "extended" and grp[0] == "bias")
+            )
         return out
 
-    def _tau_group(self, r: NDArray[np.float64], a: NDArray[np.float64], groups: list[Any],
-                   n_ok: NDArray[np.float64]) -> tuple[
-        tuple[str, ...], NDArray[np.float64], NDArray[np.float64], bool
-    ]:
+    def _tau_group(
+        self, r: NDArray[np.float64], a: NDArray[np.float64], groups: list[Any], n_ok: NDArray[np.float64]
+    ) -> tuple[tuple[str, ...], NDArray[np.float64], NDArray[np.float64], bool]:
         """Target of ``tau2`` (squared out-of-fold residual of the cell means) on the non-outlying cells.
 
         Also sets ``p_out_``: the fraction of in-range readings in cells whose mean is an outlier (bisquare
@@ -407,18 +448,20 @@ class LidarLWLR:
         k = np.round(stats["p_null"][m] * n)
         q = self._p_null_oof[m]
         ll = [null_count_log_prob(k, n, q, rho).sum() for rho in RHO_GRID]
-        self.cv_scores_["null_rho"] = {"ll_per_reading_best": float(max(ll) / n.sum()),
-                                       "ll_per_reading_independent": float(ll[0] / n.sum()),
-                                       "n_candidates": len(RHO_GRID)}
+        self.cv_scores_["null_rho"] = {
+            "ll_per_reading_best": float(max(ll) / n.sum()),
+            "ll_per_reading_independent": float(ll[0] / n.sum()),
+            "n_candidates": len(RHO_GRID),
+        }
         return float(RHO_GRID[int(np.argmax(ll))])
 
     def _folds(self, n: int) -> NDArray[np.int64]:
         rng = np.random.default_rng(self.random_state)
         return rng.permutation(np.arange(n) % self.n_folds)
 
-    def _cross_validate(self, r: NDArray[np.float64], a: NDArray[np.float64], groups: list[Any]) -> tuple[
-        dict[str, list[float]], dict[str, dict[str, float]]
-    ]:
+    def _cross_validate(
+        self, r: NDArray[np.float64], a: NDArray[np.float64], groups: list[Any]
+    ) -> tuple[dict[str, list[float]], dict[str, dict[str, float]]]:
         """Leave-poses-out CV: per parameter, the kernel widths and degree with the least mean absolute error."""
         fold = self._folds(r.shape[0])
         hb = (0.0,) if self.variant == "seed" else tuple(float(v) for v in self.h_bearing_grid)
@@ -439,9 +482,9 @@ class LidarLWLR:
                     pred = lwlr(r[te], a[te], r[tr], a[tr], y[tr], w_tr, h_r, h_a, hb, degs)
                     pred = pred.reshape((per,) + pred.shape[2:])  # (degrees x bearing widths, Q, K, n)
                     if names[0] == "bias":
-                        oof[i * per:(i + 1) * per, te] = pred[..., 0]
+                        oof[i * per : (i + 1) * per, te] = pred[..., 0]
                     if names[0] == "p_null":
-                        oof_p[i * per:(i + 1) * per, te] = _finish("p_null", pred[..., 0])
+                        oof_p[i * per : (i + 1) * per, te] = _finish("p_null", pred[..., 0])
                     for j, n in enumerate(names):
                         for b in range(per):
                             e, c = _cv_loss(n, pred[b, ..., j], y[te][..., j], m_te)
@@ -461,8 +504,9 @@ class LidarLWLR:
 
     def _grid(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         n_r = int(np.ceil(self.max_range / self.table_range_step)) + 1
-        return np.linspace(0.0, (n_r - 1) * self.table_range_step, n_r), np.linspace(0.0, np.pi / 2,
-                                                                                     self.table_alpha_steps)
+        return np.linspace(0.0, (n_r - 1) * self.table_range_step, n_r), np.linspace(
+            0.0, np.pi / 2, self.table_alpha_steps
+        )
 
     def _tabulate(self, r: NDArray[np.float64], a: NDArray[np.float64], groups: list[Any]) -> None:
         """Evaluate each parameter's LWLR on the ``(r, alpha)`` grid of every bearing."""
@@ -485,7 +529,9 @@ class LidarLWLR:
                     hi_a = np.nan_to_num(np.nanmax(aa, 0) + h_a, nan=np.pi / 2)
                 q_r = np.clip(qr[:, None], lo_r[None], hi_r[None])
                 q_a = np.clip(qa[:, None], lo_a[None], hi_a[None])
-                v = _finish(n, lwlr(q_r, q_a, r0, a0, y[..., j:j + 1], w, h_r, h_a, (h_b,), (int(deg),))[0, 0, ..., 0])
+                v = _finish(
+                    n, lwlr(q_r, q_a, r0, a0, y[..., j : j + 1], w, h_r, h_a, (h_b,), (int(deg),))[0, 0, ..., 0]
+                )
                 tables.append(v.T.reshape(-1, rg.size, ag.size))
                 names.append(n)
         # (n_params, K, n_r, n_alpha), rounded to float32 (the file's dtype) so that save/load is exact
@@ -534,13 +580,20 @@ class LidarLWLR:
             p_spur = np.zeros_like(rq)
         sigma = np.exp(out["log_sigma"]) if "log_sigma" in out else out["sigma"]
         tau = np.sqrt(np.maximum(out["tau2"], 0.0)) if "tau2" in out else np.zeros_like(rq)
-        return {"p_null": p_null, "p_spur": p_spur, "mu": rq + out["bias"], "sigma": sigma, "tau": tau,
-                "p_out": np.full(rq.shape, self.p_out_), "out_range": np.full(rq.shape, self.max_range),
-                "null_rho": np.full(rq.shape, self.null_rho_)}
+        return {
+            "p_null": p_null,
+            "p_spur": p_spur,
+            "mu": rq + out["bias"],
+            "sigma": sigma,
+            "tau": tau,
+            "p_out": np.full(rq.shape, self.p_out_),
+            "out_range": np.full(rq.shape, self.max_range),
+            "null_rho": np.full(rq.shape, self.null_rho_),
+        }
 
-    def params(self, poses: ArrayLike, map_segments: ArrayLike) -> tuple[
-        NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]
-    ]:
+    def params(
+        self, poses: ArrayLike, map_segments: ArrayLike
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """``(p_null, mu, sigma)``, each ``(S, K)``, at ``(S, 3)`` poses in a ``(M, 2, 2)`` map [m, rad].
 
         ``mu``/``sigma`` [m] are those of the in-range (non-spurious) component.
@@ -554,8 +607,13 @@ class LidarLWLR:
         r, a = lidar_features(poses, self.bearings_, map_segments, self.max_range)
         return self.params_from_features(r, a)
 
-    def sample_from_params(self, p: dict[str, NDArray[np.float64]], rng: np.random.Generator,
-                           shape: tuple[int, ...] | None = None, pose_uncertainty: bool = False) -> NDArray[np.float64]:
+    def sample_from_params(
+        self,
+        p: dict[str, NDArray[np.float64]],
+        rng: np.random.Generator,
+        shape: tuple[int, ...] | None = None,
+        pose_uncertainty: bool = False,
+    ) -> NDArray[np.float64]:
         """Draw readings [m] (``0`` = null) with parameter arrays ``p`` broadcast to ``shape``.
 
         With ``pose_uncertainty``, the in-range component's mean is drawn once per entry of ``p`` (one
@@ -570,8 +628,11 @@ class LidarLWLR:
         mu, p_null, p_spur = p["mu"], p["p_null"], p["p_spur"]
         if pose_uncertainty:
             cell = p["tau"].shape
-            mu = np.where(rng.random(cell) < p["p_out"], rng.uniform(0.0, 1.0, cell) * p["out_range"],
-                          mu + p["tau"] * rng.standard_normal(cell))
+            mu = np.where(
+                rng.random(cell) < p["p_out"],
+                rng.uniform(0.0, 1.0, cell) * p["out_range"],
+                mu + p["tau"] * rng.standard_normal(cell),
+            )
             p_null = _cell_null_probability(p_null, p.get("null_rho"), rng)
             p_spur = np.minimum(p_spur, 1 - p_null)
         x = np.maximum(mu + p["sigma"] * z, 1e-4)
@@ -580,8 +641,9 @@ class LidarLWLR:
             x = np.where(spur, self.spur_mu_ + self.spur_sigma_ * z, x)
         return np.where(u < p_null, 0.0, x)
 
-    def sample(self, poses: ArrayLike, map_segments: ArrayLike, rng: np.random.Generator,
-               n_repeats: int | None = None) -> NDArray[np.float64]:
+    def sample(
+        self, poses: ArrayLike, map_segments: ArrayLike, rng: np.random.Generator, n_repeats: int | None = None
+    ) -> NDArray[np.float64]:
         """Sample a log at ``(S, 3)`` approximate poses: ``(S, K)`` or ``(S, K, n_repeats)`` [m], ``0`` = null.
 
         Each cell's mean is drawn once (``mu + tau z``, the extended variant's spread of cell means
@@ -617,19 +679,37 @@ class LidarLWLR:
     def to_header(self) -> dict[str, Any]:
         """JSON header of the model file: hyperparameters, fitted scalars and the card."""
         self._check_fitted()
-        hyper = {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(self).items()
-                 if not k.endswith("_") and not k.startswith("_") and k not in ("random_state", "progress")}
+        hyper = {
+            k: (list(v) if isinstance(v, tuple) else v)
+            for k, v in vars(self).items()
+            if not k.endswith("_") and not k.startswith("_") and k not in ("random_state", "progress")
+        }
         card = {"training": self.training_, "cv_scores": self.cv_scores_, **getattr(self, "card_extra_", {})}
-        return {"params": hyper, "h": self.h_, "param_names": self.param_names_, "spur_mu": self.spur_mu_,
-                "spur_sigma": self.spur_sigma_, "p_out": self.p_out_, "null_rho": self.null_rho_,
-                "card": card}
+        return {
+            "params": hyper,
+            "h": self.h_,
+            "param_names": self.param_names_,
+            "spur_mu": self.spur_mu_,
+            "spur_sigma": self.spur_sigma_,
+            "p_out": self.p_out_,
+            "null_rho": self.null_rho_,
+            "card": card,
+        }
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the model file (tables + JSON header, no pickle, no training readings)."""
-        return save_model_file(path, MODEL_KIND, FORMAT_VERSION, self.to_header(),
-                               {"tables": self.tables_.astype(np.float32), "bearings": self.bearings_,
-                                "range_grid": self.range_grid_,
-                                "alpha_grid": self.alpha_grid_})
+        return save_model_file(
+            path,
+            MODEL_KIND,
+            FORMAT_VERSION,
+            self.to_header(),
+            {
+                "tables": self.tables_.astype(np.float32),
+                "bearings": self.bearings_,
+                "range_grid": self.range_grid_,
+                "alpha_grid": self.alpha_grid_,
+            },
+        )
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> LidarLWLR:
@@ -638,8 +718,12 @@ class LidarLWLR:
         Raises:
             ModelFileError: naming the file and the field when it is malformed.
         """
-        schema = {"tables": ("f", 4, True), "bearings": ("f", 1, True), "range_grid": ("f", 1, True),
-                  "alpha_grid": ("f", 1, True)}
+        schema = {
+            "tables": ("f", 4, True),
+            "bearings": ("f", 1, True),
+            "range_grid": ("f", 1, True),
+            "alpha_grid": ("f", 1, True),
+        }
         header, arr = load_model_file(path, MODEL_KIND, (1, FORMAT_VERSION), schema)
         try:
             model = cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in header["params"].items()})
@@ -663,8 +747,13 @@ class LidarLWLR:
         return model
 
 
-def _bilinear(tables: NDArray[np.float64], rg: NDArray[np.float64], ag: NDArray[np.float64],
-              r: NDArray[np.float64], a: NDArray[np.float64]) -> NDArray[np.float64]:
+def _bilinear(
+    tables: NDArray[np.float64],
+    rg: NDArray[np.float64],
+    ag: NDArray[np.float64],
+    r: NDArray[np.float64],
+    a: NDArray[np.float64],
+) -> NDArray[np.float64]:
     """Bilinear lookup of ``tables (n, K, n_r, n_a)`` (regular grids) at ``r, a (..., K)`` -> ``(n, ..., K)``."""
     n, k, nr, na = tables.shape
     fr = np.clip((r - rg[0]) / (rg[1] - rg[0]), 0.0, nr - 1 - 1e-9)
@@ -678,8 +767,9 @@ def _bilinear(tables: NDArray[np.float64], rg: NDArray[np.float64], ag: NDArray[
     return (v00 * (1 - wa) + v01 * wa) * (1 - wr) + (v10 * (1 - wa) + v11 * wa) * wr
 
 
-def _cell_null_probability(p_null: NDArray[np.float64], rho: NDArray[np.float64] | None,
-                           rng: np.random.Generator) -> NDArray[np.float64]:
+def _cell_null_probability(
+    p_null: NDArray[np.float64], rho: NDArray[np.float64] | None, rng: np.random.Generator
+) -> NDArray[np.float64]:
     """One null probability per cell, ``Beta(p_null c, (1 - p_null) c)`` with ``c = 1 / rho - 1`` (mean ``p_null``)."""
     if rho is None or not np.any(rho > 0):
         return p_null
@@ -709,9 +799,9 @@ def _norm_logpdf(x: NDArray[np.float64], mu: ArrayLike, sigma: ArrayLike) -> NDA
     return -0.5 * z * z - np.log(sigma) - 0.5 * np.log(2 * np.pi)
 
 
-def mixture_log_prob(x: ArrayLike, p: dict[str, NDArray[np.float64]], spur_mu: float, spur_sigma: float) -> NDArray[
-    np.float64
-]:
+def mixture_log_prob(
+    x: ArrayLike, p: dict[str, NDArray[np.float64]], spur_mu: float, spur_sigma: float
+) -> NDArray[np.float64]:
     """Log-probability of readings ``x`` [m] under ``null | spurious | Normal(mu, sigma)``.
 
     A null (``x == 0``) has probability ``p_null``; a reading has density
@@ -737,12 +827,13 @@ def mixture_log_prob(x: ArrayLike, p: dict[str, NDArray[np.float64]], spur_mu: f
 # ---------------------------------------------------------------------------------------- the adapter
 @dataclass(frozen=True)
 class LearnedLidar:
-    """:class:`~sensor_envs.lidars.LidarSensor` adapter around a fitted :class:`LidarLWLR`."""
+    """:class:`~sensor_envs.lidar.sensors.LidarSensor` adapter around a fitted :class:`LidarLWLR`."""
 
     model: LidarLWLR
 
-    def measure(self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64],
-                rng: np.random.Generator) -> NDArray[np.float64]:
+    def measure(
+        self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64], rng: np.random.Generator
+    ) -> NDArray[np.float64]:
         """Sample one scan: ``(K,)`` ranges [m] from ``(K,)`` nominal ranges/incidences; ``NaN`` = null."""
         p = self.model.params_from_features(nominal_range, incidence)
         x = self.model.sample_from_params(p, rng)

@@ -70,9 +70,15 @@ class LidarLog:
     def subset(self, idx: ArrayLike) -> LidarLog:
         """The log restricted to poses ``idx`` (indices or boolean mask)."""
         i = np.asarray(idx)
-        return LidarLog(self.ranges[i], self.bearings, self.poses[i], self.map_segments,
-                        None if self.t is None else self.t[i], {k: v[i] for k, v in self.covariates.items()},
-                        self.source)
+        return LidarLog(
+            self.ranges[i],
+            self.bearings,
+            self.poses[i],
+            self.map_segments,
+            None if self.t is None else self.t[i],
+            {k: v[i] for k, v in self.covariates.items()},
+            self.source,
+        )
 
     def require_map(self) -> NDArray[np.float64]:
         """The map segments, or a :class:`LidarLogError` when the log has none."""
@@ -105,8 +111,11 @@ def _check_ranges(source: str, value: Any) -> NDArray[np.float64]:
         raise _err(source, "ranges", "holds infinite values (use 0 for a null reading, NaN for missing)")
     neg = r < 0
     if neg.any():
-        raise _err(source, "ranges", f"holds {int(neg.sum())} negative ranges (first at index "
-                                     f"{tuple(int(v) for v in np.argwhere(neg)[0])})")
+        raise _err(
+            source,
+            "ranges",
+            f"holds {int(neg.sum())} negative ranges (first at index {tuple(int(v) for v in np.argwhere(neg)[0])})",
+        )
     if np.isnan(r).all():
         raise _err(source, "ranges", "holds no readings (all NaN)")
     return r
@@ -122,9 +131,15 @@ def _check_per_pose(source: str, name: str, value: Any, n: int, width: int | Non
     return a
 
 
-def log_from_arrays(ranges: ArrayLike, bearings: ArrayLike, poses: ArrayLike, map_segments: ArrayLike | None,
-                    t: ArrayLike | None = None, covariates: dict[str, ArrayLike] | None = None,
-                    source: str = "<memory>") -> LidarLog:
+def log_from_arrays(
+    ranges: ArrayLike,
+    bearings: ArrayLike,
+    poses: ArrayLike,
+    map_segments: ArrayLike | None,
+    t: ArrayLike | None = None,
+    covariates: dict[str, ArrayLike] | None = None,
+    source: str = "<memory>",
+) -> LidarLog:
     """Validate arrays and build a :class:`LidarLog` (see the module docstring for the fields).
 
     Raises:
@@ -182,8 +197,9 @@ def _read_npz(p: Path) -> LidarLog:
         if name not in data:
             raise _err(str(p), name, "is missing")
     cov = {k[4:]: v for k, v in data.items() if k.startswith("cov_")}
-    return log_from_arrays(data["ranges"], data["bearings"], data["poses"], data["map_segments"], data.get("t"),
-                           cov, source=str(p))
+    return log_from_arrays(
+        data["ranges"], data["bearings"], data["poses"], data["map_segments"], data.get("t"), cov, source=str(p)
+    )
 
 
 def save_log(log: LidarLog, path: PathLike) -> Path:
@@ -193,7 +209,8 @@ def save_log(log: LidarLog, path: PathLike) -> Path:
         p = p.with_suffix(".npz")
     arrays: dict[str, NDArray[Any]] = {
         "ranges": (log.ranges[:, :, 0] if log.ranges.shape[2] == 1 else log.ranges).astype(np.float32),
-        "bearings": log.bearings, "poses": log.poses,
+        "bearings": log.bearings,
+        "poses": log.poses,
     }
     if log.map_segments is not None:
         arrays["map_segments"] = log.map_segments
@@ -214,22 +231,22 @@ def _map_or_none(map: Any) -> NDArray[np.float64] | None:  # noqa: A002
 
 
 # ---------------------------------------------------------------------------------------------- CARMEN
-def _parse_flaser(tok: list[str]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float,
-                                            float]:
+def _parse_flaser(tok: list[str]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float, float]:
     n = int(tok[1])
-    r = np.asarray(tok[2:2 + n], dtype=np.float64)
-    pose = np.asarray(tok[2 + n:5 + n], dtype=np.float64)
+    r = np.asarray(tok[2 : 2 + n], dtype=np.float64)
+    pose = np.asarray(tok[2 + n : 5 + n], dtype=np.float64)
     b = -np.pi / 2 + np.arange(n) * np.pi / n
     return r, b, pose, float(tok[8 + n]), 80.0
 
 
-def _parse_robotlaser1(tok: list[str]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
-                                                 float, float]:
+def _parse_robotlaser1(
+    tok: list[str],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float, float]:
     start, res, max_r = float(tok[2]), float(tok[4]), float(tok[5])
     n = int(tok[8])
-    r = np.asarray(tok[9:9 + n], dtype=np.float64)
+    r = np.asarray(tok[9 : 9 + n], dtype=np.float64)
     m = int(tok[9 + n])
-    rest = tok[10 + n + m:]
+    rest = tok[10 + n + m :]
     pose = np.asarray(rest[0:3], dtype=np.float64)  # laser pose
     return r, start + np.arange(n) * res, pose, float(rest[11]), max_r
 
@@ -272,8 +289,9 @@ def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = No
             times.append(ts)
     if not scans:
         raise LidarLogError(f"{p}: field 'ranges': no FLASER or ROBOTLASER1 line found")
-    return log_from_arrays(np.stack(scans), bearings, np.stack(poses), _map_or_none(map), np.asarray(times),
-                           source=str(p))
+    return log_from_arrays(
+        np.stack(scans), bearings, np.stack(poses), _map_or_none(map), np.asarray(times), source=str(p)
+    )
 
 
 # ---------------------------------------------------------------------------------------------- ROS bags
@@ -289,8 +307,13 @@ def _pose_of(msg: Any) -> NDArray[np.float64]:
     return np.array([pose.position.x, pose.position.y, _yaw(pose.orientation)])
 
 
-def read_rosbag(path: PathLike, *, scan_topic: str = "/scan", pose_topic: str = "/odom", map: Any = None,  # noqa: A002
-                ) -> LidarLog:
+def read_rosbag(
+    path: PathLike,
+    *,
+    scan_topic: str = "/scan",
+    pose_topic: str = "/odom",
+    map: Any = None,  # noqa: A002
+) -> LidarLog:
     """Read ``sensor_msgs/LaserScan`` messages and a pose topic of a ROS1 or ROS2 bag (``rosbags``).
 
     Each scan gets the pose interpolated at its bag time (x, y linear, yaw on the unwrapped angle);
@@ -327,8 +350,9 @@ def read_rosbag(path: PathLike, *, scan_topic: str = "/scan", pose_topic: str = 
             if bearings is None:
                 bearings = b
             elif b.shape != bearings.shape:
-                raise LidarLogError(f"{p}: field 'ranges': a {scan_topic} scan has {b.size} readings, "
-                                    f"expected {bearings.size}")
+                raise LidarLogError(
+                    f"{p}: field 'ranges': a {scan_topic} scan has {b.size} readings, expected {bearings.size}"
+                )
             null = ~np.isnan(r) & ((r <= 0) | ~np.isfinite(r) | (r < msg.range_min) | (r > msg.range_max))
             scans.append(np.where(null, 0.0, r))
             st.append(t * 1e-9)
@@ -342,7 +366,8 @@ def read_rosbag(path: PathLike, *, scan_topic: str = "/scan", pose_topic: str = 
         raise LidarLogError(f"{p}: field 'poses': no {scan_topic} scan lies within the {pose_topic} time span")
     yaw = np.unwrap(pose_a[:, 2])
     ts = st_a[keep]
-    poses = np.stack([np.interp(ts, pt_a, pose_a[:, 0]), np.interp(ts, pt_a, pose_a[:, 1]),
-                      np.interp(ts, pt_a, yaw)], axis=1)
+    poses = np.stack(
+        [np.interp(ts, pt_a, pose_a[:, 0]), np.interp(ts, pt_a, pose_a[:, 1]), np.interp(ts, pt_a, yaw)], axis=1
+    )
     poses[:, 2] = (poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
     return log_from_arrays(np.stack(scans)[keep], bearings, poses, _map_or_none(map), ts - ts[0], source=str(p))

@@ -8,7 +8,7 @@ frame (x forward, y left, metres) and that target's previous output to a measure
 * clutter: detections that belong to no target, drawn per cycle.
 
 Models: :class:`IdealRadar` (here), ``GaussianRadar`` and ``KDERadarModel``
-(:mod:`sensor_envs.radar_kde`).
+(:mod:`sensor_envs.radar.kde`).
 """
 
 from __future__ import annotations
@@ -84,8 +84,8 @@ def make_radar(name: str, model: str | os.PathLike[str] | None = None) -> RadarS
     """Build a radar sensor model by name.
 
     Args:
-        name: ``"ideal"``, ``"gaussian"`` (:class:`sensor_envs.radar_gaussian.GaussianRadar`) or
-            ``"kde"`` (:class:`sensor_envs.radar_kde.KDERadarModel`).
+        name: ``"ideal"``, ``"gaussian"`` (:class:`sensor_envs.radar.gaussian.GaussianRadar`) or
+            ``"kde"`` (:class:`sensor_envs.radar.kde.KDERadarModel`).
         model: model file (``.npz``) for ``"gaussian"``/``"kde"``; ``None`` loads the default shipped
             in ``models/`` (fitted on the reference rig at ``cycle_time = 1.0`` s, see
             ``models/radar_kde.md``). Must be ``None`` for ``"ideal"``.
@@ -101,9 +101,9 @@ def make_radar(name: str, model: str | os.PathLike[str] | None = None) -> RadarS
         return IdealRadar()
     path = default_model_path(name) if model is None else Path(model)
     if name == "gaussian":
-        from sensor_envs.radar_gaussian import GaussianRadar  # noqa: PLC0415
+        from sensor_envs.radar.gaussian import GaussianRadar  # noqa: PLC0415
 
         return GaussianRadar.load(path)
-    from sensor_envs.radar_kde import KDERadarModel  # noqa: PLC0415
+    from sensor_envs.radar.kde import KDERadarModel  # noqa: PLC0415
 
     return KDERadarModel.load(path)

@@ -11,7 +11,7 @@
    the sensor x axis) and within ``max_range`` [m], and that are not hidden behind nearer vehicles
    (at least ``occlusion_threshold`` of the target's angular extent hidden, see
    :func:`sensor_envs.geometry.occluded_fraction`; the ego's own body is not an occluder);
-4. samples the radar model once (:class:`sensor_envs.radar_api.RadarSensor`) with each target's
+4. samples the radar model once (:class:`sensor_envs.radar.sensors.RadarSensor`) with each target's
    previous output ``z_{t-1}`` (its track state, cleared on ``reset``): misses, correlated position
    errors ``z`` and clutter. A measured point that falls outside the field of view or range is not
    reported (counted as a miss); clutter is kept only inside the field of view and range;
@@ -71,11 +71,11 @@ visible, detected and missed, the ``k`` detections (sensor and world frames, tar
 clutter), the target of each detection (``-1`` = clutter), the model's source-tuple ids (``-1`` =
 none) and the sensor's world pose.
 
-Code: this module holds the wrapper and :func:`make_highway`; :mod:`sensor_envs.highway_sensor` what
+Code: this module holds the wrapper and :func:`make_highway`; :mod:`sensor_envs.envs.highway.sensor` what
 the radar can see (model loading, :class:`SensorSpec`, truth, reference points, field of view,
-occlusion, track velocities); :mod:`sensor_envs.highway_frame` one step's output (:class:`RadarFrame`,
-:class:`RadarInfo`); :mod:`sensor_envs.highway_observation` the ``Kinematics`` layout
-(:class:`KinematicsLayout`, selection, normalisation); :mod:`sensor_envs.highway_render` the overlay.
+occlusion, track velocities); :mod:`sensor_envs.envs.highway.frame` one step's output (:class:`RadarFrame`,
+:class:`RadarInfo`); :mod:`sensor_envs.envs.highway.observation` the ``Kinematics`` layout
+(:class:`KinematicsLayout`, selection, normalisation); :mod:`sensor_envs.envs.highway.render` the overlay.
 The public names of all of them are importable from here.
 """
 
@@ -90,8 +90,8 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from sensor_envs.highway_frame import RadarFrame, RadarInfo, Truth
-from sensor_envs.highway_observation import (
+from sensor_envs.envs.highway.frame import RadarFrame, RadarInfo, Truth
+from sensor_envs.envs.highway.observation import (
     SUPPORTED_FEATURES,
     KinematicsLayout,
     default_features_range,
@@ -99,8 +99,8 @@ from sensor_envs.highway_observation import (
     normalise,
     select,
 )
-from sensor_envs.highway_render import draw_radar
-from sensor_envs.highway_sensor import (
+from sensor_envs.envs.highway.render import draw_radar
+from sensor_envs.envs.highway.sensor import (
     DEFAULT_FOV,
     DEFAULT_MAX_RANGE,
     RADARS,
@@ -114,7 +114,7 @@ from sensor_envs.highway_sensor import (
     truth_table,
     visible_targets,
 )
-from sensor_envs.radar_api import RadarSensor
+from sensor_envs.radar.sensors import RadarSensor
 from sensor_envs.rng import sensor_rng
 
 __all__ = [
@@ -157,7 +157,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
     Args:
         env: a highway-env environment (possibly wrapped) whose observation type is ``Kinematics``.
         radar: ``"ideal" | "gaussian" | "kde"`` (loaded once per process), or any
-            :class:`~sensor_envs.radar_api.RadarSensor` instance.
+            :class:`~sensor_envs.radar.sensors.RadarSensor` instance.
         radar_model: path of a fitted model file for ``radar`` (``None`` = the shipped default).
         sensor_pose: ``(x, y, yaw)`` in the ego frame [m, rad]; ``None`` = middle of the front bumper.
         fov: full horizontal field of view [rad], symmetric about the sensor x axis.
@@ -185,16 +185,29 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         velocity: str = "difference",
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
-            self, radar=radar, radar_model=radar_model, sensor_pose=sensor_pose, fov=fov, max_range=max_range,
-            occlusion_threshold=occlusion_threshold, reference=reference, velocity=velocity)
+            self,
+            radar=radar,
+            radar_model=radar_model,
+            sensor_pose=sensor_pose,
+            fov=fov,
+            max_range=max_range,
+            occlusion_threshold=occlusion_threshold,
+            reference=reference,
+            velocity=velocity,
+        )
         gym.Wrapper.__init__(self, env)
         base = env.unwrapped
         if not hasattr(base, "road") or not hasattr(base, "PERCEPTION_DISTANCE"):
             raise TypeError(f"env: expected a highway-env environment, got {type(base).__name__}")
         self.layout = KinematicsLayout.from_config(base.config["observation"])
-        self.spec_sensor = SensorSpec(pose=sensor_pose, fov=fov, max_range=max_range,
-                                      occlusion_threshold=occlusion_threshold, reference=reference,
-                                      velocity=velocity)
+        self.spec_sensor = SensorSpec(
+            pose=sensor_pose,
+            fov=fov,
+            max_range=max_range,
+            occlusion_threshold=occlusion_threshold,
+            reference=reference,
+            velocity=velocity,
+        )
         if isinstance(radar, str):
             self.radar = load_radar(radar, radar_model)
             path = None if radar_model is None else str(Path(radar_model).expanduser().resolve())
@@ -214,8 +227,9 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     # -- gymnasium API ------------------------------------------------------------------------------
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[NDArray[np.float32],
-                                                                                            dict[str, Any]]:
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         """Reset the world and the radar's tracks; reseed the radar's own generator when ``seed`` is given.
 
         After the reset, highway-env's observation type is replaced by a hook so that, in ``step``, the
@@ -285,17 +299,35 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             vel, head = truth.velocity[vis[ok]], truth.heading[vis[ok]]
         else:
             dt = 1.0 / base.config["policy_frequency"]
-            vel, head = track_velocities(base.vehicle.velocity, truth.velocity[vis[ok]], pose, meas_w[ok],
-                                         prev_w[ok], dt)
+            vel, head = track_velocities(
+                base.vehicle.velocity, truth.velocity[vis[ok]], pose, meas_w[ok], prev_w[ok], dt
+            )
         clut_s = np.asarray(self.radar.sample_clutter(self._rng), dtype=np.float64).reshape(-1, 2)
         clut_s = clut_s[spec.in_view(clut_s)]
-        return RadarFrame.assemble(truth, pose, ref_s, visible, detected, vis[ok], meas_s[ok], meas_w[ok], vel, head,
-                                   source[ok], clut_s, to_world(clut_s, pose))
+        return RadarFrame.assemble(
+            truth,
+            pose,
+            ref_s,
+            visible,
+            detected,
+            vis[ok],
+            meas_s[ok],
+            meas_w[ok],
+            vel,
+            head,
+            source[ok],
+            clut_s,
+            to_world(clut_s, pose),
+        )
 
-    def _measure_targets(self, truth: Truth, ref_s: NDArray[np.float64], ref_w: NDArray[np.float64],
-                         vis: NDArray[np.int64], pose: NDArray[np.float64]) -> tuple[
-        NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.int64], NDArray[np.float64]
-    ]:
+    def _measure_targets(
+        self,
+        truth: Truth,
+        ref_s: NDArray[np.float64],
+        ref_w: NDArray[np.float64],
+        vis: NDArray[np.int64],
+        pose: NDArray[np.float64],
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.int64], NDArray[np.float64]]:
         """One radar cycle for the visible targets ``vis`` (reference points ``ref_s``/``ref_w`` [m]).
 
         Continues each target's track (previous output ``z`` and world position), replaces the track
@@ -310,13 +342,14 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         ok = np.isfinite(z).all(axis=1)
         ok[ok] = self.spec_sensor.in_view(meas_s[ok])
         meas_w = ref_w + rotate(np.where(ok[:, None], z, 0.0), pose[2])
-        self._tracks = {truth.objects[i]: (z[j] if ok[j] else _NAN2, meas_w[j] if ok[j] else _NAN2)
-                        for j, i in enumerate(vis)}
+        self._tracks = {
+            truth.objects[i]: (z[j] if ok[j] else _NAN2, meas_w[j] if ok[j] else _NAN2) for j, i in enumerate(vis)
+        }
         return meas_s, meas_w, ok, source, prev_w
 
-    def _sample_targets(self, ref_s: NDArray[np.float64], prev_z: NDArray[np.float64]) -> tuple[
-        NDArray[np.float64], NDArray[np.int64]
-    ]:
+    def _sample_targets(
+        self, ref_s: NDArray[np.float64], prev_z: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """One radar cycle for the visible targets (no call, and no draw, when there are none)."""
         if len(ref_s) == 0:
             return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
@@ -415,5 +448,14 @@ def make_highway(
     unknown = sorted(set(config or {}) - set(env.unwrapped.default_config()))
     if unknown:
         raise ValueError(f"config.{unknown[0]}: unknown highway-env key for {base_id}")
-    return RadarObservation(env, radar, radar_model, sensor_pose=sensor_pose, fov=fov, max_range=max_range,
-                            occlusion_threshold=occlusion_threshold, reference=reference, velocity=velocity)
+    return RadarObservation(
+        env,
+        radar,
+        radar_model,
+        sensor_pose=sensor_pose,
+        fov=fov,
+        max_range=max_range,
+        occlusion_threshold=occlusion_threshold,
+        reference=reference,
+        velocity=velocity,
+    )

@@ -40,21 +40,33 @@ class _Canvas:
 
     def disc(self, centre: NDArray[np.float64], radius_m: float, color: tuple[int, int, int]) -> None:
         r = max(1, int(round(radius_m * self.scale)))
-        dr, dc = np.mgrid[-r:r + 1, -r:r + 1]
+        dr, dc = np.mgrid[-r : r + 1, -r : r + 1]
         keep = dr**2 + dc**2 <= r * r
         row, col = self.px(centre)
         self.put(row + dr[keep], col + dc[keep], color)
 
 
-def render_world(segments: NDArray[np.float64], pose: NDArray[np.float64], goal: NDArray[np.float64],
-                 bearings: NDArray[np.float64], scan: NDArray[np.float64], robot_radius: float) -> NDArray[np.uint8]:
+def render_world(
+    segments: NDArray[np.float64],
+    pose: NDArray[np.float64],
+    goal: NDArray[np.float64],
+    bearings: NDArray[np.float64],
+    scan: NDArray[np.float64],
+    robot_radius: float,
+) -> NDArray[np.uint8]:
     """Draw walls, the lidar rays to their readings and the hits, the robot and the goal; ``(H, W, 3)`` uint8.
 
     ``scan`` holds ranges [m] per bearing (sensor frame, counter-clockwise from x forward); 0 or NaN = null.
     """
     pts = segments.reshape(-1, 2)
-    cv = _Canvas((min(pts[:, 0].min(), pose[0], goal[0]), min(pts[:, 1].min(), pose[1], goal[1]),
-                  max(pts[:, 0].max(), pose[0], goal[0]), max(pts[:, 1].max(), pose[1], goal[1])))
+    cv = _Canvas(
+        (
+            min(pts[:, 0].min(), pose[0], goal[0]),
+            min(pts[:, 1].min(), pose[1], goal[1]),
+            max(pts[:, 0].max(), pose[0], goal[0]),
+            max(pts[:, 1].max(), pose[1], goal[1]),
+        )
+    )
     ok = np.isfinite(scan) & (scan > 0)
     ang = pose[2] + bearings[ok]
     hits = pose[:2] + scan[ok, None] * np.stack([np.cos(ang), np.sin(ang)], axis=1)
