@@ -73,11 +73,11 @@ def _drive(lidar: str, seed: int, episodes: int, out: Path, map_name: str = "see
         total, term, trunc, t = 0.0, False, False, 0
         while not (term or trunc):
             obs, r, term, trunc, info = env.step(reactive_action(obs))
-            total, t = total + r, t + 1
+            total, t = total + float(r), t + 1
             nulls += int(np.sum(info["scan"] == 0.0))
             readings += info["scan"].size
         if ep == 0:
-            plt.imsave(out / f"neato_{lidar}.png", env.render())
+            plt.imsave(out / f"neato_{lidar}.png", np.asarray(env.render()))
         outcomes.append("success" if info["is_success"] else "collision" if info["collision"] else "timeout")
         returns.append(total)
         steps.append(t)
@@ -100,8 +100,9 @@ def _scan_figure(lidars: tuple[str, ...], seed: int, path: Path) -> None:
         env = gym.make("sensor_envs/Neato-v0", lidar=lidar, map="seed_room")
         _, info = env.reset(seed=seed, options={"start": [0.9, 0.5, 0.6], "goal": [3.0, 1.5, 0.0]})
         scan = np.where(info["scan"] > 0, info["scan"], np.nan)
-        style = {"ideal": dict(lw=1.0, color="k")}.get(lidar, dict(ls="", marker=".", ms=3))
-        ax.plot(env.unwrapped.bearings, scan, label=lidar, **style)
+        style: dict[str, Any] = {"ideal": dict(lw=1.0, color="k")}.get(lidar, dict(ls="", marker=".", ms=3))
+        base: Any = env.unwrapped
+        ax.plot(base.bearings, scan, label=lidar, **style)
         env.close()
     ax.set_title("One scan of each lidar from the same pose (seed room), range [m]")
     ax.legend(loc="lower left", fontsize=8)
@@ -124,7 +125,7 @@ def _highway(radar: str, seed: int, steps: int, out: Path) -> dict[str, Any]:
         clutter += int((~own).sum())
         errors.append(np.linalg.norm(ri.detections[own] - ri.truth_reference[ri.detection_target[own]], axis=1))
         if t == steps // 2:
-            plt.imsave(out / f"highway_{radar}.png", env.render())
+            plt.imsave(out / f"highway_{radar}.png", np.asarray(env.render()))
         if term or trunc:
             break
     env.close()

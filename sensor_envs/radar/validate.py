@@ -315,7 +315,7 @@ def plot_pdf_heatmap(model: Any, box: NDArray, prev_z: NDArray | None, path: Pat
     state = np.concatenate([np.broadcast_to(corner, pos.shape), np.broadcast_to(prev, pos.shape)], axis=1)
     dens = np.exp(model.log_prob(pos - corner, state)).reshape(mx.shape)
     fig, ax = plt.subplots(figsize=(5, 5))
-    ax.imshow(dens.T, origin="lower", extent=[gx[0], gx[-1], gy[0], gy[-1]], cmap="viridis")
+    ax.imshow(dens.T, origin="lower", extent=(float(gx[0]), float(gx[-1]), float(gy[0]), float(gy[-1])), cmap="viridis")
     ring = np.vstack([corners[0], corners[0][:1]])
     ax.plot(ring[:, 0], ring[:, 1], "w-", lw=1)
     ax.plot(*corner, "r+", ms=10)

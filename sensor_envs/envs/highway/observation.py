@@ -108,7 +108,10 @@ class KinematicsLayout:
             lo.append(b[0])
             hi.append(b[1])
         shape = (self.vehicles_count, len(self.features))
-        return (np.broadcast_to(np.float32(lo), shape).copy(), np.broadcast_to(np.float32(hi), shape).copy())
+        return (
+            np.broadcast_to(np.asarray(lo, dtype=np.float32), shape).copy(),
+            np.broadcast_to(np.asarray(hi, dtype=np.float32), shape).copy(),
+        )
 
 
 def select(base: Any, frame: RadarFrame, lay: KinematicsLayout) -> NDArray[np.int64]:

@@ -196,7 +196,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             velocity=velocity,
         )
         gym.Wrapper.__init__(self, env)
-        base = env.unwrapped
+        base: Any = env.unwrapped
         if not hasattr(base, "road") or not hasattr(base, "PERCEPTION_DISTANCE"):
             raise TypeError(f"env: expected a highway-env environment, got {type(base).__name__}")
         self.layout = KinematicsLayout.from_config(base.config["observation"])
@@ -237,7 +237,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         vehicles) and highway-env's own ``Kinematics`` is not computed a second time.
         """
         _, info = self.env.reset(seed=seed, options=options)
-        base = self.env.unwrapped
+        base: Any = self.env.unwrapped
         if options and "config" in options and KinematicsLayout.from_config(base.config["observation"]) != self.layout:
             raise ValueError("options.config.observation: the observation layout is fixed when the wrapper is built")
         self._rng = sensor_rng(seed, RNG_TAG, self._rng)
@@ -245,6 +245,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._features_range = None
         base.observation_type = _ObservationHook(base.observation_type, self._observe)
         obs = self._observe()
+        assert self.last_frame is not None  # set by _observe
         info.update(self.last_frame.info())
         return obs, info
 
@@ -285,7 +286,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
         Draws from the wrapper's generator in a fixed order: the targets' cycle, then clutter.
         """
-        base = self.env.unwrapped
+        base: Any = self.env.unwrapped
         spec = self.spec_sensor
         truth = truth_table(base, self.layout.include_obstacles)
         pose = sensor_pose(base.vehicle, spec.pose)
@@ -339,7 +340,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         prev_w = np.array([p[1] for p in prev]).reshape(-1, 2)
         z, source = self._sample_targets(ref_s, prev_z)
         meas_s = ref_s + z
-        ok = np.isfinite(z).all(axis=1)
+        ok = np.asarray(np.isfinite(z).all(axis=1))
         ok[ok] = self.spec_sensor.in_view(meas_s[ok])
         meas_w = ref_w + rotate(np.where(ok[:, None], z, 0.0), pose[2])
         self._tracks = {
@@ -361,7 +362,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def _observe(self) -> NDArray[np.float32]:
         """Sense, then lay the reported objects out as highway-env's ``Kinematics`` would."""
         self.last_frame = frame = self.sense()
-        base = self.env.unwrapped
+        base: Any = self.env.unwrapped
         ego = base.vehicle
         lay = self.layout
         rows = select(base, frame, lay)
@@ -372,7 +373,9 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         obs[: table.shape[0]] = table
         if lay.order == "shuffled":
             self._rng.shuffle(obs[1:])
-        low, high = self.observation_space.low, self.observation_space.high
+        space = self.observation_space
+        assert isinstance(space, spaces.Box)
+        low, high = space.low, space.high
         self._last_obs = np.clip(obs.astype(np.float32), low, high)
         return self._last_obs.copy()
 
@@ -445,7 +448,8 @@ def make_highway(
     with warnings.catch_warnings():  # the sensor_envs id is current even when its base id has newer versions
         warnings.filterwarnings("ignore", message=".*is out of date.*", category=DeprecationWarning)
         env = gym.make(base_id, render_mode=render_mode, config=config, disable_env_checker=True)
-    unknown = sorted(set(config or {}) - set(env.unwrapped.default_config()))
+    base: Any = env.unwrapped
+    unknown = sorted(set(config or {}) - set(base.default_config()))
     if unknown:
         raise ValueError(f"config.{unknown[0]}: unknown highway-env key for {base_id}")
     return RadarObservation(
