@@ -5,22 +5,11 @@ see: model loading, field of view, occlusion, reference points), ``frame`` (one 
 ``info["radar"]``), ``observation`` (highway-env's ``Kinematics`` layout), ``render`` (the overlay).
 """
 
-from sensor_envs.envs.highway.wrapper import (
-    DEFAULT_FOV,
-    DEFAULT_MAX_RANGE,
-    IDEAL_KINEMATICS,
-    RADARS,
-    RNG_TAG,
-    SUPPORTED_FEATURES,
-    KinematicsLayout,
-    RadarFrame,
-    RadarInfo,
-    RadarObservation,
-    SensorSpec,
-    draw_radar,
-    load_radar,
-    make_highway,
-)
+from sensor_envs.envs.highway.frame import RadarFrame, RadarInfo
+from sensor_envs.envs.highway.observation import SUPPORTED_FEATURES, KinematicsLayout
+from sensor_envs.envs.highway.render import draw_radar
+from sensor_envs.envs.highway.sensor import DEFAULT_FOV, DEFAULT_MAX_RANGE, RADARS, SensorSpec, load_radar
+from sensor_envs.envs.highway.wrapper import IDEAL_KINEMATICS, RNG_TAG, RadarObservation, make_highway
 
 __all__ = [
     "RADARS",
