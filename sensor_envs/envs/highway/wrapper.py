@@ -76,7 +76,7 @@ the radar can see (model loading, :class:`SensorSpec`, truth, reference points, 
 occlusion, track velocities); :mod:`sensor_envs.envs.highway.frame` one step's output (:class:`RadarFrame`,
 :class:`RadarInfo`); :mod:`sensor_envs.envs.highway.observation` the ``Kinematics`` layout
 (:class:`KinematicsLayout`, selection, normalisation); :mod:`sensor_envs.envs.highway.render` the overlay.
-The public names of all of them are importable from here.
+The public names of all of them are importable from the package, :mod:`sensor_envs.envs.highway`.
 """
 
 from __future__ import annotations
