@@ -1,0 +1,116 @@
+"""The package's shape: imports go one way (shared pieces <- sensor models <- worlds <- tools), no cycles,
+and a lazy front door whose every public name resolves."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "sensor_envs"
+
+# Layer of each top-level part of the package: a module may import only from its own layer or lower ones.
+LAYERS = {
+    "geometry": 0,
+    "maps": 0,
+    "modelio": 0,
+    "rng": 0,
+    "outputs": 0,
+    "lidar": 1,
+    "radar": 1,
+    "envs": 2,
+    "diagnose": 3,
+    "evaluate": 3,
+    "cli": 4,
+}
+# Sensor domains that must not import each other.
+SEPARATE = {("lidar", "radar"), ("radar", "lidar")}
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imports(path: Path) -> set[str]:
+    """Every ``sensor_envs`` module imported anywhere in the file (top level or inside functions)."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names if a.name.startswith("sensor_envs"))
+        elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("sensor_envs"):
+            found.add(node.module)
+    return found
+
+
+def _part(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else None
+
+
+GRAPH = {_module_name(p): _imports(p) for p in sorted(PACKAGE.rglob("*.py"))}
+
+
+def test_every_part_of_the_package_has_a_layer():
+    parts = {_part(m) for m in GRAPH} - {None}
+    assert parts <= set(LAYERS) | {"models"}, sorted(parts - set(LAYERS))
+
+
+@pytest.mark.parametrize("module", sorted(m for m in GRAPH if _part(m)))
+def test_imports_go_one_way(module):
+    mine = _part(module)
+    for target in GRAPH[module]:
+        theirs = _part(target)
+        if theirs is None or theirs == "models":
+            continue
+        assert LAYERS[theirs] <= LAYERS[mine], (
+            f"{module} (layer {LAYERS[mine]}) imports {target} (layer {LAYERS[theirs]})"
+        )
+        assert (mine, theirs) not in SEPARATE, f"{module} imports {target}: lidar and radar stay apart"
+
+
+def test_no_import_cycles():
+    def resolve(target: str) -> str | None:  # "sensor_envs.x.y" may name a module or a package
+        return target if target in GRAPH else None
+
+    state: dict[str, int] = {}
+
+    def visit(module: str, path: list[str]) -> None:
+        state[module] = 1
+        for target in sorted(GRAPH[module]):
+            t = resolve(target)
+            if t is None or t == "sensor_envs":
+                continue
+            if state.get(t) == 1:
+                raise AssertionError("import cycle: " + " -> ".join([*path, module, t]))
+            if t not in state:
+                visit(t, [*path, module])
+        state[module] = 2
+
+    for module in GRAPH:
+        if module not in state:
+            visit(module, [])
+
+
+def test_front_door_is_lazy_and_complete():
+    code = (
+        "import sys, sensor_envs\n"
+        "loaded = sorted(m for m in sys.modules if m.startswith('sensor_envs.'))\n"
+        "print(loaded)\n"
+        "assert not loaded, loaded\n"
+        "for name in sensor_envs.__all__:\n"
+        "    assert getattr(sensor_envs, name) is not None, name\n"
+        "assert sorted(dir(sensor_envs)) == sorted(sensor_envs.__all__)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr + out.stdout
+
+
+def test_unknown_public_name_is_an_attribute_error():
+    import sensor_envs
+
+    with pytest.raises(AttributeError, match="no attribute 'NoSuchThing'"):
+        sensor_envs.NoSuchThing  # noqa: B018
