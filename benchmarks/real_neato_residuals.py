@@ -44,6 +44,7 @@ from sklearn.ensemble import HistGradientBoostingRegressor
 from sensor_envs.geometry import raycast_pose
 from sensor_envs.lidar.log import LidarLog, load_log
 from sensor_envs.lidar.lwlr import P_EPS, LidarLWLR, cell_statistics, lwlr
+from sensor_envs.rng import fold_ids
 
 DIRECT = {
     "bearing": ["bearing"],
@@ -165,7 +166,7 @@ def _explained(
 
 def diagnose(log: LidarLog, n_folds: int, seed: int, inner: int) -> tuple[dict[str, Any], tuple[Any, ...]]:
     """All figures of the diagnosis (see the module docstring) and the arrays of the plot."""
-    fold = np.random.default_rng(seed).permutation(np.arange(log.n_poses) % n_folds)
+    fold = fold_ids(log.n_poses, n_folds, random_state=seed)
     cells = cell_table(log)
     q_all, widths = lwlr_p_null_oof(log, cells["r"], cells["alpha"], fold, inner)
     hit = np.isfinite(cells["r"]) & (cells["n"] > 0)

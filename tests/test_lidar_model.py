@@ -8,6 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from scipy import stats
+from sklearn.exceptions import NotFittedError
 
 import sensor_envs  # noqa: F401  (registers the ids)
 from sensor_envs.cli.main import main as cli_main
@@ -259,7 +260,7 @@ def test_bad_model_files_name_the_field(rig_fit, tmp_path):
 def test_estimator_contract():
     m = LidarLWLR(variant="nope")
     assert vars(m)["variant"] == "nope"  # __init__ only stores
-    with pytest.raises(RuntimeError, match="not fitted"):
+    with pytest.raises(NotFittedError, match="not fitted"):
         m.params(np.zeros((1, 3)), ROOM)
     log, _ = NeatoRig().record(ROOM, np.random.default_rng(0), n_poses=4, repeats=2)
     with pytest.raises(ValueError, match=re.escape("variant: expected one of")):

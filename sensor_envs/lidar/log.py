@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sensor_envs.geometry import as_segments
+from sensor_envs.geometry import as_segments, quaternion_yaw
 
 __all__ = ["LidarLog", "LidarLogError", "load_log", "save_log", "read_carmen", "read_rosbag", "log_from_arrays"]
 
@@ -295,16 +295,13 @@ def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = No
 
 
 # ---------------------------------------------------------------------------------------------- ROS bags
-def _yaw(q: Any) -> float:
-    return float(np.arctan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z)))
-
-
 def _pose_of(msg: Any) -> NDArray[np.float64]:
     """x, y, yaw of a nav_msgs/Odometry, geometry_msgs/PoseStamped or PoseWithCovarianceStamped."""
     pose = msg.pose
     if hasattr(pose, "pose"):
         pose = pose.pose
-    return np.array([pose.position.x, pose.position.y, _yaw(pose.orientation)])
+    q = pose.orientation
+    return np.array([pose.position.x, pose.position.y, quaternion_yaw(q.w, q.x, q.y, q.z)])
 
 
 def read_rosbag(

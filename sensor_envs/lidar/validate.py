@@ -49,6 +49,7 @@ from sensor_envs.lidar.lwlr import (
     null_count_log_prob,
 )
 from sensor_envs.lidar.sensors import GaussianLidar
+from sensor_envs.rng import fold_ids
 
 __all__ = [
     "IDEAL_SIGMA",
@@ -314,7 +315,7 @@ def cross_validate_log(
     Each outer fold fits the models (with their own inner CV of kernel widths) and the Gaussian
     baseline on the other poses, and predicts the held-out poses; metrics pool all held-out cells.
     """
-    fold = np.random.default_rng(random_state).permutation(np.arange(log.n_poses) % n_folds)
+    fold = fold_ids(log.n_poses, n_folds, random_state=random_state)
     r, a = lidar_features(log.poses, log.bearings, log.require_map(), 5.0)
     names = ("seed", "seed_without_spurious", "extended", "ideal", "gaussian")
     pred: dict[str, Params] = {n: {} for n in names}

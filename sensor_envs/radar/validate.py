@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.radar.log import RadarLog, TargetTuples, target_tuples
+from sensor_envs.rng import fold_ids
 
 __all__ = [
     "RANGE_BINS",
@@ -58,8 +59,7 @@ def split_by_blocks(log: RadarLog, block: int, n_folds: int, fold: int) -> tuple
     if not 0 <= fold < n_folds:
         raise ValueError(f"fold must be in [0, {n_folds}), got {fold}")
     seq, frame = log["sequence"], log["frame"]
-    _, bid = np.unique(np.stack([seq, frame // block], axis=1), axis=0, return_inverse=True)
-    test = bid.ravel() % n_folds == fold
+    test = fold_ids(np.stack([seq, frame // block], axis=1), n_folds) == fold
     return log.select(~test), log.select(test)
 
 

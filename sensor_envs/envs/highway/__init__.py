@@ -9,7 +9,7 @@ from sensor_envs.envs.highway.wrapper import (
     DEFAULT_FOV,
     DEFAULT_MAX_RANGE,
     IDEAL_KINEMATICS,
-    RADARS,
+    RADAR_NAMES,
     RNG_TAG,
     SUPPORTED_FEATURES,
     KinematicsLayout,
@@ -23,7 +23,7 @@ from sensor_envs.envs.highway.wrapper import (
 )
 
 __all__ = [
-    "RADARS",
+    "RADAR_NAMES",
     "RNG_TAG",
     "IDEAL_KINEMATICS",
     "DEFAULT_FOV",
