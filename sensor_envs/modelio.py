@@ -251,8 +251,9 @@ def validate_params(
 # ----------------------------------------------------------------------------------- value checks
 # Each raises ModelFileError("<file>: field '<field>' ...") naming the first offending entry.
 def _first_bad(bad: NDArray[np.bool_]) -> str:
+    """`` at [i, j]``: where the first offending entry of an array is (empty for a scalar)."""
     idx = np.argwhere(bad)[0]
-    return f"[{', '.join(str(int(i)) for i in idx)}]" if idx.size else ""
+    return f" at [{', '.join(str(int(i)) for i in idx)}]" if idx.size else ""
 
 
 def check_finite(path: str | os.PathLike[str], field: str, arr: np.typing.ArrayLike) -> NDArray[np.float64]:
@@ -260,7 +261,10 @@ def check_finite(path: str | os.PathLike[str], field: str, arr: np.typing.ArrayL
     a = _as_float(path, field, arr)
     bad = ~np.isfinite(a)
     if bad.any():
-        raise ModelFileError(f"{path}: field {field!r} holds NaN or infinite values (first at {_first_bad(bad)})")
+        where = _first_bad(bad)
+        raise ModelFileError(
+            f"{path}: field {field!r} holds NaN or infinite values" + (f" (first{where})" if where else "")
+        )
     return a
 
 
@@ -280,7 +284,7 @@ def check_range(
         bad |= a > high
     if bad.any():
         raise ModelFileError(
-            f"{path}: field {field!r} holds {a[bad].ravel()[0]:g} at {_first_bad(bad)}, outside "
+            f"{path}: field {field!r} holds {a[bad].ravel()[0]:g}{_first_bad(bad)}, outside "
             f"[{'-inf' if low is None else f'{low:g}'}, {'inf' if high is None else f'{high:g}'}]"
         )
     return a
@@ -298,7 +302,7 @@ def check_positive(
     a = check_range(path, field, arr, None, high)
     bad = a <= 0
     if bad.any():
-        raise ModelFileError(f"{path}: field {field!r} holds {a[bad].ravel()[0]:g} at {_first_bad(bad)}; must be > 0")
+        raise ModelFileError(f"{path}: field {field!r} holds {a[bad].ravel()[0]:g}{_first_bad(bad)}; must be > 0")
     return a
 
 

@@ -1,4 +1,4 @@
-"""The ``sensor-envs`` command line: ``demo`` (the main job), ``bench``, ``record``, ``fit``, ``validate``."""
+"""The ``sensor-envs`` command line: ``demo`` (the main job), ``record``, ``fit``, ``validate``."""
 
 from __future__ import annotations
 
