@@ -126,7 +126,7 @@ def lwlr_p_null_oof(
     for k in np.unique(fold):
         tr, te = fold != k, fold == k
         m = LidarLWLR(variant="extended", n_folds=min(inner, int(tr.sum())), progress=False)
-        h, _ = m._cross_validate(r0[tr], a0[tr], [(("p_null",), y[tr], w[tr], False)])  # noqa: SLF001
+        h, _ = m._cross_validate(r0[tr], a0[tr], [(("p_null",), y[tr], w[tr], False)])
         h_r, h_a, h_b, deg = h["p_null"]
         out[te] = lwlr(r0[te], a0[te], r0[tr], a0[tr], y[tr], w[tr], h_r, h_a, (h_b,), (int(deg),))[0, 0, ..., 0]
         widths.append(h["p_null"])
@@ -324,10 +324,10 @@ def markdown(d: dict[str, Any]) -> str:
 
 def plot(data: tuple[Any, ...], path: Path) -> None:
     """Histogram of the fractions, residual vs range and break distance, residual map (pose x bearing)."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     y, q, r, brk, res_all = data
     fig, ax = plt.subplots(1, 4, figsize=(18, 4))

@@ -188,7 +188,7 @@ def _read_image(img_path: Path, yaml_path: Path) -> NDArray[np.float64]:
     if raw[:2] == b"P5":
         return _parse_pgm(raw, img_path)
     try:
-        from PIL import Image  # noqa: PLC0415  (only for non-PGM images)
+        from PIL import Image  # only for non-PGM images
 
         with Image.open(img_path) as im:
             return np.asarray(im.convert("L"), dtype=np.float64)

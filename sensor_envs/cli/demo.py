@@ -20,14 +20,14 @@ import gymnasium as gym
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from numpy.typing import NDArray  # noqa: E402
-from tqdm import tqdm  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from numpy.typing import NDArray
+from tqdm import tqdm
 
-import sensor_envs  # noqa: E402,F401  (registers the ids)
-from sensor_envs.lidar.sensors import LIDAR_NAMES  # noqa: E402
-from sensor_envs.radar.sensors import RADAR_NAMES  # noqa: E402
+import sensor_envs  # noqa: F401  (registers the ids)
+from sensor_envs.lidar.sensors import LIDAR_NAMES
+from sensor_envs.radar.sensors import RADAR_NAMES
 
 __all__ = ["run_demo", "reactive_action"]
 

@@ -33,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_demo(args: argparse.Namespace) -> int:
-    from sensor_envs.cli.demo import run_demo  # noqa: PLC0415
+    from sensor_envs.cli.demo import run_demo
 
     run_demo(args.out, seed=args.seed, episodes=args.episodes)
     return 0

@@ -54,7 +54,7 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     def __init__(
         self,
         *,
-        map: str | PathLike[str] | SegmentMap | NDArray[np.float64] = "seed_room",  # noqa: A002
+        map: str | PathLike[str] | SegmentMap | NDArray[np.float64] = "seed_room",
         lidar: str | LidarSensor = "ideal",
         model: str | PathLike[str] | None = None,
         lidar_kwargs: dict[str, Any] | None = None,

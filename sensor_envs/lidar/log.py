@@ -222,10 +222,10 @@ def save_log(log: LidarLog, path: PathLike) -> Path:
     return p
 
 
-def _map_or_none(map: Any) -> NDArray[np.float64] | None:  # noqa: A002
+def _map_or_none(map: Any) -> NDArray[np.float64] | None:
     if map is None:
         return None
-    from sensor_envs.maps import load_map  # noqa: PLC0415
+    from sensor_envs.maps import load_map
 
     return load_map(map).segments
 
@@ -251,7 +251,7 @@ def _parse_robotlaser1(
     return r, start + np.arange(n) * res, pose, float(rest[11]), max_r
 
 
-def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = None) -> LidarLog:  # noqa: A002
+def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = None) -> LidarLog:
     """Read ``FLASER`` and ``ROBOTLASER1`` lines of a CARMEN log (optionally gzipped) into a log.
 
     FLASER bearing ``i`` is ``-pi/2 + i * pi / n`` [rad]; ROBOTLASER1 uses its start angle and
@@ -309,7 +309,7 @@ def read_rosbag(
     *,
     scan_topic: str = "/scan",
     pose_topic: str = "/odom",
-    map: Any = None,  # noqa: A002
+    map: Any = None,
 ) -> LidarLog:
     """Read ``sensor_msgs/LaserScan`` messages and a pose topic of a ROS1 or ROS2 bag (``rosbags``).
 
@@ -326,7 +326,7 @@ def read_rosbag(
     Raises:
         LidarLogError: naming the bag and topic when a topic is absent or scans differ in size.
     """
-    from rosbags.highlevel import AnyReader  # noqa: PLC0415  (optional dependency)
+    from rosbags.highlevel import AnyReader  # optional dependency
 
     p = Path(path)
     scans, st, pts, pt, bearings = [], [], [], [], None

@@ -234,10 +234,10 @@ def plot_scan(
     pose_index: int = 0,
 ) -> None:
     """The seed's Fig. 2: one real scan and one simulated scan per model at a pose (sensor frame, x fwd)."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     b = log.bearings
     fig, axes = plt.subplots(1, len(params) + 1, figsize=(4.2 * (len(params) + 1), 4.2), sharex=True, sharey=True)
@@ -274,10 +274,10 @@ def plot_scan(
 
 def plot_per_bearing(log: LidarLog, params: dict[str, Params], path: Path, spur_above: float) -> None:
     """Per-bearing MAE of ``mu``, ``sigma`` and ``p_null`` over the log's poses, per model."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     st = cell_statistics(log, spur_above, split_spurious=True)
     deg = np.rad2deg(log.bearings)
