@@ -361,3 +361,32 @@ def model_file_key(path: str | os.PathLike[str]) -> tuple[str, int]:
         return str(p), p.stat().st_mtime_ns
     except OSError:
         return str(p), -1
+
+
+def params_from_header(
+    path: str | os.PathLike[str],
+    header: dict[str, Any],
+    constraints: dict[str, list[Constraint]],
+    defaults: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """A model file's hyperparameters (header field ``params``), checked against the model's table.
+
+    JSON lists become tuples; ``defaults`` fill parameters that older format versions lack.
+
+    Raises:
+        ModelFileError: naming the file and the field: ``params`` missing or not a mapping, an unknown
+            hyperparameter, or a value the table refuses.
+    """
+    raw = header.get("params") if isinstance(header, dict) else None
+    if not isinstance(raw, dict):
+        raise ModelFileError(f"{path}: field 'params' is missing or not a mapping")
+    params = {**(defaults or {}), **{k: (tuple(v) if isinstance(v, list) else v) for k, v in raw.items()}}
+    validate_params(params, constraints, path)
+    return params
+
+
+def optional_positive(path: str | os.PathLike[str], field: str, value: Any) -> float:
+    """A header scalar that is either absent (``None``/NaN, returned as NaN) or a finite number ``> 0``."""
+    if value is None or (isinstance(value, float) and np.isnan(value)):
+        return float("nan")
+    return float(check_positive(path, field, value))

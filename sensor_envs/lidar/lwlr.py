@@ -69,6 +69,7 @@ from sensor_envs.modelio import (
     check_shape,
     default_model_path,
     load_model_file,
+    params_from_header,
     save_model_file,
     validate_params,
 )
@@ -757,9 +758,7 @@ class LidarLWLR(BaseEstimator):
         }
         header, arr = load_model_file(path, MODEL_KIND, (1, FORMAT_VERSION), schema)
         try:
-            params = {k: (tuple(v) if isinstance(v, list) else v) for k, v in header["params"].items()}
-            validate_params(params, cls._hyperparameter_constraints, path)
-            model = cls(**params)
+            model = cls(**params_from_header(path, header, cls._hyperparameter_constraints))
             model.h_, model.param_names_ = dict(header["h"]), list(header["param_names"])
             model.spur_mu_, model.spur_sigma_ = float(header["spur_mu"]), float(header["spur_sigma"])
             model.p_out_ = float(header["p_out"])

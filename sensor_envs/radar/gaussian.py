@@ -29,6 +29,8 @@ from sensor_envs.modelio import (
     check_range,
     check_shape,
     load_model_file,
+    optional_positive,
+    params_from_header,
     save_model_file,
     validate_params,
 )
@@ -189,20 +191,12 @@ class GaussianRadar(BaseEstimator):
             "clutter_cov": ("f", 2, True),
         }
         header, a = load_model_file(path, KIND, (FORMAT_VERSION,), schema)
-        try:
-            p = {k: (tuple(v) if isinstance(v, list) else v) for k, v in dict(header["params"]).items()}
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ModelFileError(f"{path}: field 'params' is missing or not a mapping ({exc})") from None
-        validate_params(p, cls._hyperparameter_constraints, path)
-        m = cls(**p)
+        m = cls(**params_from_header(path, header, cls._hyperparameter_constraints))
         _check_arrays(path, a)
         m.edges_, m.mean_, m.cov_, m.p_detect_ = a["edges"], a["mean"], a["cov"], a["p_detect"]
         m.clutter_rate_ = float(a["clutter_rate"][0])
         m.clutter_mean_, m.clutter_cov_ = a["clutter_mean"], a["clutter_cov"]
-        cycle_time = header.get("cycle_time", float("nan"))
-        if cycle_time is not None and not (isinstance(cycle_time, float) and np.isnan(cycle_time)):
-            check_positive(path, "cycle_time", cycle_time)
-        m.cycle_time_ = float("nan") if cycle_time is None else float(cycle_time)
+        m.cycle_time_ = optional_positive(path, "cycle_time", header.get("cycle_time"))
         return m
 
 

@@ -80,6 +80,8 @@ from sensor_envs.modelio import (
     check_range,
     check_shape,
     load_model_file,
+    optional_positive,
+    params_from_header,
     save_model_file,
     validate_params,
 )
@@ -775,13 +777,8 @@ class KDERadarModel(BaseEstimator):
             "clutter_xy": ("f", 2, True),
         }
         header, a = load_model_file(path, KIND, (1, FORMAT_VERSION), schema)
-        try:
-            p = {k: (tuple(v) if isinstance(v, list) else v) for k, v in dict(header["params"]).items()}
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ModelFileError(f"{path}: field 'params' is missing or not a mapping ({exc})") from None
-        p.setdefault("prior_rate", "global")  # format 1
-        validate_params(p, cls._hyperparameter_constraints, path)
-        model = cls(**p)
+        defaults = {"prior_rate": "global"}  # format 1
+        model = cls(**params_from_header(path, header, cls._hyperparameter_constraints, defaults))
         _check_arrays(path, a)
         model.states_, model.z_, model.log_row_ = a["states"], a["z"], a["log_row"].astype(np.int64)
         model.grid_x_, model.grid_y_, model.log_h_ = a["grid_x"], a["grid_y"], a["log_h"]
@@ -793,10 +790,7 @@ class KDERadarModel(BaseEstimator):
         model.rel_variance_ = tuple(float(v) for v in check_positive(path, "rel_variance_fitted", rv, MAX_POSITION**2))
         model.relevance_scores_ = np.asarray(header.get("relevance_scores", []), dtype=np.float64)
         model.scale_ = np.sqrt(np.asarray(model.rel_variance_, dtype=np.float64))
-        cycle_time = header.get("cycle_time", float("nan"))
-        if cycle_time is not None and not (isinstance(cycle_time, float) and np.isnan(cycle_time)):
-            check_positive(path, "cycle_time", cycle_time)
-        model.cycle_time_ = float("nan") if cycle_time is None else float(cycle_time)
+        model.cycle_time_ = optional_positive(path, "cycle_time", header.get("cycle_time"))
         model.card_ = header.get("card", {})
         model._build()
         return model
