@@ -103,12 +103,12 @@ def make_radar(name: str, model: str | os.PathLike[str] | None = None) -> RadarS
 @functools.lru_cache(maxsize=32)
 def _load_radar(name: str, path: str | None, mtime_ns: int) -> RadarSensor:
     """The radar ``name`` from the file at ``path`` (``mtime_ns`` only keys the cache)."""
-    if name == "ideal":
+    if name == "ideal" or path is None:
         return IdealRadar()
     if name == "gaussian":
         from sensor_envs.radar.gaussian import GaussianRadar
 
-        return GaussianRadar.load(path)  # type: ignore[arg-type]
+        return GaussianRadar.load(path)
     from sensor_envs.radar.kde import KDERadarModel
 
-    return KDERadarModel.load(path)  # type: ignore[arg-type]
+    return KDERadarModel.load(path)
