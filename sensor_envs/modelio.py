@@ -385,8 +385,21 @@ def params_from_header(
     return params
 
 
-def optional_positive(path: str | os.PathLike[str], field: str, value: Any) -> float:
-    """A header scalar that is either absent (``None``/NaN, returned as NaN) or a finite number ``> 0``."""
+def optional_positive(path: str | os.PathLike[str] | None, field: str, value: Any) -> float:
+    """A scalar that is either absent (``None``/NaN, returned as NaN) or a finite number ``> 0``, e.g. a cycle time.
+
+    Raises:
+        ModelFileError: naming the file and the field, for a value read from the model file ``path``.
+        ValueError: ``"<field>: ..."`` for a function argument (``path=None``).
+    """
     if value is None or (isinstance(value, float) and np.isnan(value)):
         return float("nan")
-    return float(check_positive(path, field, value))
+    if path is not None:
+        return float(check_positive(path, field, value))
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float, np.integer, np.floating))
+        or not 0 < value < np.inf
+    ):
+        raise ValueError(f"{field}: expected a finite number > 0 or None, got {value!r}")
+    return float(value)

@@ -305,3 +305,10 @@ def test_cli_help_lists_only_commands_that_exist():
     commands = set(parser._subparsers._group_actions[0].choices)
     advertised = set(re.findall(r"``(\w+)``", parser.description))
     assert advertised and advertised <= commands, advertised - commands
+
+
+def test_fit_refuses_a_cycle_time_the_file_could_not_hold():
+    log = record_rig_log(1, 5, 4, np.random.default_rng(0))
+    for cls in (GaussianRadar, KDERadarModel):
+        with pytest.raises(ValueError, match=re.escape("cycle_time: expected a finite number > 0 or None, got -1.0")):
+            cls().fit(log, cycle_time=-1.0)

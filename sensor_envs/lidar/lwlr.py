@@ -792,8 +792,7 @@ def _check_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dict[str,
         ModelFileError: naming the file and the field: a probability outside ``[0, 1]``, a width or sigma
             ``<= 0`` or above :data:`MAX_SIGMA` m, a grid that is not increasing and evenly spaced, ...
     """
-    check_increasing(path, "bearings", arr["bearings"], min_size=1)
-    check_range(path, "bearings", arr["bearings"], -2 * np.pi, 2 * np.pi)
+    check_range(path, "bearings", arr["bearings"], -2 * np.pi, 2 * np.pi)  # any order: some scanners turn clockwise
     check_range(path, "range_grid", check_increasing(path, "range_grid", arr["range_grid"], regular=True), 0.0)
     ag = check_increasing(path, "alpha_grid", arr["alpha_grid"], regular=True)
     check_range(path, "alpha_grid", ag, 0.0, np.pi / 2 + 1e-9)

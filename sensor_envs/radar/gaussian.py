@@ -75,6 +75,7 @@ class GaussianRadar(BaseEstimator):
     def fit(self, log: RadarLog, cycle_time: float | None = None) -> GaussianRadar:
         """Fit means, covariances, detection probabilities and clutter on ``log``; returns self."""
         validate_params(self.get_params(), self._hyperparameter_constraints)
+        cycle = optional_positive(None, "cycle_time", cycle_time)
         edges = np.asarray(self.range_edges, dtype=np.float64)
         tt = target_tuples(log)
         det = ~np.isnan(tt.z[:, 0])
@@ -99,7 +100,7 @@ class GaussianRadar(BaseEstimator):
         else:
             self.clutter_mean_, self.clutter_cov_ = np.zeros(2), np.eye(2)
         self.edges_ = edges
-        self.cycle_time_ = float("nan") if cycle_time is None else float(cycle_time)
+        self.cycle_time_ = cycle
         return self
 
     @staticmethod

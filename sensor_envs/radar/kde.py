@@ -352,6 +352,7 @@ class KDERadarModel(BaseEstimator):
             self.
         """
         self._check_params()
+        cycle = optional_positive(None, "cycle_time", cycle_time)
         rng = np.random.default_rng(self.random_state)
         tt = target_tuples(log)
         det = ~np.isnan(tt.z[:, 0])
@@ -397,7 +398,7 @@ class KDERadarModel(BaseEstimator):
         )
         counts, xy = clutter_counts(log)
         self.clutter_counts_, self.clutter_xy_ = counts, xy
-        self.cycle_time_ = float("nan") if cycle_time is None else float(cycle_time)
+        self.cycle_time_ = cycle
         self._build()
         return self
 
