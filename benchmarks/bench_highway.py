@@ -25,8 +25,7 @@ import numpy as np
 
 import sensor_envs  # noqa: F401
 from sensor_envs.envs.highway import RadarObservation
-
-RADARS = ("ideal", "gaussian", "kde")
+from sensor_envs.radar.sensors import RADAR_NAMES as RADARS
 
 
 def _timed(fn: Callable, sink: list[float]) -> Callable:

@@ -15,9 +15,10 @@ import numpy as np
 
 from sensor_envs.geometry import raycast_pose
 from sensor_envs.lidar.log import load_log
-from sensor_envs.lidar.lwlr import LearnedLidar, LidarLWLR, default_model_path
+from sensor_envs.lidar.lwlr import DEFAULT_MODEL_FILE, LearnedLidar, LidarLWLR
 from sensor_envs.lidar.rig import NeatoRig, sample_free_poses
 from sensor_envs.maps import load_map
+from sensor_envs.modelio import default_model_path
 
 
 def per_scan_us(model: LidarLWLR, n: int, rng: np.random.Generator) -> dict[str, float]:
@@ -48,7 +49,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--scans", type=int, default=2000)
     args = ap.parse_args()
-    model = LidarLWLR.load(args.model or default_model_path())
+    model = LidarLWLR.load(args.model or default_model_path(DEFAULT_MODEL_FILE))
     rng = np.random.default_rng(0)
     runs = [per_scan_us(model, args.scans, rng) for _ in range(args.repeats)]
     med = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}

@@ -14,6 +14,7 @@ import numpy as np
 
 import sensor_envs  # noqa: F401
 from sensor_envs.geometry import as_segments, raycast_pose
+from sensor_envs.lidar.sensors import LIDAR_NAMES
 
 
 def steps_per_second(lidar: str, steps: int, map_name: str) -> float:
@@ -52,7 +53,7 @@ def raycast_us(n_segments: int, repeats: int = 200) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--lidars", nargs="+", default=["ideal", "gaussian", "learned"])
+    parser.add_argument("--lidars", nargs="+", default=list(LIDAR_NAMES))
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--map", default="seed_room")
     args = parser.parse_args()

@@ -44,6 +44,7 @@ from sklearn.ensemble import HistGradientBoostingRegressor
 from sensor_envs.geometry import raycast_pose
 from sensor_envs.lidar.log import LidarLog, load_log
 from sensor_envs.lidar.lwlr import P_EPS, LidarLWLR, cell_statistics, lwlr
+from sensor_envs.rng import fold_ids
 
 DIRECT = {
     "bearing": ["bearing"],
@@ -125,7 +126,7 @@ def lwlr_p_null_oof(
     for k in np.unique(fold):
         tr, te = fold != k, fold == k
         m = LidarLWLR(variant="extended", n_folds=min(inner, int(tr.sum())), progress=False)
-        h, _ = m._cross_validate(r0[tr], a0[tr], [(("p_null",), y[tr], w[tr], False)])  # noqa: SLF001
+        h, _ = m._cross_validate(r0[tr], a0[tr], [(("p_null",), y[tr], w[tr], False)])
         h_r, h_a, h_b, deg = h["p_null"]
         out[te] = lwlr(r0[te], a0[te], r0[tr], a0[tr], y[tr], w[tr], h_r, h_a, (h_b,), (int(deg),))[0, 0, ..., 0]
         widths.append(h["p_null"])
@@ -165,7 +166,7 @@ def _explained(
 
 def diagnose(log: LidarLog, n_folds: int, seed: int, inner: int) -> tuple[dict[str, Any], tuple[Any, ...]]:
     """All figures of the diagnosis (see the module docstring) and the arrays of the plot."""
-    fold = np.random.default_rng(seed).permutation(np.arange(log.n_poses) % n_folds)
+    fold = fold_ids(log.n_poses, n_folds, random_state=seed)
     cells = cell_table(log)
     q_all, widths = lwlr_p_null_oof(log, cells["r"], cells["alpha"], fold, inner)
     hit = np.isfinite(cells["r"]) & (cells["n"] > 0)
@@ -323,10 +324,10 @@ def markdown(d: dict[str, Any]) -> str:
 
 def plot(data: tuple[Any, ...], path: Path) -> None:
     """Histogram of the fractions, residual vs range and break distance, residual map (pose x bearing)."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     y, q, r, brk, res_all = data
     fig, ax = plt.subplots(1, 4, figsize=(18, 4))

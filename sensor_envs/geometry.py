@@ -5,7 +5,8 @@ Written once, used everywhere (world truth -> geometry -> sensor model -> wrappe
 * line-segment maps: exact, vectorised raycasting of K bearings from P poses against
   M segments, returning range [m], angle of incidence [rad] and the index of the hit segment;
 * rectangles (vehicles): corners, closest corner, angular extent and occlusion as seen from a
-  sensor.
+  sensor;
+* frames: points to and from a pose's frame, quaternion to yaw, free poses in a map.
 
 Conventions: metres and radians; a pose is ``(x, y, theta)`` in the map (world) frame; the sensor
 frame has x forward and y left; bearings are measured counter-clockwise from the sensor x axis.
@@ -25,6 +26,8 @@ __all__ = [
     "wrap_angle",
     "to_frame",
     "from_frame",
+    "quaternion_yaw",
+    "sample_free_poses",
     "rectangle_corners",
     "rectangle_segments",
     "closest_corner",
@@ -181,6 +184,59 @@ def from_frame(points: ArrayLike, pose: ArrayLike) -> NDArray[np.float64]:
     x, y, th = np.asarray(pose, dtype=np.float64)
     c, s = np.cos(th), np.sin(th)
     return np.stack([x + c * pts[..., 0] - s * pts[..., 1], y + s * pts[..., 0] + c * pts[..., 1]], axis=-1)
+
+
+def quaternion_yaw(w: float, x: float, y: float, z: float) -> float:
+    """Yaw [rad] (rotation about z, counter-clockwise, in ``[-pi, pi]``) of the unit quaternion ``w + xi + yj + zk``."""
+    return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+
+
+def sample_free_poses(
+    segments: NDArray[np.float64],
+    n: int,
+    rng: np.random.Generator,
+    clearance: float = 0.2,
+    *,
+    away_from: ArrayLike | None = None,
+    min_distance: float = 0.0,
+    enclosure_rays: int = 4,
+    max_tries: int = 100,
+) -> NDArray[np.float64]:
+    """``(n, 3)`` poses ``x, y, theta`` [m, rad] drawn uniformly in free space of a segment map.
+
+    Positions are uniform in the map's bounding box, at least ``clearance`` [m] from every wall, at least
+    ``min_distance`` [m] from ``away_from`` (a point, if given) and enclosed: rays in ``enclosure_rays``
+    evenly spaced directions all hit a wall. Each try draws ``4 n`` candidate positions; headings are
+    uniform in ``[-pi, pi)`` and drawn after the positions.
+
+    Args:
+        segments: ``(M, 2, 2)`` map [m].
+        n: number of poses.
+        rng: the generator to draw from (e.g. the world's stream).
+        clearance: least distance to every wall [m].
+        away_from: ``(2,)`` a position [m] the poses keep ``min_distance`` from, or ``None``.
+        min_distance: see ``away_from`` [m].
+        enclosure_rays: number of rays of the enclosure test.
+        max_tries: rounds of ``4 n`` candidates before giving up.
+
+    Raises:
+        ValueError: when fewer than ``n`` free positions are found.
+    """
+    lo, hi = segments.reshape(-1, 2).min(0), segments.reshape(-1, 2).max(0)
+    rays = np.arange(enclosure_rays) * (2 * np.pi / enclosure_rays)
+    out: list[NDArray[np.float64]] = []
+    for _ in range(max_tries):
+        xy = rng.uniform(lo, hi, (4 * n, 2))
+        ok = point_segment_distance(xy, segments).min(axis=1) >= clearance
+        if away_from is not None:
+            ok &= np.hypot(*(xy - np.asarray(away_from, dtype=np.float64)).T) >= min_distance
+        r, _, _ = raycast_pose(np.column_stack([xy, np.zeros(len(xy))]), rays, segments)
+        ok &= np.isfinite(r).all(axis=1)
+        out.extend(xy[ok])
+        if len(out) >= n:
+            xy = np.asarray(out[:n])
+            return np.column_stack([xy, rng.uniform(-np.pi, np.pi, n)])
+    raise ValueError(f"map: found only {len(out)} of {n} free poses (clearance {clearance} m)")
 
 
 def rectangle_corners(

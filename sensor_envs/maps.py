@@ -26,7 +26,7 @@ import numpy as np
 import yaml
 from numpy.typing import ArrayLike, NDArray
 
-from sensor_envs.geometry import as_segments
+from sensor_envs.geometry import as_segments, from_frame
 
 __all__ = ["SegmentMap", "load_map", "BUILTIN_MAPS", "read_ros_map", "occupancy_to_segments"]
 
@@ -188,7 +188,7 @@ def _read_image(img_path: Path, yaml_path: Path) -> NDArray[np.float64]:
     if raw[:2] == b"P5":
         return _parse_pgm(raw, img_path)
     try:
-        from PIL import Image  # noqa: PLC0415  (only for non-PGM images)
+        from PIL import Image  # only for non-PGM images
 
         with Image.open(img_path) as im:
             return np.asarray(im.convert("L"), dtype=np.float64)
@@ -238,11 +238,7 @@ def occupancy_to_segments(occupied: NDArray[np.bool_], resolution: float, origin
     if not segs:
         return np.zeros((0, 2, 2))
     s = np.asarray(segs, dtype=np.float64).reshape(-1, 2, 2) * resolution
-    ox, oy, yaw = np.asarray(origin, dtype=np.float64)
-    c, si = np.cos(yaw), np.sin(yaw)
-    x = ox + c * s[..., 0] - si * s[..., 1]
-    y = oy + si * s[..., 0] + c * s[..., 1]
-    return np.stack([x, y], axis=-1)
+    return from_frame(s, origin)
 
 
 def _runs(change: NDArray[np.bool_]) -> list[tuple[int, int, int]]:

@@ -100,3 +100,306 @@ def load_model_file(
         if finite and arr.dtype.kind == "f" and not np.isfinite(arr).all():
             raise ModelFileError(f"{path}: field {name!r} holds NaN or infinite values")
     return header, data
+
+
+# ------------------------------------------------------------------------------- hyperparameter tables
+class Options:
+    """Constraint: the value is one of ``values`` (compared with ``==``, booleans kept apart from numbers)."""
+
+    def __init__(self, *values: Any) -> None:
+        self.values = values
+
+    def accepts(self, value: Any) -> bool:
+        """Whether ``value`` satisfies the constraint."""
+        return any(type(value) is type(v) and value == v for v in self.values) or any(
+            isinstance(v, str) and value == v for v in self.values
+        )
+
+    def __str__(self) -> str:
+        return f"one of {self.values}"
+
+
+class Interval:
+    """Constraint: a real (or, with ``integer``, a whole) number in ``[low, high]`` (``None`` = unbounded).
+
+    ``open_low``/``open_high`` exclude the bound. Booleans are not numbers here.
+    """
+
+    def __init__(
+        self,
+        low: float | None,
+        high: float | None,
+        *,
+        integer: bool = False,
+        open_low: bool = False,
+        open_high: bool = False,
+    ) -> None:
+        self.low, self.high, self.integer = low, high, integer
+        self.open_low, self.open_high = open_low, open_high
+
+    def accepts(self, value: Any) -> bool:
+        """Whether ``value`` satisfies the constraint."""
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+            return False
+        if self.integer and not isinstance(value, (int, np.integer)):
+            return False
+        v = float(value)
+        if not np.isfinite(v):
+            return False
+        if self.low is not None and (v < self.low or (self.open_low and v == self.low)):
+            return False
+        return not (self.high is not None and (v > self.high or (self.open_high and v == self.high)))
+
+    def __str__(self) -> str:
+        kind = "an integer" if self.integer else "a finite number"
+        lo = "(-inf" if self.low is None else f"{'(' if self.open_low else '['}{self.low:g}"
+        hi = "inf)" if self.high is None else f"{self.high:g}{')' if self.open_high else ']'}"
+        return f"{kind} in {lo}, {hi}"
+
+
+class Numbers:
+    """Constraint: a sequence (tuple or list) of numbers, each satisfying ``item``.
+
+    Args:
+        item: constraint of every element.
+        length: exact length, or ``None``.
+        min_length: least length.
+        increasing: elements must be strictly increasing.
+    """
+
+    def __init__(
+        self, item: Interval, *, length: int | None = None, min_length: int = 1, increasing: bool = False
+    ) -> None:
+        self.item, self.length, self.min_length, self.increasing = item, length, min_length, increasing
+
+    def accepts(self, value: Any) -> bool:
+        """Whether ``value`` satisfies the constraint."""
+        if not isinstance(value, (tuple, list, np.ndarray)) or (isinstance(value, np.ndarray) and value.ndim != 1):
+            return False
+        if len(value) < self.min_length or (self.length is not None and len(value) != self.length):
+            return False
+        if not all(self.item.accepts(v) for v in value):
+            return False
+        return not (self.increasing and not bool(np.all(np.diff(np.asarray(value, dtype=np.float64)) > 0)))
+
+    def __str__(self) -> str:
+        n = f"{self.length}" if self.length is not None else f">= {self.min_length}"
+        inc = " strictly increasing" if self.increasing else ""
+        return f"a sequence of {n}{inc} values, each {self.item}"
+
+
+class InstanceOf:
+    """Constraint: ``isinstance(value, types)`` (``bool`` only matches booleans)."""
+
+    def __init__(self, *types: type) -> None:
+        self.types = types
+
+    def accepts(self, value: Any) -> bool:
+        """Whether ``value`` satisfies the constraint."""
+        if isinstance(value, (bool, np.bool_)) and bool not in self.types:
+            return False
+        return isinstance(value, self.types)
+
+    def __str__(self) -> str:
+        return "an instance of " + " or ".join(t.__name__ for t in self.types)
+
+
+class _NoneConstraint:
+    def accepts(self, value: Any) -> bool:
+        return value is None
+
+    def __str__(self) -> str:
+        return "None"
+
+
+Constraint = Options | Interval | Numbers | InstanceOf | _NoneConstraint | None
+"""One accepted form of a hyperparameter; ``None`` in a constraint list accepts ``None``."""
+RANDOM_STATE: list[Constraint] = [None, Interval(0, None, integer=True), InstanceOf(np.random.Generator)]
+"""The constraints of a ``random_state`` hyperparameter (seed, generator or ``None``)."""
+
+
+def validate_params(
+    params: dict[str, Any], constraints: dict[str, list[Constraint]], source: str | os.PathLike[str] | None = None
+) -> None:
+    """Check hyperparameters against a declarative table (one table per model, used by ``fit`` and ``load``).
+
+    Args:
+        params: ``name -> value`` (e.g. ``estimator.get_params()`` or a model file's header ``params``).
+        constraints: ``name -> list of accepted forms`` (any one suffices; ``None`` accepts ``None``).
+        source: the model file the values come from, or ``None`` for constructor arguments.
+
+    Raises:
+        ValueError: ``"<name>: expected ..., got ..."`` for a bad constructor argument.
+        ModelFileError: ``"<file>: field 'params.<name>' ..."`` for a bad value read from ``source``, or a
+            name the table does not know (unknown keys are errors).
+    """
+    for name, value in params.items():
+        if name not in constraints:
+            msg = f"unknown hyperparameter (known: {sorted(constraints)})"
+            if source is not None:
+                raise ModelFileError(f"{source}: field 'params.{name}': {msg}")
+            raise ValueError(f"{name}: {msg}")
+        forms = [_NoneConstraint() if c is None else c for c in constraints[name]]
+        if any(c.accepts(value) for c in forms):
+            continue
+        msg = f"expected {' or '.join(str(c) for c in forms)}, got {value!r}"
+        if source is not None:
+            raise ModelFileError(f"{source}: field 'params.{name}' is invalid: {msg}")
+        raise ValueError(f"{name}: {msg}")
+
+
+# ----------------------------------------------------------------------------------- value checks
+# Each raises ModelFileError("<file>: field '<field>' ...") naming the first offending entry.
+def _first_bad(bad: NDArray[np.bool_]) -> str:
+    """`` at [i, j]``: where the first offending entry of an array is (empty for a scalar)."""
+    idx = np.argwhere(bad)[0]
+    return f" at [{', '.join(str(int(i)) for i in idx)}]" if idx.size else ""
+
+
+def check_finite(path: str | os.PathLike[str], field: str, arr: np.typing.ArrayLike) -> NDArray[np.float64]:
+    """``arr`` as float64, every entry finite (no NaN or inf)."""
+    a = _as_float(path, field, arr)
+    bad = ~np.isfinite(a)
+    if bad.any():
+        where = _first_bad(bad)
+        raise ModelFileError(
+            f"{path}: field {field!r} holds NaN or infinite values" + (f" (first{where})" if where else "")
+        )
+    return a
+
+
+def check_range(
+    path: str | os.PathLike[str],
+    field: str,
+    arr: np.typing.ArrayLike,
+    low: float | None = None,
+    high: float | None = None,
+) -> NDArray[np.float64]:
+    """``arr`` finite with every entry in ``[low, high]`` (``None`` = unbounded): sane magnitudes."""
+    a = check_finite(path, field, arr)
+    bad = np.zeros(a.shape, dtype=bool)
+    if low is not None:
+        bad |= a < low
+    if high is not None:
+        bad |= a > high
+    if bad.any():
+        raise ModelFileError(
+            f"{path}: field {field!r} holds {a[bad].ravel()[0]:g}{_first_bad(bad)}, outside "
+            f"[{'-inf' if low is None else f'{low:g}'}, {'inf' if high is None else f'{high:g}'}]"
+        )
+    return a
+
+
+def check_probability(path: str | os.PathLike[str], field: str, arr: np.typing.ArrayLike) -> NDArray[np.float64]:
+    """``arr`` finite with every entry a probability in ``[0, 1]``."""
+    return check_range(path, field, arr, 0.0, 1.0)
+
+
+def check_positive(
+    path: str | os.PathLike[str], field: str, arr: np.typing.ArrayLike, high: float | None = None
+) -> NDArray[np.float64]:
+    """``arr`` finite with every entry ``> 0`` (widths, sigmas, variances) and, if given, ``<= high``."""
+    a = check_range(path, field, arr, None, high)
+    bad = a <= 0
+    if bad.any():
+        raise ModelFileError(f"{path}: field {field!r} holds {a[bad].ravel()[0]:g}{_first_bad(bad)}; must be > 0")
+    return a
+
+
+def check_increasing(
+    path: str | os.PathLike[str], field: str, arr: np.typing.ArrayLike, *, min_size: int = 2, regular: bool = False
+) -> NDArray[np.float64]:
+    """``arr`` a finite 1-D grid of at least ``min_size`` strictly increasing values (evenly spaced if ``regular``)."""
+    a = check_finite(path, field, arr)
+    if a.ndim != 1 or a.size < min_size:
+        raise ModelFileError(f"{path}: field {field!r} has shape {a.shape}; expected at least {min_size} values")
+    d = np.diff(a)
+    if (d <= 0).any():
+        i = int(np.flatnonzero(d <= 0)[0])
+        raise ModelFileError(f"{path}: field {field!r} is not strictly increasing ({a[i]:g} then {a[i + 1]:g} at {i})")
+    if regular and d.size and not np.allclose(d, d[0], rtol=1e-6, atol=1e-9):
+        raise ModelFileError(f"{path}: field {field!r} is not evenly spaced (steps {d.min():g} to {d.max():g})")
+    return a
+
+
+def check_shape(path: str | os.PathLike[str], field: str, arr: np.typing.ArrayLike, shape: tuple[int, ...]) -> None:
+    """``arr`` has exactly ``shape`` (lengths consistent with the other fields)."""
+    got = np.shape(arr)
+    if tuple(got) != tuple(shape):
+        raise ModelFileError(f"{path}: field {field!r} has shape {tuple(got)}, expected {tuple(shape)}")
+
+
+def _as_float(path: str | os.PathLike[str], field: str, arr: np.typing.ArrayLike) -> NDArray[np.float64]:
+    try:
+        return np.asarray(arr, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ModelFileError(f"{path}: field {field!r} is not numeric ({exc})") from None
+
+
+def default_model_path(file_name: str) -> Path:
+    """Path of a model file shipped in ``models/`` (package ``sensor_envs.models``), e.g. ``"radar_kde.npz"``.
+
+    The file may be absent (a checkout without the shipped models): loading it then raises ``ModelFileError``.
+
+    Raises:
+        ValueError: when ``file_name`` is not a bare file name.
+    """
+    from importlib import resources
+
+    if not file_name or Path(file_name).name != file_name:
+        raise ValueError(f"model: expected the bare file name of a shipped model, got {file_name!r}")
+    return Path(str(resources.files("sensor_envs.models").joinpath(file_name)))
+
+
+def model_file_key(path: str | os.PathLike[str]) -> tuple[str, int]:
+    """``(resolved path, modification time [ns])`` of a model file: the key of the per-process model caches.
+
+    A file rewritten in place gets a new key (and is loaded again); a missing file gets time ``-1``.
+    """
+    p = Path(path).expanduser().resolve()
+    try:
+        return str(p), p.stat().st_mtime_ns
+    except OSError:
+        return str(p), -1
+
+
+def params_from_header(
+    path: str | os.PathLike[str],
+    header: dict[str, Any],
+    constraints: dict[str, list[Constraint]],
+    defaults: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """A model file's hyperparameters (header field ``params``), checked against the model's table.
+
+    JSON lists become tuples; ``defaults`` fill parameters that older format versions lack.
+
+    Raises:
+        ModelFileError: naming the file and the field: ``params`` missing or not a mapping, an unknown
+            hyperparameter, or a value the table refuses.
+    """
+    raw = header.get("params") if isinstance(header, dict) else None
+    if not isinstance(raw, dict):
+        raise ModelFileError(f"{path}: field 'params' is missing or not a mapping")
+    params = {**(defaults or {}), **{k: (tuple(v) if isinstance(v, list) else v) for k, v in raw.items()}}
+    validate_params(params, constraints, path)
+    return params
+
+
+def optional_positive(path: str | os.PathLike[str] | None, field: str, value: Any) -> float:
+    """A scalar that is either absent (``None``/NaN, returned as NaN) or a finite number ``> 0``, e.g. a cycle time.
+
+    Raises:
+        ModelFileError: naming the file and the field, for a value read from the model file ``path``.
+        ValueError: ``"<field>: ..."`` for a function argument (``path=None``).
+    """
+    if value is None or (isinstance(value, float) and np.isnan(value)):
+        return float("nan")
+    if path is not None:
+        return float(check_positive(path, field, value))
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float, np.integer, np.floating))
+        or not 0 < value < np.inf
+    ):
+        raise ValueError(f"{field}: expected a finite number > 0 or None, got {value!r}")
+    return float(value)

@@ -15,7 +15,8 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import sensor_envs  # noqa: F401  (registers the ids)
 from sensor_envs.envs.highway import IDEAL_KINEMATICS, RadarObservation, load_radar, make_highway
 from sensor_envs.geometry import occluded_fraction, rectangle_corners, to_frame
-from sensor_envs.radar.sensors import default_model_path
+from sensor_envs.modelio import default_model_path
+from sensor_envs.radar.sensors import DEFAULT_MODEL_FILES
 
 FAST = "sensor_envs/HighwayFast-v0"
 # Small scenes keep the slower worlds (merge 15 Hz, intersection) cheap.
@@ -29,7 +30,7 @@ SMALL = {
 
 
 def _model_available(radar: str) -> bool:
-    return radar == "ideal" or default_model_path(radar).is_file()
+    return radar == "ideal" or default_model_path(DEFAULT_MODEL_FILES[radar]).is_file()
 
 
 RADARS = [
@@ -549,7 +550,7 @@ def test_user_model_file_is_loaded_once_per_path(tmp_path):
     import shutil
 
     mine = tmp_path / "my_radar.npz"
-    shutil.copy(default_model_path("kde"), mine)
+    shutil.copy(default_model_path(DEFAULT_MODEL_FILES["kde"]), mine)
     a = gym.make(FAST, radar="kde", radar_model=str(mine), config={"vehicles_count": 10})
     b = gym.make(FAST, radar="kde", radar_model=mine, config={"vehicles_count": 10})
     ra, rb = a.get_wrapper_attr("radar"), b.get_wrapper_attr("radar")

@@ -8,6 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from scipy import stats
+from sklearn.exceptions import NotFittedError
 
 import sensor_envs  # noqa: F401  (registers the ids)
 from sensor_envs.cli.main import main as cli_main
@@ -179,7 +180,7 @@ def test_fit_finds_persistent_nulls(rig_fit):
 
 
 def test_rig_nulls_persist_per_cell_and_the_fit_finds_them():
-    from sensor_envs.lidar.validate import log_statistics  # noqa: PLC0415
+    from sensor_envs.lidar.validate import log_statistics
 
     log, _ = NeatoRig(null_rho=0.9).record(ROOM, np.random.default_rng(6), n_poses=12, repeats=40)
     independent, _ = NeatoRig().record(ROOM, np.random.default_rng(6), n_poses=12, repeats=40)
@@ -259,7 +260,7 @@ def test_bad_model_files_name_the_field(rig_fit, tmp_path):
 def test_estimator_contract():
     m = LidarLWLR(variant="nope")
     assert vars(m)["variant"] == "nope"  # __init__ only stores
-    with pytest.raises(RuntimeError, match="not fitted"):
+    with pytest.raises(NotFittedError, match="not fitted"):
         m.params(np.zeros((1, 3)), ROOM)
     log, _ = NeatoRig().record(ROOM, np.random.default_rng(0), n_poses=4, repeats=2)
     with pytest.raises(ValueError, match=re.escape("variant: expected one of")):
@@ -319,8 +320,8 @@ def test_cli_record_fit_validate(tmp_path, capsys):
 
 
 def test_real_data_model_beats_baselines_on_held_out_poses(real_data):
-    from sensor_envs.lidar.log import load_log  # noqa: PLC0415
-    from sensor_envs.lidar.validate import baseline_params, fit_gaussian_lidar, table_one  # noqa: PLC0415
+    from sensor_envs.lidar.log import load_log
+    from sensor_envs.lidar.validate import baseline_params, fit_gaussian_lidar, table_one
 
     log = load_log(real_data / "neato_mar27_train.npz")
     train, test = log.subset(np.arange(29) % 3 != 0), log.subset(np.arange(29) % 3 == 0)
@@ -337,7 +338,7 @@ def test_real_data_model_beats_baselines_on_held_out_poses(real_data):
 
 
 def test_cross_validated_table_runs_on_a_small_rig_log():
-    from sensor_envs.lidar.validate import cross_validate_log  # noqa: PLC0415
+    from sensor_envs.lidar.validate import cross_validate_log
 
     log, _ = NeatoRig().record(ROOM, np.random.default_rng(4), n_poses=6, repeats=10)
     small = {k: v for k, v in SMALL.items() if k not in ("n_folds", "progress")}

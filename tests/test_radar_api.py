@@ -3,7 +3,8 @@ import pickle
 import numpy as np
 import pytest
 
-from sensor_envs.radar.sensors import IdealRadar, RadarSensor, default_model_path, make_radar
+from sensor_envs.modelio import default_model_path
+from sensor_envs.radar.sensors import DEFAULT_MODEL_FILES, IdealRadar, RadarSensor, make_radar
 
 
 def test_unknown_name_is_named():
@@ -19,7 +20,7 @@ def test_ideal_takes_no_model():
 
 @pytest.mark.parametrize("name", ["gaussian", "kde"])
 def test_default_models_load_sample_and_pickle(name):
-    assert default_model_path(name).is_file()
+    assert default_model_path(DEFAULT_MODEL_FILES[name]).is_file()
     radar = make_radar(name)
     assert isinstance(radar, RadarSensor)
     corners = np.array([[20.0, 3.0], [45.0, -3.5], [70.0, 0.0]])

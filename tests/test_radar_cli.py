@@ -24,10 +24,12 @@ def test_bad_log_gives_exit_code_2_and_names_the_file(tmp_path, capsys):
 
 
 def test_validate_the_shipped_model_finds_its_shipped_baseline(tmp_path):
-    from sensor_envs.radar.sensors import default_model_path
+    from sensor_envs.modelio import default_model_path
+    from sensor_envs.radar.sensors import DEFAULT_MODEL_FILES
 
     test = tmp_path / "test.csv"
     assert main(["record", "radar", "--out", str(test), "--sequences", "3", "--cycles", "10", "--seed", "2"]) == 0
-    assert main(["validate", "radar", str(default_model_path("kde")), str(test), "--out", str(tmp_path / "r")]) == 0
+    kde = default_model_path(DEFAULT_MODEL_FILES["kde"])
+    assert main(["validate", "radar", str(kde), str(test), "--out", str(tmp_path / "r")]) == 0
     rep = json.loads((tmp_path / "r" / "report.json").read_text())
-    assert rep["baseline_file"] == str(default_model_path("gaussian"))
+    assert rep["baseline_file"] == str(default_model_path(DEFAULT_MODEL_FILES["gaussian"]))

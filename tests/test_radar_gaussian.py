@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
+from sklearn.exceptions import NotFittedError
 
 from sensor_envs.radar.gaussian import GaussianRadar
 from sensor_envs.radar.log import target_tuples
@@ -51,7 +52,7 @@ def test_save_load_roundtrip(fitted, tmp_path):
 
 
 def test_unfitted_and_bad_edges():
-    with pytest.raises(RuntimeError, match="not fitted"):
+    with pytest.raises(NotFittedError, match="not fitted"):
         GaussianRadar().sample_clutter(np.random.default_rng(0))
     log = record_rig_log(1, 5, 4, np.random.default_rng(0))
     with pytest.raises(ValueError, match="range_edges"):

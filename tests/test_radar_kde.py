@@ -2,9 +2,10 @@ import pickle
 
 import numpy as np
 import pytest
+from sklearn.exceptions import NotFittedError
 
 from sensor_envs.modelio import ModelFileError
-from sensor_envs.radar.kde import KDERadarModel, NotFittedError
+from sensor_envs.radar.kde import KDERadarModel
 from sensor_envs.radar.log import REQUIRED_COLUMNS, RadarLog, target_tuples
 from sensor_envs.radar.rig import record_rig_log
 from sensor_envs.radar.validate import chi_square, lag1_autocorr, rollout, split_by_blocks

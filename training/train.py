@@ -49,10 +49,10 @@ def load_config(path: Path, env_id: str, overrides: list[str]) -> dict[str, Any]
 
 def train(env_id: str, cfg: dict[str, Any], out: Path, seed: int) -> dict[str, Any]:
     """Train with ``cfg`` into ``out``; returns the final evaluation summary."""
-    import stable_baselines3 as sb3  # noqa: PLC0415
-    from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback  # noqa: PLC0415
-    from stable_baselines3.common.env_util import make_vec_env  # noqa: PLC0415
-    from stable_baselines3.common.evaluation import evaluate_policy  # noqa: PLC0415
+    import stable_baselines3 as sb3
+    from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.evaluation import evaluate_policy
 
     env_kwargs = dict(cfg.get("env_kwargs") or {})
     n_envs = int(cfg.get("n_envs", 1))

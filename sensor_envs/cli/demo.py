@@ -20,17 +20,16 @@ import gymnasium as gym
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from numpy.typing import NDArray  # noqa: E402
-from tqdm import tqdm  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from numpy.typing import NDArray
+from tqdm import tqdm
 
-import sensor_envs  # noqa: E402,F401  (registers the ids)
+import sensor_envs  # noqa: F401  (registers the ids)
+from sensor_envs.lidar.sensors import LIDAR_NAMES
+from sensor_envs.radar.sensors import RADAR_NAMES
 
-__all__ = ["run_demo", "reactive_action", "DEMO_LIDARS"]
-
-DEMO_LIDARS = ("ideal", "gaussian", "learned")
-DEMO_RADARS = ("ideal", "gaussian", "kde")
+__all__ = ["run_demo", "reactive_action"]
 
 
 def reactive_action(obs: NDArray[np.float32], n_bearings: int = 360, clearance: float = 0.45) -> NDArray[np.float32]:
@@ -144,10 +143,10 @@ def run_demo(out: str | Path, seed: int = 0, episodes: int = 10) -> dict[str, An
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     report: dict[str, Any] = {"seed": seed, "neato": {}}
-    for lidar in tqdm(DEMO_LIDARS, desc="Neato-v0 lidars"):
+    for lidar in tqdm(LIDAR_NAMES, desc="Neato-v0 lidars"):
         report["neato"][lidar] = _drive(lidar, seed, episodes, out)
-    _scan_figure(DEMO_LIDARS, seed, out / "neato_scans.png")
-    report["highway_fast"] = {radar: _highway(radar, seed, 20, out) for radar in tqdm(DEMO_RADARS, desc="radars")}
+    _scan_figure(LIDAR_NAMES, seed, out / "neato_scans.png")
+    report["highway_fast"] = {radar: _highway(radar, seed, 20, out) for radar in tqdm(RADAR_NAMES, desc="radars")}
     (out / "report.json").write_text(json.dumps(report, indent=2))
     print(json.dumps(report, indent=2))
     print(f"pictures and report.json written to {out.resolve()}")

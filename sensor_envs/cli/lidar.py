@@ -49,9 +49,9 @@ def _command() -> str:
 
 
 def _record(args: argparse.Namespace) -> int:
-    from sensor_envs.lidar.log import save_log  # noqa: PLC0415
-    from sensor_envs.lidar.rig import NeatoRig  # noqa: PLC0415
-    from sensor_envs.maps import load_map  # noqa: PLC0415
+    from sensor_envs.lidar.log import save_log
+    from sensor_envs.lidar.rig import NeatoRig
+    from sensor_envs.maps import load_map
 
     log, _ = NeatoRig(unit_seed=args.unit_seed).record(
         load_map(args.map).segments, np.random.default_rng(args.seed), n_poses=args.poses, repeats=args.repeats
@@ -62,9 +62,9 @@ def _record(args: argparse.Namespace) -> int:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from sensor_envs.lidar.log import load_log  # noqa: PLC0415
-    from sensor_envs.lidar.lwlr import LidarLWLR  # noqa: PLC0415
-    from sensor_envs.lidar.validate import fit_gaussian_lidar, model_card_markdown  # noqa: PLC0415
+    from sensor_envs.lidar.log import load_log
+    from sensor_envs.lidar.lwlr import LidarLWLR
+    from sensor_envs.lidar.validate import fit_gaussian_lidar, model_card_markdown
 
     log = load_log(args.log)
     t0 = time.perf_counter()
@@ -82,9 +82,9 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from sensor_envs.lidar.log import load_log  # noqa: PLC0415
-    from sensor_envs.lidar.lwlr import LidarLWLR  # noqa: PLC0415
-    from sensor_envs.lidar.validate import metrics_markdown, model_card_markdown, validate  # noqa: PLC0415
+    from sensor_envs.lidar.log import load_log
+    from sensor_envs.lidar.lwlr import LidarLWLR
+    from sensor_envs.lidar.validate import metrics_markdown, model_card_markdown, validate
 
     model = LidarLWLR.load(args.model)
     report = validate(model, load_log(args.log), args.out)

@@ -1,4 +1,4 @@
-"""The ``sensor-envs`` command line: ``demo`` (the main job), ``bench``, ``record``, ``fit``, ``validate``."""
+"""The ``sensor-envs`` command line: ``demo`` (the main job), ``record``, ``fit``, ``validate``."""
 
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_demo(args: argparse.Namespace) -> int:
-    from sensor_envs.cli.demo import run_demo  # noqa: PLC0415
+    from sensor_envs.cli.demo import run_demo
 
     run_demo(args.out, seed=args.seed, episodes=args.episodes)
     return 0

@@ -63,14 +63,14 @@ def _baseline_path(model: str) -> Path:
 
 
 def _record(args: argparse.Namespace) -> int:
-    from sensor_envs.radar.log import write_log  # noqa: PLC0415
+    from sensor_envs.radar.log import write_log
 
     if args.astyx:
-        from sensor_envs.radar.astyx import load_astyx  # noqa: PLC0415
+        from sensor_envs.radar.astyx import load_astyx
 
         log = load_astyx(args.astyx, progress=True)
     else:
-        from sensor_envs.radar.rig import RigConfig, record_rig_log  # noqa: PLC0415
+        from sensor_envs.radar.rig import RigConfig, record_rig_log
 
         log = record_rig_log(
             args.sequences,
@@ -86,9 +86,9 @@ def _record(args: argparse.Namespace) -> int:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from sensor_envs.radar.gaussian import GaussianRadar  # noqa: PLC0415
-    from sensor_envs.radar.kde import KDERadarModel  # noqa: PLC0415
-    from sensor_envs.radar.log import read_log  # noqa: PLC0415
+    from sensor_envs.radar.gaussian import GaussianRadar
+    from sensor_envs.radar.kde import KDERadarModel
+    from sensor_envs.radar.log import read_log
 
     log = read_log(args.log)
     t0 = time.perf_counter()
@@ -115,10 +115,10 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from sensor_envs.radar.gaussian import GaussianRadar  # noqa: PLC0415
-    from sensor_envs.radar.kde import KDERadarModel  # noqa: PLC0415
-    from sensor_envs.radar.log import read_log  # noqa: PLC0415
-    from sensor_envs.radar.validate import validate, write_report  # noqa: PLC0415
+    from sensor_envs.radar.gaussian import GaussianRadar
+    from sensor_envs.radar.kde import KDERadarModel
+    from sensor_envs.radar.log import read_log
+    from sensor_envs.radar.validate import validate, write_report
 
     model = KDERadarModel.load(args.model)
     base_path = Path(args.baseline) if args.baseline else _baseline_path(args.model)

@@ -35,7 +35,7 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from sensor_envs.envs.neato_render import render_world
-from sensor_envs.geometry import point_segment_distance, raycast_pose, to_frame, wrap_angle
+from sensor_envs.geometry import point_segment_distance, raycast_pose, sample_free_poses, to_frame, wrap_angle
 from sensor_envs.lidar.sensors import LidarSensor, make_lidar
 from sensor_envs.maps import SegmentMap, load_map
 from sensor_envs.rng import sensor_rng
@@ -54,7 +54,7 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     def __init__(
         self,
         *,
-        map: str | PathLike[str] | SegmentMap | NDArray[np.float64] = "seed_room",  # noqa: A002
+        map: str | PathLike[str] | SegmentMap | NDArray[np.float64] = "seed_room",
         lidar: str | LidarSensor = "ideal",
         model: str | PathLike[str] | None = None,
         lidar_kwargs: dict[str, Any] | None = None,
@@ -203,25 +203,23 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
 
     def _sample_free_pose(self, away_from: NDArray[np.float64] | None = None, tries: int = 2000) -> NDArray[np.float64]:
         """A pose with clearance from every wall, enclosed by the map, drawn from the world's stream."""
-        xmin, ymin, xmax, ymax = self.world_map.bounds
         clearance = self.robot_radius + 0.08
-        for _ in range(tries):
-            x, y = self.np_random.uniform([xmin, ymin], [xmax, ymax])
-            th = self.np_random.uniform(-np.pi, np.pi)
-            p = np.array([x, y, th])
-            if point_segment_distance(p[:2], self.world_map.segments).min() < clearance:
-                continue
-            if away_from is not None and np.hypot(*(p[:2] - away_from)) < self.min_goal_distance:
-                continue
-            if not np.isfinite(
-                raycast_pose(p, np.linspace(0, 2 * np.pi, 8, endpoint=False), self.world_map.segments)[0]
-            ).all():
-                continue  # outside the map's enclosure
-            return p
-        raise ValueError(
-            f"map {self.world_map.name!r}: found no free pose with {clearance:.2f} m clearance "
-            f"in {tries} tries; is the map enclosed and large enough for the robot?"
-        )
+        try:
+            return sample_free_poses(
+                self.world_map.segments,
+                1,
+                self.np_random,
+                clearance,
+                away_from=away_from,
+                min_distance=self.min_goal_distance,
+                enclosure_rays=8,
+                max_tries=tries // 4,  # 4 candidates per try
+            )[0]
+        except ValueError:
+            raise ValueError(
+                f"map {self.world_map.name!r}: found no free pose with {clearance:.2f} m clearance "
+                f"in {tries} tries; is the map enclosed and large enough for the robot?"
+            ) from None
 
 
 def unicycle_step(pose: NDArray[np.float64], v: float, omega: float, dt: float) -> NDArray[np.float64]:

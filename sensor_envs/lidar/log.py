@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sensor_envs.geometry import as_segments
+from sensor_envs.geometry import as_segments, quaternion_yaw
 
 __all__ = ["LidarLog", "LidarLogError", "load_log", "save_log", "read_carmen", "read_rosbag", "log_from_arrays"]
 
@@ -222,10 +222,10 @@ def save_log(log: LidarLog, path: PathLike) -> Path:
     return p
 
 
-def _map_or_none(map: Any) -> NDArray[np.float64] | None:  # noqa: A002
+def _map_or_none(map: Any) -> NDArray[np.float64] | None:
     if map is None:
         return None
-    from sensor_envs.maps import load_map  # noqa: PLC0415
+    from sensor_envs.maps import load_map
 
     return load_map(map).segments
 
@@ -251,7 +251,7 @@ def _parse_robotlaser1(
     return r, start + np.arange(n) * res, pose, float(rest[11]), max_r
 
 
-def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = None) -> LidarLog:  # noqa: A002
+def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = None) -> LidarLog:
     """Read ``FLASER`` and ``ROBOTLASER1`` lines of a CARMEN log (optionally gzipped) into a log.
 
     FLASER bearing ``i`` is ``-pi/2 + i * pi / n`` [rad]; ROBOTLASER1 uses its start angle and
@@ -295,16 +295,13 @@ def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = No
 
 
 # ---------------------------------------------------------------------------------------------- ROS bags
-def _yaw(q: Any) -> float:
-    return float(np.arctan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z)))
-
-
 def _pose_of(msg: Any) -> NDArray[np.float64]:
     """x, y, yaw of a nav_msgs/Odometry, geometry_msgs/PoseStamped or PoseWithCovarianceStamped."""
     pose = msg.pose
     if hasattr(pose, "pose"):
         pose = pose.pose
-    return np.array([pose.position.x, pose.position.y, _yaw(pose.orientation)])
+    q = pose.orientation
+    return np.array([pose.position.x, pose.position.y, quaternion_yaw(q.w, q.x, q.y, q.z)])
 
 
 def read_rosbag(
@@ -312,7 +309,7 @@ def read_rosbag(
     *,
     scan_topic: str = "/scan",
     pose_topic: str = "/odom",
-    map: Any = None,  # noqa: A002
+    map: Any = None,
 ) -> LidarLog:
     """Read ``sensor_msgs/LaserScan`` messages and a pose topic of a ROS1 or ROS2 bag (``rosbags``).
 
@@ -329,7 +326,7 @@ def read_rosbag(
     Raises:
         LidarLogError: naming the bag and topic when a topic is absent or scans differ in size.
     """
-    from rosbags.highlevel import AnyReader  # noqa: PLC0415  (optional dependency)
+    from rosbags.highlevel import AnyReader  # optional dependency
 
     p = Path(path)
     scans, st, pts, pt, bearings = [], [], [], [], None

@@ -42,18 +42,38 @@ import itertools
 import os
 import warnings
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats as sps
+from sklearn.base import BaseEstimator
+from sklearn.utils.validation import check_is_fitted
 from tqdm.auto import tqdm
 
 from sensor_envs.geometry import as_segments, raycast_pose
 from sensor_envs.lidar.log import LidarLog
-from sensor_envs.modelio import ModelFileError, load_model_file, save_model_file
+from sensor_envs.modelio import (
+    RANDOM_STATE,
+    Constraint,
+    InstanceOf,
+    Interval,
+    ModelFileError,
+    Numbers,
+    Options,
+    check_increasing,
+    check_positive,
+    check_probability,
+    check_range,
+    check_shape,
+    default_model_path,
+    load_model_file,
+    params_from_header,
+    save_model_file,
+    validate_params,
+)
+from sensor_envs.rng import fold_ids
 
 __all__ = [
     "LidarLWLR",
@@ -88,6 +108,10 @@ RHO_GRID = (0.0, 0.01, 0.03, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95)
 _PARAMS = {"seed": ("p_null", "bias", "sigma"), "extended": ("p_null", "p_spur", "bias", "log_sigma")}
 _TABLES = {"seed": _PARAMS["seed"], "extended": _PARAMS["extended"] + ("tau2",)}
 _RIDGE = (1e-3, 1e-2)  # (intercept pull to the bearing's mean, slope shrinkage) in kernel-weight units
+MAX_SIGMA = 1e3
+"""Largest standard deviation [m] (and bias magnitude) a model file may give: beyond it the file is corrupt."""
+DEFAULT_MODEL_FILE = "neato_lidar.npz"
+"""File name of the shipped rig-fitted model in ``models/``."""
 
 
 # --------------------------------------------------------------------------------------------- features
@@ -295,8 +319,8 @@ def _cv_loss(name: str, pred: NDArray[np.float64], y: NDArray[np.float64], m: ND
 
 
 # ------------------------------------------------------------------------------------------------ model
-class LidarLWLR:
-    """Per-bearing LWLR lidar model (scikit-learn style estimator).
+class LidarLWLR(BaseEstimator):
+    """Per-bearing LWLR lidar model (a scikit-learn estimator: ``get_params``/``set_params``/``clone``).
 
     Args:
         variant: ``"seed"`` (3 parameters) or ``"extended"`` (adds spurious returns, log-sigma, bearing pooling).
@@ -313,6 +337,22 @@ class LidarLWLR:
         random_state: seed or Generator for the fold assignment.
         progress: show tqdm progress bars.
     """
+
+    _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
+        "variant": [Options(*VARIANTS)],
+        "n_folds": [Interval(2, None, integer=True)],
+        "h_range_grid": [Numbers(Interval(0, None, open_low=True))],
+        "h_alpha_grid": [Numbers(Interval(0, None, open_low=True))],
+        "h_bearing_grid": [Numbers(Interval(0, None))],
+        "degree_grid": [Numbers(Interval(0, 1, integer=True))],
+        "max_range": [Interval(0, MAX_SIGMA, open_low=True)],
+        "spur_above": [Interval(0, None, open_low=True)],
+        "table_range_step": [Interval(0, None, open_low=True)],
+        "table_alpha_steps": [Interval(2, None, integer=True)],
+        "random_state": RANDOM_STATE,
+        "progress": [InstanceOf(bool)],
+    }
+    """One declarative check of every hyperparameter, used by :meth:`fit` and :meth:`load`."""
 
     def __init__(
         self,
@@ -345,18 +385,9 @@ class LidarLWLR:
 
     # ---------------------------------------------------------------------------------------- fitting
     def _check_hyper(self, log: LidarLog) -> None:
-        if self.variant not in VARIANTS:
-            raise ValueError(f"variant: expected one of {VARIANTS}, got {self.variant!r}")
+        validate_params(self.get_params(), self._hyperparameter_constraints)
         if not 2 <= self.n_folds <= log.n_poses:
             raise ValueError(f"n_folds: must be in [2, number of poses = {log.n_poses}], got {self.n_folds}")
-        for name in ("h_range_grid", "h_alpha_grid"):
-            g = np.asarray(getattr(self, name), dtype=float)
-            if g.size == 0 or not (g > 0).all():
-                raise ValueError(f"{name}: needs at least one width, all > 0, got {getattr(self, name)}")
-        if not set(self.degree_grid) <= {0, 1} or not len(self.degree_grid):
-            raise ValueError(f"degree_grid: needs degrees among (0, 1), got {self.degree_grid}")
-        if not self.max_range > 0 or not self.spur_above > 0:
-            raise ValueError("max_range and spur_above must be > 0")
         if log.ranges.shape[2] < 2:
             raise ValueError(
                 f"{log.source}: field 'ranges' has one reading per pose and bearing; the model "
@@ -456,8 +487,7 @@ class LidarLWLR:
         return float(RHO_GRID[int(np.argmax(ll))])
 
     def _folds(self, n: int) -> NDArray[np.int64]:
-        rng = np.random.default_rng(self.random_state)
-        return rng.permutation(np.arange(n) % self.n_folds)
+        return fold_ids(n, self.n_folds, random_state=self.random_state)
 
     def _cross_validate(
         self, r: NDArray[np.float64], a: NDArray[np.float64], groups: list[Any]
@@ -547,8 +577,8 @@ class LidarLWLR:
 
     # ------------------------------------------------------------------------------------ prediction
     def _check_fitted(self) -> None:
-        if not hasattr(self, "tables_"):
-            raise RuntimeError("LidarLWLR: this model is not fitted yet; call fit(log) or load it first")
+        """Raise sklearn's ``NotFittedError`` unless the model is fitted or loaded."""
+        check_is_fitted(self, "tables_", msg=_NOT_FITTED)
 
     def params_from_features(self, r: ArrayLike, alpha: ArrayLike) -> dict[str, NDArray[np.float64]]:
         """Reading-distribution parameters from features, by bilinear table lookup.
@@ -652,6 +682,7 @@ class LidarLWLR:
         intra-cell correlation ``null_rho_``): the null counts of the cells follow
         :func:`null_count_log_prob`, while each reading's marginal null probability stays ``p_null``.
         """
+        self._check_fitted()
         p = self.params_full(poses, map_segments)
         if n_repeats is None:
             return self.sample_from_params(p, rng, pose_uncertainty=True)
@@ -669,6 +700,7 @@ class LidarLWLR:
         Returns:
             Same shape as ``ranges``; ``NaN`` where missing.
         """
+        self._check_fitted()
         x = np.asarray(ranges, dtype=np.float64)
         p = self.params_full(poses, map_segments)
         if x.ndim == 3:
@@ -681,8 +713,8 @@ class LidarLWLR:
         self._check_fitted()
         hyper = {
             k: (list(v) if isinstance(v, tuple) else v)
-            for k, v in vars(self).items()
-            if not k.endswith("_") and not k.startswith("_") and k not in ("random_state", "progress")
+            for k, v in self.get_params().items()
+            if k not in ("random_state", "progress")
         }
         card = {"training": self.training_, "cv_scores": self.cv_scores_, **getattr(self, "card_extra_", {})}
         return {
@@ -726,25 +758,69 @@ class LidarLWLR:
         }
         header, arr = load_model_file(path, MODEL_KIND, (1, FORMAT_VERSION), schema)
         try:
-            model = cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in header["params"].items()})
-            model.h_, model.param_names_ = header["h"], list(header["param_names"])
+            model = cls(**params_from_header(path, header, cls._hyperparameter_constraints))
+            model.h_, model.param_names_ = dict(header["h"]), list(header["param_names"])
             model.spur_mu_, model.spur_sigma_ = float(header["spur_mu"]), float(header["spur_sigma"])
             model.p_out_ = float(header["p_out"])
             model.null_rho_ = float(header.get("null_rho", 0.0))
             card = dict(header["card"])
-        except (KeyError, TypeError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            if isinstance(exc, ModelFileError):
+                raise
             raise ModelFileError(f"{path}: field '__header__' lacks or misstates {exc}") from None
-        if model.variant not in VARIANTS or model.param_names_ != list(_TABLES[model.variant]):
+        if model.param_names_ != list(_TABLES[model.variant]):
             raise ModelFileError(f"{path}: field 'param_names' is {model.param_names_} for variant {model.variant!r}")
         t = arr["tables"]
         want = (len(model.param_names_), arr["bearings"].size, arr["range_grid"].size, arr["alpha_grid"].size)
         if t.shape != want:
             raise ModelFileError(f"{path}: field 'tables' has shape {t.shape}, expected {want}")
+        _check_values(path, model, arr)
         model.tables_, model.bearings_ = t.astype(np.float64), arr["bearings"]
         model.range_grid_, model.alpha_grid_ = arr["range_grid"], arr["alpha_grid"]
         model.training_, model.cv_scores_ = card.pop("training", {}), card.pop("cv_scores", {})
         model.card_extra_ = card
         return model
+
+
+_NOT_FITTED = "This %(name)s is not fitted yet; call fit(log) or LidarLWLR.load(path) first"
+
+
+def _check_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dict[str, NDArray[Any]]) -> None:
+    """Sane VALUES of a model file's tables, grids and fitted scalars (not only their format).
+
+    Raises:
+        ModelFileError: naming the file and the field: a probability outside ``[0, 1]``, a width or sigma
+            ``<= 0`` or above :data:`MAX_SIGMA` m, a grid that is not increasing and evenly spaced, ...
+    """
+    check_range(path, "bearings", arr["bearings"], -2 * np.pi, 2 * np.pi)  # any order: some scanners turn clockwise
+    check_range(path, "range_grid", check_increasing(path, "range_grid", arr["range_grid"], regular=True), 0.0)
+    ag = check_increasing(path, "alpha_grid", arr["alpha_grid"], regular=True)
+    check_range(path, "alpha_grid", ag, 0.0, np.pi / 2 + 1e-9)
+    for name, table in zip(model.param_names_, arr["tables"], strict=True):
+        field = f"tables[{name}]"
+        if name in ("p_null", "p_spur"):
+            check_probability(path, field, table)
+        elif name == "sigma":
+            check_positive(path, field, table, high=MAX_SIGMA)
+        elif name == "log_sigma":  # exp(50) m = 5e21 m scans: a corrupt file, not a model
+            check_range(path, field, table, np.log(1e-6), np.log(MAX_SIGMA))
+        elif name == "tau2":
+            check_range(path, field, table, 0.0, MAX_SIGMA**2)
+        else:  # bias [m]
+            check_range(path, field, table, -MAX_SIGMA, MAX_SIGMA)
+    check_range(path, "spur_mu", model.spur_mu_, -MAX_SIGMA, MAX_SIGMA)
+    check_positive(path, "spur_sigma", model.spur_sigma_, high=MAX_SIGMA)
+    check_probability(path, "p_out", model.p_out_)
+    check_range(path, "null_rho", model.null_rho_, 0.0, 0.999)
+    if not set(model.param_names_) <= set(model.h_):
+        raise ModelFileError(
+            f"{path}: field 'h' lacks kernel widths of {sorted(set(model.param_names_) - set(model.h_))}"
+        )
+    for name in model.param_names_:
+        h = model.h_[name]
+        check_shape(path, f"h[{name}]", h, (4,))
+        check_positive(path, f"h[{name}]", h[:2], high=MAX_SIGMA)
+        check_range(path, f"h[{name}]", h[2:], 0.0, None)
 
 
 def _bilinear(
@@ -840,11 +916,6 @@ class LearnedLidar:
         return np.where(x == 0, np.nan, x)
 
 
-def default_model_path() -> Path:
-    """Path of the model shipped in ``models/neato_lidar.npz`` (package ``sensor_envs.models``)."""
-    return Path(str(resources.files("sensor_envs.models").joinpath("neato_lidar.npz")))
-
-
 def load_learned_lidar(model: str | os.PathLike[str] | LidarLWLR | None = None, **kwargs: Any) -> LearnedLidar:
     """The learned lidar sensor from a model file (default: the shipped rig-fitted model).
 
@@ -856,4 +927,4 @@ def load_learned_lidar(model: str | os.PathLike[str] | LidarLWLR | None = None, 
         raise ValueError(f"lidar: the learned lidar takes only 'model', got {sorted(kwargs)}")
     if isinstance(model, LidarLWLR):
         return LearnedLidar(model)
-    return LearnedLidar(LidarLWLR.load(default_model_path() if model is None else model))
+    return LearnedLidar(LidarLWLR.load(default_model_path(DEFAULT_MODEL_FILE) if model is None else model))

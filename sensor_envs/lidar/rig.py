@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from sensor_envs.geometry import as_segments, point_segment_distance, raycast_pose
+from sensor_envs.geometry import as_segments, raycast_pose, sample_free_poses
 from sensor_envs.lidar.log import LidarLog, log_from_arrays
 
 __all__ = ["NeatoRig", "POST_BEARINGS", "BLOCKED_BEARINGS", "sample_free_poses"]
@@ -209,27 +209,3 @@ class NeatoRig:
             "p_spur": p_spur,
         }
         return log, truth
-
-
-def sample_free_poses(
-    segments: NDArray[np.float64], n: int, rng: np.random.Generator, clearance: float = 0.2, max_tries: int = 100
-) -> NDArray[np.float64]:
-    """``(n, 3)`` poses uniformly in the map's bounds, ``clearance`` [m] from walls and enclosed.
-
-    A position is enclosed when rays in four directions all hit a wall. Headings are uniform.
-
-    Raises:
-        ValueError: when fewer than ``n`` free positions are found.
-    """
-    lo, hi = segments.reshape(-1, 2).min(0), segments.reshape(-1, 2).max(0)
-    out: list[NDArray[np.float64]] = []
-    for _ in range(max_tries):
-        xy = rng.uniform(lo, hi, (4 * n, 2))
-        ok = point_segment_distance(xy, segments).min(axis=1) >= clearance
-        r, _, _ = raycast_pose(np.column_stack([xy, np.zeros(len(xy))]), np.arange(4) * np.pi / 2, segments)
-        ok &= np.isfinite(r).all(axis=1)
-        out.extend(xy[ok])
-        if len(out) >= n:
-            xy = np.asarray(out[:n])
-            return np.column_stack([xy, rng.uniform(-np.pi, np.pi, n)])
-    raise ValueError(f"map: found only {len(out)} of {n} free poses (clearance {clearance} m)")

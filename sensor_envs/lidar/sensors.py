@@ -9,12 +9,15 @@ interface.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from os import PathLike
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
+
+from sensor_envs.modelio import default_model_path, model_file_key
 
 __all__ = ["LidarSensor", "IdealLidar", "GaussianLidar", "make_lidar", "LIDAR_NAMES"]
 
@@ -102,14 +105,19 @@ class GaussianLidar:
 
 
 LIDAR_NAMES = ("ideal", "gaussian", "learned")
+"""Names accepted by :func:`make_lidar` (the one list of lidar names)."""
 
 
 def make_lidar(name: str | LidarSensor, model: str | PathLike[str] | None = None, **kwargs: Any) -> LidarSensor:
     """Build a lidar sensor from its name (``"ideal"``, ``"gaussian"``, ``"learned"``) or pass one through.
 
+    A learned model file is loaded once per process (cached by resolved path and modification time) and
+    the sensor is SHARED by every caller, e.g. all ``Neato-v0`` envs.
+
     Args:
         name: sensor name or an object implementing :class:`LidarSensor`.
-        model: for ``"learned"``, the model file (default: the model shipped in ``models/``).
+        model: for ``"learned"``, the model file (default: the model shipped in ``models/``), or a fitted
+            :class:`~sensor_envs.lidar.lwlr.LidarLWLR` (used as it is, not cached).
         **kwargs: for ``"gaussian"``, :class:`GaussianLidar` fields.
 
     Raises:
@@ -129,6 +137,16 @@ def make_lidar(name: str | LidarSensor, model: str | PathLike[str] | None = None
         return IdealLidar()
     if name == "gaussian":
         return GaussianLidar(**kwargs)
-    from sensor_envs.lidar.lwlr import load_learned_lidar  # noqa: PLC0415  (heavy, optional path)
+    from sensor_envs.lidar.lwlr import DEFAULT_MODEL_FILE, load_learned_lidar  # heavy: only when asked for
 
-    return load_learned_lidar(model, **kwargs)
+    if kwargs or not (model is None or isinstance(model, (str, PathLike))):
+        return load_learned_lidar(model, **kwargs)  # a fitted model passes through; kwargs are refused there
+    return _load_learned(*model_file_key(default_model_path(DEFAULT_MODEL_FILE) if model is None else model))
+
+
+@functools.lru_cache(maxsize=16)
+def _load_learned(path: str, mtime_ns: int) -> LidarSensor:
+    """The learned lidar from the model file at ``path`` (``mtime_ns`` only keys the cache)."""
+    from sensor_envs.lidar.lwlr import load_learned_lidar
+
+    return load_learned_lidar(path)

@@ -49,6 +49,7 @@ from sensor_envs.lidar.lwlr import (
     null_count_log_prob,
 )
 from sensor_envs.lidar.sensors import GaussianLidar
+from sensor_envs.rng import fold_ids
 
 __all__ = [
     "IDEAL_SIGMA",
@@ -233,10 +234,10 @@ def plot_scan(
     pose_index: int = 0,
 ) -> None:
     """The seed's Fig. 2: one real scan and one simulated scan per model at a pose (sensor frame, x fwd)."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     b = log.bearings
     fig, axes = plt.subplots(1, len(params) + 1, figsize=(4.2 * (len(params) + 1), 4.2), sharex=True, sharey=True)
@@ -273,10 +274,10 @@ def plot_scan(
 
 def plot_per_bearing(log: LidarLog, params: dict[str, Params], path: Path, spur_above: float) -> None:
     """Per-bearing MAE of ``mu``, ``sigma`` and ``p_null`` over the log's poses, per model."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     st = cell_statistics(log, spur_above, split_spurious=True)
     deg = np.rad2deg(log.bearings)
@@ -314,7 +315,7 @@ def cross_validate_log(
     Each outer fold fits the models (with their own inner CV of kernel widths) and the Gaussian
     baseline on the other poses, and predicts the held-out poses; metrics pool all held-out cells.
     """
-    fold = np.random.default_rng(random_state).permutation(np.arange(log.n_poses) % n_folds)
+    fold = fold_ids(log.n_poses, n_folds, random_state=random_state)
     r, a = lidar_features(log.poses, log.bearings, log.require_map(), 5.0)
     names = ("seed", "seed_without_spurious", "extended", "ideal", "gaussian")
     pred: dict[str, Params] = {n: {} for n in names}

@@ -39,18 +39,13 @@ from numpy.typing import NDArray
 from sklearn.cluster import DBSCAN
 from tqdm import tqdm
 
-from sensor_envs.geometry import to_frame
+from sensor_envs.geometry import quaternion_yaw, to_frame
 from sensor_envs.radar.log import REQUIRED_COLUMNS, RadarLog
 
 __all__ = ["CLASS_CODES", "read_frame", "frame_rows", "load_astyx", "detection_statistics"]
 
 CLASS_CODES = ("Car", "Truck", "Bus", "Person", "Trailer", "Other Vehicle", "Towed Object", "Cyclist")
 """``class_code`` covariate: index into this tuple (-1 for other names)."""
-
-
-def _yaw(q: list[float]) -> float:
-    w, x, y, z = q
-    return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
 
 
 def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.float64], list[str]]:
@@ -79,7 +74,7 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
                 [
                     c[0],
                     c[1],
-                    _yaw(o["orientation_quat"]),
+                    quaternion_yaw(*o["orientation_quat"]),
                     d[0],
                     d[1],
                     c[2],

@@ -11,28 +11,55 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
+from sklearn.base import BaseEstimator
+from sklearn.utils.validation import check_is_fitted
 
-from sensor_envs.modelio import load_model_file, save_model_file
+from sensor_envs.modelio import (
+    Constraint,
+    Interval,
+    ModelFileError,
+    Numbers,
+    check_increasing,
+    check_positive,
+    check_probability,
+    check_range,
+    check_shape,
+    load_model_file,
+    optional_positive,
+    params_from_header,
+    save_model_file,
+    validate_params,
+)
 from sensor_envs.radar.log import RadarLog, clutter_counts, target_tuples
 
 __all__ = ["GaussianRadar"]
 
 KIND = "radar_gaussian"
 FORMAT_VERSION = 1
+MAX_POSITION = 1e3
+"""Largest range edge, mean offset, clutter position or standard deviation [m] a model file may hold."""
+_NOT_FITTED = "This %(name)s is not fitted yet; call fit(log) or GaussianRadar.load(path) first"
 
 
-class GaussianRadar:
-    """Range-binned Gaussian radar model (implements ``RadarSensor``).
+class GaussianRadar(BaseEstimator):
+    """Range-binned Gaussian radar model (implements ``RadarSensor``; a scikit-learn estimator).
 
     Args:
         range_edges: bin edges [m] of the corner range; outside values use the first/last bin.
         min_count: minimum detections per bin before falling back to the pooled estimate.
         cov_floor: variance [m^2] added to every covariance diagonal (keeps it positive definite).
     """
+
+    _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
+        "range_edges": [Numbers(Interval(0, MAX_POSITION), min_length=2, increasing=True)],
+        "min_count": [Interval(1, None, integer=True)],
+        "cov_floor": [Interval(0, MAX_POSITION**2)],
+    }
+    """One declarative check of every hyperparameter, used by :meth:`fit` and :meth:`load`."""
 
     def __init__(
         self,
@@ -47,9 +74,9 @@ class GaussianRadar:
 
     def fit(self, log: RadarLog, cycle_time: float | None = None) -> GaussianRadar:
         """Fit means, covariances, detection probabilities and clutter on ``log``; returns self."""
+        validate_params(self.get_params(), self._hyperparameter_constraints)
+        cycle = optional_positive(None, "cycle_time", cycle_time)
         edges = np.asarray(self.range_edges, dtype=np.float64)
-        if edges.ndim != 1 or edges.size < 2 or not (np.diff(edges) > 0).all():
-            raise ValueError(f"range_edges must be increasing with >= 2 values, got {self.range_edges!r}")
         tt = target_tuples(log)
         det = ~np.isnan(tt.z[:, 0])
         if det.sum() < 3:
@@ -73,7 +100,7 @@ class GaussianRadar:
         else:
             self.clutter_mean_, self.clutter_cov_ = np.zeros(2), np.eye(2)
         self.edges_ = edges
-        self.cycle_time_ = float("nan") if cycle_time is None else float(cycle_time)
+        self.cycle_time_ = cycle
         return self
 
     @staticmethod
@@ -82,8 +109,8 @@ class GaussianRadar:
         return np.clip(np.searchsorted(edges, r, side="right") - 1, 0, edges.size - 2)
 
     def _check_fitted(self) -> None:
-        if not hasattr(self, "mean_"):
-            raise RuntimeError("this GaussianRadar is not fitted yet; call fit(log) or GaussianRadar.load(path)")
+        """Raise sklearn's ``NotFittedError`` unless the model is fitted or loaded."""
+        check_is_fitted(self, "mean_", msg=_NOT_FITTED)
 
     def detection_probability(self, corners: NDArray) -> NDArray[np.float64]:
         """Detection probability ``(n,)`` at corners ``(n, 2)`` [m]."""
@@ -105,6 +132,7 @@ class GaussianRadar:
 
     def sample(self, state: NDArray, rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """Sample for ``(n, 2)`` or ``(n, 4)`` states (only the corner is used)."""
+        self._check_fitted()
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         return self.sample_cycle(st[:, :2], None, rng)
 
@@ -164,14 +192,37 @@ class GaussianRadar:
             "clutter_cov": ("f", 2, True),
         }
         header, a = load_model_file(path, KIND, (FORMAT_VERSION,), schema)
-        p = dict(header["params"])
-        p["range_edges"] = tuple(p["range_edges"])
-        m = cls(**p)
+        m = cls(**params_from_header(path, header, cls._hyperparameter_constraints))
+        _check_arrays(path, a)
         m.edges_, m.mean_, m.cov_, m.p_detect_ = a["edges"], a["mean"], a["cov"], a["p_detect"]
-        nb = m.edges_.size - 1
-        if m.mean_.shape != (nb, 2) or m.cov_.shape != (nb, 2, 2) or m.p_detect_.shape != (nb,):
-            raise ValueError(f"{path}: fields 'mean'/'cov'/'p_detect' do not match field 'edges'")
         m.clutter_rate_ = float(a["clutter_rate"][0])
         m.clutter_mean_, m.clutter_cov_ = a["clutter_mean"], a["clutter_cov"]
-        m.cycle_time_ = float(header.get("cycle_time", float("nan")))
+        m.cycle_time_ = optional_positive(path, "cycle_time", header.get("cycle_time"))
         return m
+
+
+def _check_arrays(path: str | os.PathLike[str], a: dict[str, NDArray[Any]]) -> None:
+    """Sane VALUES and consistent lengths of a Gaussian radar file's arrays (not only their format).
+
+    Raises:
+        ModelFileError: naming the file and the field: e.g. a detection probability outside ``[0, 1]``, a
+            covariance that is not symmetric positive definite, edges that are not increasing.
+    """
+    edges = check_increasing(path, "edges", a["edges"])
+    check_range(path, "edges", edges, 0.0, MAX_POSITION)
+    nb = edges.size - 1
+    check_shape(path, "mean", a["mean"], (nb, 2))
+    check_shape(path, "cov", a["cov"], (nb, 2, 2))
+    check_shape(path, "p_detect", a["p_detect"], (nb,))
+    check_range(path, "mean", a["mean"], -MAX_POSITION, MAX_POSITION)
+    check_probability(path, "p_detect", a["p_detect"])
+    check_shape(path, "clutter_rate", a["clutter_rate"], (1,))
+    check_range(path, "clutter_rate", a["clutter_rate"], 0.0, 1e6)
+    check_shape(path, "clutter_mean", a["clutter_mean"], (2,))
+    check_range(path, "clutter_mean", a["clutter_mean"], -MAX_POSITION, MAX_POSITION)
+    check_shape(path, "clutter_cov", a["clutter_cov"], (2, 2))
+    for field in ("cov", "clutter_cov"):
+        cov = check_range(path, field, a[field], -(MAX_POSITION**2), MAX_POSITION**2)
+        if not np.allclose(cov, np.swapaxes(cov, -1, -2), rtol=1e-6, atol=1e-12):
+            raise ModelFileError(f"{path}: field {field!r} is not symmetric")
+        check_positive(path, f"{field} (eigenvalues)", np.linalg.eigvalsh(cov))

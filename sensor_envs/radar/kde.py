@@ -57,19 +57,39 @@ from __future__ import annotations
 import os
 from itertools import chain
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 from scipy.special import ndtr
+from sklearn.base import BaseEstimator
+from sklearn.utils.validation import check_is_fitted
 
-from sensor_envs.modelio import load_model_file, save_model_file
+from sensor_envs.modelio import (
+    RANDOM_STATE,
+    Constraint,
+    InstanceOf,
+    Interval,
+    ModelFileError,
+    Numbers,
+    Options,
+    check_finite,
+    check_increasing,
+    check_positive,
+    check_range,
+    check_shape,
+    load_model_file,
+    optional_positive,
+    params_from_header,
+    save_model_file,
+    validate_params,
+)
 from sensor_envs.radar.buckets import build_buckets, sample_proportional
 from sensor_envs.radar.log import RadarLog, TargetTuples, clutter_counts, target_tuples
 from sensor_envs.radar.relevance import select_corner_variance
 
-__all__ = ["KDERadarModel", "NotFittedError", "cv_bandwidth_table"]
+__all__ = ["KDERadarModel", "cv_bandwidth_table"]
 
 KIND = "radar_kde"
 FORMAT_VERSION = 2
@@ -80,32 +100,11 @@ AUTO_BUCKET_MIN_NEIGHBOURS = 100
 """``sampler="auto"`` uses the bucket sampler when the median number of tuples in the ball of a stored
 state is at least this (the ball sampler's cost follows it; benchmarks/bench_radar.py, 10-target
 cycles: 25 neighbours, ball 0.28 ms vs bucket 0.42 ms; 250 neighbours, 0.91 vs 0.45 ms)."""
-_PARAM_NAMES = (
-    "rel_variance",
-    "use_prev",
-    "radius",
-    "k_max",
-    "cv_grid_step",
-    "cv_candidates",
-    "cv_min_tuples",
-    "cv_max_tuples",
-    "cv_group",
-    "fallback_k",
-    "miss_prior",
-    "clutter_jitter",
-    "sampler",
-    "bucket_cell",
-    "relevance",
-    "relevance_candidates",
-    "relevance_folds",
-    "prior_rate",
-    "random_state",
-)
+MAX_POSITION = 1e3
+"""Largest sensor-frame coordinate, output offset, bandwidth or relevance sigma [m] a model file may hold."""
 _LOG_2PI = np.log(2.0 * np.pi)
-
-
-class NotFittedError(RuntimeError):
-    """The model is used before ``fit`` or ``load``."""
+_POSITIVE = Interval(0, None, open_low=True)
+_NOT_FITTED = "This %(name)s is not fitted yet; call fit(log) or KDERadarModel.load(path) first"
 
 
 def _neighbour_lists(
@@ -231,8 +230,8 @@ def cv_bandwidth_table(
     return log_h.reshape(grid_x.size, grid_y.size, 2), counts.reshape(grid_x.size, grid_y.size)
 
 
-class KDERadarModel:
-    """Joint-KDE radar model with two-stage sampling (implements ``RadarSensor``).
+class KDERadarModel(BaseEstimator):
+    """Joint-KDE radar model with two-stage sampling (implements ``RadarSensor``; a scikit-learn estimator).
 
     Args:
         rel_variance: variances [m^2] of the relevance kernel on ``(c_x, c_y, z_{t-1,x}, z_{t-1,y})``.
@@ -269,6 +268,29 @@ class KDERadarModel:
         relevance_folds: folds of ``relevance="cv"`` (sequences dealt round-robin).
         random_state: seed or generator for the CV subsampling.
     """
+
+    _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
+        "rel_variance": [Numbers(Interval(0, MAX_POSITION**2, open_low=True), length=4)],
+        "use_prev": [InstanceOf(bool)],
+        "radius": [_POSITIVE],
+        "k_max": [None, Interval(1, None, integer=True)],
+        "cv_grid_step": [_POSITIVE],
+        "cv_candidates": [None, Numbers(Interval(0, MAX_POSITION, open_low=True))],
+        "cv_min_tuples": [Interval(1, None, integer=True)],
+        "cv_max_tuples": [Interval(1, None, integer=True)],
+        "cv_group": [Options("track", "sequence", "row")],
+        "fallback_k": [Interval(1, None, integer=True)],
+        "miss_prior": [Interval(0, None)],
+        "clutter_jitter": [Interval(0, MAX_POSITION)],
+        "sampler": [Options("auto", "bucket", "ball")],
+        "bucket_cell": [_POSITIVE],
+        "relevance": [Options("paper", "cv")],
+        "relevance_candidates": [Numbers(_POSITIVE)],
+        "relevance_folds": [Interval(2, None, integer=True)],
+        "prior_rate": [Options("tree", "global")],
+        "random_state": RANDOM_STATE,
+    }
+    """One declarative check of every hyperparameter, used by :meth:`fit` and :meth:`load`."""
 
     def __init__(
         self,
@@ -314,34 +336,9 @@ class KDERadarModel:
         self.random_state = random_state
 
     # ------------------------------------------------------------------ fit
-    def get_params(self) -> dict[str, Any]:
-        """The constructor's hyper-parameters (as passed)."""
-        return {k: getattr(self, k) for k in _PARAM_NAMES}
-
     def _check_params(self) -> None:
-        rv = np.asarray(self.rel_variance, dtype=np.float64)
-        if rv.shape != (4,) or not (np.isfinite(rv).all() and (rv > 0).all()):
-            raise ValueError(f"rel_variance must be 4 positive variances [m^2], got {self.rel_variance!r}")
-        if not self.radius > 0:
-            raise ValueError(f"radius must be > 0, got {self.radius!r}")
-        if not self.miss_prior >= 0:
-            raise ValueError(f"miss_prior must be >= 0, got {self.miss_prior!r}")
-        if self.cv_group not in ("track", "sequence", "row"):
-            raise ValueError(f"cv_group must be 'track', 'sequence' or 'row', got {self.cv_group!r}")
-        if self.sampler not in ("auto", "bucket", "ball"):
-            raise ValueError(f"sampler must be 'auto', 'bucket' or 'ball', got {self.sampler!r}")
-        if self.prior_rate not in ("tree", "global"):
-            raise ValueError(f"prior_rate must be 'tree' or 'global', got {self.prior_rate!r}")
-        if self.relevance not in ("paper", "cv"):
-            raise ValueError(f"relevance must be 'paper' or 'cv', got {self.relevance!r}")
-        if self.relevance == "cv" and (
-            len(self.relevance_candidates) == 0 or min(self.relevance_candidates) <= 0 or int(self.relevance_folds) < 2
-        ):
-            raise ValueError("relevance='cv' needs positive relevance_candidates and relevance_folds >= 2")
-        if not self.bucket_cell > 0:
-            raise ValueError(f"bucket_cell must be > 0, got {self.bucket_cell!r}")
-        if self.k_max is not None and int(self.k_max) < 1:
-            raise ValueError(f"k_max must be >= 1 or None, got {self.k_max!r}")
+        """Check every hyperparameter against the class's table (``ValueError`` naming the bad one)."""
+        validate_params(self.get_params(), self._hyperparameter_constraints)
 
     def fit(self, log: RadarLog, cycle_time: float | None = None, progress: bool = False) -> KDERadarModel:
         """Fit on a radar log: store the tuples, build the trees, run the LOO-CV bandwidth table.
@@ -355,6 +352,7 @@ class KDERadarModel:
             self.
         """
         self._check_params()
+        cycle = optional_positive(None, "cycle_time", cycle_time)
         rng = np.random.default_rng(self.random_state)
         tt = target_tuples(log)
         det = ~np.isnan(tt.z[:, 0])
@@ -400,7 +398,7 @@ class KDERadarModel:
         )
         counts, xy = clutter_counts(log)
         self.clutter_counts_, self.clutter_xy_ = counts, xy
-        self.cycle_time_ = float("nan") if cycle_time is None else float(cycle_time)
+        self.cycle_time_ = cycle
         self._build()
         return self
 
@@ -454,8 +452,8 @@ class KDERadarModel:
             self._build()
 
     def _check_fitted(self) -> None:
-        if not hasattr(self, "states_"):
-            raise NotFittedError("this KDERadarModel is not fitted yet; call fit(log) or KDERadarModel.load(path)")
+        """Raise sklearn's ``NotFittedError`` unless the model is fitted or loaded."""
+        check_is_fitted(self, "states_", msg=_NOT_FITTED)
 
     # ------------------------------------------------------------------ query
     def bandwidth(self, corners: NDArray) -> NDArray[np.float64]:
@@ -740,7 +738,7 @@ class KDERadarModel:
     def save(self, path: str | os.PathLike[str], card: dict[str, Any] | None = None) -> Path:
         """Save to a pickle-free ``.npz`` model file (:mod:`sensor_envs.modelio`)."""
         self._check_fitted()
-        params = {k: getattr(self, k) for k in _PARAM_NAMES if k not in ("cv_candidates", "random_state")}
+        params = {k: v for k, v in self.get_params().items() if k not in ("cv_candidates", "random_state")}
         params["rel_variance"] = [float(v) for v in self.rel_variance]
         params["relevance_candidates"] = [float(v) for v in self.relevance_candidates]
         header = {
@@ -780,28 +778,58 @@ class KDERadarModel:
             "clutter_xy": ("f", 2, True),
         }
         header, a = load_model_file(path, KIND, (1, FORMAT_VERSION), schema)
-        p = dict(header["params"])
-        p["rel_variance"] = tuple(p["rel_variance"])
-        if "relevance_candidates" in p:
-            p["relevance_candidates"] = tuple(p["relevance_candidates"])
-        p.setdefault("prior_rate", "global")  # format 1
-        model = cls(**p)
+        defaults = {"prior_rate": "global"}  # format 1
+        model = cls(**params_from_header(path, header, cls._hyperparameter_constraints, defaults))
+        _check_arrays(path, a)
         model.states_, model.z_, model.log_row_ = a["states"], a["z"], a["log_row"].astype(np.int64)
         model.grid_x_, model.grid_y_, model.log_h_ = a["grid_x"], a["grid_y"], a["log_h"]
         model.cv_counts_, model.cand_ = a["cv_counts"].astype(np.int64), a["cv_candidates"]
         model.cv_candidates = tuple(float(c) for c in model.cand_)
         model.clutter_counts_, model.clutter_xy_ = a["clutter_counts"].astype(np.int64), a["clutter_xy"]
-        model.rel_variance_ = tuple(float(v) for v in header.get("rel_variance_fitted", model.rel_variance))
+        rv = header.get("rel_variance_fitted", model.rel_variance)
+        check_shape(path, "rel_variance_fitted", rv, (4,))
+        model.rel_variance_ = tuple(float(v) for v in check_positive(path, "rel_variance_fitted", rv, MAX_POSITION**2))
         model.relevance_scores_ = np.asarray(header.get("relevance_scores", []), dtype=np.float64)
-        if len(model.rel_variance_) != 4 or min(model.rel_variance_) <= 0:
-            raise ValueError(f"{path}: header 'rel_variance_fitted' must be 4 positive variances")
         model.scale_ = np.sqrt(np.asarray(model.rel_variance_, dtype=np.float64))
-        model.cycle_time_ = float(header.get("cycle_time", float("nan")))
+        model.cycle_time_ = optional_positive(path, "cycle_time", header.get("cycle_time"))
         model.card_ = header.get("card", {})
-        if model.states_.shape[1] != 4 or model.z_.shape != (model.states_.shape[0], 2):
-            raise ValueError(f"{path}: field 'states'/'z' have inconsistent shapes")
         model._build()
         return model
+
+
+def _check_arrays(path: str | os.PathLike[str], a: dict[str, NDArray[Any]]) -> None:
+    """Sane VALUES and consistent lengths of a KDE model file's arrays (not only their format).
+
+    Raises:
+        ModelFileError: naming the file and the field.
+    """
+    n = a["states"].shape[0]
+    check_shape(path, "states", a["states"], (n, 4))
+    check_shape(path, "z", a["z"], (n, 2))
+    check_shape(path, "log_row", a["log_row"], (n,))
+    check_range(path, "states", a["states"][:, :2], -MAX_POSITION, MAX_POSITION)  # corners: always present
+    prev, z = a["states"][:, 2:], a["z"]
+    for field, v in (("states", prev), ("z", z)):  # NaN rows: no previous output / a miss, both coordinates
+        gone = np.isnan(v)
+        if (gone[:, 0] != gone[:, 1]).any():
+            raise ModelFileError(f"{path}: field {field!r} has rows with one NaN coordinate")
+        check_range(path, field, v[~gone[:, 0]], -MAX_POSITION, MAX_POSITION)
+    if (~np.isnan(z[:, 0])).sum() < 2:
+        raise ModelFileError(f"{path}: field 'z' holds fewer than 2 detected tuples")
+    check_range(path, "log_row", a["log_row"], 0, None)
+    gx = check_increasing(path, "grid_x", a["grid_x"], min_size=1, regular=True)
+    gy = check_increasing(path, "grid_y", a["grid_y"], min_size=1, regular=True)
+    check_range(path, "grid_x", gx, -MAX_POSITION, MAX_POSITION)
+    check_range(path, "grid_y", gy, -MAX_POSITION, MAX_POSITION)
+    check_shape(path, "log_h", a["log_h"], (gx.size, gy.size, 2))
+    check_range(path, "log_h", a["log_h"], np.log(1e-6), np.log(MAX_POSITION))  # bandwidths 1 um .. 1 km
+    check_shape(path, "cv_counts", a["cv_counts"], (gx.size, gy.size))
+    check_range(path, "cv_counts", a["cv_counts"], 0, None)
+    check_positive(path, "cv_candidates", a["cv_candidates"], MAX_POSITION)
+    check_range(path, "clutter_counts", a["clutter_counts"], 0, 1e6)
+    check_shape(path, "clutter_xy", a["clutter_xy"], (a["clutter_xy"].shape[0], 2))
+    check_range(path, "clutter_xy", a["clutter_xy"], -MAX_POSITION, MAX_POSITION)
+    check_finite(path, "cv_candidates", a["cv_candidates"])
 
 
 def _unique_states(corners: NDArray, prev: NDArray, min_n: int = 64) -> tuple[NDArray, NDArray]:

@@ -16,17 +16,18 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from sklearn.base import clone
 from tqdm import tqdm
 
 from sensor_envs.radar.log import RadarLog, target_tuples
+from sensor_envs.rng import fold_ids
 
 __all__ = ["inner_folds", "select_corner_variance"]
 
 
 def inner_folds(log: RadarLog, n_folds: int) -> NDArray[np.int64]:
-    """Fold id ``(n_rows,)`` of every row: its sequence's rank modulo ``n_folds``."""
-    _, inv = np.unique(log["sequence"], return_inverse=True)
-    return (inv.ravel() % n_folds).astype(np.int64)
+    """Fold id ``(n_rows,)`` of every row: its sequence's rank modulo ``n_folds`` (see ``rng.fold_ids``)."""
+    return fold_ids(log["sequence"], n_folds)
 
 
 def select_corner_variance(
@@ -45,7 +46,7 @@ def select_corner_variance(
     Returns:
         The chosen variance and ``scores (len(candidates),)``: mean held-out log-likelihood per target row [nats].
     """
-    params = estimator.get_params()
+    rv = estimator.get_params()["rel_variance"]
     fold = inner_folds(log, n_folds)
     if np.unique(fold).size < n_folds:
         raise ValueError(f"{log.source}: relevance CV needs at least {n_folds} sequences")
@@ -58,9 +59,8 @@ def select_corner_variance(
         state = np.concatenate([tt.corner, tt.z_prev], axis=1)
         n_rows += state.shape[0]
         for j, v in enumerate(candidates):  # one inner fit per candidate
-            rv = params.get("rel_variance", (3.0, 3.0, 0.03, 0.03))
-            p = {**params, "relevance": "paper", "rel_variance": (v, v, rv[2], rv[3])}
-            lp = type(estimator)(**p).fit(train).log_prob(tt.z, state)
+            inner = clone(estimator).set_params(relevance="paper", rel_variance=(v, v, rv[2], rv[3]))
+            lp = inner.fit(train).log_prob(tt.z, state)
             total[j] += float(np.sum(lp))
             bar.update()
     bar.close()

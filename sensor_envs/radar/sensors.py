@@ -13,16 +13,17 @@ Models: :class:`IdealRadar` (here), ``GaussianRadar`` and ``KDERadarModel``
 
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass
-from importlib.resources import files
-from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["RadarSensor", "IdealRadar", "RADAR_NAMES", "make_radar", "default_model_path"]
+from sensor_envs.modelio import default_model_path, model_file_key
+
+__all__ = ["RadarSensor", "IdealRadar", "RADAR_NAMES", "DEFAULT_MODEL_FILES", "make_radar"]
 
 
 @runtime_checkable
@@ -68,20 +69,17 @@ class IdealRadar:
 
 
 RADAR_NAMES = ("ideal", "gaussian", "kde")
-"""Names accepted by :func:`make_radar`."""
+"""Names accepted by :func:`make_radar` (the one list of radar names)."""
 
-_DEFAULT_FILES = {"gaussian": "radar_gaussian.npz", "kde": "radar_kde.npz"}
-
-
-def default_model_path(name: str) -> Path:
-    """Path of the default model file shipped in ``models/`` for radar ``name`` ("gaussian" or "kde")."""
-    if name not in _DEFAULT_FILES:
-        raise ValueError(f"radar {name!r} has no default model file; known: {sorted(_DEFAULT_FILES)}")
-    return Path(str(files("sensor_envs.models") / _DEFAULT_FILES[name]))
+DEFAULT_MODEL_FILES = {"gaussian": "radar_gaussian.npz", "kde": "radar_kde.npz"}
+"""File name in ``models/`` of the shipped model of each fitted radar (see ``modelio.default_model_path``)."""
 
 
 def make_radar(name: str, model: str | os.PathLike[str] | None = None) -> RadarSensor:
-    """Build a radar sensor model by name.
+    """Build a radar sensor model by name, loading each model file once per process.
+
+    The result is cached by name, resolved path and the file's modification time, and SHARED by every
+    caller (the highway wrapper's envs, the CLI): ``sklearn.base.clone`` it before changing its parameters.
 
     Args:
         name: ``"ideal"``, ``"gaussian"`` (:class:`sensor_envs.radar.gaussian.GaussianRadar`) or
@@ -98,12 +96,19 @@ def make_radar(name: str, model: str | os.PathLike[str] | None = None) -> RadarS
     if name == "ideal":
         if model is not None:
             raise ValueError(f"radar 'ideal' takes no model file (got {model!r})")
+        return _load_radar(name, None, 0)
+    return _load_radar(name, *model_file_key(default_model_path(DEFAULT_MODEL_FILES[name]) if model is None else model))
+
+
+@functools.lru_cache(maxsize=32)
+def _load_radar(name: str, path: str | None, mtime_ns: int) -> RadarSensor:
+    """The radar ``name`` from the file at ``path`` (``mtime_ns`` only keys the cache)."""
+    if name == "ideal" or path is None:
         return IdealRadar()
-    path = default_model_path(name) if model is None else Path(model)
     if name == "gaussian":
-        from sensor_envs.radar.gaussian import GaussianRadar  # noqa: PLC0415
+        from sensor_envs.radar.gaussian import GaussianRadar
 
         return GaussianRadar.load(path)
-    from sensor_envs.radar.kde import KDERadarModel  # noqa: PLC0415
+    from sensor_envs.radar.kde import KDERadarModel
 
     return KDERadarModel.load(path)

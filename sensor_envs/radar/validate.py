@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.radar.log import RadarLog, TargetTuples, target_tuples
+from sensor_envs.rng import fold_ids
 
 __all__ = [
     "RANGE_BINS",
@@ -58,8 +59,7 @@ def split_by_blocks(log: RadarLog, block: int, n_folds: int, fold: int) -> tuple
     if not 0 <= fold < n_folds:
         raise ValueError(f"fold must be in [0, {n_folds}), got {fold}")
     seq, frame = log["sequence"], log["frame"]
-    _, bid = np.unique(np.stack([seq, frame // block], axis=1), axis=0, return_inverse=True)
-    test = bid.ravel() % n_folds == fold
+    test = fold_ids(np.stack([seq, frame // block], axis=1), n_folds) == fold
     return log.select(~test), log.select(test)
 
 
@@ -233,7 +233,7 @@ def chi_square(
     Returns:
         ``statistic``, ``dof``, ``p_value`` and the binned ``expected``/``observed`` counts and edges.
     """
-    from scipy.stats import chi2  # noqa: PLC0415
+    from scipy.stats import chi2
 
     state = np.asarray(state, dtype=np.float64)
     z, _ = model.sample(np.repeat(state[None], n, axis=0), rng)
@@ -267,7 +267,7 @@ def chi_square(
 
 def plot_pdf_vs_samples(model: Any, state: NDArray, rng: np.random.Generator, path: Path, n: int = 95_000) -> dict:
     """The seed's Fig. 5: binned analytic PDF next to the histogram of ``n`` two-stage samples."""
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     res = chi_square(model, state, rng, n=n, n_bins=30)
     fig, ax = plt.subplots(1, 2, figsize=(9, 4), sharex=True, sharey=True)
@@ -301,9 +301,9 @@ def plot_pdf_heatmap(model: Any, box: NDArray, prev_z: NDArray | None, path: Pat
         path: output image.
         half: half-width [m] of the plotted square around the box centre.
     """
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
-    from sensor_envs.geometry import closest_corner, rectangle_corners  # noqa: PLC0415
+    from sensor_envs.geometry import closest_corner, rectangle_corners
 
     corners = rectangle_corners(*box)
     corner = closest_corner(corners)[0][0]
@@ -329,7 +329,7 @@ def plot_pdf_heatmap(model: Any, box: NDArray, prev_z: NDArray | None, path: Pat
 
 def plot_all(report: dict[str, Any], model: Any, log: RadarLog, out: Path) -> None:
     """Figures of a validation report: detection calibration, energy distance, autocorrelation, PDFs."""
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 2, figsize=(10, 4))
     for key, style in (("model", "o-"), ("baseline_gaussian", "s--")):

@@ -8,11 +8,12 @@ see: model loading, field of view, occlusion, reference points), ``frame`` (one 
 from sensor_envs.envs.highway.frame import RadarFrame, RadarInfo
 from sensor_envs.envs.highway.observation import SUPPORTED_FEATURES, KinematicsLayout
 from sensor_envs.envs.highway.render import draw_radar
-from sensor_envs.envs.highway.sensor import DEFAULT_FOV, DEFAULT_MAX_RANGE, RADARS, SensorSpec, load_radar
+from sensor_envs.envs.highway.sensor import DEFAULT_FOV, DEFAULT_MAX_RANGE, SensorSpec, load_radar
 from sensor_envs.envs.highway.wrapper import IDEAL_KINEMATICS, RNG_TAG, RadarObservation, make_highway
+from sensor_envs.radar.sensors import RADAR_NAMES
 
 __all__ = [
-    "RADARS",
+    "RADAR_NAMES",
     "RNG_TAG",
     "IDEAL_KINEMATICS",
     "DEFAULT_FOV",

@@ -12,7 +12,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.envs.highway.frame import RadarFrame
-from sensor_envs.envs.highway.sensor import SensorSpec, to_world
+from sensor_envs.envs.highway.sensor import SensorSpec
+from sensor_envs.geometry import from_frame
 
 __all__ = ["draw_radar"]
 
@@ -63,6 +64,6 @@ def draw_radar(image: NDArray[np.uint8], surface: Any, frame: RadarFrame, spec: 
     _paint(img, *_to_pixels(surface, frame.det_w[clutter]), _CLUTTER, half=3)
     missed = frame.visible & ~frame.detected
     if missed.any():
-        miss_w = to_world(frame.reference_s[missed], pose)
+        miss_w = from_frame(frame.reference_s[missed], pose)
         _paint(img, *_to_pixels(surface, miss_w), _MISS, half=2)
     return img

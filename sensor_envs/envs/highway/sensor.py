@@ -15,11 +15,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.envs.highway.frame import Truth
-from sensor_envs.geometry import closest_corner, occluded_fraction, rectangle_corners, to_frame, wrap_angle
-from sensor_envs.radar.sensors import IdealRadar, RadarSensor
+from sensor_envs.geometry import closest_corner, from_frame, occluded_fraction, rectangle_corners, to_frame, wrap_angle
+from sensor_envs.radar.sensors import RADAR_NAMES, RadarSensor, make_radar
 
 __all__ = [
-    "RADARS",
+    "RADAR_NAMES",
     "DEFAULT_FOV",
     "DEFAULT_MAX_RANGE",
     "SensorSpec",
@@ -28,21 +28,20 @@ __all__ = [
     "sensor_pose",
     "reference_points",
     "track_velocities",
-    "rotate",
-    "to_world",
     "visible_targets",
 ]
 
-RADARS = ("ideal", "gaussian", "kde")
 DEFAULT_FOV = float(np.deg2rad(100.0))
 """Default full horizontal field of view [rad]: +-50 deg, that of the reference rig the shipped models are fitted on."""
 DEFAULT_MAX_RANGE = 120.0
 """Default hard range limit [m]: past the rig's 90 m, where the fitted models' own detection fall-off decides."""
-_RADAR_CACHE: dict[tuple[str, str | None], RadarSensor] = {}
 
 
 def load_radar(radar: str, radar_model: str | Path | None = None) -> RadarSensor:
-    """Return the radar model ``radar`` (``"ideal" | "gaussian" | "kde"``), loading it once per process.
+    """Return the radar model ``radar`` (``"ideal" | "gaussian" | "kde"``), loaded once per process.
+
+    The wrapper's check of its ``radar``/``radar_model`` arguments in front of the one cached factory,
+    :func:`sensor_envs.radar.sensors.make_radar` (the instance is shared by every env of the process).
 
     Args:
         radar: model name.
@@ -52,24 +51,11 @@ def load_radar(radar: str, radar_model: str | Path | None = None) -> RadarSensor
         ValueError: naming ``radar`` or ``radar_model`` when the name is unknown or the ideal radar is
             given a model file.
     """
-    if radar not in RADARS:
-        raise ValueError(f"radar: expected one of {RADARS}, got {radar!r}")
-    path = None if radar_model is None else str(Path(radar_model).expanduser().resolve())
-    if radar == "ideal" and path is not None:
+    if radar not in RADAR_NAMES:
+        raise ValueError(f"radar: expected one of {RADAR_NAMES}, got {radar!r}")
+    if radar == "ideal" and radar_model is not None:
         raise ValueError("radar_model: the ideal radar takes no model file")
-    key = (radar, path)
-    if key not in _RADAR_CACHE:
-        _RADAR_CACHE[key] = _build_radar(radar, path)
-    return _RADAR_CACHE[key]
-
-
-def _build_radar(radar: str, path: str | None) -> RadarSensor:
-    """Build a radar through :func:`sensor_envs.radar.sensors.make_radar` (the ideal radar needs no factory)."""
-    if radar == "ideal":
-        return IdealRadar()
-    from sensor_envs.radar.sensors import make_radar
-
-    return make_radar(radar, path)
+    return make_radar(radar, radar_model)
 
 
 @dataclass(frozen=True)
@@ -148,9 +134,8 @@ def truth_table(base: Any, include_obstacles: bool) -> Truth:
 def sensor_pose(ego: Any, mount: tuple[float, float, float] | None) -> NDArray[np.float64]:
     """World pose ``(x, y, yaw)`` of the sensor mounted at ``mount`` in the ego frame."""
     mx, my, myaw = mount if mount is not None else (ego.LENGTH / 2.0, 0.0, 0.0)
-    c, s = np.cos(ego.heading), np.sin(ego.heading)
-    x, y = ego.position
-    return np.array([x + c * mx - s * my, y + s * mx + c * my, float(wrap_angle(ego.heading + myaw))])
+    x, y = from_frame((mx, my), (*ego.position, ego.heading))
+    return np.array([x, y, float(wrap_angle(ego.heading + myaw))])
 
 
 def reference_points(
@@ -208,12 +193,6 @@ def track_velocities(
     return vel, np.arctan2(vel[:, 1], vel[:, 0])
 
 
-def rotate(v: NDArray[np.float64], yaw: float) -> NDArray[np.float64]:
-    """Rotate ``(n, 2)`` vectors by ``yaw`` [rad] (sensor frame offsets to world offsets)."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]], axis=-1)
-
-
 def visible_targets(spec: SensorSpec, ref_s: NDArray[np.float64], corners_s: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Targets whose reference point is in view and which are not hidden behind nearer targets."""
     vis = spec.in_view(ref_s)
@@ -229,8 +208,3 @@ def visible_targets(spec: SensorSpec, ref_s: NDArray[np.float64], corners_s: NDA
     hidden = np.zeros_like(vis)
     hidden[idx[targets]] = frac >= spec.occlusion_threshold
     return vis & ~hidden
-
-
-def to_world(points_s: NDArray[np.float64], pose: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Sensor-frame points ``(n, 2)`` [m] to the world frame."""
-    return pose[:2] + rotate(points_s, pose[2])

@@ -102,18 +102,16 @@ from sensor_envs.envs.highway.render import draw_radar
 from sensor_envs.envs.highway.sensor import (
     DEFAULT_FOV,
     DEFAULT_MAX_RANGE,
-    RADARS,
     SensorSpec,
     load_radar,
     reference_points,
-    rotate,
     sensor_pose,
-    to_world,
     track_velocities,
     truth_table,
     visible_targets,
 )
-from sensor_envs.radar.sensors import RadarSensor
+from sensor_envs.geometry import from_frame
+from sensor_envs.radar.sensors import RADAR_NAMES, RadarSensor
 from sensor_envs.rng import sensor_rng
 
 # The split modules' public names are gathered by the package (sensor_envs.envs.highway).
@@ -199,7 +197,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._radar_key: tuple[str, str | None] | None = (radar, path)
         else:
             if not isinstance(radar, RadarSensor):
-                raise TypeError(f"radar: expected a name in {RADARS} or a RadarSensor, got {type(radar).__name__}")
+                raise TypeError(f"radar: expected a name in {RADAR_NAMES} or a RadarSensor, got {type(radar).__name__}")
             self._radar_key = None
             self.radar = radar
         low, high = self.layout.bounds()
@@ -303,7 +301,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             head,
             source[ok],
             clut_s,
-            to_world(clut_s, pose),
+            from_frame(clut_s, pose),
         )
 
     def _measure_targets(
@@ -327,7 +325,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         meas_s = ref_s + z
         ok = np.asarray(np.isfinite(z).all(axis=1))
         ok[ok] = self.spec_sensor.in_view(meas_s[ok])
-        meas_w = ref_w + rotate(np.where(ok[:, None], z, 0.0), pose[2])
+        meas_w = ref_w + from_frame(np.where(ok[:, None], z, 0.0), (0.0, 0.0, pose[2]))  # offsets rotated
         self._tracks = {
             truth.objects[i]: (z[j] if ok[j] else _NAN2, meas_w[j] if ok[j] else _NAN2) for j, i in enumerate(vis)
         }
