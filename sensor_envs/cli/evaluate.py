@@ -177,6 +177,6 @@ def _aeb(args: argparse.Namespace) -> int:
         report = aeb_experiment(episodes=args.episodes, max_steps=args.steps, seed=args.seed)
         report["command"] = _command()
         write_aeb_report(report, tmp)
-    _print_distances(report, "distance_to_reference")
+    _print_distances(report, "distance_to_ideal")
     print(f"wrote {Path(args.out) / 'report.json'}")
     return 0
