@@ -120,20 +120,14 @@ def detect_lines(ranges: ArrayLike, bearings: ArrayLike, params: DetectorParams)
     n = len(pts)
     if n < 2:
         return np.zeros((0, 2, 2))
-    span = min(n - 1, _MAX_SPAN)
-    pad = np.concatenate([pts, np.full((span, 2), np.nan)])
-    win = np.lib.stride_tricks.sliding_window_view(pad, span + 1, axis=0)  # (n, 2, span + 1)
-    chord = np.hypot(win[:, 0, 1:] - win[:, 0, :1], win[:, 1, 1:] - win[:, 1, :1])  # (n, span)
-    step = np.hypot(*np.diff(win, axis=2).transpose(1, 0, 2))  # (n, span): spacing of consecutive points
-    stop = ~(chord <= params.length + params.length_tol)  # NaN (past the end) stops too
-    if np.isfinite(params.gap_tol):
-        stop |= np.maximum.accumulate(np.nan_to_num(step, nan=np.inf), axis=1) > params.gap_tol
-    first_stop = np.where(stop.any(axis=1), stop.argmax(axis=1), span)  # number of points added
+    first_stop, c = _grow(pts, np.arange(n), min(n - 1, 48), params)
+    todo = first_stop >= min(n - 1, 48)  # rows that grew to the first window's end: grow them further
+    if todo.any() and n - 1 > 48:
+        first_stop[todo], c[todo] = _grow(pts, np.flatnonzero(todo), min(n - 1, _MAX_SPAN), params)
     ok = first_stop >= 1
     i = np.arange(n)
     m = np.maximum(first_stop, 1)
     j = i + m
-    c = chord[i, m - 1]
     ok &= c >= params.length - params.length_tol
     ok &= (m + 1) >= params.min_points
     if np.isfinite(params.gap_tol):
@@ -148,6 +142,23 @@ def detect_lines(ranges: ArrayLike, bearings: ArrayLike, params: DetectorParams)
             out.append([pts[a], pts[j[a]]])
             last = int(j[a])
     return np.asarray(out, dtype=np.float64).reshape(-1, 2, 2)
+
+
+def _grow(
+    pts: NDArray[np.float64], rows: NDArray[np.int64], span: int, params: DetectorParams
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Grow lines from seeds ``rows`` over at most ``span`` points: points added and the chord [m] of each."""
+    pad = np.concatenate([pts, np.full((span, 2), np.nan)])
+    idx = rows[:, None] + np.arange(span + 1)[None]
+    win = pad[idx]  # (n_rows, span + 1, 2)
+    chord = np.hypot(*(win[:, 1:] - win[:, :1]).transpose(2, 0, 1))  # (n_rows, span)
+    stop = ~(chord <= params.length + params.length_tol)  # NaN (past the scan's end) stops too
+    if np.isfinite(params.gap_tol):
+        step = np.hypot(*np.diff(win, axis=1).transpose(2, 0, 1))  # spacing of consecutive points
+        stop |= np.maximum.accumulate(np.nan_to_num(step, nan=np.inf), axis=1) > params.gap_tol
+    first = np.where(stop.any(axis=1), stop.argmax(axis=1), span)
+    c = chord[np.arange(len(rows)), np.maximum(first, 1) - 1] if span else np.zeros(len(rows))
+    return first, c
 
 
 def _off_line(pts: NDArray[np.float64], i: NDArray[np.int64], j: NDArray[np.int64], k: NDArray[np.int64]) -> NDArray:

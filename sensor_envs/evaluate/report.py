@@ -18,6 +18,7 @@ _STYLE = {
     "real": dict(color="k", marker="o", lw=2.0),
     "reference": dict(color="k", marker="o", lw=2.0),
     "model": dict(color="tab:blue", marker="s"),
+    "model_world": dict(color="tab:green", marker="d", ls="--"),
     "baseline": dict(color="tab:orange", marker="^"),
     "ideal": dict(color="tab:gray", marker="x", ls=":"),
 }
