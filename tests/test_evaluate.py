@@ -19,7 +19,7 @@ from sensor_envs.evaluate.detection import (
 )
 from sensor_envs.evaluate.metrics import precision_recall, trajectory_distance, wilson_interval
 from sensor_envs.geometry import raycast_pose
-from sensor_envs.lidar.log import log_from_arrays, save_log
+from sensor_envs.lidar.log import save_log
 
 BEARINGS = np.deg2rad(np.arange(360.0))
 ROOM = [[[0, 0], [4, 0]], [[4, 0], [4, 3]], [[4, 3], [0, 3]], [[0, 3], [0, 0]]]
@@ -95,7 +95,9 @@ def test_trajectory_on_ideal_scans_counts_every_present_board():
 def test_gospa_and_tracker():
     assert gospa(np.zeros((1, 2)), np.zeros((1, 2))) == 0.0
     assert gospa(np.zeros((0, 2)), np.zeros((1, 2))) == pytest.approx(5 / np.sqrt(2))
-    assert gospa(np.array([[0.0, 0.0]]), np.array([[3.0, 4.0]])) == pytest.approx(5.0)  # capped at c: same as a miss + a false
+    assert gospa(np.array([[0.0, 0.0]]), np.array([[3.0, 4.0]])) == pytest.approx(
+        5.0
+    )  # capped at c: same as a miss + a false
     trk = NNTracker()
     for t in range(4):
         trk.step(np.array([[10.0 * t, 0.0]]), np.zeros(2))
@@ -210,3 +212,20 @@ def test_real_astyx_trigger(real_data):
     rep = radar_detection_experiment(load_astyx(root, frames=range(40)), draws=2)
     assert rep["data"]["cycles"] == 40
     assert 0 < rep["trajectories"]["real"][2]["recall"] <= 1
+
+
+def test_scan_matcher_converges_and_registration_small():
+    from sensor_envs.evaluate.registration import match_scan, registration_experiment
+    from sensor_envs.maps import load_map
+
+    segs = load_map("corridor").segments
+    truth = np.array([2.5, 0.6, 0.1])
+    r, _, _ = raycast_pose(truth, BEARINGS, segs, 5.0)
+    ok = np.isfinite(r)
+    pts = np.column_stack([r[ok] * np.cos(BEARINGS[ok]), r[ok] * np.sin(BEARINGS[ok])])
+    start = truth + np.array([0.05, -0.04, 0.03])
+    err = [np.linalg.norm(match_scan(pts, start, segs, it)[:2] - truth[:2]) for it in (0, 10, 100)]
+    assert err[0] > err[1] > err[2] and err[2] < 0.01
+    rep = registration_experiment(n_poses=4, iterations=(2, 5))
+    assert set(rep["curves"]) == {"reference", "model", "baseline", "ideal"}
+    assert all(c[-1]["distance_to_final_m"] == 0.0 for c in rep["curves"].values())

@@ -143,6 +143,9 @@ def _highway(radar: str, seed: int, steps: int, out: Path) -> dict[str, Any]:
     }
 
 
+_FCW_KEYS = ("warnings", "false_alarms", "missed_warnings", "precision", "recall", "mean_gospa_m")
+
+
 def _evaluation(seed: int, out: Path) -> dict[str, Any]:
     """A small algorithm-level evaluation where the sensors differ (``sensor-envs evaluate`` does the full one).
 
@@ -159,7 +162,13 @@ def _evaluation(seed: int, out: Path) -> dict[str, Any]:
         LidarLWLR.load(default_model_path()), n_configs=6, poses_per_config=1, repeats=3, seed=seed
     )
     plot_trajectories(box["trajectories"], out / "detection_pr.png", "board detection on the rig's box world")
-    names = {"real": "rig", "model": "learned (sample)", "model_world": "learned", "baseline": "gaussian", "ideal": "ideal"}
+    names = {
+        "real": "rig",
+        "model": "learned (sample)",
+        "model_world": "learned",
+        "baseline": "gaussian",
+        "ideal": "ideal",
+    }
     aeb = aeb_experiment(episodes=6, max_steps=20, seed=seed)
     return {
         "board_detection_rig": {
@@ -167,10 +176,7 @@ def _evaluation(seed: int, out: Path) -> dict[str, Any]:
             for k, v in box["trajectories"].items()
         },
         "board_detection_distance_to_rig": {names[k]: v for k, v in box["distance_to_real"].items()},
-        "forward_collision_warning": {
-            k: {key: v[key] for key in ("warnings", "false_alarms", "missed_warnings", "precision", "recall", "mean_gospa_m")}
-            for k, v in aeb["radars"].items()
-        },
+        "forward_collision_warning": {k: {key: v[key] for key in _FCW_KEYS} for k, v in aeb["radars"].items()},
     }
 
 

@@ -1,8 +1,9 @@
-"""``sensor-envs evaluate``: does the simulator predict how an algorithm performs on the real sensor?
+"""``sensor-envs evaluate``: does the simulator predict how an algorithm performs on the real sensor.
 
     sensor-envs evaluate detection --real LOG [--model fit|MODEL] [--baseline gaussian] --out DIR [--force]
     sensor-envs evaluate boxworld [--model MODEL] --out DIR [--configs 50] [--force]
     sensor-envs evaluate radar-detection --real ASTYX_DIR|LOG.csv [--model MODEL] --out DIR [--force]
+    sensor-envs evaluate registration [--model MODEL] --out DIR [--poses 40] [--force]
     sensor-envs evaluate aeb --out DIR [--episodes 30] [--force]
 
 Each writes ``report.json``, ``report.md`` and plots into ``DIR`` (built in a temporary folder beside it
@@ -96,6 +97,12 @@ def register(parser: argparse.ArgumentParser) -> None:
     rad.add_argument("--draws", type=int, default=20, help="simulated draws per reference box (default: 20)")
     _common(rad)
     rad.set_defaults(func=_radar_detection)
+    reg = sub.add_parser("registration", help="corridor registration (Kalman filter + scan matcher) vs iterations")
+    reg.add_argument("--model", default=None, help="learned lidar model (default: the shipped one)")
+    reg.add_argument("--poses", type=int, default=40, help="poses along the corridor (default: 40)")
+    reg.add_argument("--seed", type=int, default=0)
+    _common(reg)
+    reg.set_defaults(func=_registration)
     aeb = sub.add_parser("aeb", help="forward-collision warning + tracker on highway-fast with each radar")
     aeb.add_argument("--episodes", type=int, default=30, help="seeded episodes per radar (default: 30)")
     aeb.add_argument("--steps", type=int, default=40, help="policy steps per episode at most (default: 40)")
@@ -129,7 +136,13 @@ def _detection(args: argparse.Namespace) -> int:
             raise ValueError(f"{args.real}: field 'ranges' needs repeated readings at static poses (P, K, R >= 2)")
         model = None if model_file is None else LidarLWLR.load(model_file)
         report = log_experiment(
-            log, model=model, baseline=args.baseline, length=args.length, repeats=args.repeats, folds=args.folds, seed=args.seed
+            log,
+            model=model,
+            baseline=args.baseline,
+            length=args.length,
+            repeats=args.repeats,
+            folds=args.folds,
+            seed=args.seed,
         )
         report["command"] = _command()
         write_report(report, tmp)
@@ -178,5 +191,17 @@ def _aeb(args: argparse.Namespace) -> int:
         report["command"] = _command()
         write_aeb_report(report, tmp)
     _print_distances(report, "distance_to_ideal")
+    print(f"wrote {Path(args.out) / 'report.json'}")
+    return 0
+
+
+def _registration(args: argparse.Namespace) -> int:
+    from sensor_envs.evaluate.registration import registration_experiment, write_registration_report  # noqa: PLC0415
+
+    with output_folder(args.out, args.force, (args.model,)) as tmp:
+        report = registration_experiment(args.model, n_poses=args.poses, seed=args.seed)
+        report["command"] = _command()
+        write_registration_report(report, tmp)
+    _print_distances(report, "distance_to_reference")
     print(f"wrote {Path(args.out) / 'report.json'}")
     return 0

@@ -113,7 +113,7 @@ def _to_sensor(xy: NDArray[np.float64], pose: NDArray[np.float64]) -> NDArray[np
 
 
 def _critical(pos_s: NDArray, vel_w: NDArray, ego_v: NDArray, yaw: float, lane_half: float, ttc: float) -> bool:
-    """Is any object (sensor-frame position, world velocity) ahead in lane with time to collision < ``ttc``?"""
+    """Whether any object (sensor-frame position, world velocity) is ahead in lane with time to collision < ``ttc``."""
     if not len(pos_s):
         return False
     fwd = np.array([np.cos(yaw), np.sin(yaw)])
@@ -234,24 +234,41 @@ def write_aeb_report(report: dict[str, Any], folder: Path) -> None:
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
     (folder / "report.json").write_text(json.dumps(report, indent=2))
-    rows = ["| radar | warnings | hits | false alarms | missed | precision [95 % CI] | recall [95 % CI] | lead time [s] | GOSPA [m] |",
-            "|---|---|---|---|---|---|---|---|---|"]
+    rows = [
+        "| radar | warnings | hits | false alarms | missed | precision [95 % CI] | recall [95 % CI] "
+        "| lead time [s] | GOSPA [m] |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for k, v in report["radars"].items():
         rows.append(
             f"| {k} | {v['warnings']} | {v['hits']} | {v['false_alarms']} | {v['missed_warnings']} | "
             f"{v['precision']:.3f} [{v['precision_ci95'][0]:.3f}, {v['precision_ci95'][1]:.3f}] | "
-            f"{v['recall']:.3f} [{v['recall_ci95'][0]:.3f}, {v['recall_ci95'][1]:.3f}] | {v['mean_lead_time_s']} | {v['mean_gospa_m']} |"
+            f"{v['recall']:.3f} [{v['recall_ci95'][0]:.3f}, {v['recall_ci95'][1]:.3f}] | "
+            f"{v['mean_lead_time_s']} | {v['mean_gospa_m']} |"
         )
-    md = [f"# {report['experiment']}", "", f"Command: `{report.get('command', '')}`", "", *rows, "",
-          f"Distance of (P, R) to the ideal radar's: {report['distance_to_ideal']}", "", report["note"], ""]
+    md = [
+        f"# {report['experiment']}",
+        "",
+        f"Command: `{report.get('command', '')}`",
+        "",
+        *rows,
+        "",
+        f"Distance of (P, R) to the ideal radar's: {report['distance_to_ideal']}",
+        "",
+        report["note"],
+        "",
+    ]
     (folder / "report.md").write_text("\n".join(md))
     fig, ax = plt.subplots(figsize=(5.5, 4.5))
     for k, v in report["radars"].items():
         ax.errorbar(
-            v["recall"], v["precision"],
+            v["recall"],
+            v["precision"],
             xerr=[[v["recall"] - v["recall_ci95"][0]], [v["recall_ci95"][1] - v["recall"]]],
             yerr=[[v["precision"] - v["precision_ci95"][0]], [v["precision_ci95"][1] - v["precision"]]],
-            marker="o", capsize=3, label=k,
+            marker="o",
+            capsize=3,
+            label=k,
         )
     ax.set_xlim(0, 1.02)
     ax.set_ylim(0, 1.02)

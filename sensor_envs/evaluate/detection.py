@@ -17,8 +17,9 @@ The detector (one scan, sensor frame x forward / y left, metres):
 3. **length check**: the chord ``|p_j - p_i|`` is at least ``length - length_tol``;
 4. false-positive checks (each off at its default): **gap check** (``gap_tol``: no internal gap above
    it, and the points just outside the line are more than ``gap_tol`` off its infinite line, so the
-   line is a whole object and not a piece of a longer wall, even where nulls cut the wall), **line fit** (``max_rms_dist``: root mean square
-   distance of the points to their total-least-squares line), **min points** (``min_points``);
+   line is a whole object and not a piece of a longer wall, even where nulls cut the wall), **line
+   fit** (``max_rms_dist``: root mean square distance of the points to their total-least-squares
+   line), **min points** (``min_points``);
 5. accepted lines are taken greedily in bearing order, without overlap.
 
 Scoring: a target board is *present* in a scan when the nominal raycast from the log's pose hits it
@@ -39,8 +40,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import median_filter
 
-from sensor_envs.geometry import as_segments, from_frame, raycast_pose
 from sensor_envs.evaluate.metrics import precision_recall
+from sensor_envs.geometry import as_segments, from_frame, raycast_pose
 
 __all__ = [
     "DetectorParams",
@@ -162,7 +163,7 @@ def _grow(
 
 
 def _off_line(pts: NDArray[np.float64], i: NDArray[np.int64], j: NDArray[np.int64], k: NDArray[np.int64]) -> NDArray:
-    """Distance [m] of point ``k`` to the infinite line through points ``i`` and ``j`` (``inf`` past the scan's ends)."""
+    """Distance [m] of point ``k`` to the infinite line through points ``i`` and ``j`` (``inf`` past the ends)."""
     n = len(pts)
     kk = np.clip(k, 0, n - 1)
     d = pts[j] - pts[i]

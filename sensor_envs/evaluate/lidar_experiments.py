@@ -21,8 +21,14 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm.auto import tqdm
 
-from sensor_envs.evaluate.detection import TRAJECTORY_STEPS, flatten_repeats, present_targets, run_trajectory
-from sensor_envs.evaluate.detection import steps_table, target_indices
+from sensor_envs.evaluate.detection import (
+    TRAJECTORY_STEPS,
+    flatten_repeats,
+    present_targets,
+    run_trajectory,
+    steps_table,
+    target_indices,
+)
 from sensor_envs.evaluate.metrics import trajectory_distance
 from sensor_envs.geometry import raycast_pose
 from sensor_envs.lidar.log import LidarLog
@@ -141,7 +147,9 @@ def log_experiment(
             m, g = model, _gaussian_from_card(model) or GaussianLidar()
         poses = log.poses[test]
         for name, sensor in _SOURCES(m, g):
-            sims[name][test] = simulate(sensor, poses, log.bearings, segs, repeats, rng, max_range, name != "model_world")
+            sims[name][test] = simulate(
+                sensor, poses, log.bearings, segs, repeats, rng, max_range, name != "model_world"
+            )
     real = np.nan_to_num(log.ranges[:, :, :repeats], nan=0.0)
     sources = {"real": real, **sims}
     trajs = _trajectories(sources, log.poses, log.bearings, segs, length, max_range)

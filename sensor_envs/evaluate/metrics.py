@@ -40,7 +40,8 @@ def trajectory_distance(a: Sequence[dict[str, Any]], b: Sequence[dict[str, Any]]
     """Mean point-wise Euclidean distance in (precision, recall) between two trajectories of the same steps.
 
     Args:
-        a, b: lists of ``{"step", "precision", "recall"}``, the same steps in the same order.
+        a: list of ``{"step", "precision", "recall"}``.
+        b: the same steps in the same order.
 
     Raises:
         ValueError: when the steps differ.

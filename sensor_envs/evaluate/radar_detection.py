@@ -49,9 +49,7 @@ def cycle_index(log: RadarLog) -> tuple[NDArray[np.int64], int]:
     return inv.astype(np.int64), int(inv.max(initial=-1)) + 1
 
 
-def trigger_counts(
-    truth: NDArray[np.bool_], fired: NDArray[np.bool_]
-) -> dict[str, int]:
+def trigger_counts(truth: NDArray[np.bool_], fired: NDArray[np.bool_]) -> dict[str, int]:
     """``tp, fp, fn, tn`` of a trigger over cycles (arrays of the same shape)."""
     return {
         "tp": int((truth & fired).sum()),
@@ -62,7 +60,12 @@ def trigger_counts(
 
 
 def _fired(
-    cyc_t: NDArray[np.int64], meas_t: NDArray[np.float64], cyc_c: NDArray[np.int64], xy_c: NDArray[np.float64], n: int, step: tuple
+    cyc_t: NDArray[np.int64],
+    meas_t: NDArray[np.float64],
+    cyc_c: NDArray[np.int64],
+    xy_c: NDArray[np.float64],
+    n: int,
+    step: tuple,
 ) -> NDArray[np.bool_]:
     _, mx, hw = step
     fired = np.zeros(n, dtype=bool)
@@ -109,7 +112,14 @@ def _trajectory(
         p, r = precision_recall(c["tp"], c["fp"], c["fn"])
         lo, hi = wilson_interval(c["tp"], c["tp"] + c["fn"])
         traj.append(
-            {"step": k, "name": step[0], "precision": round(p, 4), "recall": round(r, 4), "recall_ci95": [round(lo, 4), round(hi, 4)], **c}
+            {
+                "step": k,
+                "name": step[0],
+                "precision": round(p, 4),
+                "recall": round(r, 4),
+                "recall_ci95": [round(lo, 4), round(hi, 4)],
+                **c,
+            }
         )
     return traj
 
@@ -133,7 +143,8 @@ def radar_detection_experiment(
         baseline: Gaussian model file (default: the shipped ``radar_gaussian.npz``); ignored with ``fit``.
         fit: fit both models leave-blocks-out on the log (``folds`` folds of ``block`` frames) and
             simulate each fold's cycles with the models fitted on the others.
-        folds, block: the leave-blocks-out split.
+        folds: number of leave-blocks-out folds.
+        block: frames per block.
         seed: seed of the simulations.
         draws: simulated runs over all cycles per source.
     """
@@ -144,8 +155,12 @@ def radar_detection_experiment(
     cyc, n = cycle_index(log)
     cyc_t = cyc[tt.row]
     cl = log.is_clutter
-    real_run = (cyc_t, np.stack([log["meas_x"][tt.row], log["meas_y"][tt.row]], axis=1), cyc[cl],
-                np.stack([log["meas_x"][cl], log["meas_y"][cl]], axis=1))
+    real_run = (
+        cyc_t,
+        np.stack([log["meas_x"][tt.row], log["meas_y"][tt.row]], axis=1),
+        cyc[cl],
+        np.stack([log["meas_x"][cl], log["meas_y"][cl]], axis=1),
+    )
     truth_by_step = []
     for _, mx, hw in TRIGGER_STEPS:
         t = np.zeros(n, dtype=bool)
@@ -180,17 +195,25 @@ def radar_detection_experiment(
                         sims[name][d] = tuple(np.concatenate([u, v]) for u, v in zip(sims[name][d], part, strict=True))
         how = f"KDE (use_prev=False) and Gaussian fitted leave-blocks-out ({folds} folds of {block}-frame blocks)"
     else:
-        models = {"model": make_radar("kde", model), "baseline": make_radar("gaussian", baseline), "ideal": make_radar("ideal")}
+        models = {
+            "model": make_radar("kde", model),
+            "baseline": make_radar("gaussian", baseline),
+            "ideal": make_radar("ideal"),
+        }
         for name, m in models.items():
             sims[name] = _simulate(m, tt.corner, cyc_t, n, draws, rng)
-        how = f"model files: KDE {model or 'shipped radar_kde.npz'}, Gaussian {baseline or 'shipped radar_gaussian.npz'}"
+        how = (
+            f"model files: KDE {model or 'shipped radar_kde.npz'}, Gaussian {baseline or 'shipped radar_gaussian.npz'}"
+        )
     for name, runs in sims.items():
         trajs[name] = _trajectory(truth_by_step, runs, n)
     from sensor_envs.evaluate.lidar_experiments import summarise  # noqa: PLC0415
 
     return {
         "experiment": "radar ADAS trigger (car in my lane) on object-level radar output",
-        "steps": [{"step": k, "name": s[0], "max_x_m": s[1], "half_width_m": s[2]} for k, s in enumerate(TRIGGER_STEPS)],
+        "steps": [
+            {"step": k, "name": s[0], "max_x_m": s[1], "half_width_m": s[2]} for k, s in enumerate(TRIGGER_STEPS)
+        ],
         "trajectories": trajs,
         "distance_to_real": summarise(trajs),
         "data": {

@@ -33,7 +33,9 @@ def plot_trajectories(trajs: dict[str, list[dict[str, Any]]], path: Path, title:
         ax.plot(r, p, label=name, ms=5, **_STYLE.get(name, {}))
         if name in ("real", "reference"):
             for s in steps:
-                ax.annotate(str(s["step"]), (s["recall"], s["precision"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+                ax.annotate(
+                    str(s["step"]), (s["recall"], s["precision"]), fontsize=7, xytext=(3, 3), textcoords="offset points"
+                )
     ax.set_xlim(0, 1.02)
     ax.set_ylim(0, 1.02)
     ax.set_xlabel("recall")
@@ -74,7 +76,10 @@ def report_markdown(report: dict[str, Any]) -> str:
     lines += ["", "## Trajectories (precision / recall per step)", ""]
     lines += ["| step | " + " | ".join(names) + " | what changed |", "|---" * (len(names) + 2) + "|"]
     for k, s in enumerate(report["trajectories"][names[0]]):
-        cells = [f"{report['trajectories'][n][k]['precision']:.3f} / {report['trajectories'][n][k]['recall']:.3f}" for n in names]
+        cells = [
+            f"{report['trajectories'][n][k]['precision']:.3f} / {report['trajectories'][n][k]['recall']:.3f}"
+            for n in names
+        ]
         lines.append(f"| {s['step']} | " + " | ".join(cells) + f" | {s.get('name', '')} |")
     lines += ["", "## Data", "", "```json", json.dumps(report.get("data", {}), indent=1), "```", ""]
     return "\n".join(lines)
