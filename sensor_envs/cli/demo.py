@@ -107,7 +107,7 @@ def _scan_figure(lidars: tuple[str, ...], seed: int, path: Path) -> None:
         base: Any = env.unwrapped
         ax.plot(base.bearings, scan, label=lidar, **style)
         env.close()
-    ax.set_rlim(0.0, 5.0)  # the lidar's max range: spurious ~16.9 m returns fall outside (counted in the title)
+    ax.set_ylim(0.0, 5.0)  # the lidar's max range: spurious ~16.9 m returns fall outside (counted in the title)
     ax.set_title("One scan of each lidar from the same pose (seed room), range [m];\nreturns beyond 5 m not drawn")
     ax.legend(loc="lower left", fontsize=8)
     fig.savefig(path, dpi=120, bbox_inches="tight")

@@ -142,7 +142,8 @@ def run_episodes(
             action = 3 if u < 0.5 else 1 if u < 0.8 else (0 if u < 0.9 else 2)
             _, _, term, trunc, info = env.step(action)
             ri = info["radar"]
-            ego = env.unwrapped.vehicle
+            base: Any = env.unwrapped
+            ego = base.vehicle
             ego_v = np.asarray(ego.velocity, dtype=float)
             pose = ri.sensor_pose
             trk.step(ri.detections_world, ego_v)

@@ -245,7 +245,7 @@ def boxworld_experiment(
     rig = NeatoRig(unit_seed=unit_seed, max_range=max_range)
     g = baseline or _gaussian_from_card(model) or GaussianLidar()
     rng = np.random.default_rng(seed)
-    per: dict[str, list[dict[str, Any]]] = {}
+    per: dict[str, list[list[dict[str, Any]]]] = {}
     totals: dict[str, list[dict[str, Any]]] = {}
     n_boards = []
     for _ in tqdm(range(n_configs), desc="box-world configurations"):

@@ -149,7 +149,7 @@ def registration_experiment(
     odo = odo + rng.normal(0, [0.02, 0.01, 0.02], odo.shape)
     start = truth[0] + rng.normal(0, [0.05, 0.05, 0.03])
     r, a, _ = raycast_pose(truth, rig.bearings, segs, rig.max_range)
-    sources = {"reference": rig, "model": LearnedLidar(m), "baseline": gauss, "ideal": IdealLidar()}
+    sources: dict[str, Any] = {"reference": rig, "model": LearnedLidar(m), "baseline": gauss, "ideal": IdealLidar()}
     out: dict[str, Any] = {}
     for name, sensor in sources.items():
         scans = np.stack([sensor.measure(r[t], a[t], rng) for t in range(len(truth))])

@@ -14,7 +14,7 @@ import numpy as np  # noqa: E402
 
 __all__ = ["write_report", "plot_trajectories", "report_markdown", "closeness_sentence"]
 
-_STYLE = {
+_STYLE: dict[str, dict[str, Any]] = {
     "real": dict(color="k", marker="o", lw=2.0),
     "reference": dict(color="k", marker="o", lw=2.0),
     "model": dict(color="tab:blue", marker="s"),
