@@ -79,7 +79,8 @@ LIDAR_NOTES = (
     "no per-cell pose spread): the learned per-bearing noise, nulls and spurious returns without the "
     "independent pose term.",
     "'baseline' is the Gaussian lidar (refitted on the same training poses when the model is fitted): no "
-    "persistent nulls, so boards are seen whole more often than on the real sensor (recall too high).",
+    "persistent nulls, so boards are seen whole more often than on the real sensor (recall too high at the "
+    "recall steps).",
 )
 
 
