@@ -11,5 +11,8 @@ def test_demo_main_job_writes_pictures_and_report(tmp_path):
     assert report["highway_fast"]["ideal"]["detection_rate"] == 1.0
     assert report["highway_fast"]["kde"]["detection_rate"] < 1.0  # a realistic radar misses targets
     assert report["neato"]["learned"]["null_share"] > report["neato"]["ideal"]["null_share"]
-    for name in ("neato_ideal.png", "neato_learned.png", "neato_scans.png", "highway_kde.png"):
+    ev = report["evaluation"]
+    assert set(ev["board_detection_rig"]) >= {"rig", "learned", "gaussian", "ideal"}
+    assert set(ev["forward_collision_warning"]) == {"ideal", "gaussian", "kde"}
+    for name in ("neato_ideal.png", "neato_learned.png", "neato_scans.png", "highway_kde.png", "detection_pr.png"):
         assert (tmp_path / name).stat().st_size > 1000
