@@ -64,7 +64,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 from scipy.special import ndtr
 
-from sensor_envs.modelio import load_model_file, save_model_file
+from sensor_envs.modelio import ModelFileError, load_model_file, save_model_file
 from sensor_envs.radar.buckets import build_buckets, sample_proportional
 from sensor_envs.radar.log import RadarLog, TargetTuples, clutter_counts, target_tuples
 from sensor_envs.radar.relevance import select_corner_variance
@@ -470,6 +470,10 @@ class KDERadarModel:
         prev = np.atleast_2d(np.asarray(prev_z, dtype=np.float64)) if prev_z is not None else np.full((n, 2), np.nan)
         if prev.shape != (n, 2) or corners.shape != (n, 2):
             raise ValueError(f"corners and prev_z must both be (n, 2); got {corners.shape} and {prev.shape}")
+        if not np.isfinite(corners).all():
+            raise ValueError(
+                f"corners: row {int(np.flatnonzero(~np.isfinite(corners).all(axis=1))[0])} is NaN or infinite"
+            )
         use_main = ~np.isnan(prev[:, 0]) & (self._main_tree is not None)
         parts = []
         for mask, tree, idx_map, q in (
@@ -800,8 +804,25 @@ class KDERadarModel:
         model.card_ = header.get("card", {})
         if model.states_.shape[1] != 4 or model.z_.shape != (model.states_.shape[0], 2):
             raise ValueError(f"{path}: field 'states'/'z' have inconsistent shapes")
+        _check_grid_shapes(path, a)
         model._build()
         return model
+
+
+def _check_grid_shapes(path: str | os.PathLike[str], a: dict[str, NDArray]) -> None:
+    """Structural checks of the stored CV bandwidth grid: non-empty axes, ``log_h``/``cv_counts`` on them."""
+    nx, ny = a["grid_x"].size, a["grid_y"].size
+    for name in ("grid_x", "grid_y", "states", "cv_candidates"):
+        if a[name].shape[0] == 0:
+            raise ModelFileError(f"{path}: field {name!r} is empty")
+    if a["log_h"].shape != (nx, ny, 2):
+        raise ModelFileError(f"{path}: field 'log_h' has shape {a['log_h'].shape}, expected {(nx, ny, 2)}")
+    if a["cv_counts"].shape != (nx, ny):
+        raise ModelFileError(f"{path}: field 'cv_counts' has shape {a['cv_counts'].shape}, expected {(nx, ny)}")
+    if a["log_row"].shape != (a["states"].shape[0],):
+        raise ModelFileError(f"{path}: field 'log_row' does not match field 'states'")
+    if a["clutter_xy"].shape[1:] != (2,):
+        raise ModelFileError(f"{path}: field 'clutter_xy' has shape {a['clutter_xy'].shape}, expected (m, 2)")
 
 
 def _unique_states(corners: NDArray, prev: NDArray, min_n: int = 64) -> tuple[NDArray, NDArray]:
