@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 from collections.abc import Sequence
+from typing import Any
 
 from sensor_envs.cli import lidar as cli_lidar
 from sensor_envs.cli import radar as cli_radar
@@ -52,11 +55,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``sensor-envs``; returns the process exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    previous = _terminate_cleanly()
     try:
         return int(args.func(args) or 0)
     except USER_ERRORS as exc:
         print(f"sensor-envs {args.command}: error: {one_line(exc)}", file=sys.stderr)
         return 2
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _terminate_cleanly() -> Any:
+    """Turn SIGTERM into ``SystemExit(143)`` so that pending outputs are rolled back; returns the old handler."""
+
+    def handler(signum: int, frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, handler)
 
 
 def one_line(exc: BaseException) -> str:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -76,7 +77,7 @@ def _record(args: argparse.Namespace) -> int:
     if args.astyx:
         from sensor_envs.radar.astyx import load_astyx  # noqa: PLC0415
 
-        log = load_astyx(args.astyx, progress=True)
+        log = load_astyx(args.astyx, progress=sys.stderr.isatty())  # no bar in logs (or before a one-line error)
     else:
         from sensor_envs.radar.rig import RigConfig, record_rig_log  # noqa: PLC0415
 
@@ -86,7 +87,7 @@ def _record(args: argparse.Namespace) -> int:
             args.targets,
             np.random.default_rng(args.seed),
             RigConfig(cycle_time=args.cycle_time),
-            progress=True,
+            progress=sys.stderr.isatty(),
         )
     with OutputTransaction() as tx:
         write_log(log, tx.file(out))
