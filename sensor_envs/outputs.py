@@ -23,7 +23,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TypeVar
 
-__all__ = ["OutputError", "check_output", "check_suffix", "OutputTransaction", "atomic_write"]
+__all__ = ["OutputError", "check_inputs", "check_output", "check_suffix", "OutputTransaction", "atomic_write"]
 
 PathLike = str | os.PathLike[str]
 T = TypeVar("T")
@@ -61,6 +61,13 @@ def check_suffix(path: PathLike, suffixes: str | tuple[str, ...], option: str = 
             f"{p.suffix or 'no suffix'!r}"
         )
     return p
+
+
+def check_inputs(*paths: PathLike | None) -> None:
+    """Raise ``FileNotFoundError`` naming the first input that does not exist (checked before the outputs)."""
+    for p in paths:
+        if p is not None and not Path(p).exists():
+            raise FileNotFoundError(f"{p}: input not found")
 
 
 def check_output(

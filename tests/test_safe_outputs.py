@@ -62,9 +62,10 @@ def test_output_given_through_a_link_is_still_the_input(tmp_path, radar_log, cap
     copy.write_bytes(radar_log.read_bytes())
     (tmp_path / "sym.csv").symlink_to(copy)
     os.link(copy, tmp_path / "hard.csv")
+    (tmp_path / "m.npz").write_bytes(b"a model")
     before = _files(tmp_path)
     for alias in ("sym.csv", "hard.csv"):
-        argv = ["validate", "radar", "m.npz", str(copy), "--out", str(tmp_path / alias), "--force"]
+        argv = ["validate", "radar", str(tmp_path / "m.npz"), str(copy), "--out", str(tmp_path / alias), "--force"]
         assert main(argv) == 2
         assert "is also an input" in capsys.readouterr().err
     assert _files(tmp_path) == before

@@ -19,7 +19,7 @@ import numpy as np
 
 from sensor_envs.cli.args import about, add_force, nonneg_int, positive_int
 from sensor_envs.modelio import read_model
-from sensor_envs.outputs import OutputTransaction, check_output
+from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
 
 
 def register(verbs: dict[str, argparse._SubParsersAction[argparse.ArgumentParser]]) -> None:
@@ -76,6 +76,7 @@ def _fit(args: argparse.Namespace) -> int:
     from sensor_envs.lidar.lwlr import LidarLWLR  # noqa: PLC0415
     from sensor_envs.lidar.validate import fit_gaussian_lidar, model_card_markdown  # noqa: PLC0415
 
+    check_inputs(args.log)
     out = check_output(args.out, inputs=[args.log], force=args.force, suffix=".npz")
     card_out = check_output(out.with_suffix(".md"), inputs=[args.log], force=args.force, option="--out (model card)")
     log = load_log(args.log)
@@ -101,6 +102,7 @@ def _validate(args: argparse.Namespace) -> int:
     from sensor_envs.lidar.lwlr import LidarLWLR  # noqa: PLC0415
     from sensor_envs.lidar.validate import metrics_markdown, model_card_markdown, validate  # noqa: PLC0415
 
+    check_inputs(args.model, args.log)
     out = check_output(args.out, inputs=[args.model, args.log], force=args.force, folder=True)
     card = Path(args.model).with_suffix(".md")
     if args.card:  # --card asks to rewrite the model's own card; it must still not be an input

@@ -12,7 +12,7 @@ import numpy as np
 
 from sensor_envs.cli.args import about, add_force, nonneg_int, positive_float, positive_int
 from sensor_envs.modelio import read_model
-from sensor_envs.outputs import OutputTransaction, check_output
+from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
 
 
 def register(verbs: dict[str, "argparse._SubParsersAction[argparse.ArgumentParser]"]) -> None:
@@ -73,6 +73,7 @@ def _baseline_path(model: str) -> Path:
 def _record(args: argparse.Namespace) -> int:
     from sensor_envs.radar.log import write_log  # noqa: PLC0415
 
+    check_inputs(args.astyx)
     out = check_output(args.out, inputs=[args.astyx], force=args.force, suffix=".csv")
     if args.astyx:
         from sensor_envs.radar.astyx import load_astyx  # noqa: PLC0415
@@ -100,6 +101,7 @@ def _fit(args: argparse.Namespace) -> int:
     from sensor_envs.radar.kde import KDERadarModel  # noqa: PLC0415
     from sensor_envs.radar.log import read_log  # noqa: PLC0415
 
+    check_inputs(args.log)
     out = check_output(args.out, inputs=[args.log], force=args.force, suffix=".npz")
     base_out = check_output(
         args.baseline_out or _baseline_path(str(out)),
@@ -141,6 +143,7 @@ def _validate(args: argparse.Namespace) -> int:
     from sensor_envs.radar.log import read_log  # noqa: PLC0415
     from sensor_envs.radar.validate import validate, write_report  # noqa: PLC0415
 
+    check_inputs(args.model, args.log)
     base_path = Path(args.baseline) if args.baseline else _baseline_path(args.model)
     out = check_output(args.out, inputs=[args.model, base_path, args.log], force=args.force, folder=True)
     model = read_model(KDERadarModel, args.model)
