@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -64,7 +65,9 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
     name = f"{index:06d}"
     pc_path = root / "radar_6455" / f"{name}.txt"
     try:
-        pts = np.loadtxt(pc_path, skiprows=2, ndmin=2)
+        with warnings.catch_warnings():  # a frame without detections is valid; loadtxt warns about it
+            warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
+            pts = np.loadtxt(pc_path, skiprows=2, ndmin=2)
     except ValueError as exc:
         raise ValueError(f"{pc_path}: not a table of 5 numbers per row ({exc})") from exc
     if pts.size and pts.shape[1] != 5:
