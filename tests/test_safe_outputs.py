@@ -225,13 +225,21 @@ def test_atomic_write_and_check_output_units(tmp_path):
         check_output(p, folder=True, force=True)
 
 
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux /proc to see the signal handler")
 def test_sigterm_rolls_back_and_keeps_the_old_file(tmp_path):
     out = tmp_path / "precious.csv"
     out.write_text("precious\n")
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     cmd = [sys.executable, "-m", "sensor_envs.cli.main", "record", "radar", "--out", str(out), "--force"]
     proc = subprocess.Popen([*cmd, "--sequences", "20000"], env=env, stderr=subprocess.PIPE, text=True)
-    time.sleep(3.0)
+    status = Path(f"/proc/{proc.pid}/status")
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and proc.poll() is None:  # wait until the CLI catches SIGTERM
+        caught = next((ln for ln in status.read_text().splitlines() if ln.startswith("SigCgt:")), "SigCgt: 0")
+        if int(caught.split()[1], 16) & (1 << (signal.SIGTERM - 1)):
+            break
+        time.sleep(0.05)
+    time.sleep(0.5)
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 128 + signal.SIGTERM, err
