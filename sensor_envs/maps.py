@@ -167,17 +167,38 @@ def read_ros_map(yaml_path: str | os.PathLike[str]) -> SegmentMap:
     for key in ("image", "resolution", "origin"):
         if not isinstance(meta, dict) or key not in meta:
             raise ValueError(f"{path}: field {key!r} is missing (not a ROS map_server YAML)")
-    res = float(meta["resolution"])
+    res = _yaml_number(meta, "resolution", path)
     if not res > 0:
         raise ValueError(f"{path}: field 'resolution' must be > 0, got {res}")
-    origin = np.asarray(meta["origin"], dtype=np.float64)
+    try:
+        origin = np.asarray(meta["origin"], dtype=np.float64)
+    except (TypeError, ValueError):
+        origin = np.zeros(0)
     if origin.shape != (3,) or not np.isfinite(origin).all():
         raise ValueError(f"{path}: field 'origin' must be [x, y, yaw], got {meta['origin']!r}")
+    thresh = _yaml_number(meta, "occupied_thresh", path, 0.65)
+    if not 0.0 <= thresh <= 1.0:
+        raise ValueError(f"{path}: field 'occupied_thresh' must be a probability in [0, 1], got {thresh}")
+    negate = _yaml_number(meta, "negate", path, 0)
+    if negate not in (0, 1):
+        raise ValueError(f"{path}: field 'negate' must be 0 or 1, got {meta['negate']!r}")
     img = _read_image(path.parent / str(meta["image"]), path)
-    p = img / 255.0 if int(meta.get("negate", 0)) else (255.0 - img) / 255.0
-    occupied = p > float(meta.get("occupied_thresh", 0.65))
+    p = img / 255.0 if negate else (255.0 - img) / 255.0
+    occupied = p > thresh
     segs = occupancy_to_segments(occupied[::-1], res, origin)  # image row 0 is the top (largest y)
     return SegmentMap(as_segments(segs, name=f"{path}: occupied cells"), name=path.stem)
+
+
+def _yaml_number(meta: dict[str, Any], key: str, path: Path, default: float | None = None) -> float:
+    """Field ``key`` of a ROS map YAML as a finite float (``default`` when absent), else a ValueError naming it."""
+    value = meta.get(key, default)
+    try:
+        v = float(value) if not isinstance(value, bool) else float("nan")
+    except (TypeError, ValueError):
+        v = float("nan")
+    if not np.isfinite(v):
+        raise ValueError(f"{path}: field {key!r} must be a finite number, got {value!r}")
+    return v
 
 
 def _read_image(img_path: Path, yaml_path: Path) -> NDArray[np.float64]:
@@ -197,7 +218,20 @@ def _read_image(img_path: Path, yaml_path: Path) -> NDArray[np.float64]:
 
 
 def _parse_pgm(raw: bytes, path: Path) -> NDArray[np.float64]:
-    """Decode a binary (P5) PGM with 8-bit samples; comments allowed in the header."""
+    """Decode a binary (P5) PGM with 8-bit samples; comments allowed in the header.
+
+    Raises:
+        ValueError: naming the file and the header field (width, height, maxval) or the pixel data.
+    """
+    try:
+        return _parse_pgm_raw(raw, path)
+    except (ValueError, IndexError) as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: malformed PGM header or pixel data ({exc})") from None
+
+
+def _parse_pgm_raw(raw: bytes, path: Path) -> NDArray[np.float64]:
     tokens: list[bytes] = []
     pos = 2
     while len(tokens) < 3:
@@ -214,6 +248,12 @@ def _parse_pgm(raw: bytes, path: Path) -> NDArray[np.float64]:
     pos += 1
     if maxval > 255:
         raise ValueError(f"{path}: 16-bit PGM is not supported (maxval {maxval})")
+    if maxval < 1:
+        raise ValueError(f"{path}: field 'maxval' of the PGM header must be in 1..255, got {maxval}")
+    if width < 1 or height < 1:
+        raise ValueError(f"{path}: fields 'width'/'height' of the PGM header must be >= 1, got {width} x {height}")
+    if len(raw) - pos < width * height:
+        raise ValueError(f"{path}: pixel data holds {len(raw) - pos} bytes, the header says {width} x {height}")
     data = np.frombuffer(raw, dtype=np.uint8, count=width * height, offset=pos)
     return data.reshape(height, width).astype(np.float64) * (255.0 / maxval)
 

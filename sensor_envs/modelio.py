@@ -10,17 +10,37 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["ModelFileError", "save_model_file", "load_model_file"]
+from sensor_envs.outputs import atomic_write, check_suffix
+
+__all__ = ["ModelFileError", "save_model_file", "load_model_file", "read_model"]
 
 
 class ModelFileError(ValueError):
     """A model file is unreadable, of the wrong kind or version, or holds a malformed field."""
+
+
+M = TypeVar("M")
+
+
+def read_model(cls: Callable[[], M] | type[M], path: str | os.PathLike[str]) -> M:
+    """``cls.load(path)``, with a malformed header turned into a :class:`ModelFileError` naming the file.
+
+    The loaders check format, dtypes and shapes; a header entry of the wrong type or a missing
+    hyperparameter would otherwise surface as ``KeyError``/``TypeError`` from the model's constructor.
+    """
+    try:
+        return cls.load(path)  # type: ignore[union-attr]
+    except KeyError as exc:
+        raise ModelFileError(f"{path}: field '__header__' lacks {exc}") from None
+    except (TypeError, AttributeError, IndexError) as exc:
+        raise ModelFileError(f"{path}: field '__header__' holds a malformed entry ({exc})") from None
 
 
 def save_model_file(
@@ -32,18 +52,21 @@ def save_model_file(
 ) -> Path:
     """Write ``arrays`` and a JSON ``header`` to ``path`` (``.npz``); returns the path written.
 
-    The header gets ``kind`` and ``format_version`` added; it must be JSON-serialisable.
+    The header gets ``kind`` and ``format_version`` added; it must be JSON-serialisable. The file is
+    written to a temporary sibling and renamed (an interrupted save leaves the old file intact).
+
+    Raises:
+        OutputError: when ``path`` does not end in ``.npz`` (never silently renamed).
     """
-    path = Path(path)
-    if path.suffix != ".npz":
-        path = path.with_suffix(".npz")
+    path = check_suffix(path, ".npz", option="model file")
     meta = dict(header, kind=kind, format_version=int(format_version))
     blob = np.frombuffer(json.dumps(meta, sort_keys=True).encode("utf-8"), dtype=np.uint8)
     for name, arr in arrays.items():
         if np.asarray(arr).dtype == object:
             raise TypeError(f"array {name!r} has dtype object, which cannot be saved without pickle")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(path, __header__=blob, **{k: np.asarray(v) for k, v in arrays.items()})
+    atomic_write(
+        path, lambda tmp: np.savez_compressed(tmp, __header__=blob, **{k: np.asarray(v) for k, v in arrays.items()})
+    )
     return path
 
 
@@ -80,8 +103,10 @@ def load_model_file(
         raise ModelFileError(f"{path}: field '__header__' is missing (not a sensor_envs model file)")
     try:
         header = json.loads(data.pop("__header__").tobytes().decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ModelFileError(f"{path}: field '__header__' is not valid JSON ({exc})") from exc
+    except (UnicodeDecodeError, json.JSONDecodeError, ValueError) as exc:
+        raise ModelFileError(f"{path}: field '__header__' is not valid JSON ({exc})") from None
+    if not isinstance(header, dict):
+        raise ModelFileError(f"{path}: field '__header__' must be a JSON object, got a JSON {type(header).__name__}")
     if header.get("kind") != kind:
         raise ModelFileError(f"{path}: field 'kind' is {header.get('kind')!r}, expected {kind!r}")
     if header.get("format_version") not in supported_versions:
@@ -89,6 +114,11 @@ def load_model_file(
             f"{path}: field 'format_version' is {header.get('format_version')!r}; this version of sensor_envs "
             f"reads {list(supported_versions)}"
         )
+    for key, typ in (("params", dict), ("card", dict)):
+        if key not in header and key == "params":
+            raise ModelFileError(f"{path}: field '__header__' lacks {key!r}")
+        if key in header and not isinstance(header[key], typ):
+            raise ModelFileError(f"{path}: field '__header__' entry {key!r} must be a JSON object")
     for name, (kinds, ndim, finite) in schema.items():
         if name not in data:
             raise ModelFileError(f"{path}: field {name!r} is missing")
@@ -368,19 +398,24 @@ def params_from_header(
     header: dict[str, Any],
     constraints: dict[str, list[Constraint]],
     defaults: dict[str, Any] | None = None,
+    not_saved: tuple[str, ...] = ("progress", "random_state"),
 ) -> dict[str, Any]:
     """A model file's hyperparameters (header field ``params``), checked against the model's table.
 
-    JSON lists become tuples; ``defaults`` fill parameters that older format versions lack.
+    JSON lists become tuples; ``defaults`` fill parameters that older format versions lack; any other
+    missing hyperparameter is an error, except the run-time-only ones named in ``not_saved``.
 
     Raises:
         ModelFileError: naming the file and the field: ``params`` missing or not a mapping, an unknown
-            hyperparameter, or a value the table refuses.
+            hyperparameter, a missing one, or a value the table refuses.
     """
     raw = header.get("params") if isinstance(header, dict) else None
     if not isinstance(raw, dict):
         raise ModelFileError(f"{path}: field 'params' is missing or not a mapping")
     params = {**(defaults or {}), **{k: (tuple(v) if isinstance(v, list) else v) for k, v in raw.items()}}
+    missing = sorted(set(constraints) - set(params) - set(not_saved))
+    if missing:  # a silently defaulted hyperparameter would be another model than the one saved
+        raise ModelFileError(f"{path}: field 'params.{missing[0]}' is missing")
     validate_params(params, constraints, path)
     return params
 

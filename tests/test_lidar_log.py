@@ -93,7 +93,8 @@ def test_carmen_flaser_and_robotlaser(tmp_path):
     log = load_log(path)
     assert log.ranges.shape == (2, 4, 1)
     np.testing.assert_allclose(log.ranges[0, :, 0], [1.0, 2.0, 0.0, 0.5])  # >= 80 m is a null
-    np.testing.assert_allclose(log.bearings, -np.pi / 2 + np.arange(4) * np.pi / 4)
+    # n FLASER beams span [-pi/2, pi/2] with both ends included (this line asserted the old, wrong pi / n)
+    np.testing.assert_allclose(log.bearings, -np.pi / 2 + np.arange(4) * np.pi / 3)
     np.testing.assert_allclose(log.poses[0], [1.0, 2.0, 0.3])
     path2 = tmp_path / "y.log"
     path2.write_text(rl)
@@ -101,6 +102,16 @@ def test_carmen_flaser_and_robotlaser(tmp_path):
     np.testing.assert_allclose(log2.ranges[0, :, 0], [1.0, 0.0, 0.0])  # 25 m > 20 m max, 0 is a null
     np.testing.assert_allclose(log2.poses[0], [1.1, 2.1, 0.4])
     np.testing.assert_allclose(log2.bearings, [-1.5708, 0.0, 1.5708])
+
+
+def test_carmen_361_beam_flaser_has_half_degree_steps(tmp_path):
+    ranges = " ".join(["1.5"] * 361)
+    path = tmp_path / "x.log"
+    path.write_text(f"FLASER 361 {ranges} 1.0 2.0 0.3 1.0 2.0 0.3 12.5 host 12.5\n")
+    b = load_log(path).bearings
+    assert b.size == 361
+    np.testing.assert_allclose(b[[0, 180, 360]], [-np.pi / 2, 0.0, np.pi / 2], atol=1e-12)
+    np.testing.assert_allclose(np.diff(b), np.deg2rad(0.5))
 
 
 def test_carmen_without_laser_lines(tmp_path):

@@ -30,6 +30,7 @@ from tqdm import tqdm
 
 import sensor_envs  # noqa: F401  (registers the ids)
 from sensor_envs.lidar.sensors import LIDAR_NAMES
+from sensor_envs.outputs import OutputTransaction, check_output
 from sensor_envs.radar.sensors import RADAR_NAMES
 
 __all__ = ["run_demo", "reactive_action"]
@@ -180,17 +181,22 @@ def _evaluation(seed: int, out: Path) -> dict[str, Any]:
     }
 
 
-def run_demo(out: str | Path, seed: int = 0, episodes: int = 10) -> dict[str, Any]:
-    """Run the demo into folder ``out``; returns (and writes to ``out/report.json``) the summary."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+def run_demo(out: str | Path, seed: int = 0, episodes: int = 10, force: bool = False) -> dict[str, Any]:
+    """Run the demo into folder ``out``; returns (and writes to ``out/report.json``) the summary.
+
+    The folder is built beside ``out`` and renamed onto it at the end (an existing non-empty ``out``
+    is refused unless ``force``, and replaced only after the demo succeeded).
+    """
+    out = check_output(out, folder=True, force=force)
     report: dict[str, Any] = {"seed": seed, "neato": {}}
-    for lidar in tqdm(LIDAR_NAMES, desc="Neato-v0 lidars"):
-        report["neato"][lidar] = _drive(lidar, seed, episodes, out)
-    _scan_figure(LIDAR_NAMES, seed, out / "neato_scans.png")
-    report["highway_fast"] = {radar: _highway(radar, seed, 20, out) for radar in tqdm(RADAR_NAMES, desc="radars")}
-    report["evaluation"] = _evaluation(seed, out)
-    (out / "report.json").write_text(json.dumps(report, indent=2))
+    with OutputTransaction() as tx:
+        tmp = tx.folder(out)
+        for lidar in tqdm(LIDAR_NAMES, desc="Neato-v0 lidars"):
+            report["neato"][lidar] = _drive(lidar, seed, episodes, tmp)
+        _scan_figure(LIDAR_NAMES, seed, tmp / "neato_scans.png")
+        report["highway_fast"] = {radar: _highway(radar, seed, 20, tmp) for radar in tqdm(RADAR_NAMES, desc="radars")}
+        report["evaluation"] = _evaluation(seed, tmp)
+        (tmp / "report.json").write_text(json.dumps(report, indent=2))
     print(json.dumps(report, indent=2))
     print(f"pictures and report.json written to {out.resolve()}")
     return report

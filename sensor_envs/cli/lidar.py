@@ -17,23 +17,29 @@ from pathlib import Path
 
 import numpy as np
 
+from sensor_envs.cli.args import about, add_force, nonneg_int, positive_int
+from sensor_envs.modelio import read_model
+from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
+
 
 def register(verbs: dict[str, argparse._SubParsersAction[argparse.ArgumentParser]]) -> None:
     """Add the ``lidar`` sub-commands under each verb parser in ``verbs``."""
     rec = verbs["record"].add_parser("lidar", help="record a static-pose log from the reference Neato rig")
     rec.add_argument("--out", required=True, help="output log (.npz)")
     rec.add_argument("--map", default="seed_room", help="map name or file (default: seed_room)")
-    rec.add_argument("--poses", type=int, default=30, help="number of static poses (default: 30)")
-    rec.add_argument("--repeats", type=int, default=200, help="readings per pose and bearing (default: 200)")
-    rec.add_argument("--seed", type=int, default=0, help="seed of poses, map error and noise (default: 0)")
-    rec.add_argument("--unit-seed", type=int, default=0, help="seed of the rig unit's bias (default: 0)")
+    rec.add_argument("--poses", type=positive_int, default=30, help="number of static poses (default: 30)")
+    rec.add_argument("--repeats", type=positive_int, default=200, help="readings per pose and bearing (default: 200)")
+    rec.add_argument("--seed", type=nonneg_int, default=0, help="seed of poses, map error and noise (default: 0)")
+    rec.add_argument("--unit-seed", type=nonneg_int, default=0, help="seed of the rig unit's bias (default: 0)")
+    add_force(rec)
     rec.set_defaults(func=_record)
     fit = verbs["fit"].add_parser("lidar", help="fit the per-bearing LWLR lidar model to a log")
     fit.add_argument("log", help="lidar log (.npz, CARMEN log or ROS bag)")
     fit.add_argument("--out", required=True, help="output model file (.npz); the card goes to MODEL.md")
     fit.add_argument("--variant", choices=("seed", "extended"), default="extended")
-    fit.add_argument("--folds", type=int, default=10, help="cross-validation folds (default: 10)")
-    fit.add_argument("--seed", type=int, default=0, help="seed of the fold assignment (default: 0)")
+    fit.add_argument("--folds", type=positive_int, default=10, help="cross-validation folds (default: 10)")
+    fit.add_argument("--seed", type=nonneg_int, default=0, help="seed of the fold assignment (default: 0)")
+    add_force(fit)
     fit.add_argument("--note", action="append", default=[], help="a line for the model card (e.g. how LOG was made)")
     fit.set_defaults(func=_fit)
     val = verbs["validate"].add_parser("lidar", help="compare a lidar model and its baselines with a log")
@@ -41,6 +47,7 @@ def register(verbs: dict[str, argparse._SubParsersAction[argparse.ArgumentParser
     val.add_argument("log", help="lidar log")
     val.add_argument("--out", required=True, help="output folder (report.json, report.md, plots)")
     val.add_argument("--card", action="store_true", help="rewrite MODEL.md with this validation")
+    add_force(val)
     val.set_defaults(func=_validate)
 
 
@@ -53,10 +60,13 @@ def _record(args: argparse.Namespace) -> int:
     from sensor_envs.lidar.rig import NeatoRig
     from sensor_envs.maps import load_map
 
+    out = check_output(args.out, inputs=[args.map], force=args.force, suffix=".npz")
     log, _ = NeatoRig(unit_seed=args.unit_seed).record(
         load_map(args.map).segments, np.random.default_rng(args.seed), n_poses=args.poses, repeats=args.repeats
     )
-    path = save_log(log, args.out)
+    with OutputTransaction() as tx:
+        save_log(log, tx.file(out))
+    path = out
     print(f"wrote {path}: {log.n_poses} poses x {log.n_bearings} bearings x {log.ranges.shape[2]} repeats")
     return 0
 
@@ -66,17 +76,23 @@ def _fit(args: argparse.Namespace) -> int:
     from sensor_envs.lidar.lwlr import LidarLWLR
     from sensor_envs.lidar.validate import fit_gaussian_lidar, model_card_markdown
 
+    check_inputs(args.log)
+    out = check_output(args.out, inputs=[args.log], force=args.force, suffix=".npz")
+    card_out = check_output(out.with_suffix(".md"), inputs=[args.log], force=args.force, option="--out (model card)")
     log = load_log(args.log)
     t0 = time.perf_counter()
-    model = LidarLWLR(variant=args.variant, n_folds=args.folds, random_state=args.seed).fit(log)
-    g = fit_gaussian_lidar(log, model.spur_above, model.max_range)
+    with about(args.log):
+        model = LidarLWLR(variant=args.variant, n_folds=args.folds, random_state=args.seed).fit(log)
+        g = fit_gaussian_lidar(log, model.spur_above, model.max_range)
     model.card_extra_ = {
         "gaussian_baseline": {k: float(v) for k, v in vars(g).items()},
         "fit_seconds": time.perf_counter() - t0,
         "commands": [*args.note, _command()],
     }
-    path = model.save(args.out)
-    path.with_suffix(".md").write_text(model_card_markdown(model, model.card_extra_["commands"]))
+    with OutputTransaction() as tx:  # model and card: both or neither
+        model.save(tx.file(out))
+        tx.file(card_out).write_text(model_card_markdown(model, model.card_extra_["commands"]), encoding="utf-8")
+    path = out
     print(f"wrote {path} and {path.with_suffix('.md')} in {time.perf_counter() - t0:.1f} s; kernel widths {model.h_}")
     return 0
 
@@ -86,13 +102,21 @@ def _validate(args: argparse.Namespace) -> int:
     from sensor_envs.lidar.lwlr import LidarLWLR
     from sensor_envs.lidar.validate import metrics_markdown, model_card_markdown, validate
 
-    model = LidarLWLR.load(args.model)
-    report = validate(model, load_log(args.log), args.out)
+    check_inputs(args.model, args.log)
+    out = check_output(args.out, inputs=[args.model, args.log], force=args.force, folder=True)
+    card = Path(args.model).with_suffix(".md")
+    if args.card:  # --card asks to rewrite the model's own card; it must still not be an input
+        check_output(card, inputs=[args.model, args.log], force=True, suffix=".md", option="--card")
+    model = read_model(LidarLWLR, args.model)
+    log = load_log(args.log)
+    with OutputTransaction() as tx:  # report folder and card: all or nothing
+        with about(args.log):
+            report = validate(model, log, tx.folder(out))
+        if args.card:
+            cmds = [*model.card_extra_.get("commands", ["sensor-envs fit lidar ..."]), _command()]
+            tx.file(card).write_text(model_card_markdown(model, cmds, report), encoding="utf-8")
     print(metrics_markdown(report["metrics"]))
     if args.card:
-        card = Path(args.model).with_suffix(".md")
-        cmds = [*model.card_extra_.get("commands", ["sensor-envs fit lidar ..."]), _command()]
-        card.write_text(model_card_markdown(model, cmds, report))
         print(f"rewrote {card}")
     print(f"wrote {Path(args.out) / 'report.json'}")
     return 0

@@ -3,22 +3,34 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 from collections.abc import Sequence
+from typing import Any
 
 from sensor_envs.cli import evaluate as cli_evaluate
 from sensor_envs.cli import lidar as cli_lidar
 from sensor_envs.cli import radar as cli_radar
+from sensor_envs.cli.args import OneLineParser, add_force, nonneg_int, positive_int
+
+USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError, EOFError)
+"""Exceptions that mean bad input (a malformed file, an unsafe output, a missing file...): one line, exit 2.
+
+The loaders turn their failures into these (``ModelFileError``, ``LidarLogError``, ``RadarLogError``,
+``OutputError`` are ``ValueError``s); anything else is a bug and keeps its traceback.
+"""
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser, with the lidar and radar sub-commands registered."""
-    parser = argparse.ArgumentParser(prog="sensor-envs", description=__doc__)
+    parser = OneLineParser(prog="sensor-envs", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="the main job: drive every env with every sensor, write pictures and a report")
     demo.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
-    demo.add_argument("--seed", type=int, default=0)
-    demo.add_argument("--episodes", type=int, default=10, help="episodes per env and sensor (default: 10)")
+    demo.add_argument("--seed", type=nonneg_int, default=0)
+    demo.add_argument("--episodes", type=positive_int, default=10, help="episodes per env and sensor (default: 10)")
+    add_force(demo)
     demo.set_defaults(func=_run_demo)
     verbs = {}
     for verb, text in (
@@ -39,7 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _run_demo(args: argparse.Namespace) -> int:
     from sensor_envs.cli.demo import run_demo
 
-    run_demo(args.out, seed=args.seed, episodes=args.episodes)
+    run_demo(args.out, seed=args.seed, episodes=args.episodes, force=args.force)
     return 0
 
 
@@ -47,11 +59,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``sensor-envs``; returns the process exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    previous = _terminate_cleanly()
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, OSError) as exc:
-        print(f"sensor-envs {args.command}: error: {exc}", file=sys.stderr)
+    except USER_ERRORS as exc:
+        print(f"sensor-envs {args.command}: error: {one_line(exc)}", file=sys.stderr)
         return 2
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _terminate_cleanly() -> Any:
+    """Turn SIGTERM into ``SystemExit(143)`` so that pending outputs are rolled back; returns the old handler."""
+
+    def handler(signum: int, frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, handler)
+
+
+def one_line(exc: BaseException) -> str:
+    """The exception's message on one line (``EOFError`` etc. get their type name when the text is bare)."""
+    text = " ".join(str(exc).split())
+    return text if text and not isinstance(exc, EOFError) else f"{type(exc).__name__}: {text or 'no detail'}"
 
 
 if __name__ == "__main__":

@@ -4,29 +4,35 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from sensor_envs.cli.args import about, add_force, nonneg_int, positive_float, positive_int
+from sensor_envs.modelio import read_model
+from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
 
 
 def register(verbs: dict[str, "argparse._SubParsersAction[argparse.ArgumentParser]"]) -> None:
     """Add the ``radar`` sub-commands under each verb parser in ``verbs``."""
     rec = verbs["record"].add_parser("radar", help="record a radar object log from the reference rig (or Astyx)")
     rec.add_argument("--out", required=True, help="output CSV log")
-    rec.add_argument("--seed", type=int, default=0)
-    rec.add_argument("--sequences", type=int, default=50, help="rig scenarios (default 50)")
-    rec.add_argument("--cycles", type=int, default=40, help="radar cycles per scenario (default 40)")
-    rec.add_argument("--targets", type=int, default=8, help="target boxes per scenario (default 8)")
-    rec.add_argument("--cycle-time", type=float, default=1.0, help="seconds between cycles (default 1.0)")
+    rec.add_argument("--seed", type=nonneg_int, default=0)
+    rec.add_argument("--sequences", type=positive_int, default=50, help="rig scenarios (default 50)")
+    rec.add_argument("--cycles", type=positive_int, default=40, help="radar cycles per scenario (default 40)")
+    rec.add_argument("--targets", type=positive_int, default=8, help="target boxes per scenario (default 8)")
+    rec.add_argument("--cycle-time", type=positive_float, default=1.0, help="seconds between cycles (default 1.0)")
     rec.add_argument("--astyx", default=None, help="convert this astyx_hires2019 folder instead of the rig")
+    add_force(rec)
     rec.set_defaults(func=_record)
     fit = verbs["fit"].add_parser("radar", help="fit the KDE radar model and its Gaussian baseline to a log")
     fit.add_argument("log", help="radar log CSV")
     fit.add_argument("--out", required=True, help="KDE model file (.npz); the baseline goes to <out>_gaussian.npz")
     fit.add_argument("--baseline-out", default=None, help="Gaussian baseline file (default <out>_gaussian.npz)")
     fit.add_argument("--no-prev", action="store_true", help="do not condition on z_{t-1} (for non-time-series logs)")
-    fit.add_argument("--cycle-time", type=float, default=None, help="seconds between frames of the log")
+    fit.add_argument("--cycle-time", type=positive_float, default=None, help="seconds between frames of the log")
     fit.add_argument("--cv-group", default="track", choices=("track", "sequence", "row"))
     fit.add_argument(
         "--relevance",
@@ -34,7 +40,8 @@ def register(verbs: dict[str, "argparse._SubParsersAction[argparse.ArgumentParse
         choices=("paper", "cv"),
         help="relevance kernel: the seed's (paper) or corner variance chosen by CV on this log",
     )
-    fit.add_argument("--seed", type=int, default=0)
+    fit.add_argument("--seed", type=nonneg_int, default=0)
+    add_force(fit)
     fit.set_defaults(func=_fit)
     val = verbs["validate"].add_parser("radar", help="compare a KDE model and its baseline with a (held-out) log")
     val.add_argument("model", help="KDE model file (.npz)")
@@ -45,7 +52,8 @@ def register(verbs: dict[str, "argparse._SubParsersAction[argparse.ArgumentParse
         default=None,
         help="Gaussian baseline (default <model>_gaussian.npz; <name>_gaussian.npz for <name>_kde.npz)",
     )
-    val.add_argument("--seed", type=int, default=0)
+    val.add_argument("--seed", type=nonneg_int, default=0)
+    add_force(val)
     val.set_defaults(func=_validate)
 
 
@@ -65,10 +73,12 @@ def _baseline_path(model: str) -> Path:
 def _record(args: argparse.Namespace) -> int:
     from sensor_envs.radar.log import write_log
 
+    check_inputs(args.astyx)
+    out = check_output(args.out, inputs=[args.astyx], force=args.force, suffix=".csv")
     if args.astyx:
         from sensor_envs.radar.astyx import load_astyx
 
-        log = load_astyx(args.astyx, progress=True)
+        log = load_astyx(args.astyx, progress=sys.stderr.isatty())  # no bar in logs (or before a one-line error)
     else:
         from sensor_envs.radar.rig import RigConfig, record_rig_log
 
@@ -78,10 +88,11 @@ def _record(args: argparse.Namespace) -> int:
             args.targets,
             np.random.default_rng(args.seed),
             RigConfig(cycle_time=args.cycle_time),
-            progress=True,
+            progress=sys.stderr.isatty(),
         )
-    path = write_log(log, args.out)
-    print(f"wrote {len(log)} rows to {path}")
+    with OutputTransaction() as tx:
+        write_log(log, tx.file(out))
+    print(f"wrote {len(log)} rows to {out}")
     return 0
 
 
@@ -90,12 +101,22 @@ def _fit(args: argparse.Namespace) -> int:
     from sensor_envs.radar.kde import KDERadarModel
     from sensor_envs.radar.log import read_log
 
+    check_inputs(args.log)
+    out = check_output(args.out, inputs=[args.log], force=args.force, suffix=".npz")
+    base_out = check_output(
+        args.baseline_out or _baseline_path(str(out)),
+        inputs=[args.log, out],
+        force=args.force,
+        suffix=".npz",
+        option="--baseline-out",
+    )
     log = read_log(args.log)
     t0 = time.perf_counter()
     model = KDERadarModel(
         use_prev=not args.no_prev, cv_group=args.cv_group, relevance=args.relevance, random_state=args.seed
     )
-    model.fit(log, cycle_time=args.cycle_time, progress=args.relevance == "cv")
+    with about(args.log):
+        model.fit(log, cycle_time=args.cycle_time, progress=args.relevance == "cv")
     fit_s = time.perf_counter() - t0
     card = {
         "log": str(args.log),
@@ -107,10 +128,12 @@ def _fit(args: argparse.Namespace) -> int:
         "relevance": args.relevance,
         "rel_variance_fitted": list(model.rel_variance_),
     }
-    path = model.save(args.out, card=card)
-    base_path = args.baseline_out or _baseline_path(str(path))
-    base = GaussianRadar().fit(log, cycle_time=args.cycle_time).save(base_path, card=card)
-    print(f"fitted {model.states_.shape[0]} tuples in {fit_s:.1f} s -> {path}; baseline -> {base}")
+    with about(args.log):
+        baseline = GaussianRadar().fit(log, cycle_time=args.cycle_time)
+    with OutputTransaction() as tx:  # model and baseline: both or neither
+        model.save(tx.file(out), card=card)
+        baseline.save(tx.file(base_out), card=card)
+    print(f"fitted {model.states_.shape[0]} tuples in {fit_s:.1f} s -> {out}; baseline -> {base_out}")
     return 0
 
 
@@ -120,15 +143,21 @@ def _validate(args: argparse.Namespace) -> int:
     from sensor_envs.radar.log import read_log
     from sensor_envs.radar.validate import validate, write_report
 
-    model = KDERadarModel.load(args.model)
+    check_inputs(args.model, args.log)
     base_path = Path(args.baseline) if args.baseline else _baseline_path(args.model)
+    out = check_output(args.out, inputs=[args.model, base_path, args.log], force=args.force, folder=True)
+    model = read_model(KDERadarModel, args.model)
     if not base_path.exists():
         raise FileNotFoundError(f"{base_path}: Gaussian baseline not found; pass --baseline (fit radar writes one)")
-    baseline = GaussianRadar.load(base_path)
+    baseline = read_model(GaussianRadar, base_path)
     log = read_log(args.log)
-    report = validate(model, baseline, log, seed=args.seed)
+    with about(args.log):
+        report = validate(model, baseline, log, seed=args.seed)
     report.update(model_file=str(args.model), baseline_file=str(base_path))
-    path = write_report(report, args.out, model=model, log=log)
+    with OutputTransaction() as tx:
+        with about(args.log):
+            write_report(report, tx.folder(out), model=model, log=log)
+    path = out / "report.json"
     summary = {k: report[k]["nll_z_given_detected"] for k in ("model", "baseline_gaussian")}
     print(f"wrote {path}; NLL(z | detected): {json.dumps(summary)}")
     return 0

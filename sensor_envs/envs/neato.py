@@ -131,8 +131,21 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         return obs, info
 
     def step(self, action: NDArray[np.float32]) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
-        """Drive with normalised ``(v, omega)`` (clipped to ``[-1, 1]``) for ``dt`` seconds."""
-        a = np.clip(np.asarray(action, dtype=np.float64).reshape(2), -1.0, 1.0)
+        """Drive with normalised ``(v, omega)`` (clipped to ``[-1, 1]``) for ``dt`` seconds.
+
+        Raises:
+            gymnasium.error.ResetNeeded: when called before :meth:`reset`.
+            ValueError: for an action that is not two finite numbers (NaN cannot be clipped).
+        """
+        if self._sensor_rng is None:
+            raise gym.error.ResetNeeded("Neato-v0: call reset() before step()")
+        try:
+            a = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"action: expected two numbers (v, omega) in [-1, 1], got {action!r}") from None
+        if a.size != 2 or not np.isfinite(a).all():
+            raise ValueError(f"action: expected two finite numbers (v, omega) in [-1, 1], got {action!r}")
+        a = np.clip(a.reshape(2), -1.0, 1.0)
         self.pose = unicycle_step(self.pose, a[0] * self.v_max, a[1] * self.omega_max, self.dt)
         collision = self._collides(self.pose)
         obs, info = self._observe(collision=collision)
@@ -199,7 +212,19 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         p = np.asarray(options[key], dtype=np.float64)
         if p.shape != (3,) or not np.isfinite(p).all():
             raise ValueError(f"options[{key!r}]: expected a finite pose (x, y, theta), got {options[key]!r}")
+        if not self._enclosed(p):
+            raise ValueError(f"options[{key!r}]: {options[key]!r} lies outside map {self.world_map.name!r}")
+        if key == "start" and self._collides(p):
+            raise ValueError(
+                f"options[{key!r}]: {options[key]!r} is within the robot radius {self.robot_radius} m of a wall"
+            )
         return p
+
+    def _enclosed(self, p: NDArray[np.float64]) -> bool:
+        """Whether rays in 8 directions from ``p`` all hit the map (``p`` lies inside its enclosure)."""
+        return bool(
+            np.isfinite(raycast_pose(p, np.linspace(0, 2 * np.pi, 8, endpoint=False), self.world_map.segments)[0]).all()
+        )
 
     def _sample_free_pose(self, away_from: NDArray[np.float64] | None = None, tries: int = 2000) -> NDArray[np.float64]:
         """A pose with clearance from every wall, enclosed by the map, drawn from the world's stream."""

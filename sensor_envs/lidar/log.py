@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import gzip
 import os
+import struct
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, quaternion_yaw
+from sensor_envs.outputs import atomic_write, check_suffix
 
 __all__ = ["LidarLog", "LidarLogError", "load_log", "save_log", "read_carmen", "read_rosbag", "log_from_arrays"]
 
@@ -92,6 +95,8 @@ def _err(source: str, name: str, msg: str) -> LidarLogError:
 
 
 def _float_array(source: str, name: str, value: Any) -> NDArray[np.float64]:
+    if np.iscomplexobj(value):  # never drop an imaginary part silently
+        raise _err(source, name, "holds complex numbers; expected real values")
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -203,10 +208,11 @@ def _read_npz(p: Path) -> LidarLog:
 
 
 def save_log(log: LidarLog, path: PathLike) -> Path:
-    """Write ``log`` in the project's ``.npz`` format (``(S, K)`` ranges when it has one repeat)."""
-    p = Path(path)
-    if p.suffix != ".npz":
-        p = p.with_suffix(".npz")
+    """Write ``log`` in the project's ``.npz`` format (``(S, K)`` ranges when it has one repeat).
+
+    Written to a temporary sibling and renamed; a path not ending in ``.npz`` is an ``OutputError``.
+    """
+    p = check_suffix(path, ".npz", option="lidar log")
     arrays: dict[str, NDArray[Any]] = {
         "ranges": (log.ranges[:, :, 0] if log.ranges.shape[2] == 1 else log.ranges).astype(np.float32),
         "bearings": log.bearings,
@@ -217,8 +223,7 @@ def save_log(log: LidarLog, path: PathLike) -> Path:
     if log.t is not None:
         arrays["t"] = log.t
     arrays.update({f"cov_{k}": v for k, v in log.covariates.items()})
-    p.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(p, **arrays)
+    atomic_write(p, lambda tmp: np.savez_compressed(tmp, **arrays))
     return p
 
 
@@ -235,7 +240,9 @@ def _parse_flaser(tok: list[str]) -> tuple[NDArray[np.float64], NDArray[np.float
     n = int(tok[1])
     r = np.asarray(tok[2 : 2 + n], dtype=np.float64)
     pose = np.asarray(tok[2 + n : 5 + n], dtype=np.float64)
-    b = -np.pi / 2 + np.arange(n) * np.pi / n
+    if n < 2:
+        raise ValueError(f"{n} readings; FLASER needs at least 2")
+    b = -np.pi / 2 + np.arange(n) * np.pi / (n - 1)  # n beams over [-pi/2, pi/2], both ends included
     return r, b, pose, float(tok[8 + n]), 80.0
 
 
@@ -254,7 +261,8 @@ def _parse_robotlaser1(
 def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = None) -> LidarLog:
     """Read ``FLASER`` and ``ROBOTLASER1`` lines of a CARMEN log (optionally gzipped) into a log.
 
-    FLASER bearing ``i`` is ``-pi/2 + i * pi / n`` [rad]; ROBOTLASER1 uses its start angle and
+    FLASER bearing ``i`` of ``n`` is ``-pi/2 + i * pi / (n - 1)`` [rad] (``n`` beams over the 180 degrees
+    field of view, both ends included: 361 beams are 0.5 degree steps); ROBOTLASER1 uses its start angle and
     resolution and its laser pose. A range ``>= max_range`` (default: 80 m for FLASER, the message's
     maximum range for ROBOTLASER1) or ``<= 0`` is a null (stored as ``0``).
 
@@ -265,12 +273,28 @@ def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = No
         max_range: override of the null threshold [m].
 
     Raises:
-        LidarLogError: when the file holds no laser line, a line is malformed, or scans differ in size.
+        LidarLogError: when the file holds no laser line, a line is malformed, scans differ in size, or
+            the file is unreadable (truncated or non-gzip ``.gz``, bytes that are not UTF-8 text).
     """
     p = Path(path)
+    try:
+        scans, poses, times, bearings = _read_carmen_lines(p, max_range)
+    except (EOFError, OSError, UnicodeDecodeError, zlib.error) as exc:
+        what = "a gzip file" if p.suffix == ".gz" else "UTF-8 text"
+        detail = "truncated" if isinstance(exc, EOFError) else " ".join(str(exc).split())
+        raise LidarLogError(f"{p}: field 'ranges': the file is not readable as {what} ({detail})") from None
+    if not scans:
+        raise LidarLogError(f"{p}: field 'ranges': no FLASER or ROBOTLASER1 line found")
+    return log_from_arrays(
+        np.stack(scans), bearings, np.stack(poses), _map_or_none(map), np.asarray(times), source=str(p)
+    )
+
+
+def _read_carmen_lines(p: Path, max_range: float | None) -> tuple[list[Any], list[Any], list[float], Any]:
+    """Scans (nulls as 0), poses, times and bearings of the laser lines of CARMEN log ``p``."""
     opener = gzip.open if p.suffix == ".gz" else open
     scans, poses, times, bearings = [], [], [], None
-    with opener(p, "rt") as f:
+    with opener(p, "rt", encoding="utf-8") as f:
         for lineno, line in enumerate(f, 1):
             tok = line.split()
             if not tok or tok[0] not in ("FLASER", "ROBOTLASER1"):
@@ -287,11 +311,7 @@ def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = No
             scans.append(np.where((r >= thr) | (r <= 0), 0.0, r))
             poses.append(pose)
             times.append(ts)
-    if not scans:
-        raise LidarLogError(f"{p}: field 'ranges': no FLASER or ROBOTLASER1 line found")
-    return log_from_arrays(
-        np.stack(scans), bearings, np.stack(poses), _map_or_none(map), np.asarray(times), source=str(p)
-    )
+    return scans, poses, times, bearings
 
 
 # ---------------------------------------------------------------------------------------------- ROS bags
@@ -324,11 +344,41 @@ def read_rosbag(
         map: optional map (see :func:`sensor_envs.maps.load_map`).
 
     Raises:
-        LidarLogError: naming the bag and topic when a topic is absent or scans differ in size.
+        LidarLogError: naming the bag and topic when a topic is absent or scans differ in size, or when
+            the bag is empty, truncated or damaged.
     """
-    from rosbags.highlevel import AnyReader  # optional dependency
+    from rosbags.highlevel import AnyReaderError  # optional dependency
+    from rosbags.rosbag1 import ReaderError as Ros1Error
+    from rosbags.rosbag2 import ReaderError as Ros2Error
 
     p = Path(path)
+    try:
+        scans, st, pts, pt, bearings = _read_bag_messages(p, scan_topic, pose_topic)
+    except (AnyReaderError, Ros1Error, Ros2Error, EOFError, OSError, struct.error) as exc:  # empty/truncated bag
+        raise LidarLogError(f"{p}: not a readable ROS bag ({' '.join(str(exc).split())})") from None
+    if not scans:
+        raise LidarLogError(f"{p}: field 'ranges': no message on {scan_topic!r}")
+    if not pts:
+        raise LidarLogError(f"{p}: field 'poses': no message on {pose_topic!r}")
+    st_a, pt_a, pose_a = np.asarray(st), np.asarray(pt), np.stack(pts)
+    keep = (st_a >= pt_a[0]) & (st_a <= pt_a[-1])
+    if not keep.any():
+        raise LidarLogError(f"{p}: field 'poses': no {scan_topic} scan lies within the {pose_topic} time span")
+    yaw = np.unwrap(pose_a[:, 2])
+    ts = st_a[keep]
+    poses = np.stack(
+        [np.interp(ts, pt_a, pose_a[:, 0]), np.interp(ts, pt_a, pose_a[:, 1]), np.interp(ts, pt_a, yaw)], axis=1
+    )
+    poses[:, 2] = (poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    return log_from_arrays(np.stack(scans)[keep], bearings, poses, _map_or_none(map), ts - ts[0], source=str(p))
+
+
+def _read_bag_messages(
+    p: Path, scan_topic: str, pose_topic: str
+) -> tuple[list[Any], list[float], list[Any], list[float], Any]:
+    """Scans (nulls as 0) and their bag times [s], poses and their times [s], and the bearings of bag ``p``."""
+    from rosbags.highlevel import AnyReader
+
     scans, st, pts, pt, bearings = [], [], [], [], None
     with AnyReader([p]) as reader:
         topics = {c.topic for c in reader.connections}
@@ -353,18 +403,4 @@ def read_rosbag(
             null = ~np.isnan(r) & ((r <= 0) | ~np.isfinite(r) | (r < msg.range_min) | (r > msg.range_max))
             scans.append(np.where(null, 0.0, r))
             st.append(t * 1e-9)
-    if not scans:
-        raise LidarLogError(f"{p}: field 'ranges': no message on {scan_topic!r}")
-    if not pts:
-        raise LidarLogError(f"{p}: field 'poses': no message on {pose_topic!r}")
-    st_a, pt_a, pose_a = np.asarray(st), np.asarray(pt), np.stack(pts)
-    keep = (st_a >= pt_a[0]) & (st_a <= pt_a[-1])
-    if not keep.any():
-        raise LidarLogError(f"{p}: field 'poses': no {scan_topic} scan lies within the {pose_topic} time span")
-    yaw = np.unwrap(pose_a[:, 2])
-    ts = st_a[keep]
-    poses = np.stack(
-        [np.interp(ts, pt_a, pose_a[:, 0]), np.interp(ts, pt_a, pose_a[:, 1]), np.interp(ts, pt_a, yaw)], axis=1
-    )
-    poses[:, 2] = (poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
-    return log_from_arrays(np.stack(scans)[keep], bearings, poses, _map_or_none(map), ts - ts[0], source=str(p))
+    return scans, st, pts, pt, bearings

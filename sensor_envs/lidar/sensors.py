@@ -82,6 +82,19 @@ class GaussianLidar:
     alpha_max: float = np.deg2rad(80.0)
     p_null_floor: float = 0.0
 
+    def __post_init__(self) -> None:
+        """Reject negative or non-finite parameters (a negative spread would silently flip the noise)."""
+        for name in ("sigma0", "k_range", "k_incidence", "alpha_max", "p_null_floor"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
+                raise ValueError(f"GaussianLidar: {name} must be a number, got {v!r}")
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"GaussianLidar: {name} must be finite and >= 0, got {v!r}")
+        if not self.alpha_max < np.pi / 2:
+            raise ValueError(f"GaussianLidar: alpha_max must be < pi/2 [rad], got {self.alpha_max!r}")
+        if not self.p_null_floor <= 1:
+            raise ValueError(f"GaussianLidar: p_null_floor must be a probability in [0, 1], got {self.p_null_floor!r}")
+
     def sigma(self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64]) -> NDArray[np.float64]:
         """Noise standard deviation [m] per bearing (``NaN`` where no hit)."""
         r = np.asarray(nominal_range, dtype=np.float64)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -59,32 +60,47 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
     name = f"{index:06d}"
     pc_path = root / "radar_6455" / f"{name}.txt"
     try:
-        pts = np.loadtxt(pc_path, skiprows=2, ndmin=2)
+        with warnings.catch_warnings():  # a frame without detections is valid; loadtxt warns about it
+            warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
+            pts = np.loadtxt(pc_path, skiprows=2, ndmin=2)
     except ValueError as exc:
         raise ValueError(f"{pc_path}: not a table of 5 numbers per row ({exc})") from exc
     if pts.size and pts.shape[1] != 5:
         raise ValueError(f"{pc_path}: expected 5 columns X Y Z V_r Mag, got {pts.shape[1]}")
+    if not np.isfinite(pts).all():
+        raise ValueError(f"{pc_path}: field 'X Y Z V_r Mag' holds NaN or infinite values")
     gt_path = root / "groundtruth_obj3d" / f"{name}.json"
-    objs = json.loads(gt_path.read_text()).get("objects", [])
+    try:
+        doc = json.loads(gt_path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{gt_path}: not valid UTF-8 JSON ({' '.join(str(exc).split())})") from None
+    objs = doc.get("objects", []) if isinstance(doc, dict) else None
+    if not isinstance(objs, list):
+        raise ValueError(f"{gt_path}: field 'objects' must be a list of objects, got {type(objs).__name__}")
     boxes, names = [], []
     for k, o in enumerate(objs):
         try:
             c, d = o["center3d"], o["dimension3d"]
-            boxes.append(
-                [
-                    c[0],
-                    c[1],
-                    quaternion_yaw(*o["orientation_quat"]),
-                    d[0],
-                    d[1],
-                    c[2],
-                    float(o.get("occlusion", np.nan)),
-                    float(o.get("label_certainty", np.nan)),
-                ]
-            )
+            box = [
+                float(c[0]),
+                float(c[1]),
+                quaternion_yaw(*[float(v) for v in o["orientation_quat"]]),
+                float(d[0]),
+                float(d[1]),
+                float(c[2]),
+                float(o.get("occlusion", np.nan)),
+                float(o.get("label_certainty", np.nan)),
+            ]
             names.append(str(o["classname"]))
-        except (KeyError, IndexError, TypeError) as exc:
+        except (KeyError, IndexError) as exc:
             raise ValueError(f"{gt_path}: object {k} lacks field {exc}") from None
+        except (TypeError, ValueError, AttributeError) as exc:
+            raise ValueError(f"{gt_path}: object {k}: a field is malformed ({exc})") from None
+        if not np.isfinite(box[:6]).all():
+            raise ValueError(
+                f"{gt_path}: object {k}: field 'center3d', 'dimension3d' or 'orientation_quat' is not finite"
+            )
+        boxes.append(box)
     return pts.reshape(-1, 5), np.asarray(boxes, dtype=np.float64).reshape(-1, 8), names
 
 
@@ -171,7 +187,11 @@ def load_astyx(
     if cluster_args.get("position", "nearest") not in ("nearest", "centroid"):
         raise ValueError(f"position must be 'nearest' or 'centroid', got {cluster_args['position']!r}")
     if frames is None:
-        frames = sorted(int(p.stem) for p in (root / "radar_6455").glob("*.txt"))
+        files = sorted((root / "radar_6455").glob("*.txt"))
+        stray = [p for p in files if not p.stem.isdigit()]
+        if stray:
+            raise ValueError(f"{stray[0]}: not an Astyx frame file (expected radar_6455/NNNNNN.txt)")
+        frames = [int(p.stem) for p in files]
     out = []
     for f in tqdm(frames, disable=not progress, desc="astyx"):
         pts, boxes, names = read_frame(root, f)

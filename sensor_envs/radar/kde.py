@@ -468,6 +468,10 @@ class KDERadarModel(BaseEstimator):
         prev = np.atleast_2d(np.asarray(prev_z, dtype=np.float64)) if prev_z is not None else np.full((n, 2), np.nan)
         if prev.shape != (n, 2) or corners.shape != (n, 2):
             raise ValueError(f"corners and prev_z must both be (n, 2); got {corners.shape} and {prev.shape}")
+        if not np.isfinite(corners).all():
+            raise ValueError(
+                f"corners: row {int(np.flatnonzero(~np.isfinite(corners).all(axis=1))[0])} is NaN or infinite"
+            )
         use_main = ~np.isnan(prev[:, 0]) & (self._main_tree is not None)
         parts = []
         for mask, tree, idx_map, q in (
@@ -779,7 +783,8 @@ class KDERadarModel(BaseEstimator):
         }
         header, a = load_model_file(path, KIND, (1, FORMAT_VERSION), schema)
         defaults = {"prior_rate": "global"}  # format 1
-        model = cls(**params_from_header(path, header, cls._hyperparameter_constraints, defaults))
+        not_saved = ("random_state", "cv_candidates")  # the candidates are stored as an array
+        model = cls(**params_from_header(path, header, cls._hyperparameter_constraints, defaults, not_saved))
         _check_arrays(path, a)
         model.states_, model.z_, model.log_row_ = a["states"], a["z"], a["log_row"].astype(np.int64)
         model.grid_x_, model.grid_y_, model.log_h_ = a["grid_x"], a["grid_y"], a["log_h"]
@@ -825,6 +830,8 @@ def _check_arrays(path: str | os.PathLike[str], a: dict[str, NDArray[Any]]) -> N
     check_range(path, "log_h", a["log_h"], np.log(1e-6), np.log(MAX_POSITION))  # bandwidths 1 um .. 1 km
     check_shape(path, "cv_counts", a["cv_counts"], (gx.size, gy.size))
     check_range(path, "cv_counts", a["cv_counts"], 0, None)
+    if a["cv_candidates"].size == 0:
+        raise ModelFileError(f"{path}: field 'cv_candidates' is empty")
     check_positive(path, "cv_candidates", a["cv_candidates"], MAX_POSITION)
     check_range(path, "clutter_counts", a["clutter_counts"], 0, 1e6)
     check_shape(path, "clutter_xy", a["clutter_xy"], (a["clutter_xy"].shape[0], 2))

@@ -21,6 +21,10 @@ meas_x, meas_y m     the radar's reported object position, sensor frame
 * an empty field is the only way to write "missing"; literal ``nan``/``inf`` text in a required
   column is an error, and so are partly empty ``ref`` or ``meas`` groups.
 * any other column is a numeric covariate (empty = missing) kept for later analysis.
+* sanity ranges (checked before any model allocates grids over the log): positions ``ref_x``,
+  ``ref_y``, ``meas_x``, ``meas_y`` within :data:`MAX_POSITION` (1 km) of the sensor, box sizes
+  ``ref_length``/``ref_width`` at most :data:`MAX_SIZE` (100 m), integer ids below ``2**53``.
+* the file is UTF-8 (a byte-order mark, as Excel writes, is accepted) and comma-separated.
 
 The model tuples of Hirsenkorn et al. (2016) are derived by :func:`target_tuples`: the closest
 corner of each reference box (sensor at the origin), the output ``z = meas - corner`` and the
@@ -30,6 +34,7 @@ previous output ``z_{t-1}`` of the same target (``NaN`` when the previous cycle 
 from __future__ import annotations
 
 import csv
+import io
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.geometry import closest_corner, rectangle_corners
+from sensor_envs.outputs import atomic_write
 
 __all__ = [
     "REQUIRED_COLUMNS",
@@ -52,6 +58,12 @@ __all__ = [
 ]
 
 INT_COLUMNS = ("sequence", "frame", "target")
+MAX_POSITION = 1000.0
+"""Largest accepted ``|ref_x|``, ``|ref_y|``, ``|meas_x|``, ``|meas_y|`` [m] (automotive radars reach ~300 m)."""
+MAX_SIZE = 100.0
+"""Largest accepted ``ref_length``/``ref_width`` [m]."""
+MAX_ID = 2.0**53
+"""Integer columns must stay below this in magnitude (exact in float64, no int64 wrap-around)."""
 REF_COLUMNS = ("ref_x", "ref_y", "ref_heading", "ref_length", "ref_width")
 MEAS_COLUMNS = ("meas_x", "meas_y")
 REQUIRED_COLUMNS = ("sequence", "frame", "t", "target", *REF_COLUMNS, *MEAS_COLUMNS)
@@ -106,6 +118,8 @@ class RadarLog:
 
 def _as_column(name: str, values: NDArray, source: str) -> NDArray:
     """Convert one column to its dtype, or raise naming the column and file."""
+    if np.iscomplexobj(values):  # never drop an imaginary part silently
+        raise RadarLogError(f"{source}: column {name!r} holds complex numbers; expected real values")
     try:
         arr = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError):
@@ -116,6 +130,10 @@ def _as_column(name: str, values: NDArray, source: str) -> NDArray:
         bad = ~np.isfinite(arr) | (arr != np.round(arr))
         if bad.any():
             raise RadarLogError(f"{source}: column {name!r} row {int(np.flatnonzero(bad)[0])} is not an integer")
+        big = np.abs(arr) >= MAX_ID
+        if big.any():
+            r = int(np.flatnonzero(big)[0])
+            raise RadarLogError(f"{source}: column {name!r} row {r} holds {arr[r]:g}, out of range (|id| < 2**53)")
         return arr.astype(np.int64)
     return arr
 
@@ -163,6 +181,20 @@ def _validate(columns: dict[str, NDArray], source: str) -> dict[str, NDArray]:
         bad = target_rows & ~(out[c] > 0)
         if bad.any():
             raise RadarLogError(f"{source}: column {c!r} row {_first(bad)} must be > 0")
+        bad = target_rows & (out[c] > MAX_SIZE)
+        if bad.any():
+            r = _first(bad)
+            raise RadarLogError(
+                f"{source}: column {c!r} row {r} is {out[c][r]:g} m, above the sanity limit {MAX_SIZE:g} m"
+            )
+    for c in ("ref_x", "ref_y", "meas_x", "meas_y"):
+        bad = np.abs(out[c]) > MAX_POSITION  # NaN (empty) compares False
+        if bad.any():
+            r = _first(bad)
+            raise RadarLogError(
+                f"{source}: column {c!r} row {r} is {out[c][r]:g} m from the sensor, beyond the sanity limit "
+                f"{MAX_POSITION:g} m"
+            )
     if (out["target"][target_rows] < 0).any():
         raise RadarLogError(
             f"{source}: column 'target' row {_first(target_rows & (out['target'] < 0))} is negative on a target row"
@@ -195,15 +227,29 @@ def read_log(path: str | os.PathLike[str]) -> RadarLog:
     """
     path = Path(path)
     src = str(path)
-    with path.open(newline="", encoding="utf-8") as fh:
-        reader = csv.reader(fh)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise RadarLogError(f"{src}: the file is empty (no header line)") from None
-        if len(set(header)) != len(header):
-            raise RadarLogError(f"{src}: duplicate column names in the header")
-        rows = [r for r in reader if r]
+    raw = path.read_bytes()
+    try:
+        text = raw.decode("utf-8-sig")  # Excel writes a byte-order mark
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise RadarLogError(
+            f"{src}: line {line}: byte {raw[exc.start : exc.start + 1]!r} is not UTF-8 text (save the CSV as UTF-8)"
+        ) from None
+    reader = csv.reader(io.StringIO(text, newline=""))
+    try:
+        header = [h.strip() for h in next(reader)]
+    except StopIteration:
+        raise RadarLogError(f"{src}: the file is empty (no header line)") from None
+    if len(header) == 1:
+        for sep in (";", "\t", "|"):
+            if sep in header[0]:
+                raise RadarLogError(
+                    f"{src}: the header is one column {header[0][:60]!r}: the file seems separated by {sep!r}; "
+                    "expected commas"
+                )
+    if len(set(header)) != len(header):
+        raise RadarLogError(f"{src}: duplicate column names in the header")
+    rows = [r for r in reader if r]
     req = [h in REQUIRED_COLUMNS for h in header]
     cols: dict[str, list[float]] = {h: [] for h in header}
     for i, r in enumerate(rows):
@@ -215,16 +261,22 @@ def read_log(path: str | os.PathLike[str]) -> RadarLog:
 
 
 def write_log(log: RadarLog, path: str | os.PathLike[str]) -> Path:
-    """Write ``log`` as CSV (required columns first, then covariates); NaN is written as empty."""
+    """Write ``log`` as CSV (required columns first, then covariates); NaN is written as empty.
+
+    Written to a temporary sibling and renamed: an interrupted write leaves the old file intact.
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     names = list(REQUIRED_COLUMNS) + log.covariates
     cols = [log.columns[c] for c in names]
-    with path.open("w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(names)
-        for i in range(len(log)):
-            w.writerow(["" if (c.dtype.kind == "f" and np.isnan(c[i])) else repr(c[i].item()) for c in cols])
+
+    def write(tmp: Path) -> None:
+        with tmp.open("w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow(names)
+            for i in range(len(log)):
+                w.writerow(["" if (c.dtype.kind == "f" and np.isnan(c[i])) else repr(c[i].item()) for c in cols])
+
+    atomic_write(path, write)
     return path
 
 

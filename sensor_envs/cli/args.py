@@ -1,0 +1,68 @@
+"""Typed argparse helpers: values are checked when the command line is parsed, naming the option."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import NoReturn
+
+__all__ = ["about", "OneLineParser", "positive_int", "nonneg_int", "positive_float", "add_force"]
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose usage errors are one line (exit status 2), naming the option."""
+
+    def error(self, message: str) -> NoReturn:  # noqa: D102
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def positive_int(text: str) -> int:
+    """An integer ``>= 1`` (argparse ``type=``); ``"1e3"`` and ``"2.5"`` are refused, not truncated."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def nonneg_int(text: str) -> int:
+    """An integer ``>= 0`` (argparse ``type=``), e.g. a seed."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """A finite number ``> 0`` (argparse ``type=``); ``nan``, ``inf``, ``0`` and negatives are refused."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
+def add_force(parser: argparse.ArgumentParser) -> None:
+    """Add ``--force`` (replace existing outputs; inputs are never replaced)."""
+    parser.add_argument("--force", action="store_true", help="replace existing outputs (never an input of the command)")
+
+
+@contextmanager
+def about(path: str | Path) -> Iterator[None]:
+    """Prefix ``path`` to a ``ValueError`` raised inside (e.g. a log too small to fit) unless it names it."""
+    try:
+        yield
+    except ValueError as exc:
+        if str(path) in str(exc):
+            raise
+        raise ValueError(f"{path}: {exc}") from exc
