@@ -16,49 +16,27 @@ from __future__ import annotations
 import argparse
 import contextlib
 import shlex
-import shutil
 import sys
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+
+from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
 
 __all__ = ["register", "output_folder"]
 
 
 @contextlib.contextmanager
 def output_folder(out: str | Path, force: bool, inputs: tuple[str | Path | None, ...] = ()) -> Iterator[Path]:
-    """A temporary folder beside ``out`` that replaces ``out`` when the block succeeds (removed otherwise).
+    """A temporary folder beside ``out`` that replaces ``out`` only when the block succeeds.
 
-    Raises:
-        ValueError: when ``out`` exists and ``force`` is false, when ``out`` is one of ``inputs`` (or
-            holds one), or when its parent folder does not exist.
+    The shared safe-output rules (:mod:`sensor_envs.outputs`): inputs must exist, ``out`` must not be
+    (or hold) one of them, an existing ``out`` needs ``force``.
     """
-    out = Path(out)
-    for i in inputs:
-        if i is None:
-            continue
-        ip = Path(i).resolve()
-        if ip == out.resolve() or out.resolve() in ip.parents:
-            raise ValueError(f"{out}: --out would overwrite the input {i}")
-    if out.exists() and not force:
-        raise ValueError(f"{out}: --out exists; pass --force to replace it")
-    if not out.resolve().parent.is_dir():
-        raise ValueError(f"{out}: --out's parent folder does not exist")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.resolve().parent))
-    try:
-        yield tmp
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    old = None
-    if out.exists():
-        old = out.with_name(f".{out.name}.old")
-        shutil.rmtree(old, ignore_errors=True)
-        out.rename(old)
-    tmp.rename(out)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True) if old.is_dir() else old.unlink()
+    check_inputs(*inputs)
+    target = check_output(out, inputs=inputs, force=force, folder=True)
+    with OutputTransaction() as tx:
+        yield tx.folder(target)
 
 
 def _command() -> str:
