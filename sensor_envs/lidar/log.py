@@ -26,7 +26,16 @@ from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments
 
-__all__ = ["LidarLog", "LidarLogError", "load_log", "save_log", "read_carmen", "read_rosbag", "log_from_arrays"]
+__all__ = [
+    "LidarLog",
+    "LidarLogError",
+    "load_log",
+    "save_log",
+    "read_carmen",
+    "read_rosbag",
+    "log_from_arrays",
+    "motion_covariates",
+]
 
 PathLike = str | os.PathLike[str]
 
@@ -289,8 +298,9 @@ def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = No
             times.append(ts)
     if not scans:
         raise LidarLogError(f"{p}: field 'ranges': no FLASER or ROBOTLASER1 line found")
+    ps, ts = np.stack(poses), np.asarray(times)
     return log_from_arrays(
-        np.stack(scans), bearings, np.stack(poses), _map_or_none(map), np.asarray(times), source=str(p)
+        np.stack(scans), bearings, ps, _map_or_none(map), ts, motion_covariates(ts, ps, str(p)), source=str(p)
     )
 
 
@@ -333,6 +343,7 @@ def read_rosbag(
 
     p = Path(path)
     scans, st, pts, pt, bearings = [], [], [], [], None
+    twists: list[tuple[float, float]] = []
     with AnyReader([p]) as reader:
         topics = {c.topic for c in reader.connections}
         for topic in (scan_topic, pose_topic):
@@ -344,6 +355,9 @@ def read_rosbag(
             if conn.topic == pose_topic:
                 pts.append(_pose_of(msg))
                 pt.append(t * 1e-9)
+                if hasattr(msg, "twist"):  # nav_msgs/Odometry: v [m/s] and omega [rad/s] in the base frame
+                    tw = msg.twist.twist
+                    twists.append((tw.linear.x, tw.angular.z))
                 continue
             r = np.asarray(msg.ranges, dtype=np.float64)
             b = msg.angle_min + np.arange(r.size) * msg.angle_increment
@@ -370,4 +384,29 @@ def read_rosbag(
         [np.interp(ts, pt_a, pose_a[:, 0]), np.interp(ts, pt_a, pose_a[:, 1]), np.interp(ts, pt_a, yaw)], axis=1
     )
     poses[:, 2] = (poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
-    return log_from_arrays(np.stack(scans)[keep], bearings, poses, _map_or_none(map), ts - ts[0], source=str(p))
+    if len(twists) == len(pts):
+        tw = np.asarray(twists, dtype=np.float64)
+        cov = {"v": np.interp(ts, pt_a, tw[:, 0]), "omega": np.interp(ts, pt_a, tw[:, 1])}
+    else:
+        cov = motion_covariates(ts, poses, str(p))
+    return log_from_arrays(np.stack(scans)[keep], bearings, poses, _map_or_none(map), ts - ts[0], cov, source=str(p))
+
+
+def motion_covariates(
+    t: NDArray[np.float64], poses: NDArray[np.float64], source: str
+) -> dict[str, NDArray[np.float64]]:
+    """Per-scan speed ``v`` [m/s] and turn rate ``omega`` [rad/s] from poses ``(S, 3)`` at times ``t (S,)`` [s].
+
+    Central differences (one-sided at the ends) of the position and the unwrapped heading; a
+    single scan or non-increasing times give zeros where the time step is not positive.
+    """
+    if t.size < 2 or not np.isfinite(poses).all():
+        return {"v": np.zeros(t.size), "omega": np.zeros(t.size)}
+    if not np.isfinite(t).all():
+        raise _err(source, "t", "holds NaN or infinite times")
+    dt = np.gradient(t)
+    good = dt > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v = np.hypot(np.gradient(poses[:, 0]), np.gradient(poses[:, 1])) / dt
+        w = np.gradient(np.unwrap(poses[:, 2])) / dt
+    return {"v": np.where(good, v, 0.0), "omega": np.where(good, w, 0.0)}

@@ -357,17 +357,16 @@ class LidarLWLR:
             raise ValueError(f"degree_grid: needs degrees among (0, 1), got {self.degree_grid}")
         if not self.max_range > 0 or not self.spur_above > 0:
             raise ValueError("max_range and spur_above must be > 0")
-        if log.ranges.shape[2] < 2:
-            raise ValueError(
-                f"{log.source}: field 'ranges' has one reading per pose and bearing; the model "
-                "needs repeated readings at static poses, shape (P, K, R >= 2)"
-            )
 
-    def fit(self, log: LidarLog) -> LidarLWLR:
+    def fit(self, log: LidarLog, *, per_reading: bool | None = None, **reading_options: Any) -> LidarLWLR:
         """Fit the model to a log (approximate poses + nominal map), choosing kernel widths by CV.
 
         Args:
             log: a :class:`~sensor_envs.lidar.log.LidarLog` with a map.
+            per_reading: fit on individual readings (:func:`sensor_envs.lidar.readings.fit_per_reading`);
+                default: for logs with one reading per pose and bearing (scans at moving poses), while
+                repeated logs use the per-cell statistics.
+            **reading_options: ``max_readings``, ``block_scans`` of the per-reading fit.
 
         Returns:
             ``self``, with ``tables_`` ``(n_params, K, n_r, n_alpha)``, ``param_names_``, ``range_grid_`` [m],
@@ -376,8 +375,14 @@ class LidarLWLR:
             ``training_`` (a summary of the log, no readings) set.
 
         Raises:
-            ValueError: for bad hyperparameters or a log without repeated readings or map.
+            ValueError: for bad hyperparameters or a log without map.
         """
+        if per_reading or (per_reading is None and log.ranges.shape[2] < 2):
+            from sensor_envs.lidar.readings import fit_per_reading  # noqa: PLC0415  (readings imports this module)
+
+            return fit_per_reading(self, log, **reading_options)
+        if reading_options:
+            raise TypeError(f"fit: options {sorted(reading_options)} apply to the per-reading fit only")
         self._check_hyper(log)
         segs = log.require_map()
         r, a = lidar_features(log.poses, log.bearings, segs, self.max_range)

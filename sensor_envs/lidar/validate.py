@@ -169,8 +169,14 @@ def validate(
         rng: generator of the simulated scan in the plot (default: seeded 0).
 
     Returns:
-        The report (also written to ``out_dir/report.json``).
+        The report (also written to ``out_dir/report.json``). A log with one reading per pose and bearing
+        (scans at moving poses) gets the per-reading report of
+        :func:`sensor_envs.lidar.validate_readings.validate_readings` instead of Table I.
     """
+    if log.ranges.shape[2] == 1:
+        from sensor_envs.lidar.validate_readings import validate_readings  # noqa: PLC0415
+
+        return validate_readings(model, log, out_dir, gaussian)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     r, a = lidar_features(log.poses, log.bearings, log.require_map(), model.max_range)
