@@ -31,11 +31,11 @@ from sensor_envs.lidar.validate_readings import fit_gaussian_readings, validate_
 
 DATASETS = {
     # name: (relative path, loader options, max_range [m], spur_above [m], table range step [m], map, align)
-    "intel-corrected": ("carmen/intel-corrected.log.gz", {}, 30.0, 31.0, 0.25, None, False),
-    "aces-corrected": ("carmen/aces-corrected.log.gz", {"max_range": 50.0}, 45.0, 49.0, 0.25, None, False),
     "left_side": ("neato_ros1_bags/left_side.bag", {}, 5.0, 6.0, 0.125, "neato_ros1_bags/mymap.yaml", True),
     "middle": ("neato_ros1_bags/middle.bag", {}, 5.0, 6.0, 0.125, "neato_ros1_bags/mymap.yaml", True),
     "right_side": ("neato_ros1_bags/right_side.bag", {}, 5.0, 6.0, 0.125, "neato_ros1_bags/mymap.yaml", True),
+    "intel-corrected": ("carmen/intel-corrected.log.gz", {}, 30.0, 31.0, 0.25, None, False),
+    "aces-corrected": ("carmen/aces-corrected.log.gz", {"max_range": 50.0}, 45.0, 49.0, 0.25, None, False),
 }
 
 

@@ -10,12 +10,15 @@ of its scan's pose; the parameters are regressed per bearing by the same LWLR as
   every reading whose ray hits the map; kernel widths by held-out Bernoulli log-loss.
 * ``bias`` (``mu - r``): LWLR of ``x - r`` over the in-range non-null readings (the extended variant
   excludes spurious far returns ``> spur_above``, which are their own outcome), made robust by
-  bisquare weights (LOWESS) from a pilot fit: readings farther than ``6`` median absolute residuals
-  (the cut-off ``c``) get weight 0, so spurious far returns and rays that hit another surface do not
+  bisquare weights (LOWESS, 3 passes) from a local-constant pilot fit: readings farther from it
+  than ``6`` local mean absolute residuals (the cut-off ``c``; local, as the noise grows with range)
+  get weight 0, so spurious far returns and rays that hit another surface do not
   drag ``mu``. Kernel widths by held-out absolute error truncated at ``c``.
-* ``sigma`` (seed) / ``log_sigma`` (extended): ``sigma^2`` is the LWLR of the squared out-of-fold
-  residuals ``min((x - r - bias_oof)^2, c^2)`` of the inlying readings; widths by held-out Gaussian
-  negative log-likelihood of those residuals. With one reading per pose this ``sigma`` is the whole
+* ``sigma`` (seed) / ``log_sigma`` (extended): ``sigma = sqrt(pi / 2) m`` where ``m`` is the LWLR of the
+  absolute out-of-fold residuals ``min(|x - r - bias_oof|, c)`` of the inlying readings (linear in
+  sigma, like the per-cell path's regression of cell standard deviations; regressing ``e^2`` would
+  let the large far-range spread swamp the small near-range one under a wide kernel); widths by
+  held-out Gaussian negative log-likelihood of those residuals. With one reading per pose this ``sigma`` is the whole
   spread around ``mu`` (pose error included): ``tau2`` (extended) is tabulated as 0.
 * ``p_out`` (extended): the fraction of in-range hit readings with bisquare weight 0 (the uniform
   outlier component); ``null_rho = 0`` (persistence of nulls needs repeats).
@@ -86,6 +89,7 @@ ACF_CUTOFF = 0.1
 MIN_HIT_FRACTION = 0.5
 """A map covers a log when at least this fraction of its in-range returns lie on rays that hit the map."""
 _BISQUARE_C = 6.0
+_ROOT_HALF_PI = float(np.sqrt(np.pi / 2))  # sigma = sqrt(pi / 2) E|e| for a normal error e
 _CHUNK = 3_000_000  # query x training points x bearings per LWLR call (memory bound)
 
 
@@ -176,7 +180,7 @@ def block_folds(n_scans: int, n_folds: int, block: int) -> NDArray[np.int64]:
     return (np.arange(n_scans) // max(int(block), 1)) % n_folds
 
 
-def check_map_covers(log: LidarLog, r: NDArray[np.float64], max_range: float, map_name: str = "map") -> float:
+def check_map_covers(log: LidarLog, r: NDArray[np.float64], max_range: float, map_name: str = "") -> float:
     """Fraction of in-range returns on rays that hit the map; a :class:`LidarLogError` below :data:`MIN_HIT_FRACTION`.
 
     Args:
@@ -193,7 +197,8 @@ def check_map_covers(log: LidarLog, r: NDArray[np.float64], max_range: float, ma
     frac = float((ret & np.isfinite(r)[..., None]).sum() / n)
     if frac < MIN_HIT_FRACTION:
         raise LidarLogError(
-            f"{log.source}: field 'map_segments': the map {map_name} does not cover the scans: only "
+            f"{log.source}: field 'map_segments': the map{' ' + map_name if map_name else ''} does not cover the "
+            "scans: only "
             f"{100 * frac:.1f} % of the {n} returns within {max_range} m lie on rays that hit it "
             f"(need {100 * MIN_HIT_FRACTION:.0f} %); wrong map, map frame or poses?"
         )
@@ -224,26 +229,38 @@ def lwlr_chunked(
 
 
 def _robust(
-    r: NDArray[np.float64], a: NDArray[np.float64], y: NDArray[np.float64], weight: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], float]:
-    """Bisquare robustness weights ``(T, K)`` from a pilot LWLR fit and the cut-off ``c`` [m] (6 MADs)."""
-    pilot = lwlr_chunked(r, a, r, a, y[..., None], weight, 0.4, 0.5)[0, 0, ..., 0]
-    res = np.abs(y - pilot)
-    ok = weight > 0
-    cut = _BISQUARE_C * max(float(np.median(res[ok])) if ok.any() else 1.0, 1e-4)
-    u = res / cut
-    return weight * np.where(u < 1, (1 - u * u) ** 2, 0.0), cut
+    r: NDArray[np.float64], a: NDArray[np.float64], y: NDArray[np.float64], weight: NDArray[np.float64], iters: int = 3
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Bisquare weights ``(T, K)`` and the per-reading cut-off ``c`` [m], as LOWESS with a local scale.
+
+    The pilot is a local-constant fit (stable where data are sparse) of ``y``; the scale is the local-constant
+    fit of the absolute residuals (the noise grows with range: one global scale would cut the far readings'
+    honest spread); ``c = 6`` local mean absolute residuals (about 4.8 sigma for normal noise), at least 1 mm.
+    Both are refitted ``iters`` times with the previous weights, so far outliers do not hide themselves.
+    """
+    w = weight
+    cut = np.ones_like(y)
+    for _ in range(iters):
+        pilot = lwlr_chunked(r, a, r, a, y[..., None], w, 0.4, 0.5, (0.0,), (0,))[0, 0, ..., 0]
+        res = np.abs(y - pilot)
+        scale = lwlr_chunked(r, a, r, a, res[..., None], w, 0.4, 0.5, (0.0,), (0,))[0, 0, ..., 0]
+        cut = _BISQUARE_C * np.maximum(scale, 1e-3 / _BISQUARE_C)
+        u = res / cut
+        w = weight * np.where(u < 1, (1 - u * u) ** 2, 0.0)
+    return w, cut
 
 
-def _loss(kind: str, pred: NDArray[np.float64], y: NDArray[np.float64], cut: float) -> NDArray[np.float64]:
+def _loss(
+    kind: str, pred: NDArray[np.float64], y: NDArray[np.float64], cut: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """Per-reading held-out loss: Bernoulli log-loss, truncated absolute error, or Gaussian NLL of residuals."""
     if kind == "binary":
         p = np.clip(pred, P_EPS, 1 - P_EPS)
         return -(y * np.log(p) + (1 - y) * np.log1p(-p))
     if kind == "bias":
         return np.minimum(np.abs(y - pred), cut)
-    s2 = np.maximum(pred, SIGMA_FLOOR**2)
-    return 0.5 * np.log(s2) + 0.5 * y / s2
+    sig = np.maximum(_ROOT_HALF_PI * pred, SIGMA_FLOOR)  # y = |residual|, pred = its local mean
+    return np.log(sig) + 0.5 * (y / sig) ** 2
 
 
 # ------------------------------------------------------------------------------------------------ fit
@@ -319,7 +336,7 @@ def fit_per_reading(
                     )
                     pred = pred.reshape((-1,) + pred.shape[2:4])
                     for b in range(pred.shape[0]):
-                        tot[i * pred.shape[0] + b] += _loss(kind, pred[b], y[te], cut)[m].sum()
+                        tot[i * pred.shape[0] + b] += _loss(kind, pred[b], y[te], cut[te])[m].sum()
                 cnt += m.sum()
                 bar.update(1)
             mean = tot / max(cnt, 1.0)
@@ -342,7 +359,7 @@ def fit_per_reading(
         scores[name]["loss"] = "held-out Bernoulli log-loss per reading"
         targets[name] = (y, w_bin)
     h["bias"], scores["bias"] = cv("bias", y_bias, w_bias)
-    scores["bias"]["loss"] = f"held-out absolute error [m] truncated at c = {cut:.4g} m"
+    scores["bias"]["loss"] = "held-out absolute error [m] truncated at the bisquare cut-off c"
     targets["bias"] = (y_bias, w_bias)
     bias_oof = np.zeros_like(y_bias)  # out-of-fold bias of the chosen widths (for the sigma target)
     h_r, h_a, h_b, deg = h["bias"]
@@ -351,13 +368,13 @@ def fit_per_reading(
         bias_oof[te] = lwlr_chunked(
             tr_r[te], tr_a[te], tr_r[tr], tr_a[tr], y_bias[tr][..., None], w_bias[tr], h_r, h_a, (h_b,), (int(deg),)
         )[0, 0, ..., 0]
-    e2 = np.where(w_bias > 0, np.minimum((y_bias - bias_oof) ** 2, cut**2), 0.0)
+    e_abs = np.where(w_bias > 0, np.minimum(np.abs(y_bias - bias_oof), cut), 0.0)
     w_sig = (w_bias > 0).astype(float)
     s_name = "log_sigma" if ext else "sigma"
-    h[s_name], scores[s_name] = cv("sigma", e2, w_sig)
+    h[s_name], scores[s_name] = cv("sigma", e_abs, w_sig)
     bar.close()
     scores[s_name]["loss"] = "held-out Gaussian NLL of out-of-fold residuals (nats, without log(2 pi) / 2)"
-    targets[s_name] = (e2, w_sig)
+    targets[s_name] = (e_abs, w_sig)
 
     model.h_, model.bearings_ = h, log.bearings.copy()
     if ext:
@@ -367,7 +384,7 @@ def fit_per_reading(
         "rows_used": int(x.shape[0]),
         "rows_in_log": int(log.n_poses * log.ranges.shape[2]),
         "subsampling": "evenly spaced rows (scans or repeats) in log order, the same rows for every bearing",
-        "robust_cutoff_m": cut,
+        "robust_cutoff_median_m": float(np.median(cut[ok])) if ok.any() else None,
         "map_hit_fraction_of_returns": coverage,
     }
     model.cv_scores_ = scores
@@ -462,8 +479,8 @@ def _tabulate(
         q_a = np.clip(qa[:, None], lo_a[None], hi_a[None])
         v = _bilinear(raw.T.reshape(1, -1, rg.size, ag.size), rg, ag, q_r, q_a)[0]
         if n in ("sigma", "log_sigma"):
-            s = np.sqrt(np.maximum(v, SIGMA_FLOOR**2))
-            v = np.log(s) if n == "log_sigma" else s
+            sig = np.maximum(_ROOT_HALF_PI * v, SIGMA_FLOOR)
+            v = np.log(sig) if n == "log_sigma" else sig
         tables.append(_finish(n, v).T.reshape(-1, rg.size, ag.size))
     if ext:
         tables.append(np.zeros_like(tables[0]))  # tau2: no repeats, the spread is all in sigma
