@@ -268,8 +268,8 @@ def test_estimator_contract():
     with pytest.raises(ValueError, match=re.escape("n_folds: must be in [2, number of poses = 4]")):
         LidarLWLR(n_folds=10).fit(log)
     scans, _ = NeatoRig().record(ROOM, np.random.default_rng(0), n_poses=4, repeats=1)
-    with pytest.raises(ValueError, match=re.escape("field 'ranges' has one reading per pose and bearing")):
-        LidarLWLR(n_folds=2).fit(scans)
+    # one reading per pose and bearing: fitted per reading since issue #10 (was refused before)
+    assert LidarLWLR(n_folds=2, variant="seed", progress=False).fit(scans).training_["fit"] == "per reading"
 
 
 def test_learned_lidar_in_neato_env(rig_fit, tmp_path):
@@ -321,7 +321,8 @@ def test_cli_record_fit_validate(tmp_path, capsys):
 
 def test_real_data_model_beats_baselines_on_held_out_poses(real_data):
     from sensor_envs.lidar.log import load_log
-    from sensor_envs.lidar.validate import baseline_params, fit_gaussian_lidar, table_one
+    from sensor_envs.lidar.validate import fit_gaussian_lidar, table_one
+    from sensor_envs.lidar.validate_readings import baseline_params
 
     log = load_log(real_data / "neato_mar27_train.npz")
     train, test = log.subset(np.arange(29) % 3 != 0), log.subset(np.arange(29) % 3 == 0)

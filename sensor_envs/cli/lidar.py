@@ -1,8 +1,16 @@
 """``sensor-envs record|fit|validate lidar``: record a rig log, fit the learned lidar, validate it.
 
     sensor-envs record lidar --out LOG.npz [--map NAME] [--poses N] [--repeats R] [--seed S] [--unit-seed U]
-    sensor-envs fit lidar LOG --out MODEL [--variant seed|extended] [--folds 10] [--seed S]
-    sensor-envs validate lidar MODEL LOG --out DIR [--card]
+    sensor-envs fit lidar LOG --out MODEL [--variant seed|extended] [--folds 10] [--seed S] [LOG OPTIONS]
+        [--max-range M] [--spur-above M] [--table-range-step M] [--max-readings N] [--cv-block-scans N]
+    sensor-envs validate lidar MODEL LOG --out DIR [--card] [LOG OPTIONS]
+
+LOG OPTIONS: ``--map FILE`` (any map ``sensor_envs.maps.load_map`` reads, ROS map_server YAML included;
+replaces the log's map), ``--align`` (scan-match the log's odometry poses onto the ``--map`` grid),
+``--part all|train|test`` with ``--block-scans N --test-every K`` (blocks of N consecutive scans, every
+K-th held out). A log without a map and without ``--map`` (CARMEN) gets a nominal map built from its
+TRAINING blocks only, in ``fit`` and in ``validate`` alike. Logs with one reading per pose and bearing
+are fitted per reading and validated per reading (held-out NLL, null-rate calibration, PIT, lag-1 ACF).
 
 ``fit`` also writes the model card ``MODEL.md``; ``validate --card`` rewrites it with the validation.
 """
@@ -10,6 +18,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import shlex
 import sys
 import time
@@ -17,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sensor_envs.cli.args import about, add_force, nonneg_int, positive_int
+from sensor_envs.cli.args import about, add_force, nonneg_int, positive_float, positive_int
 from sensor_envs.modelio import read_model
 from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
 
@@ -41,6 +50,18 @@ def register(verbs: dict[str, argparse._SubParsersAction[argparse.ArgumentParser
     fit.add_argument("--seed", type=nonneg_int, default=0, help="seed of the fold assignment (default: 0)")
     add_force(fit)
     fit.add_argument("--note", action="append", default=[], help="a line for the model card (e.g. how LOG was made)")
+    fit.add_argument("--max-range", type=positive_float, default=5.0, help="sensor's maximum range [m] (default: 5)")
+    fit.add_argument(
+        "--spur-above", type=positive_float, default=6.0, help="spurious far returns beyond this [m] (default: 6)"
+    )
+    fit.add_argument("--table-range-step", type=positive_float, default=0.125, help="range step of the tables [m]")
+    fit.add_argument(
+        "--max-readings", type=positive_int, default=300, help="per-reading fit: scans used (default: 300)"
+    )
+    fit.add_argument(
+        "--cv-block-scans", type=positive_int, default=None, help="per-reading fit: CV block length (default: auto)"
+    )
+    _log_options(fit)
     fit.set_defaults(func=_fit)
     val = verbs["validate"].add_parser("lidar", help="compare a lidar model and its baselines with a log")
     val.add_argument("model", help="model file (.npz)")
@@ -48,7 +69,33 @@ def register(verbs: dict[str, argparse._SubParsersAction[argparse.ArgumentParser
     val.add_argument("--out", required=True, help="output folder (report.json, report.md, plots)")
     val.add_argument("--card", action="store_true", help="rewrite MODEL.md with this validation")
     add_force(val)
+    _log_options(val)
     val.set_defaults(func=_validate)
+
+
+def _log_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--map", default=None, help="map file (segments, JSON/YAML, ROS map_server YAML) for the log")
+    p.add_argument("--align", action="store_true", help="scan-match the odometry poses onto the --map grid")
+    p.add_argument("--part", choices=("all", "train", "test"), default="all", help="scans used (default: all)")
+    p.add_argument(
+        "--block-scans", type=positive_int, default=40, help="scans per block of the train/test split (default: 40)"
+    )
+    p.add_argument("--test-every", type=positive_int, default=4, help="every K-th block is the test part (default: 4)")
+
+
+def _prepared_log(args: argparse.Namespace, max_range: float):
+    from sensor_envs.lidar.log import load_log
+    from sensor_envs.lidar.mapping import prepare_log
+
+    return prepare_log(
+        load_log(args.log),
+        map=args.map,
+        part=args.part,
+        block_scans=args.block_scans,
+        test_every=args.test_every,
+        max_range=max_range,
+        align=args.align,
+    )
 
 
 def _command() -> str:
@@ -72,19 +119,37 @@ def _record(args: argparse.Namespace) -> int:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from sensor_envs.lidar.log import load_log
     from sensor_envs.lidar.lwlr import LidarLWLR
     from sensor_envs.lidar.validate import fit_gaussian_lidar, model_card_markdown
 
-    check_inputs(args.log)
-    out = check_output(args.out, inputs=[args.log], force=args.force, suffix=".npz")
-    card_out = check_output(out.with_suffix(".md"), inputs=[args.log], force=args.force, option="--out (model card)")
-    log = load_log(args.log)
+    check_inputs(args.log, args.map)
+    out = check_output(args.out, inputs=[args.log, args.map], force=args.force, suffix=".npz")
+    card_out = check_output(
+        out.with_suffix(".md"), inputs=[args.log, args.map], force=args.force, option="--out (model card)"
+    )
+    log, prep = _prepared_log(args, args.max_range)
     t0 = time.perf_counter()
+    model = LidarLWLR(
+        variant=args.variant,
+        n_folds=args.folds,
+        random_state=args.seed,
+        max_range=args.max_range,
+        spur_above=args.spur_above,
+        table_range_step=args.table_range_step,
+    )
     with about(args.log):
-        model = LidarLWLR(variant=args.variant, n_folds=args.folds, random_state=args.seed).fit(log)
+        if log.ranges.shape[2] == 1:
+            from sensor_envs.lidar.mapping import map_features
+            from sensor_envs.lidar.validate_readings import fit_gaussian_readings
+
+            model = model.fit(log, max_readings=args.max_readings, block_scans=args.cv_block_scans)
+            r, a = map_features(log.poses, log.bearings, log.require_map(), model.max_range)
+            g = fit_gaussian_readings(log, r, a, model.spur_above)
+        else:
+            model = model.fit(log)
         g = fit_gaussian_lidar(log, model.spur_above, model.max_range)
     model.card_extra_ = {
+        "log_preparation": prep,
         "gaussian_baseline": {k: float(v) for k, v in vars(g).items()},
         "fit_seconds": time.perf_counter() - t0,
         "commands": [*args.note, _command()],
@@ -98,24 +163,34 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from sensor_envs.lidar.log import load_log
     from sensor_envs.lidar.lwlr import LidarLWLR
     from sensor_envs.lidar.validate import metrics_markdown, model_card_markdown, validate
+    from sensor_envs.lidar.validate_readings import readings_markdown
 
-    check_inputs(args.model, args.log)
-    out = check_output(args.out, inputs=[args.model, args.log], force=args.force, folder=True)
+    check_inputs(args.model, args.log, args.map)
+    inputs = [args.model, args.log, args.map]
+    out = check_output(args.out, inputs=inputs, force=args.force, folder=True)
     card = Path(args.model).with_suffix(".md")
     if args.card:  # --card asks to rewrite the model's own card; it must still not be an input
-        check_output(card, inputs=[args.model, args.log], force=True, suffix=".md", option="--card")
+        check_output(card, inputs=inputs, force=True, suffix=".md", option="--card")
     model = read_model(LidarLWLR, args.model)
-    log = load_log(args.log)
+    log, prep = _prepared_log(args, model.max_range)
+    per_reading = log.ranges.shape[2] == 1
+    if args.card and per_reading:
+        raise ValueError(f"{args.model}: --card needs a repeated log (Table I); {args.log} has one reading per scan")
     with OutputTransaction() as tx:  # report folder and card: all or nothing
+        folder = tx.folder(out)
         with about(args.log):
-            report = validate(model, log, tx.folder(out))
+            report = validate(model, log, folder)
+        if per_reading:  # per-reading report (scans at moving poses)
+            print(readings_markdown(report["metrics"]))
+            report["log_preparation"] = prep
+            (folder / "report.json").write_text(json.dumps(report, indent=2, default=float))
+        else:
+            print(metrics_markdown(report["metrics"]))
         if args.card:
             cmds = [*model.card_extra_.get("commands", ["sensor-envs fit lidar ..."]), _command()]
             tx.file(card).write_text(model_card_markdown(model, cmds, report), encoding="utf-8")
-    print(metrics_markdown(report["metrics"]))
     if args.card:
         print(f"rewrote {card}")
     print(f"wrote {Path(args.out) / 'report.json'}")

@@ -29,7 +29,16 @@ from numpy.typing import ArrayLike, NDArray
 from sensor_envs.geometry import as_segments, quaternion_yaw
 from sensor_envs.outputs import atomic_write, check_suffix
 
-__all__ = ["LidarLog", "LidarLogError", "load_log", "save_log", "read_carmen", "read_rosbag", "log_from_arrays"]
+__all__ = [
+    "LidarLog",
+    "LidarLogError",
+    "load_log",
+    "save_log",
+    "read_carmen",
+    "read_rosbag",
+    "log_from_arrays",
+    "motion_covariates",
+]
 
 PathLike = str | os.PathLike[str]
 
@@ -285,8 +294,9 @@ def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = No
         raise LidarLogError(f"{p}: field 'ranges': the file is not readable as {what} ({detail})") from None
     if not scans:
         raise LidarLogError(f"{p}: field 'ranges': no FLASER or ROBOTLASER1 line found")
+    ps, ts = np.stack(poses), np.asarray(times)
     return log_from_arrays(
-        np.stack(scans), bearings, np.stack(poses), _map_or_none(map), np.asarray(times), source=str(p)
+        np.stack(scans), bearings, ps, _map_or_none(map), ts, motion_covariates(ts, ps, str(p)), source=str(p)
     )
 
 
@@ -353,7 +363,7 @@ def read_rosbag(
 
     p = Path(path)
     try:
-        scans, st, pts, pt, bearings = _read_bag_messages(p, scan_topic, pose_topic)
+        scans, st, pts, pt, twists, bearings = _read_bag_messages(p, scan_topic, pose_topic)
     except (AnyReaderError, Ros1Error, Ros2Error, EOFError, OSError, struct.error) as exc:  # empty/truncated bag
         raise LidarLogError(f"{p}: not a readable ROS bag ({' '.join(str(exc).split())})") from None
     if not scans:
@@ -370,16 +380,25 @@ def read_rosbag(
         [np.interp(ts, pt_a, pose_a[:, 0]), np.interp(ts, pt_a, pose_a[:, 1]), np.interp(ts, pt_a, yaw)], axis=1
     )
     poses[:, 2] = (poses[:, 2] + np.pi) % (2 * np.pi) - np.pi
-    return log_from_arrays(np.stack(scans)[keep], bearings, poses, _map_or_none(map), ts - ts[0], source=str(p))
+    if len(twists) == len(pts):
+        tw = np.asarray(twists, dtype=np.float64)
+        cov = {"v": np.interp(ts, pt_a, tw[:, 0]), "omega": np.interp(ts, pt_a, tw[:, 1])}
+    else:
+        cov = motion_covariates(ts, poses, str(p))
+    return log_from_arrays(np.stack(scans)[keep], bearings, poses, _map_or_none(map), ts - ts[0], cov, source=str(p))
 
 
 def _read_bag_messages(
     p: Path, scan_topic: str, pose_topic: str
-) -> tuple[list[Any], list[float], list[Any], list[float], Any]:
-    """Scans (nulls as 0) and their bag times [s], poses and their times [s], and the bearings of bag ``p``."""
+) -> tuple[list[Any], list[float], list[Any], list[float], list[tuple[float, float]], Any]:
+    """Scans (nulls as 0), scan times [s], poses, pose times [s], twists ``(v, omega)`` and bearings of bag ``p``.
+
+    The twists list is empty when the pose topic carries none (e.g. PoseStamped).
+    """
     from rosbags.highlevel import AnyReader
 
     scans, st, pts, pt, bearings = [], [], [], [], None
+    twists: list[tuple[float, float]] = []
     with AnyReader([p]) as reader:
         topics = {c.topic for c in reader.connections}
         for topic in (scan_topic, pose_topic):
@@ -391,6 +410,9 @@ def _read_bag_messages(
             if conn.topic == pose_topic:
                 pts.append(_pose_of(msg))
                 pt.append(t * 1e-9)
+                if hasattr(msg, "twist"):  # nav_msgs/Odometry: v [m/s] and omega [rad/s] in the base frame
+                    tw = msg.twist.twist
+                    twists.append((tw.linear.x, tw.angular.z))
                 continue
             r = np.asarray(msg.ranges, dtype=np.float64)
             b = msg.angle_min + np.arange(r.size) * msg.angle_increment
@@ -403,4 +425,24 @@ def _read_bag_messages(
             null = ~np.isnan(r) & ((r <= 0) | ~np.isfinite(r) | (r < msg.range_min) | (r > msg.range_max))
             scans.append(np.where(null, 0.0, r))
             st.append(t * 1e-9)
-    return scans, st, pts, pt, bearings
+    return scans, st, pts, pt, twists, bearings
+
+
+def motion_covariates(
+    t: NDArray[np.float64], poses: NDArray[np.float64], source: str
+) -> dict[str, NDArray[np.float64]]:
+    """Per-scan speed ``v`` [m/s] and turn rate ``omega`` [rad/s] from poses ``(S, 3)`` at times ``t (S,)`` [s].
+
+    Central differences (one-sided at the ends) of the position and the unwrapped heading; a
+    single scan or non-increasing times give zeros where the time step is not positive.
+    """
+    if t.size < 2 or not np.isfinite(poses).all():
+        return {"v": np.zeros(t.size), "omega": np.zeros(t.size)}
+    if not np.isfinite(t).all():
+        raise _err(source, "t", "holds NaN or infinite times")
+    dt = np.gradient(t)
+    good = dt > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v = np.hypot(np.gradient(poses[:, 0]), np.gradient(poses[:, 1])) / dt
+        w = np.gradient(np.unwrap(poses[:, 2])) / dt
+    return {"v": np.where(good, v, 0.0), "omega": np.where(good, w, 0.0)}

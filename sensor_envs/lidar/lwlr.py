@@ -53,6 +53,15 @@ from sklearn.utils.validation import check_is_fitted
 from tqdm.auto import tqdm
 
 from sensor_envs.geometry import as_segments, raycast_pose
+from sensor_envs.lidar.kernel import (
+    P_EPS,
+    P_SPUR_EPS,
+    SIGMA_FLOOR,
+    TAU_CLIP,
+    _bilinear,
+    _finish,
+    lwlr,
+)
 from sensor_envs.lidar.log import LidarLog
 from sensor_envs.modelio import (
     RANDOM_STATE,
@@ -91,13 +100,9 @@ __all__ = [
     "FORMAT_VERSION",
 ]
 
-P_EPS = 1e-3
 """Probabilities of null are clipped to ``[P_EPS, 1 - P_EPS]`` so that log-likelihoods stay finite."""
-P_SPUR_EPS = 1e-4
 """Floor of the spurious-return probability (extended variant)."""
-SIGMA_FLOOR = 5e-4
 """Floor of every standard deviation [m] (half the sensor's 1 mm range quantum)."""
-TAU_CLIP = 0.5
 """Cell-mean residuals [m] are clipped to this before their variance ``tau^2`` is regressed."""
 VARIANTS = ("seed", "extended")
 MODEL_KIND = "sensor_envs.lidar_lwlr"  # the file format's kind string (kept: shipped files carry it)
@@ -107,7 +112,6 @@ RHO_GRID = (0.0, 0.01, 0.03, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95)
 """Candidate intra-cell correlations of nulls (extended variant)."""
 _PARAMS = {"seed": ("p_null", "bias", "sigma"), "extended": ("p_null", "p_spur", "bias", "log_sigma")}
 _TABLES = {"seed": _PARAMS["seed"], "extended": _PARAMS["extended"] + ("tau2",)}
-_RIDGE = (1e-3, 1e-2)  # (intercept pull to the bearing's mean, slope shrinkage) in kernel-weight units
 MAX_SIGMA = 1e3
 """Largest standard deviation [m] (and bias magnitude) a model file may give: beyond it the file is corrupt."""
 DEFAULT_MODEL_FILE = "neato_lidar.npz"
@@ -181,106 +185,6 @@ def _targets(
     return (np.log(np.maximum(s, SIGMA_FLOOR)) if name == "log_sigma" else s), m
 
 
-# ------------------------------------------------------------------------------------------------- LWLR
-def lwlr(
-    q_r: NDArray[np.float64],
-    q_a: NDArray[np.float64],
-    t_r: NDArray[np.float64],
-    t_a: NDArray[np.float64],
-    y: NDArray[np.float64],
-    weight: NDArray[np.float64],
-    h_r: float,
-    h_a: float,
-    h_bearings: tuple[float, ...] = (0.0,),
-    degrees: tuple[int, ...] = (1,),
-) -> NDArray[np.float64]:
-    """Locally weighted linear (or constant) regression per bearing, evaluated at query features.
-
-    Args:
-        q_r: ``(Q, K)`` query range [m] per bearing.
-        q_a: ``(Q, K)`` query incidence [rad] per bearing.
-        t_r: ``(T, K)`` training ranges [m] (finite where ``weight > 0``).
-        t_a: ``(T, K)`` training incidences [rad].
-        y: ``(T, K, n)`` training targets (n targets sharing the weights).
-        weight: ``(T, K)`` cell weights (0 = the cell takes no part).
-        h_r: range kernel width [m].
-        h_a: incidence kernel width [rad].
-        h_bearings: bearing kernel widths [bearing steps], evaluated together; ``0`` uses bearing
-            ``k``'s own cells only, else neighbour ``k + d`` weighs ``exp(-d^2 / 2 h^2)``.
-        degrees: local polynomial degrees, evaluated together: 1 = local linear in ``(r, alpha)``
-            (the seed's LWLR), 0 = local constant (Nadaraya-Watson).
-
-    Returns:
-        ``(len(degrees), len(h_bearings), Q, K, n)`` fitted values (the local intercept). With no data near a query
-        the estimate falls back to the weighted mean of the bearing's cells (a small ridge pull).
-    """
-    ok = weight > 0
-    w0 = np.where(ok, weight, 0.0)
-    tr, ta = np.where(ok, t_r, 0.0), np.where(ok, t_a, 0.0)
-    ty = np.where(ok[..., None], y, 0.0)
-    prior = (w0[..., None] * ty).sum(0) / np.maximum(w0.sum(0), 1e-12)[:, None]  # (K, n)
-    q, k = q_r.shape
-    n = ty.shape[2]
-    hb = np.asarray(h_bearings, dtype=np.float64)
-    acc = np.zeros((hb.size, 6 + 3 * n, q, k))
-    for d, step in _bearing_offsets(float(hb.max())):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            wb = np.where(hb > 0, step * np.exp(-0.5 * (d / hb) ** 2), float(d == 0))
-        wb = np.where(np.abs(d) <= np.ceil(3 * hb), wb, 0.0)
-        sr, sa, sw = (np.roll(v, -d, axis=1) for v in (tr, ta, w0))
-        sy = np.roll(ty, -d, axis=1)
-        dr = (sr[None] - q_r[:, None]) / h_r  # (Q, T, K)
-        da = (sa[None] - q_a[:, None]) / h_a
-        w = sw[None] * np.exp(-0.5 * (dr * dr + da * da))
-        wdr, wda = w * dr, w * da
-        parts = [w, wdr, wda, wdr * dr, wdr * da, wda * da]
-        sums = np.stack([v.sum(1) for v in parts] + _target_sums(w, wdr, wda, sy))
-        acc += wb[:, None, None, None] * sums[None]
-    return np.stack([_solve(acc, prior, n, deg) for deg in degrees])
-
-
-def _solve(acc: NDArray[np.float64], prior: NDArray[np.float64], n: int, degree: int) -> NDArray[np.float64]:
-    """Local intercepts ``(H, Q, K, n)`` from the accumulated weighted sums of :func:`lwlr`."""
-    lam0, lam1 = _RIDGE
-    h, _, q, k = acc.shape
-    ys = acc[:, 6:].reshape(h, 3, n, q, k)
-    if degree == 0:
-        return np.moveaxis((ys[:, 0] + lam0 * prior.T[None, :, None, :]) / (acc[:, None, 0] + lam0), 1, -1)
-    a_mat = np.empty((h, q, k, 3, 3))
-    a_mat[..., 0, 0] = acc[:, 0] + lam0
-    a_mat[..., 0, 1] = a_mat[..., 1, 0] = acc[:, 1]
-    a_mat[..., 0, 2] = a_mat[..., 2, 0] = acc[:, 2]
-    a_mat[..., 1, 1] = acc[:, 3] + lam1
-    a_mat[..., 1, 2] = a_mat[..., 2, 1] = acc[:, 4]
-    a_mat[..., 2, 2] = acc[:, 5] + lam1
-    b = np.moveaxis(ys, (1, 2), (-2, -1)).copy()  # (H, Q, K, 3, n)
-    b[..., 0, :] += lam0 * prior[None, None]
-    return np.linalg.solve(a_mat, b)[..., 0, :]
-
-
-def _bearing_offsets(h_max: float, fine: int = 6, coarse_step: int = 3) -> list[tuple[int, int]]:
-    """Bearing offsets ``d`` and the number of bearings each stands for, out to ``3 h_max``.
-
-    Offsets up to ``fine`` are all used; beyond, every ``coarse_step``-th offset stands for its
-    ``coarse_step`` neighbours (a Riemann sum of the broad kernel, to bound the cost of wide kernels).
-    """
-    span = int(np.ceil(3 * h_max))
-    out = [(d, 1) for d in range(-min(span, fine), min(span, fine) + 1)]
-    for d in range(fine + coarse_step // 2 + 1, span + 1, coarse_step):
-        out += [(d, coarse_step), (-d, coarse_step)]
-    return out
-
-
-def _target_sums(
-    w: NDArray[np.float64], wdr: NDArray[np.float64], wda: NDArray[np.float64], sy: NDArray[np.float64]
-) -> list[NDArray[np.float64]]:
-    """Sums over training cells of ``w y``, ``w dr y``, ``w da y`` per target: ``3 n`` arrays ``(Q, K)``."""
-    out = []
-    for v in (w, wdr, wda):
-        out.extend(np.einsum("qtk,tkn->nqk", v, sy))
-    return out
-
-
 def _robust_weights(
     t_r: NDArray[np.float64], t_a: NDArray[np.float64], y: NDArray[np.float64], weight: NDArray[np.float64]
 ) -> NDArray[np.float64]:
@@ -295,19 +199,6 @@ def _robust_weights(
     scale = np.array([np.median(res[..., j][ok]) for j in range(y.shape[2])])
     u = res / (6 * np.maximum(scale, 1e-9))
     return weight * np.prod(np.where(u < 1, (1 - u * u) ** 2, 0.0), axis=2)
-
-
-def _finish(name: str, v: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Map a raw LWLR value of parameter ``name`` to its valid range."""
-    if name == "p_null":
-        return np.clip(v, P_EPS, 1 - P_EPS)
-    if name == "p_spur":
-        return np.clip(v, P_SPUR_EPS, 0.5)
-    if name == "sigma":
-        return np.maximum(v, SIGMA_FLOOR)
-    if name == "log_sigma":
-        return np.maximum(v, np.log(SIGMA_FLOOR))
-    return v
 
 
 def _cv_loss(name: str, pred: NDArray[np.float64], y: NDArray[np.float64], m: NDArray[np.bool_]) -> tuple[float, float]:
@@ -388,17 +279,16 @@ class LidarLWLR(BaseEstimator):
         validate_params(self.get_params(), self._hyperparameter_constraints)
         if not 2 <= self.n_folds <= log.n_poses:
             raise ValueError(f"n_folds: must be in [2, number of poses = {log.n_poses}], got {self.n_folds}")
-        if log.ranges.shape[2] < 2:
-            raise ValueError(
-                f"{log.source}: field 'ranges' has one reading per pose and bearing; the model "
-                "needs repeated readings at static poses, shape (P, K, R >= 2)"
-            )
 
-    def fit(self, log: LidarLog) -> LidarLWLR:
+    def fit(self, log: LidarLog, *, per_reading: bool | None = None, **reading_options: Any) -> LidarLWLR:
         """Fit the model to a log (approximate poses + nominal map), choosing kernel widths by CV.
 
         Args:
             log: a :class:`~sensor_envs.lidar.log.LidarLog` with a map.
+            per_reading: fit on individual readings (:func:`sensor_envs.lidar.readings.fit_per_reading`);
+                default: for logs with one reading per pose and bearing (scans at moving poses), while
+                repeated logs use the per-cell statistics.
+            **reading_options: ``max_readings``, ``block_scans`` of the per-reading fit.
 
         Returns:
             ``self``, with ``tables_`` ``(n_params, K, n_r, n_alpha)``, ``param_names_``, ``range_grid_`` [m],
@@ -407,8 +297,14 @@ class LidarLWLR(BaseEstimator):
             ``training_`` (a summary of the log, no readings) set.
 
         Raises:
-            ValueError: for bad hyperparameters or a log without repeated readings or map.
+            ValueError: for bad hyperparameters or a log without map.
         """
+        if per_reading or (per_reading is None and log.ranges.shape[2] < 2):
+            from sensor_envs.lidar.readings import fit_per_reading
+
+            return fit_per_reading(self, log, **reading_options)
+        if reading_options:
+            raise TypeError(f"fit: options {sorted(reading_options)} apply to the per-reading fit only")
         self._check_hyper(log)
         segs = log.require_map()
         r, a = lidar_features(log.poses, log.bearings, segs, self.max_range)
@@ -821,26 +717,6 @@ def _check_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dict[str,
         check_shape(path, f"h[{name}]", h, (4,))
         check_positive(path, f"h[{name}]", h[:2], high=MAX_SIGMA)
         check_range(path, f"h[{name}]", h[2:], 0.0, None)
-
-
-def _bilinear(
-    tables: NDArray[np.float64],
-    rg: NDArray[np.float64],
-    ag: NDArray[np.float64],
-    r: NDArray[np.float64],
-    a: NDArray[np.float64],
-) -> NDArray[np.float64]:
-    """Bilinear lookup of ``tables (n, K, n_r, n_a)`` (regular grids) at ``r, a (..., K)`` -> ``(n, ..., K)``."""
-    n, k, nr, na = tables.shape
-    fr = np.clip((r - rg[0]) / (rg[1] - rg[0]), 0.0, nr - 1 - 1e-9)
-    fa = np.clip((a - ag[0]) / (ag[1] - ag[0]), 0.0, na - 1 - 1e-9)
-    i, j = fr.astype(np.int64), fa.astype(np.int64)
-    wr, wa = fr - i, fa - j
-    base = (np.arange(k) * nr + i) * na + j
-    flat = tables.reshape(n, -1)
-    v00, v01 = flat[:, base], flat[:, base + 1]
-    v10, v11 = flat[:, base + na], flat[:, base + na + 1]
-    return (v00 * (1 - wa) + v01 * wa) * (1 - wr) + (v10 * (1 - wa) + v11 * wa) * wr
 
 
 def _cell_null_probability(

@@ -40,7 +40,6 @@ from sensor_envs.lidar.log import LidarLog
 from sensor_envs.lidar.lwlr import (
     FORMAT_VERSION,
     MODEL_KIND,
-    P_EPS,
     SIGMA_FLOOR,
     LidarLWLR,
     cell_statistics,
@@ -49,6 +48,7 @@ from sensor_envs.lidar.lwlr import (
     null_count_log_prob,
 )
 from sensor_envs.lidar.sensors import GaussianLidar
+from sensor_envs.lidar.validate_readings import IDEAL_SIGMA, Params, baseline_params
 from sensor_envs.rng import fold_ids
 
 __all__ = [
@@ -62,9 +62,7 @@ __all__ = [
     "log_statistics",
 ]
 
-IDEAL_SIGMA = 1e-3
 """Standard deviation [m] given to the ideal baseline for its likelihood (the 1 mm range quantum)."""
-Params = dict[str, NDArray[np.float64]]
 
 
 def fit_gaussian_lidar(log: LidarLog, spur_above: float = 6.0, max_range: float = 5.0) -> GaussianLidar:
@@ -85,23 +83,6 @@ def fit_gaussian_lidar(log: LidarLog, spur_above: float = 6.0, max_range: float 
     return GaussianLidar(
         sigma0=float(max(coef[0], SIGMA_FLOOR)), k_range=float(coef[1]), k_incidence=float(coef[2]), p_null_floor=p_null
     )
-
-
-def baseline_params(
-    name: str, r: NDArray[np.float64], a: NDArray[np.float64], gaussian: GaussianLidar | None = None
-) -> Params:
-    """Parameters ``p_null, p_spur, mu, sigma`` ``(..., K)`` of the ``"ideal"`` or ``"gaussian"`` baseline."""
-    hit = np.isfinite(r)
-    mu = np.where(hit, r, 0.0)
-    if name == "ideal":
-        p_null, sigma = np.where(hit, P_EPS, 1 - P_EPS), np.full(r.shape, IDEAL_SIGMA)
-    elif name == "gaussian":
-        g = gaussian or GaussianLidar()
-        p_null = np.where(hit, np.clip(g.p_null_floor, P_EPS, 1 - P_EPS), 1 - P_EPS)
-        sigma = np.maximum(np.nan_to_num(g.sigma(r, a), nan=1.0), SIGMA_FLOOR)
-    else:
-        raise ValueError(f"baseline: expected 'ideal' or 'gaussian', got {name!r}")
-    return {"p_null": p_null, "p_spur": np.zeros(r.shape), "mu": mu, "sigma": sigma, "tau": np.zeros(r.shape)}
 
 
 def _ll(log: LidarLog, p: Params, spur: tuple[Any, Any], spur_above: float) -> dict[str, float]:
@@ -170,8 +151,14 @@ def validate(
         rng: generator of the simulated scan in the plot (default: seeded 0).
 
     Returns:
-        The report (also written to ``out_dir/report.json``).
+        The report (also written to ``out_dir/report.json``). A log with one reading per pose and bearing
+        (scans at moving poses) gets the per-reading report of
+        :func:`sensor_envs.lidar.validate_readings.validate_readings` instead of Table I.
     """
+    if log.ranges.shape[2] == 1:
+        from sensor_envs.lidar.validate_readings import validate_readings
+
+        return validate_readings(model, log, out_dir, gaussian)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     r, a = lidar_features(log.poses, log.bearings, log.require_map(), model.max_range)
