@@ -1,4 +1,4 @@
-"""The ``sensor-envs`` command line: ``demo`` (the main job), ``bench``, ``record``, ``fit``, ``validate``."""
+"""The ``sensor-envs`` command line: ``demo``, ``bench``, ``record``, ``fit``, ``validate``, ``diagnose``."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from sensor_envs.cli import diagnose as cli_diagnose
 from sensor_envs.cli import lidar as cli_lidar
 from sensor_envs.cli import radar as cli_radar
 
@@ -29,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
         verbs[verb] = p.add_subparsers(dest="kind", required=True)
     cli_lidar.register(verbs)
     cli_radar.register(verbs)
+    cli_diagnose.register(sub)
     return parser
 
 
