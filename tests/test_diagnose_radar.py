@@ -167,3 +167,23 @@ def test_cli_bad_log_exit_2_one_line(tmp_path):
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and str(bad) in lines[0] and "'t'" in lines[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_highway_supplies_the_models_state_and_refuses_unknown_variables(latency_log, tmp_path):
+    """A KDE whose state names rel_vx runs in the highway world; one naming 'noise_a' fails at make."""
+    import gymnasium as gym
+
+    log = latency_log.select(latency_log["sequence"] < 8)
+    good = KDERadarModel(extra_state=("rel_vx", "aspect"), extra_variance=(1.0, 1.0), random_state=0)
+    from sensor_envs.radar.features import with_derived_columns
+
+    good_path = good.fit(with_derived_columns(log)).save(tmp_path / "good.npz")
+    env = gym.make("sensor_envs/HighwayFast-v0", radar="kde", radar_model=str(good_path), config={"vehicles_count": 5})
+    obs, _ = env.reset(seed=0)
+    for _ in range(3):
+        obs, *_ = env.step(env.action_space.sample())
+    assert np.isfinite(obs).all()
+    env.close()
+    bad_path = KDERadarModel(extra_state=("noise_a",), extra_variance=(1.0,)).fit(log).save(tmp_path / "bad.npz")
+    with pytest.raises(ValueError, match="'noise_a', which the highway world cannot supply"):
+        gym.make("sensor_envs/HighwayFast-v0", radar="kde", radar_model=str(bad_path), config={"vehicles_count": 5})

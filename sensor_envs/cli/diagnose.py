@@ -32,12 +32,13 @@ def register(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None
     p.add_argument("--min-score", type=float, default=0.005, help="minimum cross-fitted R^2 (default 0.005)")
     p.add_argument("--block-frames", type=int, default=25, help="frames per contiguous block (default 25)")
     p.add_argument("--no-prev", action="store_true", help="do not condition the KDE on z_{t-1}")
+    p.add_argument("--exclude", action="append", default=[], help="a log column that is not a candidate (repeatable)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_diagnose_radar)
 
 
-def _write_atomically(out: Path, force: bool, write: Callable[[Path], Any]) -> Any:
+def write_folder_atomically(out: Path, force: bool, write: Callable[[Path], Any]) -> Any:
     """Run ``write(tmp)`` into a fresh temporary folder beside ``out``, then rename it to ``out``.
 
     Private minimal version of the shared safe-output helper of issue 9 (switch at merge).
@@ -110,7 +111,9 @@ def _diagnose_radar(args: argparse.Namespace) -> int:
         base_state = tuple(base_model.extra_state_)
     elif args.no_prev:
         params["use_prev"] = False
-    adapter = RadarAdapter(log, held, model_kind=kind, params=params, progress=not args.quiet)
+    adapter = RadarAdapter(
+        log, held, model_kind=kind, params=params, progress=not args.quiet, exclude=tuple(args.exclude)
+    )
     result = run_diagnose(
         adapter,
         base_state=base_state,
@@ -123,7 +126,7 @@ def _diagnose_radar(args: argparse.Namespace) -> int:
         progress=not args.quiet,
     )
     result.extra["model"] = {"kind": kind, "file": args.model, "params": {k: repr(v) for k, v in params.items()}}
-    data = _write_atomically(out, args.force, lambda tmp: write_report(result, tmp, source=str(args.log)))
+    data = write_folder_atomically(out, args.force, lambda tmp: write_report(result, tmp, source=str(args.log)))
     summary = {k: data[k] for k in ("added", "error_before", "error_after")}
     summary["effects"] = data["effects"][:5]
     print(json.dumps(summary, indent=1))

@@ -58,6 +58,8 @@ class RadarAdapter:
         model_kind: ``"kde"`` or ``"gaussian"``: the model that is diagnosed.
         params: hyperparameters of that model (extra state excluded).
         progress: progress bars of the fits.
+        exclude: log columns that are not candidates (e.g. outcomes of the measurement itself, such as
+            Astyx's ``n_points``, which is 0 exactly when the target is missed).
     """
 
     kind = "radar"
@@ -69,7 +71,12 @@ class RadarAdapter:
         model_kind: str = "kde",
         params: dict[str, Any] | None = None,
         progress: bool = False,
+        exclude: tuple[str, ...] = (),
     ) -> None:
+        missing = [c for c in exclude if c not in log.columns]
+        if missing:
+            raise ValueError(f"{log.source}: excluded column {missing[0]!r} is not in the log")
+        self.exclude = tuple(exclude)
         if model_kind not in ("kde", "gaussian"):
             raise ValueError(f"model_kind must be 'kde' or 'gaussian', got {model_kind!r}")
         self.log = with_derived_columns(log)
@@ -91,7 +98,9 @@ class RadarAdapter:
 
     def columns(self) -> list[str]:
         """Numeric log columns a model can take into its state (covariates, derived, ``t``, ``frame``)."""
-        skip = {c for c in REQUIRED_COLUMNS if c not in ("t", "frame")} | set(INT_COLUMNS) - {"frame"}
+        skip = (
+            {c for c in REQUIRED_COLUMNS if c not in ("t", "frame")} | set(INT_COLUMNS) - {"frame"} | set(self.exclude)
+        )
         return [c for c in self.log.columns if c not in skip]
 
     def state_name(self, candidate: str) -> str | None:
