@@ -27,7 +27,7 @@ from sensor_envs.radar.rig import record_rig_log
 def make_log(rows: int, seed: int = 0) -> RadarLog:
     """A rig log of about ``rows`` rows with a hidden latency of 0.4 s and three distractor columns."""
     rng = np.random.default_rng(seed)
-    n_seq = max(4, int(round(rows / 330)))  # ~330 rows per 30-cycle, 10-target sequence
+    n_seq = max(4, int(np.ceil(rows / 300)))  # ~330 rows per 30-cycle, 10-target sequence: at least `rows`
     log = record_rig_log(n_seq, 30, 10, rng, velocity_columns=True)
     c = dict(log.columns)
     tgt = ~np.isnan(c["ref_x"])

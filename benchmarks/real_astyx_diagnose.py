@@ -3,10 +3,11 @@
 Loads the frames into a radar object log (:func:`sensor_envs.radar.astyx.load_astyx`; covariates
 ``ref_z``, ``occlusion``, ``label_certainty``, ``n_points``, ``class_code``, ``aspect``), splits it by
 contiguous frame blocks into fit and held-out parts, fits the KDE radar without ``z_{t-1}`` (Astyx is
-no time series) on the fit part, ranks the candidates on the held-out residuals with the permutation
-test, adds the best significant effect, refits and re-measures (at most 3 times), and writes
-``report.json``, ``report.md`` and the before/after figures into ``--out`` (never into the
-repository: the data are CC BY-NC-SA; no model is saved).
+no time series; corner relevance variance by 3-fold CV on the fit part, as for the shipped model) on
+the fit part, ranks the candidates on the held-out residuals with the permutation test, adds the best
+significant effect, refits and re-measures (at most 3 refits), and writes ``report.json``,
+``report.md`` and the before/after figures into ``--out`` (never into the repository: the data are
+CC BY-NC-SA; no model is saved).
 
 ``n_points`` (radar detections on the box) is an outcome of the measurement, not a cause: it is 0
 exactly when the target is missed, so it is excluded from the candidates by default
@@ -45,7 +46,11 @@ def main() -> None:
     t0 = time.perf_counter()
     log = load_astyx(args.data, block=args.block, progress=True)
     held = block_split(radar_blocks(log, args.block))
-    params = {"use_prev": False, "cv_group": "sequence"} if args.model_kind == "kde" else {}
+    params = (
+        {"use_prev": False, "cv_group": "sequence", "relevance": "cv", "relevance_folds": 3}
+        if args.model_kind == "kde"
+        else {}
+    )
     exclude = () if args.keep_n_points else ("n_points",)
     adapter = RadarAdapter(log, held, model_kind=args.model_kind, params=params, progress=True, exclude=exclude)
     res = run_diagnose(adapter, n_permutations=args.permutations, seed=args.seed, progress=True)
@@ -67,7 +72,12 @@ def main() -> None:
         flag = "SIGNIFICANT" if e["significant"] else ""
         print(f"  {e['name']:>16s}  R2 {e['score']:+.4f}  p {e['p_value']:.4f}  ({e['metric']}) {flag}")
     for i, st in enumerate(res.steps):
-        print(f"step {i + 1}: NLL {st['error']:.4f}: {st.get('decision', '')}")
+        print(f"step {i + 1}: model NLL {st['error']:.4f}")
+        for at in st.get("attempts", []):
+            base = "" if at["baseline_with"] is None else f"; Gaussian baseline with it {at['baseline_with']:.4f}"
+            print(f"  refit with {at['candidate']}: NLL {at['error_with']:.4f}{base}: {at['decision']}")
+        if not st.get("attempts"):
+            print(f"  {st.get('decision', '')}")
     print(f"added: {res.added or 'nothing'}")
     print(f"held-out NLL per reading: before {res.error_before:.4f} -> after {res.error_after:.4f}")
     if res.baseline_before is not None:

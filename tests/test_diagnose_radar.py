@@ -187,3 +187,29 @@ def test_highway_supplies_the_models_state_and_refuses_unknown_variables(latency
     bad_path = KDERadarModel(extra_state=("noise_a",), extra_variance=(1.0,)).fit(log).save(tmp_path / "bad.npz")
     with pytest.raises(ValueError, match="'noise_a', which the highway world cannot supply"):
         gym.make("sensor_envs/HighwayFast-v0", radar="kde", radar_model=str(bad_path), config={"vehicles_count": 5})
+
+
+def test_world_state_values_in_the_sensor_frame():
+    """Ego heading +90 deg at speed 10 m/s; a target 20 m ahead (world +y) driving at 15 m/s along world +x."""
+    from types import SimpleNamespace
+
+    from sensor_envs.envs.highway.frame import Truth
+    from sensor_envs.envs.highway.sensor import world_state
+
+    truth = Truth(
+        objects=[object()],
+        obstacle=np.array([False]),
+        centre=np.array([[0.0, 20.0]]),
+        heading=np.array([0.0]),
+        velocity=np.array([[15.0, 0.0]]),
+        corners=np.zeros((1, 4, 2)),
+    )
+    ego = SimpleNamespace(velocity=np.array([0.0, 10.0]))
+    pose = np.array([0.0, 0.0, np.pi / 2])
+    names = ("rel_vx", "rel_vy", "rel_speed", "target_heading", "aspect", "ego_speed", "range", "azimuth")
+    v = dict(zip(names, world_state(names, truth, np.array([0]), pose, ego)[0], strict=True))
+    # relative velocity (15, -10) in the world -> sensor frame (x = world +y, y = world -x): (-10, -15)
+    np.testing.assert_allclose([v["rel_vx"], v["rel_vy"]], [-10.0, -15.0], atol=1e-9)
+    np.testing.assert_allclose(v["rel_speed"], np.hypot(10, 15))
+    np.testing.assert_allclose([v["target_heading"], v["aspect"]], [-np.pi / 2, -np.pi / 2], atol=1e-9)
+    np.testing.assert_allclose([v["ego_speed"], v["range"], v["azimuth"]], [10.0, 20.0, 0.0], atol=1e-9)

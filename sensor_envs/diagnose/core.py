@@ -34,8 +34,9 @@ adding them cannot help. ``effects`` holds the other candidates only.
 
 **Loop.** Fit the base model on the fit part, evaluate on the held-out part, rank; add the best
 significant candidate the model can take into its state, refit, re-measure on the SAME held-out part;
-keep it only when the held-out NLL improves; repeat while an effect is significant (at most
-``max_add``, default 3).
+keep it only when the held-out NLL improves (else it is reported as rejected and the next significant
+candidate is tried); re-rank after each addition; repeat while an effect is significant, with at most
+``max_add`` (default 3) refits in all.
 """
 
 from __future__ import annotations
@@ -377,33 +378,65 @@ def run_diagnose(
         rng=rng,
         progress=progress,
     )
-    for _ in range(max_add):
-        ranking = rank_candidates(
-            ev, exclude, n_permutations=n_permutations, alpha=alpha, min_score=min_score, rng=rng, progress=progress
+    rejected: list[str] = []
+    ranking: Ranking | None = None
+    for _ in range(max_add):  # at most max_add refits (added or rejected)
+        if ranking is None:  # the model changed: rank its residuals again
+            ranking = rank_candidates(
+                ev, exclude, n_permutations=n_permutations, alpha=alpha, min_score=min_score, rng=rng, progress=progress
+            )
+            first = first or ranking
+            step: dict[str, Any] = {
+                "error": ev.error,
+                "ranking": [
+                    {k: e[k] for k in ("name", "score", "p_value", "p_raw", "metric")} for e in ranking.effects
+                ],
+                "attempts": [],
+            }
+            steps.append(step)
+        pick = next(
+            (
+                e
+                for e in ranking.significant()
+                if adapter.state_name(e["name"]) is not None and e["name"] not in rejected
+            ),
+            None,
         )
-        first = first or ranking
-        step: dict[str, Any] = {
-            "error": ev.error,
-            "ranking": [{k: e[k] for k in ("name", "score", "p_value", "p_raw", "metric")} for e in ranking.effects],
-        }
-        steps.append(step)
-        pick = next((e for e in ranking.significant() if adapter.state_name(e["name"]) is not None), None)
         if pick is None:
-            step["decision"] = "no significant effect the model can take"
+            step["decision"] = "no (further) significant effect the model can take"
             break
         var = adapter.state_name(pick["name"])
         assert var is not None
         new_model = adapter.fit((*state, var))
         new_ev = adapter.evaluate(new_model)
         bar.update()
-        step["candidate"], step["error_with"] = pick["name"], new_ev.error
+        attempt = {
+            "candidate": pick["name"],
+            "error_with": new_ev.error,
+            "baseline_with": adapter.baseline((*state, var)),
+        }
+        step["attempts"].append(attempt)
         if not new_ev.error < ev.error:
-            step["decision"] = f"{pick['name']} rejected: held-out NLL {new_ev.error:.4f} >= {ev.error:.4f}"
-            break
-        step["decision"] = f"added {pick['name']}"
+            attempt["decision"] = f"{pick['name']} rejected: held-out NLL {new_ev.error:.4f} >= {ev.error:.4f}"
+            step["decision"] = attempt["decision"]
+            rejected.append(pick["name"])
+            continue
+        attempt["decision"] = step["decision"] = f"added {pick['name']}"
         state, model, ev = (*state, var), new_model, new_ev
         added.append(pick["name"])
         exclude = (*exclude, pick["name"])
+        ranking = None
+    if ranking is None:  # the refit budget ended on an addition: rank the final model's residuals too
+        final = rank_candidates(
+            ev, exclude, n_permutations=n_permutations, alpha=alpha, min_score=min_score, rng=rng, progress=progress
+        )
+        steps.append(
+            {
+                "error": ev.error,
+                "ranking": [{k: e[k] for k in ("name", "score", "p_value", "p_raw", "metric")} for e in final.effects],
+                "decision": f"stopped: {max_add} refits done",
+            }
+        )
     bar.update(bar.total - bar.n)
     bar.close()
     assert first is not None

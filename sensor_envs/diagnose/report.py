@@ -140,7 +140,12 @@ def _markdown(result: DiagnoseResult, data: dict[str, Any], figs: list[tuple[str
             lines.append(f"| {e['name']} | {e['score']:.4f} | {e['p_value']:.4f} | {e['metric']} | {sig} |")
     lines += ["", "## Steps", ""]
     for i, st in enumerate(result.steps):
-        lines.append(f"{i + 1}. held-out NLL {st['error']:.4f}: {st.get('decision', '')}")
+        lines.append(f"{i + 1}. model with held-out NLL {st['error']:.4f}:")
+        for at in st.get("attempts", []):
+            base = "" if at["baseline_with"] is None else f", Gaussian baseline with it {at['baseline_with']:.4f}"
+            lines.append(f"   - refit with {at['candidate']}: NLL {at['error_with']:.4f}{base}: {at['decision']}")
+        if not st.get("attempts"):
+            lines.append(f"   - {st.get('decision', '')}")
     lines += ["", "## Residual vs effect, before and after", ""]
     for name, metric, fname in figs:
         lines += [f"![{metric} vs {name}]({fname})", ""]

@@ -445,8 +445,9 @@ class KDERadarModel:
             self.extra_variance_ = tuple(float(v) for v in self.extra_variance)
         elif x.shape[1]:
             std = np.maximum(self.extra_.std(axis=0), 1e-9)
+            inner = type(self)(**{**self.get_params(), "rel_variance": self.rel_variance_, "relevance": "paper"})
             var, self.extra_scores_ = select_extra_variances(
-                log, self, std, tuple(self.extra_candidates), int(self.relevance_folds), progress
+                log, inner, std, tuple(self.extra_candidates), int(self.relevance_folds), progress
             )
             self.extra_variance_ = tuple(float(v) for v in var)
         else:
