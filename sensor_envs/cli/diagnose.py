@@ -1,7 +1,9 @@
 """``sensor-envs diagnose radar LOG --out DIR [--model MODEL]``: find, add and report the effect a model lacks.
 
 Output: ``DIR/report.json``, ``DIR/report.md`` and figures, written to a temporary folder beside
-``DIR`` and renamed into place; an existing ``DIR`` is refused unless ``--force``.
+``DIR`` and renamed into place; an existing ``DIR`` is refused unless ``--force``. With ``--model``,
+the loop refits that model's kind, hyperparameters and state on the fit part (like with like); the
+given model's own held-out NLL is reported beside it.
 """
 
 from __future__ import annotations
@@ -14,6 +16,8 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 
 def register(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
@@ -74,6 +78,11 @@ def _check_args(args: argparse.Namespace) -> None:
         raise ValueError(f"--permutations: expected >= 19, got {args.permutations}")
     if not 0.0 < args.alpha < 1.0:
         raise ValueError(f"--alpha: expected a level in (0, 1), got {args.alpha}")
+    if 1.0 / (args.permutations + 1) >= args.alpha:
+        raise ValueError(
+            f"--permutations: {args.permutations} cannot give p < --alpha {args.alpha}; use at least "
+            f"{int(np.ceil(1.0 / args.alpha))}"
+        )
     if args.block_frames < 1:
         raise ValueError(f"--block-frames: expected >= 1, got {args.block_frames}")
 
@@ -92,6 +101,13 @@ def load_radar_model(path: str) -> tuple[str, Any]:
     return "gaussian", GaussianRadar.load(path)
 
 
+def _params_of(model: Any) -> dict[str, Any]:
+    """Constructor hyperparameters of a loaded model (``get_params`` where the class has it)."""
+    if hasattr(model, "get_params"):
+        return dict(model.get_params())
+    return {k: getattr(model, k) for k in ("range_edges", "min_count", "cov_floor")}
+
+
 def _diagnose_radar(args: argparse.Namespace) -> int:
     from sensor_envs.diagnose.core import block_split, run_diagnose
     from sensor_envs.diagnose.radar import RadarAdapter, radar_blocks
@@ -107,7 +123,7 @@ def _diagnose_radar(args: argparse.Namespace) -> int:
     base_model, base_state, kind, params = None, (), args.model_kind, {}
     if args.model is not None:
         kind, base_model = load_radar_model(args.model)
-        params = {k: v for k, v in base_model.get_params().items() if k not in ("extra_state", "extra_variance")}
+        params = {k: v for k, v in _params_of(base_model).items() if k not in ("extra_state", "extra_variance")}
         base_state = tuple(base_model.extra_state_)
     elif args.no_prev:
         params["use_prev"] = False
@@ -117,7 +133,6 @@ def _diagnose_radar(args: argparse.Namespace) -> int:
     result = run_diagnose(
         adapter,
         base_state=base_state,
-        base_model=base_model,
         max_add=args.max_add,
         n_permutations=args.permutations,
         alpha=args.alpha,
@@ -126,6 +141,12 @@ def _diagnose_radar(args: argparse.Namespace) -> int:
         progress=not args.quiet,
     )
     result.extra["model"] = {"kind": kind, "file": args.model, "params": {k: repr(v) for k, v in params.items()}}
+    if base_model is not None:  # like with like: the loop refits the given model's kind, parameters and state
+        result.extra["given_model_error_held_out"] = adapter.evaluate(base_model).error
+        result.extra["given_model_note"] = (
+            "the given model itself on the held-out part; it may have been fitted on these readings, so the "
+            "loop compares refits on the fit part (error_before = the given model's configuration refitted)"
+        )
     data = write_folder_atomically(out, args.force, lambda tmp: write_report(result, tmp, source=str(args.log)))
     summary = {k: data[k] for k in ("added", "error_before", "error_after")}
     summary["effects"] = data["effects"][:5]
