@@ -3,7 +3,8 @@
 Loads the frames into a radar object log (:func:`sensor_envs.radar.astyx.load_astyx`; covariates
 ``ref_z``, ``occlusion``, ``label_certainty``, ``n_points``, ``class_code``, ``aspect``), splits it by
 contiguous frame blocks into fit and held-out parts, fits the KDE radar without ``z_{t-1}`` (Astyx is
-no time series; corner relevance variance by 3-fold CV on the fit part, as for the shipped model) on
+no time series; corner relevance variance by 3-fold CV on the fit part, as for the shipped model;
+output-bandwidth grid 8 m and 3 candidate widths per extra dimension, to keep it within minutes) on
 the fit part, ranks the candidates on the held-out residuals with the permutation test, adds the best
 significant effect, refits and re-measures (at most 3 refits), and writes ``report.json``,
 ``report.md`` and the before/after figures into ``--out`` (never into the repository: the data are
@@ -47,7 +48,14 @@ def main() -> None:
     log = load_astyx(args.data, block=args.block, progress=True)
     held = block_split(radar_blocks(log, args.block))
     params = (
-        {"use_prev": False, "cv_group": "sequence", "relevance": "cv", "relevance_folds": 3}
+        {
+            "use_prev": False,
+            "cv_group": "sequence",
+            "relevance": "cv",
+            "relevance_folds": 3,
+            "cv_grid_step": 8.0,
+            "extra_candidates": (0.5, 1.0, 2.0),
+        }
         if args.model_kind == "kde"
         else {}
     )
