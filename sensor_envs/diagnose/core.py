@@ -255,7 +255,7 @@ def rank_candidates(
     bar.close()
     p_raw = (1 + ge_raw) / (1 + n_permutations)
     p_adj = (1 + ge_max) / (1 + n_permutations)
-    effects = [
+    effects: list[dict[str, Any]] = [
         {
             "name": c,
             "score": float(best[i]),
@@ -267,7 +267,7 @@ def rank_candidates(
         }
         for i, c in enumerate(names)
     ]
-    effects.sort(key=lambda e: -e["score"])
+    effects.sort(key=lambda e: -float(e["score"]))
     return Ranking(effects, alpha, min_score, n_permutations)
 
 

@@ -101,8 +101,7 @@ def _markdown(result: DiagnoseResult, data: dict[str, Any], figs: list[tuple[str
         f"family-wise over all candidates and residual metrics) and cross-fitted R^2 >= {s['min_score']}.",
         "",
     ]
-    sig = [e for e in result.effects if e["significant"]]
-    if not sig:
+    if not any(e["significant"] for e in result.effects):
         lines += [
             "**No effect is significant**: no candidate outside the model's state explains its held-out residuals.",
             "",

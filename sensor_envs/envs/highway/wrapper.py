@@ -363,7 +363,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if len(ref_s) == 0:
             return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
         if extra is not None:
-            z, source = self.radar.sample_cycle(ref_s, prev_z, self._rng, extra=extra)
+            z, source = self.radar.sample_cycle(ref_s, prev_z, self._rng, extra=extra)  # type: ignore[call-arg]
         else:
             z, source = self.radar.sample_cycle(ref_s, prev_z, self._rng)
         return np.asarray(z, dtype=np.float64).reshape(-1, 2), np.asarray(source, dtype=np.int64).reshape(-1)
