@@ -3,8 +3,10 @@
 Latency log: rig sequences with covariate columns ``rel_vx``/``rel_vy`` (the targets' relative
 velocity, which the rig knows), the measurement shifted by ``-LATENCY * v`` (an undeclared latency),
 plus distractors: two pure-noise columns and ``weak``, which correlates weakly (r ~ 0.3) with the cause.
-Null log: the rig's target states, with outputs drawn from a fitted KDE model at each corner
-(so nothing beyond the model's own state matters), plus the same kind of noise columns.
+Null log: the rig's target states, with outputs drawn independently per reading from a Gaussian
+radar fitted to the rig (they depend on the corner's range only, so nothing outside the diagnosed
+model's state matters), plus the same kind of noise columns. (Outputs resampled from a KDE are no
+null: the resampled tuples carry their source track's aspect and repeat along a track.)
 """
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ def latency_log() -> RadarLog:
 def null_log() -> RadarLog:
     rng = np.random.default_rng(11)
     log = record_rig_log(24, 30, 10, rng)
-    model = KDERadarModel(use_prev=False, random_state=0).fit(log)
+    model = GaussianRadar().fit(log)  # outputs depend on the corner's range only, independently per reading
     tt = target_tuples(log)
     z, _ = model.sample(tt.corner, rng)
     c = dict(log.columns)
