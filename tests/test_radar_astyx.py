@@ -38,3 +38,19 @@ def test_load_real_frames(real_data):
     m = KDERadarModel(use_prev=False, cv_group="sequence", cv_min_tuples=10, random_state=0).fit(log)
     z, _ = m.sample_cycle(tt.corner[:5], None, np.random.default_rng(0))
     assert z.shape == (5, 2)
+
+
+def test_real_frames_carry_the_covariates_diagnose_needs(real_data):
+    root = real_data / "astyx_hires2019"
+    if not root.is_dir():
+        pytest.skip(f"{root} is absent")
+    log = load_astyx(root, frames=range(0, 10))
+    for col in ("occlusion", "label_certainty", "class_code", "n_points", "aspect"):
+        assert col in log.covariates
+    tgt = ~log.is_clutter
+    from sensor_envs.radar.features import aspect_angle
+
+    np.testing.assert_allclose(
+        log["aspect"][tgt], aspect_angle(log["ref_x"][tgt], log["ref_y"][tgt], log["ref_heading"][tgt])
+    )
+    assert np.all(np.abs(log["aspect"][tgt]) <= np.pi) and np.isnan(log["aspect"][~tgt]).all()

@@ -1,4 +1,4 @@
-"""The ``sensor-envs`` command line: ``demo`` (the main job), ``record``, ``fit``, ``validate``, ``evaluate``."""
+"""The ``sensor-envs`` command line: ``demo``, ``record``, ``fit``, ``validate``, ``diagnose``, ``evaluate``."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
+from sensor_envs.cli import diagnose as cli_diagnose
 from sensor_envs.cli import evaluate as cli_evaluate
 from sensor_envs.cli import lidar as cli_lidar
 from sensor_envs.cli import radar as cli_radar
@@ -42,6 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
         verbs[verb] = p.add_subparsers(dest="kind", required=True)
     cli_lidar.register(verbs)
     cli_radar.register(verbs)
+    cli_diagnose.register(sub)
     cli_evaluate.register(
         sub.add_parser("evaluate", help="does the simulator predict an algorithm's performance on the real sensor?")
     )

@@ -24,7 +24,9 @@ Targets are the boxes of ``classes`` (default cars); clusters on boxes of other 
 targets nor clutter. Astyx frames are no time series: every target gets its own id (no ``z_{t-1}``),
 ``t`` is the frame index (no time stamps are given) and ``sequence`` is the block of ``block``
 consecutive frames (used to split the data into train/test by blocks). Covariates: ``ref_z``,
-``occlusion``, ``label_certainty``, ``n_points``, ``class_code`` (index into :data:`CLASS_CODES`).
+``occlusion``, ``label_certainty``, ``n_points``, ``class_code`` (index into :data:`CLASS_CODES`) and
+``aspect`` (box heading relative to the line of sight to its centre [rad],
+:func:`sensor_envs.radar.features.aspect_angle`).
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ from sklearn.cluster import DBSCAN
 from tqdm import tqdm
 
 from sensor_envs.geometry import quaternion_yaw, to_frame
+from sensor_envs.radar.features import aspect_angle
 from sensor_envs.radar.log import REQUIRED_COLUMNS, RadarLog
 
 __all__ = ["CLASS_CODES", "read_frame", "frame_rows", "load_astyx", "detection_statistics"]
@@ -204,20 +207,21 @@ def load_astyx(
                 boxes[box_idx, 7],
                 tgt[:, 7],
                 [CLASS_CODES.index(names[j]) if names[j] in CLASS_CODES else -1 for j in box_idx],
+                aspect_angle(tgt[:, 0], tgt[:, 1], tgt[:, 2]),
             ],
             axis=1,
-        ).reshape(-1, 5)
+        ).reshape(-1, 6)
         ids = np.stack(
             [np.full(len(tgt), f // block), np.full(len(tgt), f), np.full(len(tgt), f), f * 1000 + box_idx], axis=1
         )
         t_rows = np.concatenate([ids, tgt[:, :7], cov], axis=1)
-        c_rows = np.full((len(clutter), 16), np.nan)
+        c_rows = np.full((len(clutter), 17), np.nan)
         c_rows[:, :4] = [f // block, f, f, -1]
         c_rows[:, 9:11] = clutter[:, :2]
         c_rows[:, 14] = clutter[:, 2]
         out.append(np.concatenate([t_rows, c_rows]))
-    data = np.concatenate(out) if out else np.zeros((0, 16))
-    names_all = [*REQUIRED_COLUMNS, "ref_z", "occlusion", "label_certainty", "n_points", "class_code"]
+    data = np.concatenate(out) if out else np.zeros((0, 17))
+    names_all = [*REQUIRED_COLUMNS, "ref_z", "occlusion", "label_certainty", "n_points", "class_code", "aspect"]
     return RadarLog({n: data[:, j] for j, n in enumerate(names_all)}, source=f"astyx {root}")
 
 

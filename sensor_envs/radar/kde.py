@@ -50,6 +50,15 @@ follows the number of candidate buckets instead of neighbours; ``"auto"`` picks 
 
 **Clutter**: the number of clutter detections per cycle is resampled from the log's per-cycle
 counts; positions are clutter rows of the log plus Gaussian jitter ``clutter_jitter`` [m].
+
+**Extra state** (``extra_state``, format 3): names of numeric log columns (e.g. ``rel_vx``,
+``aspect``, ``occlusion``; :mod:`sensor_envs.radar.features`) appended to the state as further
+relevance dimensions, in both the main and the start tree. Their relevance variances are
+``extra_variance`` or, when that is ``None``, chosen by the same held-out CV as the corner variance
+(:func:`sensor_envs.radar.relevance.select_extra_variances`) from ``(f * std)^2`` for ``f`` in
+``extra_candidates`` (``std`` of the column in the training log). Missing values (NaN) are replaced
+by the training median. Queries must then pass ``extra=(n, len(extra_state))``; the sampler is the
+ball sampler (the bucket grid is kept for the 2-D/4-D states).
 """
 
 from __future__ import annotations
@@ -86,16 +95,18 @@ from sensor_envs.modelio import (
     validate_params,
 )
 from sensor_envs.radar.buckets import build_buckets, sample_proportional
+from sensor_envs.radar.features import state_matrix
 from sensor_envs.radar.log import RadarLog, TargetTuples, clutter_counts, target_tuples
-from sensor_envs.radar.relevance import select_corner_variance
+from sensor_envs.radar.relevance import select_corner_variance, select_extra_variances
 
 __all__ = ["KDERadarModel", "cv_bandwidth_table"]
 
 KIND = "radar_kde"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 """Model file format: 1 = up to the ball sampler; 2 adds ``sampler``/``bucket_cell``, the relevance
-selection (``relevance*`` params, the fitted ``rel_variance_``) and ``start_split``. Version-1 files load
-with the defaults of the new parameters."""
+selection (``relevance*`` params, the fitted ``rel_variance_``) and ``start_split``; 3 adds the extra
+state (``extra_*`` params, the ``extra`` array, ``state_variables`` in the header). Older files load
+with the defaults of the new parameters (no extra state)."""
 AUTO_BUCKET_MIN_NEIGHBOURS = 100
 """``sampler="auto"`` uses the bucket sampler when the median number of tuples in the ball of a stored
 state is at least this (the ball sampler's cost follows it; benchmarks/bench_radar.py, 10-target
@@ -267,6 +278,10 @@ class KDERadarModel(BaseEstimator):
         relevance_candidates: corner variances [m^2] tried by ``relevance="cv"``.
         relevance_folds: folds of ``relevance="cv"`` (sequences dealt round-robin).
         random_state: seed or generator for the CV subsampling.
+        extra_state: names of extra numeric log columns appended to the state (see the module docstring).
+        extra_variance: relevance variances of the extra dimensions [unit^2]; ``None`` (or a NaN entry) =
+            chosen by CV.
+        extra_candidates: factors ``f`` of the column std tried by that CV (variance ``(f * std)^2``).
     """
 
     _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
@@ -289,6 +304,9 @@ class KDERadarModel(BaseEstimator):
         "relevance_folds": [Interval(2, None, integer=True)],
         "prior_rate": [Options("tree", "global")],
         "random_state": RANDOM_STATE,
+        "extra_state": [InstanceOf(tuple, list)],  # details: _check_extra_params
+        "extra_variance": [None, InstanceOf(tuple, list)],
+        "extra_candidates": [InstanceOf(tuple, list)],
     }
     """One declarative check of every hyperparameter, used by :meth:`fit` and :meth:`load`."""
 
@@ -314,6 +332,9 @@ class KDERadarModel(BaseEstimator):
         relevance_folds: int = 4,
         prior_rate: str = "tree",
         random_state: int | np.random.Generator | None = None,
+        extra_state: tuple[str, ...] = (),
+        extra_variance: tuple[float, ...] | None = None,
+        extra_candidates: tuple[float, ...] = (0.25, 0.5, 1.0, 2.0),
     ) -> None:
         self.rel_variance = rel_variance
         self.use_prev = use_prev
@@ -334,11 +355,15 @@ class KDERadarModel(BaseEstimator):
         self.relevance_folds = relevance_folds
         self.prior_rate = prior_rate
         self.random_state = random_state
+        self.extra_state = extra_state
+        self.extra_variance = extra_variance
+        self.extra_candidates = extra_candidates
 
     # ------------------------------------------------------------------ fit
     def _check_params(self) -> None:
         """Check every hyperparameter against the class's table (``ValueError`` naming the bad one)."""
         validate_params(self.get_params(), self._hyperparameter_constraints)
+        _check_extra_params(self.extra_state, self.extra_variance, self.extra_candidates)
 
     def fit(self, log: RadarLog, cycle_time: float | None = None, progress: bool = False) -> KDERadarModel:
         """Fit on a radar log: store the tuples, build the trees, run the LOO-CV bandwidth table.
@@ -369,6 +394,7 @@ class KDERadarModel(BaseEstimator):
             )
             self.rel_variance_ = (v, v, *self.rel_variance_[2:])
         self.scale_ = np.sqrt(np.asarray(self.rel_variance_, dtype=np.float64))
+        self._fit_extra(log, tt.row, progress)
         self.cand_ = (
             np.asarray(self.cv_candidates, dtype=np.float64)
             if self.cv_candidates is not None
@@ -384,12 +410,12 @@ class KDERadarModel(BaseEstimator):
         self.grid_y_ = np.arange(lo[1], hi[1] + self.cv_grid_step, self.cv_grid_step)
         groups = _cv_groups(tt, self.cv_group)
         self.log_h_, self.cv_counts_ = cv_bandwidth_table(
-            self.states_[cv_rows, :dims],
+            np.concatenate([self.states_[cv_rows, :dims], self.extra_[cv_rows]], axis=1),
             self.z_[cv_rows],
             groups[cv_rows],
             self.grid_x_,
             self.grid_y_,
-            self.scale_[:dims],
+            np.concatenate([self.scale_[:dims], self.extra_scale_]),
             self.radius,
             self.cand_,
             self.cv_min_tuples,
@@ -402,6 +428,67 @@ class KDERadarModel(BaseEstimator):
         self._build()
         return self
 
+    def _fit_extra(self, log: RadarLog, rows: NDArray[np.int64], progress: bool) -> None:
+        """Extra state columns at the tuples' ``rows``: values, NaN fill, relevance scales (CV if not given)."""
+        self.extra_state_ = tuple(str(n) for n in self.extra_state)
+        x = state_matrix(log, self.extra_state_, rows)
+        fill = np.nanmedian(x, axis=0) if x.shape[1] and np.isfinite(x).any(axis=0).all() else np.zeros(x.shape[1])
+        if x.shape[1] and not np.isfinite(x).any(axis=0).all():
+            bad = self.extra_state_[int(np.argmin(np.isfinite(x).any(axis=0)))]
+            raise ValueError(f"{log.source}: column {bad!r} has no value on any target row")
+        self.extra_fill_ = np.asarray(fill, dtype=np.float64)
+        self.extra_ = np.where(np.isnan(x), self.extra_fill_, x)
+        self.extra_scores_ = np.zeros((0, 0))
+        if self.extra_variance is not None and not np.isnan(np.asarray(self.extra_variance, dtype=np.float64)).any():
+            self.extra_variance_ = tuple(float(v) for v in self.extra_variance)
+        elif x.shape[1]:
+            std = np.maximum(self.extra_.std(axis=0), 1e-9)
+            inner = type(self)(**{**self.get_params(), "rel_variance": self.rel_variance_, "relevance": "paper"})
+            var, self.extra_scores_ = select_extra_variances(
+                log, inner, std, tuple(self.extra_candidates), int(self.relevance_folds), progress
+            )
+            self.extra_variance_ = tuple(float(v) for v in var)
+        else:
+            self.extra_variance_ = ()
+        self.extra_scale_ = np.sqrt(np.asarray(self.extra_variance_, dtype=np.float64)).reshape(-1)
+
+    def _scaled(self, base: NDArray, extra: NDArray) -> NDArray[np.float64]:
+        """Scaled query/tuple states: ``base (n, d)`` by the first ``d`` relevance scales, then the extras."""
+        return np.concatenate([base / self.scale_[: base.shape[1]], extra / self.extra_scale_], axis=1)
+
+    def _extra_query(self, extra: NDArray | None, n: int) -> NDArray[np.float64]:
+        """Validated ``(n, E)`` extra state of ``n`` queries (NaN -> training median)."""
+        e = len(self.extra_state_)
+        if e == 0:
+            return np.zeros((n, 0))
+        if extra is None:
+            raise ValueError(f"extra: this model's state includes {list(self.extra_state_)}; pass their values")
+        x = np.asarray(extra, dtype=np.float64)
+        if x.size != n * e:
+            raise ValueError(f"extra: expected ({n}, {e}) values of {list(self.extra_state_)}, got shape {x.shape}")
+        x = x.reshape(n, e)
+        return np.where(np.isnan(x), self.extra_fill_, x)
+
+    @property
+    def state_variables(self) -> tuple[str, ...]:
+        """Names of the state dimensions: corner, previous output, then the extra state."""
+        self._check_fitted()
+        return ("corner_x", "corner_y", "prev_z_x", "prev_z_y", *self.extra_state_)
+
+    def mean_output(self, state: NDArray, extra: NDArray | None = None) -> tuple[NDArray, NDArray]:
+        """Expected output given a detection ``(n, 2)`` [m] and ``P(miss)`` ``(n,)`` (arguments as :meth:`log_prob`)."""
+        self._check_fitted()
+        st = np.atleast_2d(np.asarray(state, dtype=np.float64))
+        n = st.shape[0]
+        ex = self._extra_query(extra, n)
+        prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
+        gi, w, q, p_miss = self._outcome(st[:, :2], prev, ex)
+        gi, w, q = self._with_detected_fallback(gi, w, q, st[:, :2])
+        wd = w * ~self.miss_[gi]
+        zi = np.nan_to_num(self.z_[gi])  # missed tuples have NaN outputs and zero weight here
+        zsum = np.stack([np.bincount(q, weights=wd * zi[:, k], minlength=n) for k in range(2)], axis=1)
+        return zsum / np.bincount(q, weights=wd, minlength=n)[:, None], p_miss
+
     def _build(self) -> None:
         """Build the search trees from the stored tuples (at fit and at load; never per call)."""
         has_prev = ~np.isnan(self.states_[:, 2])
@@ -413,8 +500,12 @@ class KDERadarModel(BaseEstimator):
         else:
             self.main_idx_ = np.zeros(0, dtype=np.int64)
             self.start_idx_ = np.arange(self.states_.shape[0])
-        self._main_tree = cKDTree(self.states_[self.main_idx_] / self.scale_) if self.main_idx_.size else None
-        self._start_tree = cKDTree(self.states_[self.start_idx_, :2] / self.scale_[:2])
+        if not hasattr(self, "extra_"):  # models fitted/loaded before the extra state existed
+            self.extra_state_, self.extra_ = (), np.zeros((self.states_.shape[0], 0))
+            self.extra_fill_, self.extra_variance_, self.extra_scale_ = np.zeros(0), (), np.zeros(0)
+        main, start = self.main_idx_, self.start_idx_
+        self._main_tree = cKDTree(self._scaled(self.states_[main], self.extra_[main])) if main.size else None
+        self._start_tree = cKDTree(self._scaled(self.states_[start, :2], self.extra_[start]))
         self.miss_ = np.isnan(self.z_[:, 0])
         self.miss_rate_ = float(self.miss_.mean())
         tree_rate = self.prior_rate == "tree"
@@ -426,11 +517,13 @@ class KDERadarModel(BaseEstimator):
         self._det_tree = cKDTree(self.states_[self.det_idx_, :2] / self.scale_[:2])
         self._main_buckets = (
             None
-            if self._main_tree is None
+            if self._main_tree is None or self.extra_.shape[1]
             else build_buckets(self._main_tree.data, self.bucket_cell, self.radius, flag=self.miss_[self.main_idx_])
         )
-        self._start_buckets = build_buckets(
-            self._start_tree.data, self.bucket_cell, self.radius, flag=self.miss_[self.start_idx_]
+        self._start_buckets = (
+            None
+            if self.extra_.shape[1]
+            else build_buckets(self._start_tree.data, self.bucket_cell, self.radius, flag=self.miss_[self.start_idx_])
         )
         tree = self._main_tree if self._main_tree is not None else self._start_tree
         probe = tree.data[:: max(1, tree.n // 256)]  # a deterministic sample of stored states
@@ -461,10 +554,13 @@ class KDERadarModel(BaseEstimator):
         self._check_fitted()
         return np.exp(_interp_log_h(self.grid_x_, self.grid_y_, self.log_h_, np.atleast_2d(corners)))
 
-    def _neighbours(self, corners: NDArray, prev_z: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    def _neighbours(
+        self, corners: NDArray, prev_z: NDArray, extra: NDArray | None = None
+    ) -> tuple[NDArray, NDArray, NDArray]:
         """Relevant tuples of each query: flat ``(global tuple index, weight, query id)``."""
         corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
         n = corners.shape[0]
+        ex = self._extra_query(extra, n)
         prev = np.atleast_2d(np.asarray(prev_z, dtype=np.float64)) if prev_z is not None else np.full((n, 2), np.nan)
         if prev.shape != (n, 2) or corners.shape != (n, 2):
             raise ValueError(f"corners and prev_z must both be (n, 2); got {corners.shape} and {prev.shape}")
@@ -481,7 +577,7 @@ class KDERadarModel(BaseEstimator):
             qi = np.flatnonzero(mask)
             if qi.size == 0:
                 continue
-            qs = q[qi] / self.scale_[: q.shape[1]]
+            qs = self._scaled(q[qi], ex[qi])
             j, d2, qid = _neighbour_lists(tree, qs, self.radius, self.k_max)
             w = np.exp(-0.5 * d2)
             empty = np.bincount(qid, weights=w, minlength=qi.size) <= 0.0
@@ -501,13 +597,16 @@ class KDERadarModel(BaseEstimator):
         w = np.exp(-0.5 * (d**2 - d[:, :1] ** 2))
         return idx_map[j.ravel()], w.ravel(), np.repeat(qi, k)
 
-    def sample(self, state: NDArray, rng: np.random.Generator) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    def sample(
+        self, state: NDArray, rng: np.random.Generator, extra: NDArray | None = None
+    ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """Two-stage sample for a batch of states.
 
         Args:
             state: ``(n, 2)`` corners or ``(n, 4)`` corners + previous outputs (``NaN`` = missing) [m],
                 sensor frame.
             rng: generator.
+            extra: ``(n, E)`` values of the extra state variables (required when the model has any).
 
         Returns:
             ``z (n, 2)`` [m] (``NaN`` rows = missed) and ``source (n,)`` the picked tuple's index.
@@ -515,11 +614,13 @@ class KDERadarModel(BaseEstimator):
         self._check_fitted()
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
-        return self.sample_cycle(st[:, :2], prev, rng)
+        return self.sample_cycle(st[:, :2], prev, rng, extra=extra)
 
-    def _outcome(self, corners: NDArray, prev_z: NDArray | None) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    def _outcome(
+        self, corners: NDArray, prev_z: NDArray | None, extra: NDArray | None = None
+    ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
         """Neighbours ``(gi, w, q)`` and the miss probability ``(n,)`` of each query."""
-        gi, w, q = self._neighbours(corners, prev_z)
+        gi, w, q = self._neighbours(corners, prev_z, extra)
         n = corners.shape[0]
         wsum = np.bincount(q, weights=w, minlength=n)
         wmiss = np.bincount(q, weights=w * self.miss_[gi], minlength=n)
@@ -556,7 +657,7 @@ class KDERadarModel(BaseEstimator):
         return self.det_idx_[j]
 
     def sample_cycle(
-        self, corners: NDArray, prev_z: NDArray | None, rng: np.random.Generator
+        self, corners: NDArray, prev_z: NDArray | None, rng: np.random.Generator, extra: NDArray | None = None
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """``RadarSensor.sample_cycle``: outputs for ``n`` targets of one cycle (see :meth:`sample`).
 
@@ -576,19 +677,24 @@ class KDERadarModel(BaseEstimator):
             if prev_z is None or not self.use_prev
             else np.atleast_2d(np.asarray(prev_z, dtype=np.float64))
         )
-        if self.k_max is None and (self.sampler == "bucket" or (self.sampler == "auto" and self._auto_bucket)):
+        ex = self._extra_query(extra, n)
+        bucket = self.sampler == "bucket" or (self.sampler == "auto" and self._auto_bucket)
+        if self.k_max is None and bucket and ex.shape[1] == 0:
             miss, src = self._draw_bucket(corners, prev, rng)
         else:
-            miss, src = self._draw_ball(corners, prev, rng)
+            miss, src = self._draw_ball(corners, prev, rng, ex)
         h = self.bandwidth(corners)
         z = np.where(miss[:, None], np.nan, self.z_[np.maximum(src, 0)] + h * rng.standard_normal((n, 2)))
         return z, src
 
-    def _draw_ball(self, corners: NDArray, prev: NDArray, rng: np.random.Generator) -> tuple[NDArray, NDArray]:
+    def _draw_ball(
+        self, corners: NDArray, prev: NDArray, rng: np.random.Generator, extra: NDArray | None = None
+    ) -> tuple[NDArray, NDArray]:
         """Reference sampler (``sampler="ball"``): full ball query, outcome, then tuple; ``(miss, source)``."""
         n = corners.shape[0]
-        rep, inv = _unique_states(corners, prev)
-        gi, w, q, p_miss = self._outcome(corners[rep], prev[rep])
+        ex = self._extra_query(extra, n)
+        rep, inv = _unique_states(corners, np.concatenate([prev, ex], axis=1))
+        gi, w, q, p_miss = self._outcome(corners[rep], prev[rep], ex[rep])
         miss = rng.random(n) < p_miss[inv]
         miss_t = self.miss_[gi]
         if rep.size == n:  # one group per query: pick among the tuples of the drawn outcome at once
@@ -668,12 +774,13 @@ class KDERadarModel(BaseEstimator):
         xy = self.clutter_xy_[rng.integers(0, self.clutter_xy_.shape[0], m)]
         return xy + self.clutter_jitter * rng.standard_normal((m, 2))
 
-    def log_prob(self, z: NDArray, state: NDArray) -> NDArray[np.float64]:
+    def log_prob(self, z: NDArray, state: NDArray, extra: NDArray | None = None) -> NDArray[np.float64]:
         """Log-probability of outcomes under the truncated-kernel density (the seed's Eq. 10).
 
         Args:
             z: ``(n, 2)`` outputs [m]; a ``NaN`` row is a miss and scores ``log P(miss | x)``.
             state: ``(n, 2)`` or ``(n, 4)`` as in :meth:`sample`.
+            extra: ``(n, E)`` values of the extra state variables (required when the model has any).
 
         Returns:
             ``(n,)``: ``log(1 - P(miss | x)) + log p(z | x, detected)`` [log 1/m^2] for detections,
@@ -684,7 +791,7 @@ class KDERadarModel(BaseEstimator):
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))
         n = st.shape[0]
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
-        gi, w, q, p_miss = self._outcome(st[:, :2], prev)
+        gi, w, q, p_miss = self._outcome(st[:, :2], prev, self._extra_query(extra, n))
         gi, w, q = self._with_detected_fallback(gi, w, q, st[:, :2])
         h = self.bandwidth(st[:, :2])
         det_t = ~self.miss_[gi]
@@ -714,7 +821,7 @@ class KDERadarModel(BaseEstimator):
         return gi[order], w[order], q[order]
 
     def bin_probabilities(
-        self, state: NDArray, edges_x: NDArray, edges_y: NDArray
+        self, state: NDArray, edges_x: NDArray, edges_y: NDArray, extra: NDArray | None = None
     ) -> tuple[NDArray[np.float64], float]:
         """Exact probability of each output bin for ONE state (for the chi-square check).
 
@@ -722,6 +829,7 @@ class KDERadarModel(BaseEstimator):
             state: ``(2,)``/``(4,)`` state as in :meth:`sample` [m].
             edges_x: bin edges [m] of ``z_x``.
             edges_y: bin edges [m] of ``z_y``.
+            extra: ``(1, E)`` extra state values (required when the model has any).
 
         Returns:
             ``(len(edges_x) - 1, len(edges_y) - 1)`` bin probabilities and ``P(miss)``.
@@ -729,7 +837,7 @@ class KDERadarModel(BaseEstimator):
         self._check_fitted()
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))[:1]
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
-        gi, w, q, p_miss = self._outcome(st[:, :2], prev)
+        gi, w, q, p_miss = self._outcome(st[:, :2], prev, self._extra_query(extra, 1))
         gi, w, _ = self._with_detected_fallback(gi, w, q, st[:, :2])
         h = self.bandwidth(st[:, :2])[0]
         det = ~self.miss_[gi]
@@ -745,12 +853,18 @@ class KDERadarModel(BaseEstimator):
         params = {k: v for k, v in self.get_params().items() if k not in ("cv_candidates", "random_state")}
         params["rel_variance"] = [float(v) for v in self.rel_variance]
         params["relevance_candidates"] = [float(v) for v in self.relevance_candidates]
+        params["extra_state"] = [str(v) for v in self.extra_state_]
+        params["extra_variance"] = None if self.extra_variance is None else [float(v) for v in self.extra_variance]
+        params["extra_candidates"] = [float(v) for v in self.extra_candidates]
         header = {
             "params": params,
             "cycle_time": self.cycle_time_,
             "card": card or {},
             "rel_variance_fitted": list(self.rel_variance_),
             "relevance_scores": [float(v) for v in self.relevance_scores_],
+            "state_variables": list(self.state_variables),
+            "extra_variance_fitted": [float(v) for v in self.extra_variance_],
+            "extra_fill": [float(v) for v in self.extra_fill_],
         }
         arrays = {
             "states": self.states_,
@@ -763,6 +877,7 @@ class KDERadarModel(BaseEstimator):
             "cv_candidates": self.cand_,
             "clutter_counts": self.clutter_counts_,
             "clutter_xy": self.clutter_xy_,
+            "extra": self.extra_,
         }
         return save_model_file(path, KIND, FORMAT_VERSION, header, arrays)
 
@@ -781,8 +896,13 @@ class KDERadarModel(BaseEstimator):
             "clutter_counts": ("iu", 1, True),
             "clutter_xy": ("f", 2, True),
         }
-        header, a = load_model_file(path, KIND, (1, FORMAT_VERSION), schema)
-        defaults = {"prior_rate": "global"}  # format 1
+        header, a = load_model_file(path, KIND, (1, 2, FORMAT_VERSION), schema)
+        defaults = {  # parameters older formats lack: 1 has no prior_rate, 1 and 2 no extra state
+            "prior_rate": "global",
+            "extra_state": (),
+            "extra_variance": None,
+            "extra_candidates": (0.25, 0.5, 1.0, 2.0),
+        }
         not_saved = ("random_state", "cv_candidates")  # the candidates are stored as an array
         model = cls(**params_from_header(path, header, cls._hyperparameter_constraints, defaults, not_saved))
         _check_arrays(path, a)
@@ -798,6 +918,7 @@ class KDERadarModel(BaseEstimator):
         model.scale_ = np.sqrt(np.asarray(model.rel_variance_, dtype=np.float64))
         model.cycle_time_ = optional_positive(path, "cycle_time", header.get("cycle_time"))
         model.card_ = header.get("card", {})
+        _load_extra(model, header, a, path)
         model._build()
         return model
 
@@ -837,6 +958,43 @@ def _check_arrays(path: str | os.PathLike[str], a: dict[str, NDArray[Any]]) -> N
     check_shape(path, "clutter_xy", a["clutter_xy"], (a["clutter_xy"].shape[0], 2))
     check_range(path, "clutter_xy", a["clutter_xy"], -MAX_POSITION, MAX_POSITION)
     check_finite(path, "cv_candidates", a["cv_candidates"])
+
+
+def _check_extra_params(names: Any, variance: Any, candidates: Any) -> None:
+    """Validate the ``extra_*`` hyperparameters (raises ValueError naming the parameter)."""
+    if isinstance(names, str) or not all(isinstance(n, str) and n for n in names):
+        raise ValueError(f"extra_state must be a tuple of column names, got {names!r}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"extra_state has duplicate names: {names!r}")
+    if variance is not None:
+        v = np.asarray(variance, dtype=np.float64)
+        if v.shape != (len(names),) or not (np.isnan(v) | (np.isfinite(v) & (v > 0))).all():
+            raise ValueError(
+                f"extra_variance must be {len(names)} positive variances (NaN = by CV) or None, got {variance!r}"
+            )
+    c = np.asarray(candidates, dtype=np.float64)
+    if c.ndim != 1 or c.size == 0 or not (np.isfinite(c).all() and (c > 0).all()):
+        raise ValueError(f"extra_candidates must be positive factors, got {candidates!r}")
+
+
+def _load_extra(model: KDERadarModel, header: dict[str, Any], a: dict[str, NDArray], path: Any) -> None:
+    """Restore and check the extra state of a loaded model (format 3; older files have none)."""
+    names = tuple(str(v) for v in header.get("params", {}).get("extra_state", ()) or ())
+    n = model.states_.shape[0]
+    if int(header.get("format_version", 0)) >= 3 and "extra" not in a:
+        raise ModelFileError(f"{path}: field 'extra' is missing")
+    extra = np.asarray(a.get("extra", np.zeros((n, 0))))
+    if extra.dtype.kind != "f" or extra.ndim != 2:
+        raise ModelFileError(f"{path}: field 'extra' must be a 2-D float array")
+    var = np.asarray(header.get("extra_variance_fitted", []), dtype=np.float64)
+    fill = np.asarray(header.get("extra_fill", []), dtype=np.float64)
+    if extra.shape != (n, len(names)) or var.shape != (len(names),) or fill.shape != (len(names),):
+        raise ModelFileError(f"{path}: field 'extra' does not match the {len(names)} names of 'extra_state'")
+    if not (np.isfinite(extra).all() and np.isfinite(var).all() and (var > 0).all() and np.isfinite(fill).all()):
+        raise ModelFileError(f"{path}: field 'extra'/'extra_variance_fitted' must be finite (variances > 0)")
+    model.extra_state_, model.extra_ = names, extra
+    model.extra_variance_, model.extra_fill_ = tuple(float(v) for v in var), fill
+    model.extra_scale_ = np.sqrt(var)
 
 
 def _unique_states(corners: NDArray, prev: NDArray, min_n: int = 64) -> tuple[NDArray, NDArray]:

@@ -8,6 +8,9 @@ output bandwidths) and the held-out log-likelihood of all outcomes (detections a
 model's :meth:`~sensor_envs.radar.kde.KDERadarModel.log_prob`) is summed over the folds. The
 candidate with the highest held-out log-likelihood wins. Used by ``KDERadarModel(relevance="cv")``;
 when nested inside an outer train/test split, the outer test part is never seen.
+
+The same held-out score chooses the relevance variances of extra state dimensions
+(:func:`select_extra_variances`, candidates relative to each column's standard deviation).
 """
 
 from __future__ import annotations
@@ -19,14 +22,25 @@ from numpy.typing import NDArray
 from sklearn.base import clone
 from tqdm import tqdm
 
+from sensor_envs.radar.features import state_matrix
 from sensor_envs.radar.log import RadarLog, target_tuples
 from sensor_envs.rng import fold_ids
 
-__all__ = ["inner_folds", "select_corner_variance"]
+__all__ = ["inner_folds", "select_corner_variance", "select_extra_variances", "heldout_scores"]
+
+
+FRAME_BLOCK = 50
+"""Frames per block when a log has fewer sequences than folds (contiguous blocks are then dealt instead)."""
 
 
 def inner_folds(log: RadarLog, n_folds: int) -> NDArray[np.int64]:
-    """Fold id ``(n_rows,)`` of every row: its sequence's rank modulo ``n_folds`` (see ``rng.fold_ids``)."""
+    """Fold id ``(n_rows,)`` of every row: its sequence's rank modulo ``n_folds`` (see ``rng.fold_ids``).
+
+    A log with fewer sequences than ``n_folds`` deals blocks of :data:`FRAME_BLOCK` consecutive frames
+    of each sequence instead.
+    """
+    if np.unique(log["sequence"]).size < n_folds:
+        return fold_ids(np.stack([log["sequence"], log["frame"] // FRAME_BLOCK], axis=1), n_folds)
     return fold_ids(log["sequence"], n_folds)
 
 
@@ -38,7 +52,8 @@ def select_corner_variance(
     Args:
         log: the training log.
         estimator: the (unfitted) model whose hyperparameters the inner models copy
-            (``rel_variance`` gives the ``z_{t-1}`` variances; ``relevance`` is forced to ``"paper"``).
+            (``rel_variance`` gives the ``z_{t-1}`` variances; ``relevance`` is forced to ``"paper"``;
+            extra state dimensions without a given variance use ``std^2`` of their column).
         candidates: corner variances [m^2] to try.
         n_folds: inner folds (sequences dealt round-robin; needs at least ``n_folds`` sequences).
         progress: show a tqdm bar over the ``len(candidates) * n_folds`` inner fits.
@@ -46,23 +61,97 @@ def select_corner_variance(
     Returns:
         The chosen variance and ``scores (len(candidates),)``: mean held-out log-likelihood per target row [nats].
     """
-    rv = estimator.get_params()["rel_variance"]
+    params = estimator.get_params()
+    rv = params.get("rel_variance", (3.0, 3.0, 0.03, 0.03))
+    base = {}
+    names = tuple(params.get("extra_state", ()) or ())
+    if names:
+        std = _extra_std(log, names)
+        given = params.get("extra_variance")
+        ev = np.asarray(given if given is not None else np.full(len(names), np.nan), dtype=np.float64)
+        base["extra_variance"] = tuple(float(v) for v in np.where(np.isnan(ev), std**2, ev))
+    overrides = [{**base, "rel_variance": (v, v, rv[2], rv[3])} for v in candidates]
+    scores = heldout_scores(log, estimator, overrides, n_folds, progress, "relevance cv")
+    return float(candidates[int(np.argmax(scores))]), scores
+
+
+def _extra_std(log: RadarLog, names: tuple[str, ...]) -> NDArray[np.float64]:
+    """Standard deviation of each extra state column over the target rows (at least 1e-9)."""
+    rows = np.flatnonzero(~log.is_clutter)
+    return np.maximum(np.nanstd(state_matrix(log, names, rows), axis=0), 1e-9)
+
+
+def select_extra_variances(
+    log: RadarLog,
+    estimator: Any,
+    std: NDArray[np.float64],
+    factors: tuple[float, ...],
+    n_folds: int,
+    progress: bool = False,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Relevance variances of the extra state dimensions by the same held-out CV, one dimension at a time.
+
+    Dimension ``j`` tries ``(f * std_j)^2`` for ``f`` in ``factors`` with the others fixed (a given
+    finite entry of ``extra_variance`` is kept, the not yet chosen ones at ``std^2``); the best is
+    kept before the next dimension (coordinate-wise search: ``E * len(factors) * n_folds`` inner fits).
+
+    Args:
+        log: the training log.
+        estimator: the unfitted model (its ``extra_state``, ``extra_variance`` and other parameters).
+        std: ``(E,)`` standard deviations of the extra columns [unit].
+        factors: candidate factors of ``std``.
+        n_folds: inner folds.
+        progress: show a tqdm bar.
+
+    Returns:
+        ``variance (E,)`` and ``scores (E, len(factors))`` mean held-out log-likelihood per target row
+        (rows of given dimensions are NaN).
+    """
+    params = estimator.get_params()
+    given = params.get("extra_variance")
+    var = np.asarray(given if given is not None else np.full(std.size, np.nan), dtype=np.float64).copy()
+    todo = np.flatnonzero(np.isnan(var))
+    var[todo] = std[todo] ** 2
+    scores = np.full((std.size, len(factors)), np.nan)
+    for j in todo:  # one coordinate at a time
+        overrides = []
+        for f in factors:
+            v = var.copy()
+            v[j] = (f * std[j]) ** 2
+            overrides.append({"extra_variance": tuple(float(x) for x in v)})
+        scores[j] = heldout_scores(log, estimator, overrides, n_folds, progress, f"extra cv {j}")
+        var[j] = (factors[int(np.argmax(scores[j]))] * std[j]) ** 2
+    return var, scores
+
+
+def heldout_scores(
+    log: RadarLog, estimator: Any, overrides: list[dict[str, Any]], n_folds: int, progress: bool, desc: str
+) -> NDArray[np.float64]:
+    """Mean ``n_folds``-fold held-out log-likelihood per target row of each parameter override.
+
+    Inner models copy ``estimator``'s parameters with ``relevance="paper"`` and the override; the
+    held-out log-likelihood includes the extra state of the held-out rows when the model has any.
+    """
     fold = inner_folds(log, n_folds)
     if np.unique(fold).size < n_folds:
-        raise ValueError(f"{log.source}: relevance CV needs at least {n_folds} sequences")
-    total = np.zeros(len(candidates))
+        raise ValueError(f"{log.source}: relevance CV needs at least {n_folds} sequences or frame blocks")
+    total = np.zeros(len(overrides))
     n_rows = 0
-    bar = tqdm(total=len(candidates) * n_folds, disable=not progress, desc="relevance cv")
+    bar = tqdm(total=len(overrides) * n_folds, disable=not progress, desc=desc)
     for k in range(n_folds):  # one iteration per inner fold
         train, test = log.select(fold != k), log.select(fold == k)
         tt = target_tuples(test)
         state = np.concatenate([tt.corner, tt.z_prev], axis=1)
         n_rows += state.shape[0]
-        for j, v in enumerate(candidates):  # one inner fit per candidate
-            inner = clone(estimator).set_params(relevance="paper", rel_variance=(v, v, rv[2], rv[3]))
-            lp = inner.fit(train).log_prob(tt.z, state)
+        for j, ov in enumerate(overrides):  # one inner fit per candidate
+            model = clone(estimator).set_params(relevance="paper", **ov).fit(train)
+            names = tuple(model.extra_state or ())
+            lp = (
+                model.log_prob(tt.z, state, extra=state_matrix(test, names, tt.row))
+                if names
+                else model.log_prob(tt.z, state)
+            )
             total[j] += float(np.sum(lp))
             bar.update()
     bar.close()
-    scores = total / n_rows
-    return float(candidates[int(np.argmax(scores))]), scores
+    return total / n_rows

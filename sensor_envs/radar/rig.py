@@ -193,6 +193,7 @@ def record_rig_log(
     rng: np.random.Generator,
     config: RigConfig | None = None,
     progress: bool = False,
+    velocity_columns: bool = False,
 ) -> RadarLog:
     """Record ``n_sequences`` independent rig sequences into one log (sequence ids 0..n-1).
 
@@ -203,11 +204,18 @@ def record_rig_log(
         rng: the generator for scenarios and radar noise.
         config: rig parameters (default :class:`RigConfig`).
         progress: show a tqdm bar.
+        velocity_columns: add covariate columns ``rel_vx``, ``rel_vy``: the target's velocity relative to
+            the (static) sensor, sensor frame [m/s] (empty on clutter rows).
     """
     rig = RadarRig(config)
-    logs = []
+    logs, vel = [], []
     for s in tqdm(range(n_sequences), disable=not progress, desc="rig"):
         sc = generate_scenario(n_targets, n_cycles, rig.config.cycle_time, rng)
         logs.append(rig.record(sc, rng, sequence=s))
+        tgt = logs[-1]["target"]
+        vel.append(np.where((tgt >= 0)[:, None], sc.velocity[np.maximum(tgt, 0)], np.nan))
     cols = {k: np.concatenate([lg.columns[k] for lg in logs]) for k in REQUIRED_COLUMNS}
+    if velocity_columns:
+        v = np.concatenate(vel)
+        cols["rel_vx"], cols["rel_vy"] = v[:, 0], v[:, 1]
     return RadarLog(cols, source=f"rig log ({n_sequences} sequences)")

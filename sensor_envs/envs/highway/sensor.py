@@ -29,6 +29,8 @@ __all__ = [
     "reference_points",
     "track_velocities",
     "visible_targets",
+    "model_state_names",
+    "world_state",
 ]
 
 DEFAULT_FOV = float(np.deg2rad(100.0))
@@ -208,3 +210,48 @@ def visible_targets(spec: SensorSpec, ref_s: NDArray[np.float64], corners_s: NDA
     hidden = np.zeros_like(vis)
     hidden[idx[targets]] = frac >= spec.occlusion_threshold
     return vis & ~hidden
+
+
+def model_state_names(radar: Any) -> tuple[str, ...]:
+    """The extra state variables a radar model names (``extra_state_``), checked against what the world supplies.
+
+    Raises:
+        ValueError: naming the variable when the highway world cannot supply it.
+    """
+    from sensor_envs.radar.features import WORLD_VARIABLES
+
+    names = tuple(getattr(radar, "extra_state_", ()) or ())
+    for name in names:
+        if name not in WORLD_VARIABLES:
+            raise ValueError(
+                f"radar_model: the model's state names {name!r}, which the highway world cannot supply "
+                f"(it supplies {sorted(WORLD_VARIABLES)})"
+            )
+    return names
+
+
+def world_state(
+    names: tuple[str, ...], truth: Truth, idx: NDArray[np.int64], pose: NDArray[np.float64], ego: Any
+) -> NDArray[np.float64]:
+    """``(len(idx), len(names))`` values of the state variables ``names`` for targets ``idx`` (sensor frame).
+
+    See :data:`sensor_envs.radar.features.WORLD_VARIABLES` for the names, units and frames.
+    """
+    from sensor_envs.radar.features import aspect_angle
+
+    k = len(idx)
+    ego_v = np.asarray(ego.velocity, dtype=np.float64)
+    rel_v = to_frame(truth.velocity[idx] - ego_v, (0.0, 0.0, pose[2])).reshape(k, 2)  # vectors: rotate only
+    heading = np.asarray(wrap_angle(truth.heading[idx] - pose[2]), dtype=np.float64).reshape(k)
+    centre = to_frame(truth.centre[idx], pose).reshape(k, 2)
+    values = {
+        "rel_vx": lambda: rel_v[:, 0],
+        "rel_vy": lambda: rel_v[:, 1],
+        "rel_speed": lambda: np.hypot(rel_v[:, 0], rel_v[:, 1]),
+        "target_heading": lambda: heading,
+        "aspect": lambda: aspect_angle(centre[:, 0], centre[:, 1], heading),
+        "ego_speed": lambda: np.full(k, float(np.hypot(*ego_v))),
+        "range": lambda: np.hypot(centre[:, 0], centre[:, 1]),
+        "azimuth": lambda: np.arctan2(centre[:, 1], centre[:, 0]),
+    }
+    return np.stack([values[n]() for n in names], axis=1).reshape(k, len(names))

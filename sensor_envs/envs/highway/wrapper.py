@@ -104,11 +104,13 @@ from sensor_envs.envs.highway.sensor import (
     DEFAULT_MAX_RANGE,
     SensorSpec,
     load_radar,
+    model_state_names,
     reference_points,
     sensor_pose,
     track_velocities,
     truth_table,
     visible_targets,
+    world_state,
 )
 from sensor_envs.geometry import from_frame
 from sensor_envs.radar.sensors import RADAR_NAMES, RadarSensor
@@ -200,6 +202,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 raise TypeError(f"radar: expected a name in {RADAR_NAMES} or a RadarSensor, got {type(radar).__name__}")
             self._radar_key = None
             self.radar = radar
+        self._state_names = model_state_names(self.radar)
         low, high = self.layout.bounds()
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self._rng = sensor_rng(None, RNG_TAG, None)
@@ -321,7 +324,10 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         prev = [self._tracks.get(truth.objects[i], (_NAN2, _NAN2)) for i in vis]
         prev_z = np.array([p[0] for p in prev]).reshape(-1, 2)
         prev_w = np.array([p[1] for p in prev]).reshape(-1, 2)
-        z, source = self._sample_targets(ref_s, prev_z)
+        extra = (
+            world_state(self._state_names, truth, vis, pose, self.env.unwrapped.vehicle) if self._state_names else None
+        )
+        z, source = self._sample_targets(ref_s, prev_z, extra)
         meas_s = ref_s + z
         ok = np.asarray(np.isfinite(z).all(axis=1))
         ok[ok] = self.spec_sensor.in_view(meas_s[ok])
@@ -332,12 +338,18 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return meas_s, meas_w, ok, source, prev_w
 
     def _sample_targets(
-        self, ref_s: NDArray[np.float64], prev_z: NDArray[np.float64]
+        self, ref_s: NDArray[np.float64], prev_z: NDArray[np.float64], extra: NDArray[np.float64] | None = None
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-        """One radar cycle for the visible targets (no call, and no draw, when there are none)."""
+        """One radar cycle for the visible targets (no call, and no draw, when there are none).
+
+        ``extra`` holds the model's extra state variables (:func:`world_state`), when it names any.
+        """
         if len(ref_s) == 0:
             return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
-        z, source = self.radar.sample_cycle(ref_s, prev_z, self._rng)
+        if extra is not None:
+            z, source = self.radar.sample_cycle(ref_s, prev_z, self._rng, extra=extra)  # type: ignore[call-arg]
+        else:
+            z, source = self.radar.sample_cycle(ref_s, prev_z, self._rng)
         return np.asarray(z, dtype=np.float64).reshape(-1, 2), np.asarray(source, dtype=np.int64).reshape(-1)
 
     # -- observation --------------------------------------------------------------------------------

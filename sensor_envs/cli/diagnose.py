@@ -1,0 +1,133 @@
+"""``sensor-envs diagnose radar LOG --out DIR [--model MODEL]``: find, add and report the effect a model lacks.
+
+Output: ``DIR/report.json``, ``DIR/report.md`` and figures, written to a temporary folder beside
+``DIR`` and renamed into place; an existing ``DIR`` is refused unless ``--force``. With ``--model``,
+the loop refits that model's kind, hyperparameters and state on the fit part (like with like); the
+given model's own held-out NLL is reported beside it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sensor_envs.cli.args import add_force, nonneg_int, positive_int
+from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
+
+
+def register(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
+    """Add ``diagnose radar`` to the top-level sub-command parser ``sub``."""
+    diag = sub.add_parser("diagnose", help="find the effect a sensor model lacks, add it, report before/after")
+    kinds = diag.add_subparsers(dest="kind", required=True)
+    p = kinds.add_parser("radar", help="diagnose the KDE radar (or its Gaussian baseline) on a radar log")
+    p.add_argument("log", help="radar log CSV")
+    p.add_argument("--out", required=True, help="output folder (report.json, report.md, figures)")
+    p.add_argument("--model", default=None, help="a fitted model file (.npz) to diagnose instead of fitting one")
+    p.add_argument("--model-kind", default="kde", choices=("kde", "gaussian"), help="model fitted when no --model")
+    add_force(p)
+    p.add_argument("--max-add", type=positive_int, default=3, help="at most this many effects are added (default 3)")
+    p.add_argument("--permutations", type=positive_int, default=499, help="permutations of the test (default 499)")
+    p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level (default 0.01)")
+    p.add_argument("--min-score", type=float, default=0.005, help="minimum cross-fitted R^2 (default 0.005)")
+    p.add_argument("--block-frames", type=positive_int, default=25, help="frames per contiguous block (default 25)")
+    p.add_argument("--no-prev", action="store_true", help="do not condition the KDE on z_{t-1}")
+    p.add_argument("--exclude", action="append", default=[], help="a log column that is not a candidate (repeatable)")
+    p.add_argument("--seed", type=nonneg_int, default=0)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_diagnose_radar)
+
+
+def write_folder_atomically(
+    out: Path, force: bool, write: Callable[[Path], Any], inputs: tuple[str | Path | None, ...] = ()
+) -> Any:
+    """Run ``write(tmp)`` into a temporary folder beside ``out``, renamed onto ``out`` only on success.
+
+    The shared safe-output rules (:mod:`sensor_envs.outputs`): ``out`` must not be (or hold) an input,
+    an existing ``out`` needs ``force``.
+    """
+    target = check_output(out, inputs=inputs, force=force, folder=True)
+    with OutputTransaction() as tx:
+        return write(tx.folder(target))
+
+
+def _check_args(args: argparse.Namespace) -> None:
+    """Reject bad numeric options naming the option."""
+    if args.max_add < 1:
+        raise ValueError(f"--max-add: expected >= 1, got {args.max_add}")
+    if args.permutations < 19:
+        raise ValueError(f"--permutations: expected >= 19, got {args.permutations}")
+    if not 0.0 < args.alpha < 1.0:
+        raise ValueError(f"--alpha: expected a level in (0, 1), got {args.alpha}")
+    if 1.0 / (args.permutations + 1) >= args.alpha:
+        raise ValueError(
+            f"--permutations: {args.permutations} cannot give p < --alpha {args.alpha}; use at least "
+            f"{int(np.ceil(1.0 / args.alpha))}"
+        )
+    if args.block_frames < 1:
+        raise ValueError(f"--block-frames: expected >= 1, got {args.block_frames}")
+
+
+def load_radar_model(path: str) -> tuple[str, Any]:
+    """``("kde" | "gaussian", model)`` from a model file, by the ``kind`` in its header."""
+    from sensor_envs.modelio import ModelFileError
+    from sensor_envs.radar.gaussian import GaussianRadar
+    from sensor_envs.radar.kde import KDERadarModel
+
+    try:
+        return "kde", KDERadarModel.load(path)
+    except ModelFileError as exc:
+        if "field 'kind'" not in str(exc):
+            raise
+    return "gaussian", GaussianRadar.load(path)
+
+
+def _diagnose_radar(args: argparse.Namespace) -> int:
+    from sensor_envs.diagnose.core import block_split, run_diagnose
+    from sensor_envs.diagnose.radar import RadarAdapter, radar_blocks
+    from sensor_envs.diagnose.report import write_report
+    from sensor_envs.radar.log import read_log
+
+    _check_args(args)
+    check_inputs(args.log, args.model)
+    out = check_output(args.out, inputs=[args.log, args.model], force=args.force, folder=True)
+    log = read_log(args.log)
+    held = block_split(radar_blocks(log, args.block_frames))
+    base_model, base_state, kind, params = None, (), args.model_kind, {}
+    if args.model is not None:
+        kind, base_model = load_radar_model(args.model)
+        params = {k: v for k, v in base_model.get_params().items() if k not in ("extra_state", "extra_variance")}
+        base_state = tuple(base_model.extra_state_)
+    elif args.no_prev:
+        params["use_prev"] = False
+    adapter = RadarAdapter(
+        log, held, model_kind=kind, params=params, progress=not args.quiet, exclude=tuple(args.exclude)
+    )
+    result = run_diagnose(
+        adapter,
+        base_state=base_state,
+        max_add=args.max_add,
+        n_permutations=args.permutations,
+        alpha=args.alpha,
+        min_score=args.min_score,
+        seed=args.seed,
+        progress=not args.quiet,
+    )
+    result.extra["model"] = {"kind": kind, "file": args.model, "params": {k: repr(v) for k, v in params.items()}}
+    if base_model is not None:  # like with like: the loop refits the given model's kind, parameters and state
+        result.extra["given_model_error_held_out"] = adapter.evaluate(base_model).error
+        result.extra["given_model_note"] = (
+            "the given model itself on the held-out part; it may have been fitted on these readings, so the "
+            "loop compares refits on the fit part (error_before = the given model's configuration refitted)"
+        )
+    data = write_folder_atomically(
+        out, args.force, lambda tmp: write_report(result, tmp, source=str(args.log)), (args.log, args.model)
+    )
+    summary = {k: data[k] for k in ("added", "error_before", "error_after")}
+    summary["effects"] = data["effects"][:5]
+    print(json.dumps(summary, indent=1))
+    return 0

@@ -1,0 +1,195 @@
+"""The radar side of ``sensor-envs diagnose``: :class:`RadarAdapter` for the KDE radar (and its Gaussian baseline).
+
+Readings are the target rows of the log (detections and misses). Blocks are ``block_frames``
+consecutive frames of one sequence (:func:`radar_blocks`).
+
+Residuals of a fitted model on the held-out part (sensor frame, metres):
+
+* ``offset_x``, ``offset_y``: ``z - E[z | x, detected]`` of detected rows (NaN on misses);
+* ``detection``: ``1{detected} - P(detected | x)``;
+* ``nll``: the reading's negative log-likelihood minus its expectation under the model at the same
+  state (Monte Carlo, 4 draws from the model): NLL itself varies over the state space where the model
+  is right (wider noise far away), its excess over the model's own expectation does not.
+
+Candidates: every extra numeric column of the log by its name (``t`` as ``time``), the ``frame``
+index, derived features (``range``, ``azimuth``, ``aspect`` = target heading relative to the line of
+sight, ``corner_x``/``corner_y`` = closest-corner position, ``rel_speed`` when ``rel_vx``/``rel_vy``
+exist; :mod:`sensor_envs.radar.features`) and the previous cycle's residuals of the same target
+(``prev_offset_x``, ``prev_offset_y``, ``prev_detection``). The model can take any log column into
+its state (``extra_state``); the previous residuals (the KDE's ``z_{t-1}`` plays that part) cannot be
+added. The corner, range and azimuth are functions of the state the models already have (the box
+position, up to its size): they are tested as ``state_misfit`` (see :mod:`sensor_envs.diagnose.core`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sensor_envs.diagnose.core import Evaluation
+from sensor_envs.radar.features import state_matrix, with_derived_columns
+from sensor_envs.radar.gaussian import GaussianRadar
+from sensor_envs.radar.kde import KDERadarModel
+from sensor_envs.radar.log import INT_COLUMNS, REQUIRED_COLUMNS, RadarLog, target_tuples
+
+__all__ = ["RadarAdapter", "radar_blocks", "DIAGNOSE_KDE_PARAMS"]
+
+DIAGNOSE_KDE_PARAMS: dict[str, Any] = {"relevance": "paper", "relevance_folds": 3, "random_state": 0}
+"""KDE hyperparameters of the diagnosis fits unless ``--model`` gives others (corner variance as in
+the paper; extra dimensions' variances by 3-fold CV)."""
+_NOT_ADDABLE = ("corner_x", "corner_y", "range", "azimuth", "prev_offset_x", "prev_offset_y", "prev_detection")
+_RENAME = {"t": "time"}
+
+
+def radar_blocks(log: RadarLog, block_frames: int = 25) -> NDArray[np.int64]:
+    """Block id ``(n_rows,)``: ``block_frames`` consecutive frames of one sequence form a block."""
+    key = np.stack([log["sequence"], log["frame"] // block_frames], axis=1)
+    return np.unique(key, axis=0, return_inverse=True)[1].ravel().astype(np.int64)
+
+
+class RadarAdapter:
+    """Diagnosis adapter of the KDE radar (implements :class:`sensor_envs.diagnose.core.DiagnoseAdapter`).
+
+    Args:
+        log: the whole radar log.
+        held_out: ``(n_rows,)`` rows of the held-out part (whole blocks).
+        model_kind: ``"kde"`` or ``"gaussian"``: the model that is diagnosed.
+        params: hyperparameters of that model (extra state excluded).
+        progress: progress bars of the fits.
+        exclude: log columns that are not candidates (e.g. outcomes of the measurement itself, such as
+            Astyx's ``n_points``, which is 0 exactly when the target is missed).
+    """
+
+    kind = "radar"
+
+    def __init__(
+        self,
+        log: RadarLog,
+        held_out: NDArray[np.bool_],
+        model_kind: str = "kde",
+        params: dict[str, Any] | None = None,
+        progress: bool = False,
+        exclude: tuple[str, ...] = (),
+    ) -> None:
+        missing = [c for c in exclude if c not in log.columns]
+        if missing:
+            raise ValueError(f"{log.source}: excluded column {missing[0]!r} is not in the log")
+        self.exclude = tuple(exclude)
+        if model_kind not in ("kde", "gaussian"):
+            raise ValueError(f"model_kind must be 'kde' or 'gaussian', got {model_kind!r}")
+        self.log = with_derived_columns(log)
+        self.fit_log = self.log.select(~held_out)
+        self.held_log = self.log.select(held_out)
+        self.fit_log.source = self.held_log.source = log.source
+        self.model_kind = model_kind
+        self.params = dict(DIAGNOSE_KDE_PARAMS if model_kind == "kde" else {}, **(params or {}))
+        for k in ("extra_state", "extra_variance"):
+            self.params.pop(k, None)
+        self.progress = progress
+        self.n_mc = 4
+        self._variances: dict[str, float] = {}
+        self._tt = target_tuples(self.held_log)
+        self._state = np.concatenate([self._tt.corner, self._tt.z_prev], axis=1)
+        self._candidates = self._static_candidates()
+
+    # -- columns --------------------------------------------------------------------------------
+
+    def columns(self) -> list[str]:
+        """Numeric log columns a model can take into its state (covariates, derived, ``t``, ``frame``)."""
+        skip = (
+            {c for c in REQUIRED_COLUMNS if c not in ("t", "frame")} | set(INT_COLUMNS) - {"frame"} | set(self.exclude)
+        )
+        return [c for c in self.log.columns if c not in skip]
+
+    def state_name(self, candidate: str) -> str | None:
+        """Log column that adds ``candidate`` to the state, or ``None`` (corner, previous residuals)."""
+        if candidate in _NOT_ADDABLE:
+            return None
+        col = {v: k for k, v in _RENAME.items()}.get(candidate, candidate)
+        return col if col in self.log.columns else None
+
+    def _static_candidates(self) -> dict[str, NDArray[np.float64]]:
+        """Candidates that do not depend on the model: log columns and the corner, at the held-out readings."""
+        rows = self._tt.row
+        out = {_RENAME.get(c, c): np.asarray(self.held_log[c], dtype=np.float64)[rows] for c in self.columns()}
+        out["corner_x"], out["corner_y"] = self._tt.corner[:, 0], self._tt.corner[:, 1]
+        return out
+
+    # -- fit / evaluate ---------------------------------------------------------------------------
+
+    def fit(self, extra_state: tuple[str, ...]) -> Any:
+        """Fit the diagnosed model with ``extra_state`` on the fit part.
+
+        Relevance variances chosen by CV in an earlier fit (the corner's with ``relevance="cv"``, those of
+        earlier extra dimensions) are reused; only a new dimension's variance is chosen by CV.
+        """
+        if self.model_kind == "gaussian":
+            return GaussianRadar(**self.params, extra_state=tuple(extra_state)).fit(self.fit_log)
+        var = tuple(self._variances.get(n, float("nan")) for n in extra_state) if extra_state else None
+        model = KDERadarModel(**self.params, extra_state=tuple(extra_state), extra_variance=var)
+        model.fit(self.fit_log, progress=self.progress)
+        self._variances.update(zip(model.extra_state_, model.extra_variance_, strict=True))
+        if self.params.get("relevance") == "cv":  # the corner variance is chosen once, by the first fit
+            self.params.update(relevance="paper", rel_variance=tuple(model.rel_variance_))
+        return model
+
+    def evaluate(self, model: Any) -> Evaluation:
+        """Residuals, candidates and NLL of ``model`` on the held-out target rows."""
+        names = tuple(getattr(model, "extra_state_", ()))
+        ex = state_matrix(self.held_log, names, self._tt.row) if names else None
+        z = self._tt.z
+        lp = model.log_prob(z, self._state, extra=ex) if names else model.log_prob(z, self._state)
+        mu, p_miss = model.mean_output(self._state, extra=ex)
+        det = ~np.isnan(z[:, 0])
+        off = np.where(det[:, None], z - mu, np.nan)
+        resid = {
+            "offset_x": off[:, 0],
+            "offset_y": off[:, 1],
+            "detection": det - (1.0 - p_miss),
+            "nll": np.minimum(-lp, 50.0) - self._expected_nll(model, ex),
+        }
+        cand = dict(self._candidates)
+        prev = self._previous_index()
+        for k in ("offset_x", "offset_y", "detection"):
+            cand[f"prev_{k}"] = np.where(prev >= 0, resid[k][np.maximum(prev, 0)], np.nan)
+        return Evaluation(nll=-lp, residuals=resid, candidates=cand, blocks=self._blocks())
+
+    def _expected_nll(self, model: Any, ex: NDArray | None) -> NDArray[np.float64]:
+        """Model-expected NLL of each held-out state, by ``n_mc`` samples from the model itself (seeded)."""
+        rng = np.random.default_rng(12345)
+        total = np.zeros(self._state.shape[0])
+        for _ in range(self.n_mc):  # a few Monte Carlo draws per reading
+            zs, _ = model.sample(self._state, rng, extra=ex) if ex is not None else model.sample(self._state, rng)
+            lp = model.log_prob(zs, self._state, extra=ex) if ex is not None else model.log_prob(zs, self._state)
+            total += np.minimum(-lp, 50.0)
+        return total / self.n_mc
+
+    def _previous_index(self) -> NDArray[np.int64]:
+        """Index of the same target's previous-frame reading among the held-out readings (-1: none)."""
+        tt = self._tt
+        order = np.lexsort((tt.frame, tt.target, tt.sequence))
+        s, g, f = tt.sequence[order], tt.target[order], tt.frame[order]
+        ok = np.zeros(order.size, dtype=bool)
+        ok[1:] = (s[1:] == s[:-1]) & (g[1:] == g[:-1]) & (f[1:] == f[:-1] + 1)
+        prev_sorted = np.where(ok, np.roll(order, 1), -1)
+        out = np.empty(order.size, dtype=np.int64)
+        out[order] = prev_sorted
+        return out
+
+    def _blocks(self) -> NDArray[np.int64]:
+        return radar_blocks(self.held_log)[self._tt.row]
+
+    def state_features(self) -> tuple[str, ...]:
+        """Functions of the state the radar models already have: the corner, and range/azimuth of the box."""
+        return ("corner_x", "corner_y", "range", "azimuth")
+
+    def baseline(self, extra_state: tuple[str, ...]) -> float | None:
+        """Held-out NLL of the Gaussian baseline with the same extra state (linear terms), per reading."""
+        if self.model_kind == "gaussian":
+            return None
+        g = GaussianRadar(extra_state=tuple(extra_state)).fit(self.fit_log)
+        ex = state_matrix(self.held_log, tuple(extra_state), self._tt.row) if extra_state else None
+        lp = g.log_prob(self._tt.z, self._state, extra=ex)
+        return float(np.mean(np.minimum(-lp, 50.0)))
