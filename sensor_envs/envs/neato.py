@@ -235,7 +235,11 @@ def collides(poses: ArrayLike, segments: NDArray[np.float64], robot_radius: floa
 
 
 def step_reward(
-    rewards: tuple[float, float, float, float], prev_dist: ArrayLike, dist: ArrayLike, success: ArrayLike, collision: ArrayLike
+    rewards: tuple[float, float, float, float],
+    prev_dist: ArrayLike,
+    dist: ArrayLike,
+    success: ArrayLike,
+    collision: ArrayLike,
 ) -> Any:
     """Reward of a step: progress [m] times ``rewards[0]``, minus the step penalty, plus goal, minus collision.
 
@@ -262,7 +266,8 @@ def measure_rows(
     if isinstance(lidar, _BATCHED_LIDARS + ((lwlr.LearnedLidar,) if lwlr is not None else ())):
         rng = rngs[0] if len(rngs) == 1 else RowGenerators(rngs)
         return np.asarray(lidar.measure(nominal, incidence, rng), dtype=np.float64)  # type: ignore[arg-type]
-    return np.stack([np.asarray(lidar.measure(n, a, g), dtype=np.float64) for n, a, g in zip(nominal, incidence, rngs)])
+    rows = zip(nominal, incidence, rngs, strict=True)
+    return np.stack([np.asarray(lidar.measure(n, a, g), dtype=np.float64) for n, a, g in rows])
 
 
 def observe_batch(
