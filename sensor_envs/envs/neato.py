@@ -265,7 +265,7 @@ def measure_rows(
     lwlr = sys.modules.get("sensor_envs.lidar.lwlr")  # a LearnedLidar exists only once its module is loaded
     if isinstance(lidar, _BATCHED_LIDARS + ((lwlr.LearnedLidar,) if lwlr is not None else ())):
         rng = rngs[0] if len(rngs) == 1 else RowGenerators(rngs)
-        return np.asarray(lidar.measure(nominal, incidence, rng), dtype=np.float64)  # type: ignore[arg-type]
+        return np.asarray(lidar.measure(nominal, incidence, rng), dtype=np.float64)
     rows = zip(nominal, incidence, rngs, strict=True)
     return np.stack([np.asarray(lidar.measure(n, a, g), dtype=np.float64) for n, a, g in rows])
 
@@ -296,7 +296,9 @@ def observe_batch(
     goal_rel = to_frame(goals[:, :2], poses.T)
     dth = wrap_angle(goals[:, 2] - poses[:, 2])
     obs = np.concatenate([ranges, goal_rel, dth[:, None]], axis=1).astype(np.float32)
-    obs = np.clip(obs, env.observation_space.low, env.observation_space.high)
+    box = env.observation_space
+    assert isinstance(box, spaces.Box)
+    obs = np.clip(obs, box.low, box.high)
     d = goals[:, :2] - poses[:, :2]
     dist = np.hypot(d[:, 0], d[:, 1])
     success = (dist <= env.goal_tolerance) & ~collision
