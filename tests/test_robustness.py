@@ -72,3 +72,16 @@ def test_ray_backend_gives_the_process_pool_numbers(short_matrix, tmp_path):
         b = json.loads((tmp_path / "ray" / "runs" / r / "seed0" / "eval.json").read_text())["cells"]
         assert a == b
     assert res["rows_trained_on"] == ["ideal", "gaussian"] and "single seed" in res["interval"]
+
+
+@pytest.mark.slow
+def test_real_data_column_fitted_once_and_cached_in_out(real_data, tmp_path):
+    mod = _module()
+    out = tmp_path / "real"
+    argv = ["--domain", "neato", "--preset", "short", "--out", str(out), "--sensors", "ideal", "--seeds", "1"]
+    matrix = mod.main([*argv, "--real-data", str(real_data), "--device", "cpu"])
+    assert matrix["columns_evaluated_on"] == ["ideal", "gaussian", "learned", "learned-real"]
+    model = out / "real_models" / "neato_lidar_real.npz"
+    stamp = model.stat().st_mtime_ns
+    mod.main([*argv, "--real-data", str(real_data), "--device", "cpu"])  # rerun: neither refits nor retrains
+    assert model.stat().st_mtime_ns == stamp
