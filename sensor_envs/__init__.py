@@ -25,6 +25,7 @@ __version__ = "0.1.0"
 _PUBLIC: dict[str, str] = {
     # worlds and wrappers
     "NeatoEnv": "sensor_envs.envs.neato",
+    "NeatoVectorEnv": "sensor_envs.envs.neato_vector",
     "RadarObservation": "sensor_envs.envs.highway.wrapper",
     "make_highway": "sensor_envs.envs.highway.wrapper",
     "IDEAL_KINEMATICS": "sensor_envs.envs.highway.wrapper",
@@ -61,6 +62,7 @@ __all__ = ["__version__", *_PUBLIC]
 if TYPE_CHECKING:  # static type checkers see the real names
     from sensor_envs.envs.highway.wrapper import IDEAL_KINEMATICS, RadarObservation, make_highway
     from sensor_envs.envs.neato import NeatoEnv
+    from sensor_envs.envs.neato_vector import NeatoVectorEnv
     from sensor_envs.lidar.log import LidarLog, load_log, read_carmen, read_rosbag
     from sensor_envs.lidar.lwlr import LearnedLidar, LidarLWLR
     from sensor_envs.lidar.rig import NeatoRig
@@ -101,7 +103,12 @@ _HIGHWAY_IDS = {
 def _register() -> None:
     """Register every env id (safe to call more than once)."""
     if "sensor_envs/Neato-v0" not in gym.registry:
-        gym.register(id="sensor_envs/Neato-v0", entry_point="sensor_envs.envs.neato:NeatoEnv", max_episode_steps=500)
+        gym.register(
+            id="sensor_envs/Neato-v0",
+            entry_point="sensor_envs.envs.neato:NeatoEnv",
+            vector_entry_point="sensor_envs.envs.neato_vector:NeatoVectorEnv",
+            max_episode_steps=500,
+        )
     for env_id, base_id in _HIGHWAY_IDS.items():
         if env_id not in gym.registry:
             gym.register(

@@ -71,6 +71,9 @@ def as_segments(segments: ArrayLike, *, name: str = "segments") -> NDArray[np.fl
     return arr
 
 
+_BLOCK_ELEMENTS = 16384  # rays x segments per block of poses in raycast (about 128 kB per temporary)
+
+
 def raycast(
     origins: ArrayLike,
     angles: ArrayLike,
@@ -99,15 +102,20 @@ def raycast(
     ang = np.asarray(angles, dtype=np.float64)
     if ang.ndim == 1:
         ang = np.broadcast_to(ang, (o.shape[0], ang.shape[0]))
-    dx, dy = np.cos(ang)[..., None], np.sin(ang)[..., None]  # (P, K, 1)
+    block = max(1, _BLOCK_ELEMENTS // (segments.shape[0] * max(1, ang.shape[1])))
+    if o.shape[0] > block:  # many poses: blocks whose (M, P, K) temporaries stay in cache; same numbers
+        parts = [raycast(o[i : i + block], ang[i : i + block], segments, max_range) for i in range(0, len(o), block)]
+        return tuple(np.concatenate(x) for x in zip(*parts, strict=True))  # type: ignore[return-value]
+    # Layout (M, P, K): the long bearing axis innermost keeps numpy's inner loops long and contiguous.
+    dx, dy = np.cos(ang)[None], np.sin(ang)[None]  # (1, P, K)
     a = segments[:, 0]  # (M, 2)
     e = segments[:, 1] - a  # (M, 2)
     ex, ey = e[:, 0], e[:, 1]
-    wx = a[:, 0][None, :] - o[:, 0][:, None]  # (P, M)
-    wy = a[:, 1][None, :] - o[:, 1][:, None]
-    wx, wy = wx[:, None, :], wy[:, None, :]  # (P, 1, M)
-    den = dx * ey - dy * ex  # (P, K, M)  cross(d, e)
-    t_num = wx * ey - wy * ex  # cross(w, e)
+    ex3, ey3 = ex[:, None, None], ey[:, None, None]  # (M, 1, 1)
+    wx = (a[:, 0][:, None] - o[:, 0][None, :])[..., None]  # (M, P, 1)
+    wy = (a[:, 1][:, None] - o[:, 1][None, :])[..., None]
+    den = dx * ey3 - dy * ex3  # (M, P, K)  cross(d, e)
+    t_num = wx * ey3 - wy * ex3  # cross(w, e), (M, P, 1)
     u_num = wx * dy - wy * dx  # cross(w, d)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = t_num / den
@@ -115,22 +123,22 @@ def raycast(
     ok = (np.abs(den) > 1e-12) & (u >= 0.0) & (u <= 1.0) & (t > RAY_EPS)
     t = np.where(ok, t, np.inf)
     # Collinear rays (den == 0 and origin on the segment's line): hit at the nearer end.
-    col = (np.abs(den) <= 1e-12) & (np.abs(t_num) <= 1e-12 * (1.0 + np.hypot(ex, ey)))
+    col = (np.abs(den) <= 1e-12) & (np.abs(t_num) <= 1e-12 * (1.0 + np.hypot(ex3, ey3)))
     if col.any():
-        bx, by = wx + ex, wy + ey  # end b relative to origin
+        bx, by = wx + ex3, wy + ey3  # end b relative to origin
         ta = wx * dx + wy * dy
         tb = bx * dx + by * dy
         ahead = (ta > RAY_EPS) & (tb > RAY_EPS)  # origin off the segment, segment ahead
         tc = np.where(ahead, np.minimum(ta, tb), np.inf)
         t = np.where(col & (tc < t), tc, t)
-    idx = np.argmin(t, axis=-1)
-    rng = np.take_along_axis(t, idx[..., None], axis=-1)[..., 0]
+    idx = np.argmin(t, axis=0)  # (P, K)
+    rng = np.take_along_axis(t, idx[None], axis=0)[0]
     hit = np.isfinite(rng) & (rng <= max_range)
     rng = np.where(hit, rng, np.inf)
     # Incidence: |cos| between ray and segment direction -> angle to normal = arccos(|sin|).
     seg_len = np.hypot(ex, ey)
     cx, cy = (ex / seg_len)[idx], (ey / seg_len)[idx]
-    sin_ = np.abs(dx[..., 0] * cy - dy[..., 0] * cx)
+    sin_ = np.abs(dx[0] * cy - dy[0] * cx)
     incidence = np.where(hit, np.arccos(np.clip(sin_, 0.0, 1.0)), np.nan)
     return rng, incidence, np.where(hit, idx, -1).astype(np.int64)
 

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["sensor_rng", "fold_ids"]
+__all__ = ["sensor_rng", "fold_ids", "RowGenerators"]
 
 
 def sensor_rng(seed: int | None, tag: int, current: np.random.Generator | None) -> np.random.Generator:
@@ -53,3 +54,37 @@ def fold_ids(
     if random_state is not None:
         deal = np.random.default_rng(random_state).permutation(deal)
     return deal[rank].astype(np.int64)
+
+
+class RowGenerators:
+    """Batched draws whose row ``i`` comes from ``generators[i]`` alone (a stand-in for one ``Generator``).
+
+    A sensor that samples a ``(N, ...)`` batch with ``rng.random(shape)`` / ``rng.standard_normal(shape)``
+    / ``rng.uniform(low, high, shape)`` gets, row by row, exactly the numbers that N separate calls with
+    ``shape[1:]`` on the N generators would give: one batched sensor call serves N independent worlds
+    whose streams stay their own (a vector env then matches N single envs seed for seed).
+    """
+
+    def __init__(self, generators: Sequence[np.random.Generator]) -> None:
+        self.generators = list(generators)
+
+    def _rows(self, draw: Callable[[np.random.Generator, tuple[int, ...]], Any], size: Any) -> NDArray[np.float64]:
+        shape = (size,) if isinstance(size, (int, np.integer)) else tuple(size or ())
+        if not shape or shape[0] != len(self.generators):
+            raise ValueError(f"RowGenerators: size {shape} must lead with the number of rows {len(self.generators)}")
+        return np.stack([draw(g, shape[1:]) for g in self.generators])
+
+    def random(self, size: Any = None) -> NDArray[np.float64]:
+        """Uniform [0, 1) draws of shape ``size`` (``size[0]`` = number of rows)."""
+        return self._rows(lambda g, s: g.random(s), size)
+
+    def standard_normal(self, size: Any = None) -> NDArray[np.float64]:
+        """Standard normal draws of shape ``size`` (``size[0]`` = number of rows)."""
+        return self._rows(lambda g, s: g.standard_normal(s), size)
+
+    def uniform(self, low: float = 0.0, high: float = 1.0, size: Any = None) -> NDArray[np.float64]:
+        """Uniform ``[low, high)`` draws (scalar bounds) of shape ``size`` (``size[0]`` = number of rows)."""
+        return self._rows(lambda g, s: g.uniform(low, high, s), size)
+
+    def __getattr__(self, name: str) -> Any:
+        raise AttributeError(f"RowGenerators: {name!r} is not supported row by row (random, standard_normal, uniform)")

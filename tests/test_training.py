@@ -49,3 +49,48 @@ def test_unknown_config_key_is_an_error(tmp_path):
     train = _train_module()
     with pytest.raises(SystemExit, match="unknown keys"):
         train.main(["--env", "sensor_envs/Neato-v0", "--out", str(tmp_path), "--set", "n_timestep=5"])
+
+
+def test_config_errors_exit_2_with_one_line_naming_the_key(tmp_path, capsys):
+    train = _train_module()
+    cases = [
+        (["--set", "vec_env=threads"], "vec_env"),
+        (["--set", "n_timesteps=-3"], "n_timesteps"),
+        (["--algo", "sac", "--env", "sensor_envs/HighwayFast-v0"], "algos.sac"),
+        (["--env", "sensor_envs/Nope-v0"], "--env"),
+    ]
+    for extra, key in cases:
+        argv = ["--env", "sensor_envs/Neato-v0", "--out", str(tmp_path / "x"), *extra]
+        with pytest.raises(SystemExit) as err:
+            train.main(argv)
+        assert err.value.code == 2
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and key in lines[0]
+    with pytest.raises(train.ConfigError, match="unknown keys"):
+        train.load_config(train.DEFAULT_CONFIG, "sensor_envs/Neato-v0", ["bogus=1"])
+
+
+def test_algo_block_sensor_and_device_resolve():
+    train = _train_module()
+    cfg = train.load_config(train.DEFAULT_CONFIG, "sensor_envs/HighwayFast-v0", [], algo="dqn", sensor="gaussian")
+    assert cfg["algo"] == "dqn" and "buffer_size" in cfg["hyperparams"] and "n_steps" not in cfg["hyperparams"]
+    assert cfg["env_kwargs"]["radar"] == "gaussian" and cfg["device"] == "auto" and cfg["vec_env"] == "dummy"
+    for env_id in ("sensor_envs/Merge-v0", "sensor_envs/Intersection-v0"):
+        assert train.load_config(train.DEFAULT_CONFIG, env_id, [])["algo"] == "ppo"
+    neato = train.load_config(train.DEFAULT_CONFIG, "sensor_envs/Neato-v0", [], algo="sac", sensor="ideal")
+    assert neato["algo"] == "sac" and neato["env_kwargs"]["lidar"] == "ideal"
+
+
+def test_subproc_vec_env_and_tensorboard_log(tmp_path):
+    pytest.importorskip("tensorboard", reason="TensorBoard logs need the train extra (pip install tensorboard)")
+    train = _train_module()
+    out = tmp_path / "sub"
+    result = train.main(
+        [
+            "--env", "sensor_envs/Neato-v0", "--out", str(out), "--seed", "1", "--sensor", "ideal", "--device", "cpu",
+            "--set", "n_timesteps=128", "--set", "n_envs=2", "--set", "vec_env=subproc", "--set", "eval_freq=64",
+            "--set", "eval_episodes=1", "--set", "hyperparams={n_steps: 64, batch_size: 64, n_epochs: 1}",
+        ]
+    )  # fmt: skip
+    assert result["device"] == "cpu" and (out / "checkpoints").is_dir()
+    assert any((out / "tb").rglob("events.out.tfevents.*"))

@@ -1,10 +1,14 @@
 """Train a stable-baselines3 agent on a sensor_envs env from a YAML config keyed by env id.
 
-    python training/train.py --env sensor_envs/Neato-v0 --out runs/neato [--seed 1] [--set n_timesteps=5000]
+    python training/train.py --env sensor_envs/Neato-v0 --out runs/neato [--seed 1] [--algo sac]
+        [--sensor gaussian] [--device auto] [--set n_timesteps=5000] [--set vec_env=subproc]
 
 Writes into ``--out``: ``config.json`` (the resolved config, the seed and the command line), SB3
-checkpoints, ``best_model.zip`` and ``evaluations.npz`` from ``EvalCallback``, ``final_model.zip`` and
-``result.json`` (mean and std of the final evaluation return). A seed is drawn and logged when absent.
+checkpoints (``checkpoints/``), TensorBoard logs (``tb/``; ``tensorboard --logdir runs``), ``best_model.zip``
+and ``evaluations.npz`` from ``EvalCallback``, ``final_model.zip`` and ``result.json`` (mean and std of the
+final evaluation return). A seed is drawn and logged when absent. ``--algo`` picks another algorithm's
+block (``algos:``) of the env's config; ``--sensor`` sets the env's ``radar`` (highway ids) or ``lidar``
+(Neato) keyword. A bad config or argument exits with status 2 and one line naming the key.
 """
 
 from __future__ import annotations
@@ -23,43 +27,138 @@ from tqdm import TqdmExperimentalWarning
 
 import sensor_envs  # noqa: F401  (registers the ids)
 
-ALGOS = ("ppo", "sac", "a2c")
-KEYS = {"algo", "policy", "n_timesteps", "n_envs", "env_kwargs", "hyperparams", "eval_freq", "eval_episodes"}
+ALGOS = ("ppo", "sac", "a2c", "dqn")
+VEC_ENVS = ("dummy", "subproc")
+KEYS = {
+    "algo",
+    "policy",
+    "n_timesteps",
+    "n_envs",
+    "env_kwargs",
+    "hyperparams",
+    "eval_freq",
+    "eval_episodes",
+    "vec_env",
+    "device",
+    "algos",
+}
+ALGO_KEYS = {"policy", "hyperparams", "n_timesteps", "n_envs", "eval_freq", "eval_episodes"}
 DEFAULT_CONFIG = Path(__file__).with_name("configs") / "default.yaml"
 
 
-def load_config(path: Path, env_id: str, overrides: list[str]) -> dict[str, Any]:
-    """The config block of ``env_id`` in ``path`` with ``key=value`` overrides applied; unknown keys are errors."""
-    doc = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
-    if env_id not in doc:
-        raise SystemExit(f"{path}: no config for env id {env_id!r}; known: {sorted(doc)}")
+class ConfigError(ValueError):
+    """A bad config file, config entry or argument (the message names the file and the key)."""
+
+
+class UsageExit(SystemExit):
+    """Exit status 2 after a usage or config error; ``str()`` is the one-line message."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(2)
+        self.message = message
+
+    def __str__(self) -> str:
+        return self.message
+
+
+def sensor_key(env_id: str) -> str:
+    """The env keyword that selects the sensor: ``lidar`` for Neato ids, ``radar`` for the highway ids."""
+    return "lidar" if "Neato" in env_id else "radar"
+
+
+def load_config(
+    path: Path, env_id: str, overrides: list[str], algo: str | None = None, sensor: str | None = None
+) -> dict[str, Any]:
+    """The config block of ``env_id`` in ``path`` with ``key=value`` overrides applied; unknown keys are errors.
+
+    ``algo`` merges that algorithm's entry of the block's ``algos`` over the block; ``sensor`` sets the
+    env's sensor keyword. Raises :class:`ConfigError` naming the file and the key.
+    """
+    try:
+        doc = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+    except (OSError, yaml.YAMLError) as err:
+        raise ConfigError(f"{path}: cannot read the config ({type(err).__name__}: {err})".splitlines()[0]) from err
+    if not isinstance(doc, dict) or env_id not in doc or not isinstance(doc[env_id], dict):
+        known = sorted(doc) if isinstance(doc, dict) else []
+        raise ConfigError(f"{path}: no config for env id {env_id!r}; known: {known}")
     cfg = dict(doc[env_id])
+    if algo is not None and algo != cfg.get("algo"):
+        alt = (cfg.get("algos") or {}).get(algo)
+        if not isinstance(alt, dict):
+            raise ConfigError(f"{path} [{env_id}]: algos.{algo}: no block for algo {algo!r}")
+        bad = set(alt) - ALGO_KEYS
+        if bad:
+            expected = sorted(ALGO_KEYS)
+            raise ConfigError(f"{path} [{env_id}]: algos.{algo}: unknown keys {sorted(bad)}; expected {expected}")
+        cfg.update(alt, algo=algo)
     for item in overrides:
         key, sep, value = item.partition("=")
         if not sep:
-            raise SystemExit(f"--set {item!r}: expected key=value")
-        cfg[key] = yaml.safe_load(value)
+            raise ConfigError(f"--set {item!r}: expected key=value")
+        try:
+            cfg[key] = yaml.safe_load(value)
+        except yaml.YAMLError as err:
+            raise ConfigError(f"--set {key}: not a YAML value: {value!r}") from err
+    if sensor is not None:
+        cfg["env_kwargs"] = {**(cfg.get("env_kwargs") or {}), sensor_key(env_id): sensor}
     unknown = set(cfg) - KEYS
     if unknown:
-        raise SystemExit(f"{path} [{env_id}]: unknown keys {sorted(unknown)}; expected {sorted(KEYS)}")
+        raise ConfigError(f"{path} [{env_id}]: unknown keys {sorted(unknown)}; expected {sorted(KEYS)}")
     if cfg.get("algo") not in ALGOS:
-        raise SystemExit(f"{path} [{env_id}]: algo must be one of {ALGOS}, got {cfg.get('algo')!r}")
+        raise ConfigError(f"{path} [{env_id}]: algo must be one of {ALGOS}, got {cfg.get('algo')!r}")
+    if cfg.setdefault("vec_env", "dummy") not in VEC_ENVS:
+        raise ConfigError(f"{path} [{env_id}]: vec_env must be one of {VEC_ENVS}, got {cfg['vec_env']!r}")
+    cfg.setdefault("device", "auto")
+    for key in ("n_timesteps", "n_envs", "eval_freq", "eval_episodes"):
+        if key in cfg and (not isinstance(cfg[key], int) or isinstance(cfg[key], bool) or cfg[key] < 1):
+            raise ConfigError(f"{path} [{env_id}]: {key} must be a positive integer, got {cfg[key]!r}")
+    for key in ("env_kwargs", "hyperparams"):
+        if not isinstance(cfg.get(key) or {}, dict):
+            raise ConfigError(f"{path} [{env_id}]: {key} must be a mapping, got {cfg[key]!r}")
     return cfg
 
 
-def train(env_id: str, cfg: dict[str, Any], out: Path, seed: int) -> dict[str, Any]:
+def make_env(env_id: str, cfg: dict[str, Any], n_envs: int, seed: int) -> Any:
+    """SB3 vector env of ``n_envs`` copies; ``vec_env: subproc`` runs them in worker processes.
+
+    The workers import ``sensor_envs`` through the ``"sensor_envs:<id>"`` form of the id, so spawn and
+    forkserver start methods find the registered ids.
+    """
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    subproc = cfg.get("vec_env") == "subproc" and n_envs > 1
+    return make_vec_env(
+        f"sensor_envs:{env_id}",
+        n_envs=n_envs,
+        seed=seed,
+        env_kwargs=dict(cfg.get("env_kwargs") or {}),
+        vec_env_cls=SubprocVecEnv if subproc else DummyVecEnv,
+    )
+
+
+def train(
+    env_id: str, cfg: dict[str, Any], out: Path, seed: int, progress_bar: bool = True, tensorboard: bool = True
+) -> dict[str, Any]:
     """Train with ``cfg`` into ``out``; returns the final evaluation summary."""
     import stable_baselines3 as sb3
     from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
-    from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.evaluation import evaluate_policy
 
-    env_kwargs = dict(cfg.get("env_kwargs") or {})
     n_envs = int(cfg.get("n_envs", 1))
-    venv = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs)
-    eval_env = make_vec_env(env_id, n_envs=1, seed=seed + 10_000, env_kwargs=env_kwargs)
+    venv = make_env(env_id, cfg, n_envs, seed)
+    eval_env = make_env(env_id, {**cfg, "vec_env": "dummy"}, 1, seed + 10_000)
     algo = getattr(sb3, cfg["algo"].upper())
-    model = algo(cfg["policy"], venv, seed=seed, verbose=0, device="cpu", **(cfg.get("hyperparams") or {}))
+    tb_log = str(out / "tb") if tensorboard and _has_tensorboard() else None
+    model = algo(
+        cfg["policy"],
+        venv,
+        seed=seed,
+        verbose=0,
+        device=cfg.get("device", "auto"),
+        tensorboard_log=tb_log,
+        **(cfg.get("hyperparams") or {}),
+    )
     every = max(1, int(cfg.get("eval_freq", 10_000)) // n_envs)
     callbacks = [
         CheckpointCallback(save_freq=every, save_path=str(out / "checkpoints"), name_prefix="model"),
@@ -73,7 +172,8 @@ def train(env_id: str, cfg: dict[str, Any], out: Path, seed: int) -> dict[str, A
         ),
     ]
     warnings.filterwarnings("ignore", category=TqdmExperimentalWarning)  # SB3's rich progress bar
-    model.learn(total_timesteps=int(cfg["n_timesteps"]), callback=callbacks, progress_bar=True)
+    warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")  # subproc vs dummy
+    model.learn(total_timesteps=int(cfg["n_timesteps"]), callback=callbacks, progress_bar=progress_bar)
     model.save(out / "final_model")
     mean, std = evaluate_policy(model, eval_env, n_eval_episodes=int(cfg.get("eval_episodes", 5)))
     venv.close()
@@ -84,7 +184,16 @@ def train(env_id: str, cfg: dict[str, Any], out: Path, seed: int) -> dict[str, A
         "mean_return": float(mean),
         "std_return": float(std),
         "n_timesteps": int(cfg["n_timesteps"]),
+        "algo": cfg["algo"],
+        "device": str(model.device),
     }
+
+
+def _has_tensorboard() -> bool:
+    """Whether TensorBoard logging is available (the ``train`` extra installs it)."""
+    import importlib.util
+
+    return importlib.util.find_spec("tensorboard") is not None
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -94,11 +203,19 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG)
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--seed", type=int, default=None, help="drawn and logged when absent")
+    parser.add_argument("--algo", choices=ALGOS, default=None, help="use the config's block for this algorithm")
+    parser.add_argument("--sensor", default=None, help="the env's radar (highway ids) or lidar (Neato) name")
+    parser.add_argument("--device", default=None, help="torch device: auto (default), cpu, cuda, cuda:1, ...")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config entry")
     args = parser.parse_args(argv)
     if args.env not in gym.registry:
-        raise SystemExit(f"--env: {args.env!r} is not a registered env id")
-    cfg = load_config(args.config, args.env, args.set)
+        _fail(f"--env: {args.env!r} is not a registered env id")
+    try:
+        cfg = load_config(args.config, args.env, args.set, algo=args.algo, sensor=args.sensor)
+    except ConfigError as err:
+        _fail(str(err))
+    if args.device is not None:
+        cfg["device"] = args.device
     seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 2**31)
     args.out.mkdir(parents=True, exist_ok=True)
     resolved = {"env_id": args.env, "seed": seed, "config": cfg, "command": [sys.executable, *sys.argv]}
@@ -107,6 +224,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     (args.out / "result.json").write_text(json.dumps(result, indent=2))
     print(json.dumps(result, indent=2))
     return result
+
+
+def _fail(message: str) -> None:
+    """Print one line to stderr and exit with status 2."""
+    print(f"train.py: error: {message}", file=sys.stderr)
+    raise UsageExit(message)
 
 
 if __name__ == "__main__":

@@ -26,24 +26,26 @@ from its own generator derived from the reset seed, so changing the lidar never 
 
 from __future__ import annotations
 
+import sys
 from os import PathLike
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.envs.neato_render import render_world
 from sensor_envs.geometry import point_segment_distance, raycast_pose, sample_free_poses, to_frame, wrap_angle
-from sensor_envs.lidar.sensors import LidarSensor, make_lidar
+from sensor_envs.lidar.sensors import GaussianLidar, IdealLidar, LidarSensor, make_lidar
 from sensor_envs.maps import SegmentMap, load_map
-from sensor_envs.rng import sensor_rng
+from sensor_envs.rng import RowGenerators, sensor_rng
 
-__all__ = ["NeatoEnv", "NULL_VALUES"]
+__all__ = ["NeatoEnv", "NULL_VALUES", "unicycle_step", "apply_null", "collides", "step_reward", "observe_batch"]
 
 NULL_VALUES = ("zero", "nan", "max")
 _LIDAR_TAG = 0x4C494441  # "LIDA": tags the lidar's stream derived from the reset seed
+_BATCHED_LIDARS = (IdealLidar, GaussianLidar)  # and LearnedLidar: measure() broadcasts over leading axes
 
 
 class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
@@ -149,13 +151,8 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self.pose = unicycle_step(self.pose, a[0] * self.v_max, a[1] * self.omega_max, self.dt)
         collision = self._collides(self.pose)
         obs, info = self._observe(collision=collision)
-        k_prog, k_step, k_goal, k_col = self.rewards
-        reward = k_prog * (self._prev_dist - info["distance_to_goal"]) - k_step
+        reward = step_reward(self.rewards, self._prev_dist, info["distance_to_goal"], info["is_success"], collision)
         self._prev_dist = info["distance_to_goal"]
-        if info["is_success"]:
-            reward += k_goal
-        if collision:
-            reward -= k_col
         return obs, float(reward), bool(info["is_success"] or collision), False, info
 
     def render(self) -> NDArray[np.uint8] | None:
@@ -173,40 +170,16 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
 
     # ----------------------------------------------------------------------------------- internals
     def _observe(self, collision: bool) -> tuple[NDArray[np.float32], dict[str, Any]]:
-        nominal, incidence, _ = raycast_pose(self.pose, self.bearings, self.world_map.segments, self.max_range)
         assert self._sensor_rng is not None
-        raw = np.asarray(self.lidar.measure(nominal, incidence, self._sensor_rng), dtype=np.float64)
-        ranges = self._apply_null(raw)
-        goal_rel = to_frame(self.goal[:2], self.pose)
-        dth = float(wrap_angle(self.goal[2] - self.pose[2]))
-        obs = np.concatenate([ranges, goal_rel, [dth]]).astype(np.float32)
-        obs = np.clip(obs, self.observation_space.low, self.observation_space.high)
-        dist = float(np.hypot(*(self.goal[:2] - self.pose[:2])))
-        success = (
-            dist <= self.goal_tolerance
-            and not collision
-            and (self.goal_heading_tolerance is None or abs(dth) <= self.goal_heading_tolerance)
-        )
-        info = {
-            "pose": self.pose.copy(),
-            "ideal_scan": nominal,
-            "incidence": np.nan_to_num(incidence, nan=0.0),
-            "scan": np.nan_to_num(raw, nan=0.0),
-            "goal": self.goal.copy(),
-            "distance_to_goal": dist,
-            "is_success": bool(success),
-            "collision": bool(collision),
-        }
+        obs, batch = observe_batch(self, self.pose[None], self.goal[None], [self._sensor_rng], np.array([collision]))
+        info = {key: val[0] for key, val in batch.items()}
+        info["distance_to_goal"] = float(info["distance_to_goal"])
+        info["is_success"], info["collision"] = bool(info["is_success"]), bool(info["collision"])
         self._last = info
-        return obs, info
-
-    def _apply_null(self, raw: NDArray[np.float64]) -> NDArray[np.float64]:
-        null = ~np.isfinite(raw) | (raw > self.max_range) | (raw <= 0.0)
-        fill = {"zero": 0.0, "nan": np.nan, "max": self.max_range}[self.null_value]
-        return np.where(null, fill, raw)
+        return obs[0], info
 
     def _collides(self, pose: NDArray[np.float64]) -> bool:
-        return bool(point_segment_distance(pose[:2], self.world_map.segments).min() < self.robot_radius)
+        return bool(collides(pose, self.world_map.segments, self.robot_radius)[0])
 
     def _pose_option(self, options: dict[str, Any], key: str) -> NDArray[np.float64]:
         p = np.asarray(options[key], dtype=np.float64)
@@ -247,11 +220,121 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             ) from None
 
 
-def unicycle_step(pose: NDArray[np.float64], v: float, omega: float, dt: float) -> NDArray[np.float64]:
-    """Exact differential-drive motion: arc of speed ``v`` [m/s] and turn rate ``omega`` [rad/s] for ``dt`` [s]."""
-    x, y, th = pose
-    if abs(omega) < 1e-9:
-        return np.array([x + v * dt * np.cos(th), y + v * dt * np.sin(th), th])
+def unicycle_step(pose: ArrayLike, v: ArrayLike, omega: ArrayLike, dt: float) -> NDArray[np.float64]:
+    """Exact differential-drive motion: arc of speed ``v`` [m/s] and turn rate ``omega`` [rad/s] for ``dt`` [s].
+
+    Args:
+        pose: ``(3,)`` or ``(N, 3)`` poses ``x, y, theta`` in the map frame [m, rad].
+        v: speed(s) [m/s], broadcast against the poses' leading axes.
+        omega: turn rate(s) [rad/s]; below 1e-9 in magnitude the robot drives straight.
+        dt: duration [s].
+
+    Returns:
+        The poses after ``dt``, shaped like ``pose``; the heading is wrapped to [-pi, pi) after a turn.
+    """
+    p = np.asarray(pose, dtype=np.float64)
+    x, y, th = p[..., 0], p[..., 1], p[..., 2]
+    v, omega = np.asarray(v, dtype=np.float64), np.asarray(omega, dtype=np.float64)
+    straight = np.abs(omega) < 1e-9
     th2 = th + omega * dt
-    r = v / omega
-    return np.array([x + r * (np.sin(th2) - np.sin(th)), y - r * (np.cos(th2) - np.cos(th)), float(wrap_angle(th2))])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = v / omega
+        arc = np.stack([x + r * (np.sin(th2) - np.sin(th)), y - r * (np.cos(th2) - np.cos(th)), wrap_angle(th2)], -1)
+    line = np.stack([x + v * dt * np.cos(th), y + v * dt * np.sin(th), th], axis=-1)
+    return np.where(straight[..., None], line, arc)
+
+
+def apply_null(raw: NDArray[np.float64], max_range: float, null_value: str) -> NDArray[np.float64]:
+    """Readings [m] with nulls (NaN, ``<= 0`` or beyond ``max_range``) set to the ``null_value`` fill."""
+    null = ~np.isfinite(raw) | (raw > max_range) | (raw <= 0.0)
+    fill = {"zero": 0.0, "nan": np.nan, "max": max_range}[null_value]
+    return np.where(null, fill, raw)
+
+
+def collides(poses: ArrayLike, segments: NDArray[np.float64], robot_radius: float) -> NDArray[np.bool_]:
+    """``(N,)`` whether a round robot of ``robot_radius`` [m] at ``(3,)``/``(N, 3)`` poses touches a wall."""
+    xy = np.atleast_2d(np.asarray(poses, dtype=np.float64))[:, :2]
+    return point_segment_distance(xy, segments).min(axis=1) < robot_radius
+
+
+def step_reward(
+    rewards: tuple[float, float, float, float],
+    prev_dist: ArrayLike,
+    dist: ArrayLike,
+    success: ArrayLike,
+    collision: ArrayLike,
+) -> Any:
+    """Reward of a step: progress [m] times ``rewards[0]``, minus the step penalty, plus goal, minus collision.
+
+    ``rewards = (progress_reward, step_penalty, goal_reward, collision_penalty)``; the other arguments are
+    scalars (a float is returned) or ``(N,)`` arrays (an ``(N,)`` array is returned).
+    """
+    k_prog, k_step, k_goal, k_col = rewards
+    reward = k_prog * (np.asarray(prev_dist) - np.asarray(dist)) - k_step
+    reward = np.where(success, reward + k_goal, reward)
+    reward = np.where(collision, reward - k_col, reward)
+    return float(reward) if reward.ndim == 0 else reward
+
+
+def measure_rows(
+    lidar: LidarSensor, nominal: NDArray[np.float64], incidence: NDArray[np.float64], rngs: list[np.random.Generator]
+) -> NDArray[np.float64]:
+    """Readings ``(N, K)`` [m] (NaN = null) for N robots; row ``i`` draws from ``rngs[i]`` only.
+
+    The shipped lidars broadcast over leading axes, so they serve all robots in one call (per-row draws
+    through :class:`~sensor_envs.rng.RowGenerators`, the same numbers as N separate calls); any other
+    :class:`LidarSensor` is called once per robot with ``(K,)`` arrays, as its protocol states.
+    """
+    lwlr = sys.modules.get("sensor_envs.lidar.lwlr")  # a LearnedLidar exists only once its module is loaded
+    if isinstance(lidar, _BATCHED_LIDARS + ((lwlr.LearnedLidar,) if lwlr is not None else ())):
+        rng = rngs[0] if len(rngs) == 1 else RowGenerators(rngs)
+        return np.asarray(lidar.measure(nominal, incidence, rng), dtype=np.float64)
+    rows = zip(nominal, incidence, rngs, strict=True)
+    return np.stack([np.asarray(lidar.measure(n, a, g), dtype=np.float64) for n, a, g in rows])
+
+
+def observe_batch(
+    env: NeatoEnv,
+    poses: NDArray[np.float64],
+    goals: NDArray[np.float64],
+    rngs: list[np.random.Generator],
+    collision: NDArray[np.bool_],
+) -> tuple[NDArray[np.float32], dict[str, NDArray[Any]]]:
+    """Observations ``(N, K + 3)`` and info arrays of N robots in ``env``'s world, one raycast and one lidar call.
+
+    Args:
+        env: the world (map, bearings, lidar, ranges, tolerances and observation bounds are read from it).
+        poses: ``(N, 3)`` true robot poses [m, rad] in the map frame.
+        goals: ``(N, 3)`` goal poses [m, rad].
+        rngs: the N robots' lidar generators.
+        collision: ``(N,)`` whether each robot touches a wall.
+
+    Returns:
+        ``obs`` (see :class:`NeatoEnv`) and the ``info`` entries of :class:`NeatoEnv`, each with a leading
+        robot axis.
+    """
+    nominal, incidence, _ = raycast_pose(poses, env.bearings, env.world_map.segments, env.max_range)
+    raw = measure_rows(env.lidar, nominal, incidence, rngs)
+    ranges = apply_null(raw, env.max_range, env.null_value)
+    goal_rel = to_frame(goals[:, :2], poses.T)
+    dth = wrap_angle(goals[:, 2] - poses[:, 2])
+    obs = np.concatenate([ranges, goal_rel, dth[:, None]], axis=1).astype(np.float32)
+    box = env.observation_space
+    assert isinstance(box, spaces.Box)
+    obs = np.clip(obs, box.low, box.high)
+    d = goals[:, :2] - poses[:, :2]
+    dist = np.hypot(d[:, 0], d[:, 1])
+    success = (dist <= env.goal_tolerance) & ~collision
+    if env.goal_heading_tolerance is not None:
+        success &= np.abs(dth) <= env.goal_heading_tolerance
+    info = {
+        "pose": poses.copy(),
+        "ideal_scan": nominal,
+        "incidence": np.nan_to_num(incidence, nan=0.0),
+        "scan": np.nan_to_num(raw, nan=0.0),
+        "goal": goals.copy(),
+        "distance_to_goal": dist,
+        "is_success": success,
+        "collision": np.asarray(collision, dtype=bool).copy(),
+    }
+    return obs, info

@@ -1,0 +1,83 @@
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import data_equivalence
+from gymnasium.vector import AutoresetMode
+
+import sensor_envs  # noqa: F401
+from sensor_envs.envs.neato_vector import NeatoVectorEnv
+from sensor_envs.rng import RowGenerators
+
+ID = "sensor_envs/Neato-v0"
+
+
+def _pair(lidar, n, **kwargs):
+    vec = gym.make_vec(ID, num_envs=n, vectorization_mode="vector_entry_point", lidar=lidar, **kwargs)
+    sync = gym.make_vec(ID, num_envs=n, vectorization_mode="sync", lidar=lidar, **kwargs)
+    return vec, sync
+
+
+@pytest.mark.parametrize("lidar", ["ideal", "gaussian", "learned"])
+def test_vector_entry_point_matches_sync_vector_env(lidar):
+    vec, sync = _pair(lidar, 4, max_episode_steps=25)
+    assert isinstance(vec.unwrapped, NeatoVectorEnv)
+    assert vec.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+    assert vec.observation_space == sync.observation_space and vec.action_space == sync.action_space
+    o1, i1 = vec.reset(seed=11)
+    o2, i2 = sync.reset(seed=11)
+    assert data_equivalence(o1, o2, exact=True) and data_equivalence(i1, i2, exact=True)
+    rng = np.random.default_rng(0)
+    ended = np.zeros(2, dtype=int)  # terminated, truncated
+    for _ in range(60):
+        a = rng.uniform(-1, 1, size=(4, 2)).astype(np.float32)
+        out_v, out_s = vec.step(a), sync.step(a)
+        for x, y in zip(out_v, out_s, strict=True):
+            assert data_equivalence(x, y, exact=True)
+        assert out_v[0] in vec.observation_space
+        ended += [out_v[2].sum(), out_v[3].sum()]
+    assert ended[0] > 0 and ended[1] > 0  # both kinds of episode end (and their autoresets) were exercised
+    # reset without a seed continues every robot's streams, as in the single envs
+    for x, y in zip(vec.reset(), sync.reset(), strict=True):
+        assert data_equivalence(x, y, exact=True)
+
+
+def test_vector_reset_seeds_options_and_mask():
+    vec, sync = _pair("gaussian", 3)
+    opts = {"start": (1.0, 1.0, 0.0)}
+    for x, y in zip(vec.reset(seed=[3, 5, 7], options=opts), sync.reset(seed=[3, 5, 7], options=opts), strict=True):
+        assert data_equivalence(x, y, exact=True)
+    mask = np.array([False, True, False])
+    obs0 = vec.reset(seed=1)[0]
+    obs, info = vec.reset(seed=[None, 99, None], options={"reset_mask": mask})
+    assert np.array_equal(obs[~mask], obs0[~mask]) and not np.array_equal(obs[mask], obs0[mask])
+    assert info["_pose"].tolist() == mask.tolist()
+    with pytest.raises(ValueError, match="unknown keys"):
+        vec.reset(options={"bogus": 1})
+
+
+def test_vector_step_before_reset_and_bad_sizes():
+    env = NeatoVectorEnv(num_envs=2)
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros((2, 2), dtype=np.float32))
+    with pytest.raises(ValueError, match="num_envs"):
+        NeatoVectorEnv(num_envs=0)
+
+
+def test_vector_render_gives_one_frame_per_robot():
+    env = NeatoVectorEnv(num_envs=2, render_mode="rgb_array")
+    env.reset(seed=0)
+    frames = env.render()
+    assert len(frames) == 2 and frames[0].ndim == 3 and frames[0].dtype == np.uint8
+
+
+def test_row_generators_match_separate_generators():
+    gens = [np.random.default_rng(s) for s in (1, 2)]
+    rows = RowGenerators([np.random.default_rng(s) for s in (1, 2)])
+    z = rows.standard_normal((2, 5))
+    u = rows.random((2, 3))
+    assert np.array_equal(z, np.stack([g.standard_normal(5) for g in gens]))
+    assert np.array_equal(u, np.stack([g.random(3) for g in gens]))
+    with pytest.raises(ValueError, match="rows"):
+        rows.random((3, 5))
+    with pytest.raises(AttributeError, match="not supported"):
+        rows.beta(1.0, 1.0, (2, 5))

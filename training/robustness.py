@@ -1,0 +1,473 @@
+"""The robustness matrix: train on one sensor, evaluate on every sensor.
+
+    python training/robustness.py --domain neato --preset short --out runs/robust_neato
+    python training/robustness.py --domain highway --preset full --out runs/robust_hw --backend ray [--address auto]
+        [--real-data ../shared/data/real] [--workers 2]
+
+Rows are the sensor trained on, columns the sensor evaluated on. Cells: mean episode return and collision
+rate (highway), success and collision rate (Neato), each with a 95 % confidence interval: a Student-t
+interval over the per-seed means (each seed's mean averages its evaluation episodes, so the interval
+carries both seed and episode variation; with a single seed it falls back to a t-interval over episodes,
+and the report says so).
+
+Jobs: one per (training sensor, seed); a job trains (training/train.py's ``train``), then evaluates the
+final policy on every column with the same evaluation seeds (common random numbers). Each job is the
+command ``python training/robustness.py job ...`` so the local process pool (default) and a Ray cluster
+(``--backend ray``) run the same code; outputs land in ``--out`` whichever backend ran them (on a cluster
+``--out`` and the repository must sit on a shared filesystem at the same path). A job writes its
+``eval.json`` and then, atomically, its ``done`` marker; a rerun skips jobs that have one. ``--real-data``
+adds a column with a model fitted on real data (KDE radar on Astyx; learned lidar on
+``neato_mar27_train.npz``), fitted once and cached in ``<out>/real_models/`` (never in the repository).
+
+Writes ``matrix.md``, ``matrix.json`` and ``matrix.png`` (heat maps) into ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import json
+import multiprocessing as mp
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # train.py, repo
+
+SCRIPT = Path(__file__).resolve()
+
+DOMAINS: dict[str, dict[str, Any]] = {
+    "neato": {
+        "env_id": "sensor_envs/Neato-v0",
+        "sensors": ["ideal", "gaussian", "learned"],
+        "real": "learned-real",
+        "metrics": ["success", "collision", "return"],
+    },
+    "highway": {
+        "env_id": "sensor_envs/HighwayFast-v0",
+        "sensors": ["ideal", "gaussian", "kde"],
+        "real": "kde-astyx",
+        "metrics": ["return", "collision"],
+    },
+}
+
+# per domain: training budget and evaluation size; `set` entries override the env's training config
+PRESETS: dict[str, dict[str, dict[str, Any]]] = {
+    "short": {
+        "neato": {
+            "seeds": 2,
+            "eval_episodes": 2,
+            "max_episode_steps": 40,
+            "set": {"n_timesteps": 64, "n_envs": 1, "eval_freq": 10**9, "eval_episodes": 1},
+            "hyperparams": {"n_steps": 64, "batch_size": 64, "n_epochs": 1},
+        },
+        "highway": {
+            "seeds": 2,
+            "eval_episodes": 2,
+            "max_episode_steps": None,
+            "set": {"n_timesteps": 128, "n_envs": 1, "eval_freq": 10**9, "eval_episodes": 1},
+            "hyperparams": {"n_steps": 64, "batch_size": 32, "n_epochs": 1},
+        },
+    },
+    "medium": {
+        "neato": {
+            "seeds": 3,
+            "eval_episodes": 5,
+            "max_episode_steps": 200,
+            "set": {"n_timesteps": 8192, "n_envs": 4, "eval_freq": 10**9, "eval_episodes": 1},
+            "hyperparams": None,
+        },
+        "highway": {
+            "seeds": 3,
+            "eval_episodes": 10,
+            "max_episode_steps": None,
+            "set": {"n_timesteps": 2048, "n_envs": 2, "eval_freq": 10**9, "eval_episodes": 1},
+            "hyperparams": None,
+        },
+    },
+    "full": {
+        "neato": {
+            "seeds": 5,
+            "eval_episodes": 20,
+            "max_episode_steps": None,
+            "set": {"n_timesteps": 200000, "n_envs": 4},
+            "hyperparams": None,
+        },
+        "highway": {
+            "seeds": 5,
+            "eval_episodes": 20,
+            "max_episode_steps": None,
+            "set": {"n_timesteps": 20000, "n_envs": 2},
+            "hyperparams": None,
+        },
+    },
+}
+EVAL_SEED = 1_000_000  # evaluation episode e of every cell resets with seed EVAL_SEED + e
+
+
+class UsageError(ValueError):
+    """A bad argument or an output folder made with other settings (one line naming the key)."""
+
+
+# ---------------------------------------------------------------------------------------------- a job
+def column_kwargs(domain: str, column: str, real_models: dict[str, str]) -> dict[str, Any]:
+    """Env keyword arguments for evaluation column ``column``."""
+    if column == DOMAINS[domain]["real"]:
+        if domain == "neato":
+            return {"lidar": "learned", "model": real_models[column]}
+        return {"radar": "kde", "radar_model": real_models[column]}
+    return {("lidar" if domain == "neato" else "radar"): column}
+
+
+def evaluate(model: Any, env_id: str, kwargs: dict[str, Any], episodes: int, max_steps: int | None) -> dict[str, list]:
+    """Per-episode return, collision and success of ``model`` (deterministic actions) on ``env_id(**kwargs)``."""
+    import gymnasium as gym
+
+    extra = {"max_episode_steps": max_steps} if max_steps else {}
+    env = gym.make(env_id, **kwargs, **extra)
+    out: dict[str, list] = {"return": [], "collision": [], "success": []}
+    for e in range(episodes):
+        obs, info = env.reset(seed=EVAL_SEED + e)
+        total, done = 0.0, False
+        while not done:
+            action, _ = model.predict(obs, deterministic=True)
+            obs, reward, term, trunc, info = env.step(action)
+            total += float(reward)
+            done = term or trunc
+        out["return"].append(total)
+        out["collision"].append(float(bool(info.get("collision", info.get("crashed", False)))))
+        out["success"].append(float(bool(info.get("is_success", False))))
+    env.close()
+    return out
+
+
+def run_job(spec: dict[str, Any]) -> dict[str, Any]:
+    """Train one (sensor, seed) run and evaluate it on every column; writes ``eval.json`` then ``done``."""
+    import torch
+    import train as train_mod
+
+    torch.set_num_threads(1)  # one core per job; also keeps the numbers reproducible
+    run_dir = Path(spec["run_dir"])
+    run_dir.mkdir(parents=True, exist_ok=True)
+    domain, env_id = spec["domain"], DOMAINS[spec["domain"]]["env_id"]
+    overrides = [f"{k}={json.dumps(v)}" for k, v in spec["set"].items()]
+    if spec["hyperparams"]:
+        overrides.append(f"hyperparams={json.dumps(spec['hyperparams'])}")
+    cfg = train_mod.load_config(Path(spec["config"]), env_id, overrides, algo=spec["algo"], sensor=spec["sensor"])
+    cfg["device"] = spec["device"]
+    t0 = time.perf_counter()
+    train_mod.train(env_id, cfg, run_dir, spec["seed"], progress_bar=False)
+    train_s = time.perf_counter() - t0
+    import stable_baselines3 as sb3
+
+    model = getattr(sb3, cfg["algo"].upper()).load(run_dir / "final_model", device=spec["device"])
+    cells = {
+        col: evaluate(
+            model,
+            env_id,
+            column_kwargs(domain, col, spec["real_models"]),
+            spec["eval_episodes"],
+            spec["max_episode_steps"],
+        )
+        for col in spec["columns"]
+    }
+    result = {"spec": spec, "train_seconds": train_s, "eval_seconds": time.perf_counter() - t0 - train_s}
+    result["cells"] = cells
+    _write_atomic(run_dir / "eval.json", json.dumps(result, indent=1))
+    _write_atomic(run_dir / "done", "done\n")
+    return result
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to a temporary file beside ``path`` and rename it into place."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def _job_command(spec: dict[str, Any]) -> list[str]:
+    return [sys.executable, str(SCRIPT), "job", json.dumps(spec)]
+
+
+def _check(proc: subprocess.CompletedProcess[str], cmd: list[str]) -> None:
+    """Raise with the tail of a failed job's stderr."""
+    if proc.returncode != 0:
+        tail = proc.stderr.strip().splitlines()[-3:]
+        raise RuntimeError(f"job {json.loads(cmd[-1])['run_dir']} failed ({proc.returncode}): {tail}")
+
+
+# ---------------------------------------------------------------------------------------------- backends
+def run_jobs(specs: list[dict[str, Any]], backend: str, workers: int, address: str | None) -> None:
+    """Run the job commands with a local process pool (spawn) or on a Ray cluster; progress via tqdm."""
+    from tqdm import tqdm
+
+    cmds = [_job_command(s) for s in specs]
+    if not cmds:
+        return
+    bar = tqdm(total=len(cmds), desc=f"jobs ({backend})", unit="job")
+    run = {"capture_output": True, "text": True, "check": False}
+    # The task is the job's command line (subprocess.run pickles by reference on both backends): the job
+    # process puts the repository first on its path, so workers need no package state of the driver.
+    if backend == "process":
+        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+            futures = {pool.submit(subprocess.run, c, **run): c for c in cmds}
+            for fut in cf.as_completed(futures):
+                _check(fut.result(), futures[fut])
+                bar.update()
+    else:
+        import ray
+
+        started = not ray.is_initialized()
+        if started:
+            ray.init(address=address, num_cpus=None if address else workers, include_dashboard=False)
+        remote = ray.remote(num_cpus=1)(subprocess.run)
+        pending = {remote.remote(c, **run): c for c in cmds}
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            _check(ray.get(ready[0]), pending.pop(ready[0]))
+            bar.update()
+        if started:
+            ray.shutdown()
+    bar.close()
+
+
+# ---------------------------------------------------------------------------------------------- the matrix
+def t_interval(values: list[float]) -> tuple[float, float, float]:
+    """Mean and 95 % Student-t interval ``(mean, low, high)``; a single value gives a zero-width interval."""
+    from scipy import stats
+
+    x = np.asarray(values, dtype=np.float64)
+    m = float(x.mean())
+    if x.size < 2:
+        return m, m, m
+    half = float(stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
+    return m, m - half, m + half
+
+
+def build_matrix(out: Path, domain: str, rows: list[str], columns: list[str], seeds: list[int]) -> dict[str, Any]:
+    """Aggregate the jobs' ``eval.json`` into cells with 95 % intervals."""
+    metrics = DOMAINS[domain]["metrics"]
+    over = "seed means" if len(seeds) > 1 else "episodes (single seed)"
+    cells: dict[str, dict[str, Any]] = {}
+    for r in rows:
+        evals = [json.loads((out / "runs" / r / f"seed{s}" / "eval.json").read_text()) for s in seeds]
+        for c in columns:
+            cell: dict[str, Any] = {}
+            for m in metrics:
+                per_seed = [float(np.mean(e["cells"][c][m])) for e in evals]
+                values = per_seed if len(seeds) > 1 else evals[0]["cells"][c][m]
+                mean, lo, hi = t_interval(values)
+                cell[m] = {"mean": mean, "ci95": [lo, hi], "per_seed": per_seed}
+            cells[f"{r}->{c}"] = cell
+    return {
+        "domain": domain,
+        "env_id": DOMAINS[domain]["env_id"],
+        "rows_trained_on": rows,
+        "columns_evaluated_on": columns,
+        "seeds": seeds,
+        "metrics": metrics,
+        "interval": f"95 % Student-t interval over {over}",
+        "cells": cells,
+    }
+
+
+def write_reports(out: Path, matrix: dict[str, Any], meta: dict[str, Any]) -> None:
+    """``matrix.json``, ``matrix.md`` and ``matrix.png`` (one heat map per metric), each written atomically."""
+    import matplotlib
+
+    matrix = {**matrix, "run": meta}
+    _write_atomic(out / "matrix.json", json.dumps(matrix, indent=1))
+    rows, cols = matrix["rows_trained_on"], matrix["columns_evaluated_on"]
+    lines = [
+        f"# Robustness matrix: {matrix['env_id']}",
+        "",
+        f"Rows: sensor trained on; columns: sensor evaluated on. Cells: mean [95 % CI] ({matrix['interval']}).",
+        f"Seeds {matrix['seeds']}, {meta['eval_episodes']} evaluation episodes per seed and column; "
+        f"preset {meta['preset']!r}; algo {meta['algo']}; wall time {meta['wall_seconds']:.0f} s.",
+        f"Command: `{meta['command']}`",
+        "",
+    ]
+    for m in matrix["metrics"]:
+        lines += [f"## {m}", "", "| trained on \\ evaluated on | " + " | ".join(cols) + " |"]
+        lines.append("|---" * (len(cols) + 1) + "|")
+        for r in rows:
+            vals = [matrix["cells"][f"{r}->{c}"][m] for c in cols]
+            lines.append(
+                f"| {r} | "
+                + " | ".join(f"{v['mean']:.2f} [{v['ci95'][0]:.2f}, {v['ci95'][1]:.2f}]" for v in vals)
+                + " |"
+            )
+        lines.append("")
+    _write_atomic(out / "matrix.md", "\n".join(lines))
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(matrix["metrics"]), figsize=(4.2 * len(matrix["metrics"]), 3.6), squeeze=False)
+    for ax, m in zip(axes[0], matrix["metrics"], strict=True):
+        grid = np.array([[matrix["cells"][f"{r}->{c}"][m]["mean"] for c in cols] for r in rows])
+        im = ax.imshow(grid, cmap="viridis")
+        for (i, j), v in np.ndenumerate(grid):
+            ax.text(j, i, f"{v:.2f}", ha="center", va="center", color="w", fontsize=8)
+        ax.set(xticks=range(len(cols)), xticklabels=cols, yticks=range(len(rows)), yticklabels=rows, title=m)
+        ax.set_xlabel("evaluated on")
+        ax.set_ylabel("trained on")
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    fig.tight_layout()
+    fd, tmp = tempfile.mkstemp(dir=out, prefix=".matrix.", suffix=".png")
+    os.close(fd)
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, out / "matrix.png")
+
+
+# ---------------------------------------------------------------------------------------------- real data
+def fit_real_models(domain: str, data: Path, out: Path) -> dict[str, str]:
+    """Fit the real-data sensor model once and cache it in ``<out>/real_models/``; returns column -> path."""
+    folder = out / "real_models"
+    folder.mkdir(parents=True, exist_ok=True)
+    column = DOMAINS[domain]["real"]
+    path = folder / ("neato_lidar_real.npz" if domain == "neato" else "radar_kde_astyx.npz")
+    if not path.is_file():
+        tmp = folder / f".tmp_{path.name}"
+        if domain == "neato":
+            from sensor_envs.lidar.log import load_log
+            from sensor_envs.lidar.lwlr import LidarLWLR
+
+            src = data / "neato_mar27_train.npz"
+            if not src.is_file():
+                raise UsageError(f"--real-data: {src} not found")
+            LidarLWLR().fit(load_log(src)).save(tmp)
+        else:
+            from sensor_envs.radar.astyx import load_astyx
+            from sensor_envs.radar.kde import KDERadarModel
+
+            src = data / "astyx_hires2019"
+            if not src.is_dir():
+                raise UsageError(f"--real-data: {src} not found")
+            KDERadarModel(use_prev=False, cv_group="sequence", random_state=0).fit(load_astyx(src)).save(tmp)
+        saved = tmp if tmp.is_file() else tmp.with_suffix(".npz")
+        os.replace(saved, path)
+    return {column: str(path)}
+
+
+# ---------------------------------------------------------------------------------------------- driver
+def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The job specs of the matrix and the settings that define the output folder."""
+    preset = PRESETS[args.preset][args.domain]
+    rows = list(DOMAINS[args.domain]["sensors"])
+    columns = rows + list(real_models)  # every sensor is evaluated, whichever rows are trained
+    if args.sensors:
+        bad = sorted(set(args.sensors) - set(rows))
+        if bad:
+            raise UsageError(f"--sensors: unknown {bad} for domain {args.domain!r}; choose from {rows}")
+        rows = [r for r in rows if r in args.sensors]
+    seeds = list(range(args.seed0, args.seed0 + (args.seeds or preset["seeds"])))
+    settings = {
+        "domain": args.domain,
+        "preset": args.preset,
+        "algo": args.algo,
+        "seeds": seeds,
+        "rows": rows,
+        "columns": columns,
+        "eval_episodes": preset["eval_episodes"],
+        "max_episode_steps": preset["max_episode_steps"],
+        "set": preset["set"],
+        "hyperparams": preset["hyperparams"],
+        "config": str(Path(args.config).resolve()),
+    }
+    specs = [
+        {
+            **{k: settings[k] for k in ("domain", "algo", "columns", "eval_episodes", "max_episode_steps", "set")},
+            "hyperparams": preset["hyperparams"] if args.algo in (None, "ppo") else None,
+            "config": settings["config"],
+            "sensor": r,
+            "seed": s,
+            "device": args.device,
+            "real_models": real_models,
+            "run_dir": str((args.out / "runs" / r / f"seed{s}").resolve()),
+        }
+        for r in rows
+        for s in seeds
+    ]
+    return specs, settings
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any] | None:
+    """Run (or resume) the matrix and write its reports; ``job SPEC`` runs one job (used by the backends)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["job"]:
+        run_job(json.loads(argv[1]))
+        return None
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--domain", choices=sorted(DOMAINS), default="neato")
+    parser.add_argument("--preset", choices=sorted(PRESETS), default="short")
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--backend", choices=("process", "ray"), default="process")
+    parser.add_argument("--address", default=None, help="Ray cluster address (default: start a local instance)")
+    parser.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 2)), help="parallel jobs (local)")
+    parser.add_argument("--algo", default=None, help="algorithm block of the config (default: the env's algo)")
+    parser.add_argument("--sensors", nargs="+", default=None, help="training sensors (rows); default: all")
+    parser.add_argument("--seeds", type=int, default=None, help="number of seeds (default: the preset's)")
+    parser.add_argument("--seed0", type=int, default=0)
+    parser.add_argument("--device", default="auto")
+    parser.add_argument("--config", type=Path, default=SCRIPT.with_name("configs") / "default.yaml")
+    parser.add_argument(
+        "--real-data", type=Path, default=None, help="e.g. ../shared/data/real: adds a real-data column"
+    )
+    parser.add_argument("--force", action="store_true", help="reuse an --out folder made with other settings")
+    args = parser.parse_args(argv)
+    try:
+        return _run(args, argv)
+    except UsageError as err:
+        print(f"robustness.py: error: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def _run(args: argparse.Namespace, argv: list[str]) -> dict[str, Any]:
+    if args.backend == "process" and args.address:
+        raise UsageError("--address applies to --backend ray only")
+    if args.workers < 1:
+        raise UsageError(f"--workers: must be >= 1, got {args.workers}")
+    if args.backend == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise UsageError("--backend ray: ray is not installed (pip install 'sensor_envs[ray]')") from None
+    args.out.mkdir(parents=True, exist_ok=True)
+    real = fit_real_models(args.domain, args.real_data, args.out) if args.real_data else {}
+    specs, settings = plan(args, real)
+    stamp = args.out / "settings.json"
+    if stamp.is_file() and not args.force:
+        old = json.loads(stamp.read_text())
+        changed = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k))
+        if changed:
+            raise UsageError(f"--out {args.out}: made with other settings ({', '.join(changed)}); use --force")
+    _write_atomic(stamp, json.dumps(settings, indent=1))
+    todo = [s for s in specs if not (Path(s["run_dir"]) / "done").is_file()]
+    print(f"{len(specs) - len(todo)} of {len(specs)} jobs already done; running {len(todo)} on {args.backend}")
+    t0 = time.perf_counter()
+    run_jobs(todo, args.backend, args.workers, args.address)
+    matrix = build_matrix(args.out, args.domain, settings["rows"], settings["columns"], settings["seeds"])
+    meta = {
+        "preset": args.preset,
+        "algo": args.algo or "config default",
+        "eval_episodes": settings["eval_episodes"],
+        "backend": args.backend,
+        "jobs_run": len(todo),
+        "wall_seconds": time.perf_counter() - t0,
+        "command": " ".join(["python", "training/robustness.py", *argv]),
+    }
+    write_reports(args.out, matrix, meta)
+    print((args.out / "matrix.md").read_text())
+    return matrix
+
+
+if __name__ == "__main__":
+    main()
