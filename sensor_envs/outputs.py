@@ -15,15 +15,26 @@ Every command that writes files goes through this module:
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import shutil
 import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
-__all__ = ["OutputError", "check_inputs", "check_output", "check_suffix", "OutputTransaction", "atomic_write"]
+__all__ = [
+    "OutputError",
+    "check_inputs",
+    "check_output",
+    "check_suffix",
+    "OutputTransaction",
+    "atomic_write",
+    "jsonable",
+    "write_json",
+]
 
 PathLike = str | os.PathLike[str]
 T = TypeVar("T")
@@ -252,3 +263,23 @@ def atomic_write(path: PathLike, write: Callable[[Path], T]) -> T:
     """
     with _one(Path(path)) as tmp:
         return write(tmp)
+
+
+def jsonable(x: Any) -> Any:
+    """``x`` as strict JSON data: numpy scalars and arrays as Python numbers and lists, NaN/inf as ``None``."""
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if hasattr(x, "tolist") and not isinstance(x, (str, bytes)):  # numpy arrays and scalars
+        return jsonable(x.tolist())
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def write_json(path: PathLike, data: Any) -> Path:
+    """Write ``data`` as strict JSON (no bare ``NaN``: undefined figures are ``null``) to ``path``."""
+    p = Path(path)
+    p.write_text(json.dumps(jsonable(data), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    return p

@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 import sensor_envs  # noqa: F401  (registers the ids)
 from sensor_envs.lidar.sensors import LIDAR_NAMES
-from sensor_envs.outputs import OutputTransaction, check_output
+from sensor_envs.outputs import OutputTransaction, check_output, write_json
 from sensor_envs.radar.sensors import RADAR_NAMES
 
 __all__ = ["run_demo", "reactive_action"]
@@ -196,7 +196,7 @@ def run_demo(out: str | Path, seed: int = 0, episodes: int = 10, force: bool = F
         _scan_figure(LIDAR_NAMES, seed, tmp / "neato_scans.png")
         report["highway_fast"] = {radar: _highway(radar, seed, 20, tmp) for radar in tqdm(RADAR_NAMES, desc="radars")}
         report["evaluation"] = _evaluation(seed, tmp)
-        (tmp / "report.json").write_text(json.dumps(report, indent=2))
+        write_json(tmp / "report.json", report)
     print(json.dumps(report, indent=2))
     print(f"pictures and report.json written to {out.resolve()}")
     return report

@@ -21,6 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from sensor_envs.cli.args import nonneg_int, positive_float, positive_int
 from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
 
 __all__ = ["register", "output_folder"]
@@ -52,18 +53,18 @@ def register(parser: argparse.ArgumentParser) -> None:
         "--model", default="fit", help="'fit' (default: LWLR fitted leave-poses-out on the log) or a model file (.npz)"
     )
     det.add_argument("--baseline", default="gaussian", choices=("gaussian",))
-    det.add_argument("--length", type=float, default=0.61, help="target length [m] (default: 0.61)")
-    det.add_argument("--repeats", type=int, default=10, help="scans per pose and source (default: 10)")
-    det.add_argument("--folds", type=int, default=3, help="leave-poses-out folds when fitting (default: 3)")
-    det.add_argument("--seed", type=int, default=0)
+    det.add_argument("--length", type=positive_float, default=0.61, help="target length [m] (default: 0.61)")
+    det.add_argument("--repeats", type=positive_int, default=10, help="scans per pose and source (default: 10)")
+    det.add_argument("--folds", type=positive_int, default=3, help="leave-poses-out folds when fitting (default: 3)")
+    det.add_argument("--seed", type=nonneg_int, default=0)
     _common(det)
     det.set_defaults(func=_detection)
     box = sub.add_parser("boxworld", help="the seed's box-world detection experiment on the rig (rig = reality)")
     box.add_argument("--model", default=None, help="learned lidar model (default: the shipped one)")
-    box.add_argument("--configs", type=int, default=50, help="board configurations (default: 50)")
-    box.add_argument("--poses", type=int, default=2, help="poses per configuration (default: 2)")
-    box.add_argument("--repeats", type=int, default=5, help="scans per pose (default: 5)")
-    box.add_argument("--seed", type=int, default=0)
+    box.add_argument("--configs", type=positive_int, default=50, help="board configurations (default: 50)")
+    box.add_argument("--poses", type=positive_int, default=2, help="poses per configuration (default: 2)")
+    box.add_argument("--repeats", type=positive_int, default=5, help="scans per pose (default: 5)")
+    box.add_argument("--seed", type=nonneg_int, default=0)
     _common(box)
     box.set_defaults(func=_boxworld)
     rad = sub.add_parser("radar-detection", help="ADAS trigger on object radar output: real vs KDE vs Gaussian")
@@ -71,20 +72,20 @@ def register(parser: argparse.ArgumentParser) -> None:
     rad.add_argument("--model", default=None, help="KDE radar model file (default: the shipped one)")
     rad.add_argument("--baseline", default=None, help="Gaussian radar model file (default: the shipped one)")
     rad.add_argument("--fit", action="store_true", help="fit the KDE and Gaussian models leave-blocks-out on the log")
-    rad.add_argument("--seed", type=int, default=0)
-    rad.add_argument("--draws", type=int, default=20, help="simulated draws per reference box (default: 20)")
+    rad.add_argument("--seed", type=nonneg_int, default=0)
+    rad.add_argument("--draws", type=positive_int, default=20, help="simulated draws per reference box (default: 20)")
     _common(rad)
     rad.set_defaults(func=_radar_detection)
     reg = sub.add_parser("registration", help="corridor registration (Kalman filter + scan matcher) vs iterations")
     reg.add_argument("--model", default=None, help="learned lidar model (default: the shipped one)")
-    reg.add_argument("--poses", type=int, default=40, help="poses along the corridor (default: 40)")
-    reg.add_argument("--seed", type=int, default=0)
+    reg.add_argument("--poses", type=positive_int, default=40, help="poses along the corridor (default: 40)")
+    reg.add_argument("--seed", type=nonneg_int, default=0)
     _common(reg)
     reg.set_defaults(func=_registration)
     aeb = sub.add_parser("aeb", help="forward-collision warning + tracker on highway-fast with each radar")
-    aeb.add_argument("--episodes", type=int, default=30, help="seeded episodes per radar (default: 30)")
-    aeb.add_argument("--steps", type=int, default=40, help="policy steps per episode at most (default: 40)")
-    aeb.add_argument("--seed", type=int, default=0)
+    aeb.add_argument("--episodes", type=positive_int, default=30, help="seeded episodes per radar (default: 30)")
+    aeb.add_argument("--steps", type=positive_int, default=40, help="policy steps per episode at most (default: 40)")
+    aeb.add_argument("--seed", type=nonneg_int, default=0)
     _common(aeb)
     aeb.set_defaults(func=_aeb)
 

@@ -18,7 +18,6 @@ are fitted per reading and validated per reading (held-out NLL, null-rate calibr
 from __future__ import annotations
 
 import argparse
-import json
 import shlex
 import sys
 import time
@@ -28,7 +27,7 @@ import numpy as np
 
 from sensor_envs.cli.args import about, add_force, nonneg_int, positive_float, positive_int
 from sensor_envs.modelio import read_model
-from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
+from sensor_envs.outputs import OutputTransaction, check_inputs, check_output, write_json
 
 
 def register(verbs: dict[str, argparse._SubParsersAction[argparse.ArgumentParser]]) -> None:
@@ -185,7 +184,7 @@ def _validate(args: argparse.Namespace) -> int:
         if per_reading:  # per-reading report (scans at moving poses)
             print(readings_markdown(report["metrics"]))
             report["log_preparation"] = prep
-            (folder / "report.json").write_text(json.dumps(report, indent=2, default=float))
+            write_json(folder / "report.json", report)
         else:
             print(metrics_markdown(report["metrics"]))
         if args.card:

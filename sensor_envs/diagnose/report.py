@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 from typing import Any
@@ -10,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from sensor_envs.diagnose.core import DiagnoseResult, Evaluation, bin_candidate
+from sensor_envs.outputs import write_json
 
 __all__ = ["write_report"]
 
@@ -85,7 +85,7 @@ def write_report(result: DiagnoseResult, out: Path, source: str = "") -> dict[st
         plot_effect(result.before, result.after, name, metric, out / fname)
         figs.append((name, metric, fname))
     data["details"]["figures"] = [f for _, _, f in figs]
-    (out / "report.json").write_text(json.dumps(data, indent=2, allow_nan=True) + "\n", encoding="utf-8")
+    write_json(out / "report.json", data)
     (out / "report.md").write_text(_markdown(result, data, figs, source), encoding="utf-8")
     return data
 

@@ -23,7 +23,6 @@ radars with each other (the ideal radar is the reference of what a perfect senso
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +32,7 @@ from scipy.optimize import linear_sum_assignment
 from tqdm.auto import tqdm
 
 from sensor_envs.evaluate.metrics import precision_recall, wilson_interval
+from sensor_envs.outputs import write_json
 from sensor_envs.radar.sensors import RADAR_NAMES
 
 __all__ = ["NNTracker", "gospa", "aeb_experiment", "write_aeb_report"]
@@ -233,7 +233,7 @@ def write_aeb_report(report: dict[str, Any], folder: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    (folder / "report.json").write_text(json.dumps(report, indent=2))
+    write_json(folder / "report.json", report)
     rows = [
         "| radar | warnings | hits | false alarms | missed | precision [95 % CI] | recall [95 % CI] "
         "| lead time [s] | GOSPA [m] |",

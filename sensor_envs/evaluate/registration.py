@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from sensor_envs.geometry import raycast_pose
 from sensor_envs.maps import load_map
+from sensor_envs.outputs import write_json
 
 __all__ = ["corridor_trajectory", "match_scan", "run_filter", "registration_experiment", "ITERATIONS"]
 
@@ -182,14 +183,12 @@ def registration_experiment(
 
 def write_registration_report(report: dict[str, Any], folder: Any) -> None:
     """``report.json``, ``report.md`` and ``registration.png`` (the seed's Fig. 6 layout) into ``folder``."""
-    import json
-
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    (folder / "report.json").write_text(json.dumps(report, indent=2))
+    write_json(folder / "report.json", report)
     md = [
         f"# {report['experiment']}",
         "",

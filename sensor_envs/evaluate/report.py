@@ -10,7 +10,8 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
-import numpy as np
+
+from sensor_envs.outputs import write_json
 
 __all__ = ["write_report", "plot_trajectories", "report_markdown", "closeness_sentence"]
 
@@ -87,19 +88,7 @@ def report_markdown(report: dict[str, Any]) -> str:
 
 def write_report(report: dict[str, Any], folder: Path, plot_title: str | None = None) -> None:
     """Write ``report.json``, ``report.md`` and ``pr_trajectories.png`` into ``folder`` (which must exist)."""
-    (folder / "report.json").write_text(json.dumps(_jsonable(report), indent=2))
+    write_json(folder / "report.json", report)
     (folder / "report.md").write_text(report_markdown(report))
     title = plot_title or f"{report['experiment']}: detector development trajectory"
     plot_trajectories(report["trajectories"], folder / "pr_trajectories.png", title)
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, float) and not np.isfinite(x):
-        return None
-    return x

@@ -24,7 +24,6 @@ Definitions (written into every ``report.json``):
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import warnings
 from pathlib import Path
@@ -49,6 +48,7 @@ from sensor_envs.lidar.lwlr import (
 )
 from sensor_envs.lidar.sensors import GaussianLidar
 from sensor_envs.lidar.validate_readings import IDEAL_SIGMA, Params, baseline_params
+from sensor_envs.outputs import write_json
 from sensor_envs.rng import fold_ids
 
 __all__ = [
@@ -180,7 +180,7 @@ def validate(
         "definitions": __doc__.split("Definitions (written into every ``report.json``):")[1].strip(),
         "metrics": metrics,
     }
-    (out / "report.json").write_text(json.dumps(report, indent=2, default=float))
+    write_json(out / "report.json", report)
     (out / "report.md").write_text(metrics_markdown(metrics))
     plot_scan(model, log, params, out / "scan.png", rng or np.random.default_rng(0))
     plot_per_bearing(log, params, out / "per_bearing_error.png", model.spur_above)

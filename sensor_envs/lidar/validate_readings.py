@@ -20,7 +20,6 @@ For each model (the fitted one, ``ideal`` and ``gaussian``). Definitions (writte
 
 from __future__ import annotations
 
-import json
 import os
 import warnings
 from pathlib import Path
@@ -36,6 +35,7 @@ from sensor_envs.lidar.lwlr import P_EPS, SIGMA_FLOOR, LidarLWLR, mixture_log_pr
 from sensor_envs.lidar.mapping import map_features
 from sensor_envs.lidar.readings import check_map_covers
 from sensor_envs.lidar.sensors import GaussianLidar
+from sensor_envs.outputs import write_json
 
 __all__ = ["fit_gaussian_readings", "reading_metrics", "validate_readings", "CAL_EDGES", "GAUSS_RESIDUAL_CUT"]
 
@@ -204,7 +204,7 @@ def validate_readings(
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        (out / "report.json").write_text(json.dumps(report, indent=2, default=float))
+        write_json(out / "report.json", report)
         (out / "report.md").write_text(readings_markdown(metrics))
         plot_readings(metrics, np.rad2deg(log.bearings), out / "per_reading.png")
     return report

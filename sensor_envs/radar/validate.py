@@ -15,7 +15,6 @@ Metrics (each for the model and for its Gaussian baseline fitted on the same tra
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any, Protocol
@@ -23,6 +22,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from sensor_envs.outputs import write_json
 from sensor_envs.radar.log import RadarLog, TargetTuples, target_tuples
 from sensor_envs.rng import fold_ids
 
@@ -218,7 +218,7 @@ def write_report(
     if model is not None and log is not None:
         plot_all(report, model, log, out)
     path = out / "report.json"
-    path.write_text(json.dumps(report, indent=2, default=float))
+    write_json(path, report)
     return path
 
 
