@@ -109,7 +109,7 @@ def _scan_figure(lidars: tuple[str, ...], seed: int, path: Path) -> None:
         env.close()
     ax.set_ylim(0.0, 5.0)  # the lidar's max range: spurious ~16.9 m returns fall outside (counted in the title)
     ax.set_title("One scan of each lidar from the same pose (seed room), range [m];\nreturns beyond 5 m not drawn")
-    ax.legend(loc="lower left", fontsize=8)
+    ax.legend(loc="upper left", bbox_to_anchor=(-0.12, 1.0), fontsize=8)  # outside the 225-degree label
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
 
