@@ -165,7 +165,9 @@ def raycast_pose(
     p = np.atleast_2d(p)
     b = np.asarray(bearings, dtype=np.float64)
     out = raycast(p[:, :2], p[:, 2:3] + b[None, :], segments, max_range)
-    return tuple(x[0] for x in out) if single else out  # type: ignore[return-value]
+    if single:
+        return out[0][0], out[1][0], out[2][0]
+    return out
 
 
 def point_segment_distance(points: ArrayLike, segments: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -125,7 +125,7 @@ def _load_map_file(path: Path) -> SegmentMap:
             raise ValueError(f"{path}: expected a mapping with a 'segments' list (or a ROS map_server 'image' key)")
         rows = _segment_rows(doc["segments"], path)
         return SegmentMap(as_segments(rows, name=f"{path}: field 'segments'"), name=str(doc.get("name", path.stem)))
-    rows = []
+    text_rows: list[list[float]] = []
     for lineno, line in enumerate(text.splitlines(), start=1):
         line = line.split("#", 1)[0].strip()
         if not line:
@@ -137,10 +137,10 @@ def _load_map_file(path: Path) -> SegmentMap:
             raise ValueError(f"{path}:{lineno}: expected four numbers 'x1 y1 x2 y2', got {line!r}") from None
         if len(vals) != 4:
             raise ValueError(f"{path}:{lineno}: expected four numbers 'x1 y1 x2 y2', got {len(vals)}")
-        rows.append(vals)
-    if not rows:
+        text_rows.append(vals)
+    if not text_rows:
         raise ValueError(f"{path}: the map has no segments")
-    return SegmentMap(as_segments(rows, name=str(path)), name=path.stem)
+    return SegmentMap(as_segments(text_rows, name=str(path)), name=path.stem)
 
 
 def _segment_rows(raw: Any, path: Path) -> NDArray[np.float64]:
@@ -193,7 +193,7 @@ def _yaml_number(meta: dict[str, Any], key: str, path: Path, default: float | No
     """Field ``key`` of a ROS map YAML as a finite float (``default`` when absent), else a ValueError naming it."""
     value = meta.get(key, default)
     try:
-        v = float(value) if not isinstance(value, bool) else float("nan")
+        v = float(value) if value is not None and not isinstance(value, bool) else float("nan")
     except (TypeError, ValueError):
         v = float("nan")
     if not np.isfinite(v):

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -64,9 +64,9 @@ def save_model_file(
     for name, arr in arrays.items():
         if np.asarray(arr).dtype == object:
             raise TypeError(f"array {name!r} has dtype object, which cannot be saved without pickle")
-    atomic_write(
-        path, lambda tmp: np.savez_compressed(tmp, __header__=blob, **{k: np.asarray(v) for k, v in arrays.items()})
-    )
+    # typed as Any values: numpy's stub would otherwise match a ``**dict`` of arrays against ``allow_pickle: bool``
+    payload: dict[str, Any] = {k: np.asarray(v) for k, v in arrays.items()}
+    atomic_write(path, lambda tmp: np.savez_compressed(tmp, __header__=blob, **payload))
     return path
 
 
@@ -74,7 +74,7 @@ def load_model_file(
     path: str | os.PathLike[str],
     kind: str,
     supported_versions: tuple[int, ...],
-    schema: dict[str, tuple[str, int | None, bool]],
+    schema: Mapping[str, tuple[str, int | None, bool]],
 ) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
     """Read a model file written by :func:`save_model_file`, without pickle, and check it.
 

@@ -16,11 +16,11 @@ from typing import Any
 
 import numpy as np
 
-from sensor_envs.cli.args import add_force, nonneg_int, positive_int
+from sensor_envs.cli.args import OneLineParser, add_force, nonneg_int, positive_int
 from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
 
 
-def register(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
+def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     """Add ``diagnose radar`` to the top-level sub-command parser ``sub``."""
     diag = sub.add_parser("diagnose", help="find the effect a sensor model lacks, add it, report before/after")
     kinds = diag.add_subparsers(dest="kind", required=True)

@@ -25,12 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from sensor_envs.cli.args import about, add_force, nonneg_int, positive_float, positive_int
+from sensor_envs.cli.args import OneLineParser, about, add_force, nonneg_int, positive_float, positive_int
 from sensor_envs.modelio import read_model
 from sensor_envs.outputs import OutputTransaction, check_inputs, check_output, write_json
 
 
-def register(verbs: dict[str, argparse._SubParsersAction[argparse.ArgumentParser]]) -> None:
+def register(verbs: dict[str, argparse._SubParsersAction[OneLineParser]]) -> None:
     """Add the ``lidar`` sub-commands under each verb parser in ``verbs``."""
     rec = verbs["record"].add_parser("lidar", help="record a static-pose log from the reference Neato rig")
     rec.add_argument("--out", required=True, help="output log (.npz)")

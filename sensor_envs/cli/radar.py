@@ -10,12 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
-from sensor_envs.cli.args import about, add_force, nonneg_int, positive_float, positive_int
+from sensor_envs.cli.args import OneLineParser, about, add_force, nonneg_int, positive_float, positive_int
 from sensor_envs.modelio import read_model
 from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
 
 
-def register(verbs: dict[str, "argparse._SubParsersAction[argparse.ArgumentParser]"]) -> None:
+def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> None:
     """Add the ``radar`` sub-commands under each verb parser in ``verbs``."""
     rec = verbs["record"].add_parser("radar", help="record a radar object log from the reference rig (or Astyx)")
     rec.add_argument("--out", required=True, help="output CSV log")

@@ -102,7 +102,7 @@ def _solve(acc: NDArray[np.float64], prior: NDArray[np.float64], n: int, degree:
     a_mat[..., 2, 2] = acc[:, 5] + lam1
     b = np.moveaxis(ys, (1, 2), (-2, -1)).copy()  # (H, Q, K, 3, n)
     b[..., 0, :] += lam0 * prior[None, None]
-    return np.linalg.solve(a_mat, b)[..., 0, :]
+    return np.asarray(np.linalg.solve(a_mat, b)[..., 0, :], dtype=np.float64)
 
 
 def _bearing_offsets(h_max: float, fine: int = 6, coarse_step: int = 3) -> list[tuple[int, int]]:

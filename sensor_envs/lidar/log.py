@@ -19,6 +19,7 @@ import gzip
 import os
 import struct
 import zlib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -151,7 +152,7 @@ def log_from_arrays(
     poses: ArrayLike,
     map_segments: ArrayLike | None,
     t: ArrayLike | None = None,
-    covariates: dict[str, ArrayLike] | None = None,
+    covariates: Mapping[str, ArrayLike] | None = None,
     source: str = "<memory>",
 ) -> LidarLog:
     """Validate arrays and build a :class:`LidarLog` (see the module docstring for the fields).
@@ -232,7 +233,9 @@ def save_log(log: LidarLog, path: PathLike) -> Path:
     if log.t is not None:
         arrays["t"] = log.t
     arrays.update({f"cov_{k}": v for k, v in log.covariates.items()})
-    atomic_write(p, lambda tmp: np.savez_compressed(tmp, **arrays))
+    # typed as Any values: numpy's stub would otherwise match a ``**dict`` of arrays against ``allow_pickle: bool``
+    payload: dict[str, Any] = arrays
+    atomic_write(p, lambda tmp: np.savez_compressed(tmp, **payload))
     return p
 
 
@@ -264,7 +267,7 @@ def _parse_robotlaser1(
     m = int(tok[9 + n])
     rest = tok[10 + n + m :]
     pose = np.asarray(rest[0:3], dtype=np.float64)  # laser pose
-    return r, start + np.arange(n) * res, pose, float(rest[11]), max_r
+    return r, np.asarray(start + np.arange(n) * res, dtype=np.float64), pose, float(rest[11]), max_r
 
 
 def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = None) -> LidarLog:
@@ -406,7 +409,7 @@ def _read_bag_messages(
                 raise LidarLogError(f"{p}: topic {topic!r} not in the bag (topics: {sorted(topics)})")
         conns = [c for c in reader.connections if c.topic in (scan_topic, pose_topic)]
         for conn, t, raw in reader.messages(connections=conns):
-            msg = reader.deserialize(raw, conn.msgtype)
+            msg: Any = reader.deserialize(raw, conn.msgtype)  # a ROS message class generated at run time
             if conn.topic == pose_topic:
                 pts.append(_pose_of(msg))
                 pt.append(t * 1e-9)

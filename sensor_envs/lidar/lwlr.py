@@ -329,7 +329,7 @@ class LidarLWLR(BaseEstimator):
             "n_bearings": log.n_bearings,
             "n_readings": int((~np.isnan(log.ranges)).sum()),
             "null_fraction": float(np.nanmean(np.where(np.isnan(log.ranges), np.nan, log.ranges == 0))),
-            "sha256_of_ranges": hashlib.sha256(np.ascontiguousarray(log.ranges)).hexdigest(),
+            "sha256_of_ranges": hashlib.sha256(np.ascontiguousarray(log.ranges).tobytes()).hexdigest(),
         }
         return self
 
@@ -746,13 +746,18 @@ def null_count_log_prob(k: ArrayLike, n: ArrayLike, p_null: ArrayLike, rho: Arra
     return np.where(rho > 0, sps.betabinom.logpmf(k, n, q * c, (1 - q) * c), out)
 
 
-def _norm_logpdf(x: NDArray[np.float64], mu: ArrayLike, sigma: ArrayLike) -> NDArray[np.float64]:
+def _norm_logpdf(
+    x: NDArray[np.float64], mu: float | NDArray[np.float64], sigma: float | NDArray[np.float64]
+) -> NDArray[np.float64]:
     z = (x - mu) / sigma
     return -0.5 * z * z - np.log(sigma) - 0.5 * np.log(2 * np.pi)
 
 
 def mixture_log_prob(
-    x: ArrayLike, p: dict[str, NDArray[np.float64]], spur_mu: float, spur_sigma: float
+    x: ArrayLike,
+    p: dict[str, NDArray[np.float64]],
+    spur_mu: float | NDArray[np.float64],
+    spur_sigma: float | NDArray[np.float64],
 ) -> NDArray[np.float64]:
     """Log-probability of readings ``x`` [m] under ``null | spurious | Normal(mu, sigma)``.
 

@@ -163,7 +163,8 @@ def laser_offset_from_bag(path: str | os.PathLike[str], child: str = "laser") ->
     with AnyReader([Path(path)]) as reader:
         conns = [c for c in reader.connections if c.topic in ("/tf", "/tf_static")]
         for conn, _, raw in reader.messages(connections=conns):
-            for tr in reader.deserialize(raw, conn.msgtype).transforms:
+            msg: Any = reader.deserialize(raw, conn.msgtype)  # a ROS message class generated at run time
+            for tr in msg.transforms:
                 if child in tr.child_frame_id:
                     t = tr.transform
                     q = t.rotation
@@ -207,7 +208,7 @@ def align_to_grid(
     ox, oy = float(np.asarray(origin)[0]), float(np.asarray(origin)[1])
     f = max(1, int(round(coarse / res)))
     h, w = occ.shape
-    occ_c = occ[: h - h % f, : w - w % f].reshape(h // f, f, w // f, f).any((1, 3))
+    occ_c = np.asarray(occ[: h - h % f, : w - w % f].reshape(h // f, f, w // f, f).any((1, 3)))
     cres = res * f
     field = _likelihood_field(occ_c, cres, 1.5 * cres)
     pts = points_odom[np.random.default_rng(0).permutation(points_odom.shape[0])[:3000]]

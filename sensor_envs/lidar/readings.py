@@ -320,6 +320,7 @@ def fit_per_reading(
         """Kernel widths and degree with the least mean held-out loss, in two stages (see the docstring)."""
         best: tuple[float, float, float, int] = (0.0, 0.0, 0.0, 1)
         scores: dict[str, Any] = {}
+        h_b: tuple[float, ...]
         for stage in range(stages):
             if stage == 0:
                 cands, h_b = hra, (min(hb),)
@@ -399,7 +400,7 @@ def fit_per_reading(
         "n_bearings": log.n_bearings,
         "n_readings": int((~np.isnan(log.ranges)).sum()),
         "null_fraction": float(np.nanmean(np.where(np.isnan(log.ranges), np.nan, log.ranges == 0))),
-        "sha256_of_ranges": hashlib.sha256(np.ascontiguousarray(log.ranges)).hexdigest(),
+        "sha256_of_ranges": hashlib.sha256(np.ascontiguousarray(log.ranges).tobytes()).hexdigest(),
         "fit": "per reading",
     }
     return model

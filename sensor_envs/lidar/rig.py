@@ -152,7 +152,7 @@ class NeatoRig:
 
         A scan has no pose identity, so each near-post bearing is spurious with the average rate.
         """
-        p_spur = self.near_posts() * self.spur_prone * float(np.mean(self.spur_frac))
+        p_spur = np.asarray(self.near_posts() * self.spur_prone * float(np.mean(self.spur_frac)), dtype=np.float64)
         x = self._readings(
             np.asarray(nominal_range, float)[:, None], np.asarray(incidence, float)[:, None], p_spur[:, None], rng
         )[:, 0]

@@ -413,13 +413,13 @@ def model_card_markdown(model: LidarLWLR, commands: list[str], validation: dict[
         "means at an approximate pose) reuses the widths of `bias` and is not cross-validated.",
         "",
     ]
-    s = model.cv_scores_.get("null_rho")
-    if s:
+    rho_s = model.cv_scores_.get("null_rho")
+    if rho_s:
         lines += [
             f"Persistent nulls: intra-cell correlation `null_rho` = {model.null_rho_} (beta-binomial over a "
-            f"cell's repeats; chosen among {s['n_candidates']} values by the likelihood of the training cells' "
-            f"null counts around the out-of-fold `p_null`: {s['ll_per_reading_best']:.4f} per reading vs "
-            f"{s['ll_per_reading_independent']:.4f} for independent readings).",
+            f"cell's repeats; chosen among {rho_s['n_candidates']} values by the likelihood of the training cells' "
+            f"null counts around the out-of-fold `p_null`: {rho_s['ll_per_reading_best']:.4f} per reading vs "
+            f"{rho_s['ll_per_reading_independent']:.4f} for independent readings).",
             "",
         ]
     lines += [f"File format version {FORMAT_VERSION} (`{MODEL_KIND}`).", ""]

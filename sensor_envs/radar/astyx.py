@@ -34,6 +34,7 @@ from __future__ import annotations
 import json
 import os
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -167,7 +168,7 @@ def frame_rows(
 def load_astyx(
     root: str | os.PathLike[str],
     *,
-    frames: range | None = None,
+    frames: Sequence[int] | None = None,
     block: int = 10,
     progress: bool = False,
     **cluster_args: Any,

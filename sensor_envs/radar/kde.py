@@ -555,7 +555,7 @@ class KDERadarModel(BaseEstimator):
         return np.exp(_interp_log_h(self.grid_x_, self.grid_y_, self.log_h_, np.atleast_2d(corners)))
 
     def _neighbours(
-        self, corners: NDArray, prev_z: NDArray, extra: NDArray | None = None
+        self, corners: NDArray, prev_z: NDArray | None, extra: NDArray | None = None
     ) -> tuple[NDArray, NDArray, NDArray]:
         """Relevant tuples of each query: flat ``(global tuple index, weight, query id)``."""
         corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
@@ -745,6 +745,7 @@ class KDERadarModel(BaseEstimator):
             if qi.size == 0 or buckets is None:  # no queries, or a grid too large for memory
                 todo[qi] = True
                 continue
+            assert tree is not None  # a bucket grid exists only beside its tree
             qs = q[qi] / self.scale_[: q.shape[1]]
             rep, inv = _unique_rows(qs)
             pick, done, via = sample_proportional(

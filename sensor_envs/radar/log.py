@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import closest_corner, rectangle_corners
 from sensor_envs.outputs import atomic_write
@@ -138,7 +138,7 @@ def _as_column(name: str, values: NDArray, source: str) -> NDArray:
     return arr
 
 
-def _first(mask: NDArray[np.bool_]) -> int:
+def _first(mask: ArrayLike) -> int:
     return int(np.flatnonzero(mask)[0])
 
 

@@ -81,7 +81,7 @@ def generate_scenario(n_targets: int, n_cycles: int, cycle_time: float, rng: np.
     heading = np.where(lane, rng.normal(0.0, 0.03, n_targets), rng.uniform(-np.pi, np.pi, n_targets))
     speed = np.where(lane, rng.normal(0.0, 1.5, n_targets), rng.uniform(0.5, 3.0, n_targets))
     vel = np.stack([np.cos(heading), np.sin(heading)], axis=1) * speed[:, None]
-    t = np.arange(n_cycles) * cycle_time
+    t = np.arange(n_cycles, dtype=np.float64) * cycle_time
     xy = np.stack([x0, y0], axis=1)[None] + t[:, None, None] * vel[None]
     dims = np.stack([rng.uniform(3.8, 5.0, n_targets), rng.uniform(1.7, 2.0, n_targets)], axis=1)
     boxes = np.concatenate(

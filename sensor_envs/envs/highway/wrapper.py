@@ -324,9 +324,8 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         prev = [self._tracks.get(truth.objects[i], (_NAN2, _NAN2)) for i in vis]
         prev_z = np.array([p[0] for p in prev]).reshape(-1, 2)
         prev_w = np.array([p[1] for p in prev]).reshape(-1, 2)
-        extra = (
-            world_state(self._state_names, truth, vis, pose, self.env.unwrapped.vehicle) if self._state_names else None
-        )
+        base: Any = self.env.unwrapped  # highway-env's AbstractEnv (untyped)
+        extra = world_state(self._state_names, truth, vis, pose, base.vehicle) if self._state_names else None
         z, source = self._sample_targets(ref_s, prev_z, extra)
         meas_s = ref_s + z
         ok = np.asarray(np.isfinite(z).all(axis=1))
