@@ -43,7 +43,7 @@ _RENAME = {TIME: "time"}
 _RANGE_CLIP = 1.0
 
 
-def lidar_blocks(n_scans: int, block_scans: int = 20) -> NDArray[np.int64]:
+def lidar_blocks(n_scans: int, block_scans: int = 5) -> NDArray[np.int64]:
     """Block id ``(S,)`` of each scan: ``block_scans`` consecutive scans form a block."""
     return (np.arange(n_scans) // max(int(block_scans), 1)).astype(np.int64)
 

@@ -54,6 +54,7 @@ from sklearn.utils.validation import check_is_fitted
 from tqdm.auto import tqdm
 
 from sensor_envs.geometry import as_segments, raycast_pose
+from sensor_envs.lidar.extra_state import MAX_COEF, apply_extra, check_extra_state, fit_extra_terms
 from sensor_envs.lidar.kernel import (
     P_EPS,
     P_SPUR_EPS,
@@ -63,7 +64,6 @@ from sensor_envs.lidar.kernel import (
     _finish,
     lwlr,
 )
-from sensor_envs.lidar.extra_state import MAX_COEF, apply_extra, check_extra_state, fit_extra_terms
 from sensor_envs.lidar.log import LidarLog
 from sensor_envs.modelio import (
     RANDOM_STATE,
@@ -733,7 +733,7 @@ def _peek_version(path: str | os.PathLike[str]) -> int:
         with np.load(path, allow_pickle=False) as z:
             v = json.loads(z["__header__"].tobytes().decode("utf-8")).get("format_version", 0)
         return int(v) if isinstance(v, int) else 0
-    except Exception:  # noqa: BLE001 - any damage is reported by load_model_file
+    except Exception:
         return 0
 
 
