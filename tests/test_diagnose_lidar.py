@@ -136,3 +136,25 @@ def test_cli_diagnose_lidar(tmp_path):
     assert (out / "report.md").exists()
     again = subprocess.run(cmd, capture_output=True, text=True, check=False)  # existing output: refused
     assert again.returncode == 2 and again.stderr.count("\n") == 1, again.stderr
+
+
+def test_neato_supplies_the_learned_lidars_extra_state():
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
+
+    import sensor_envs  # noqa: F401  (registers the envs)
+
+    log = make_log("omega", scans=200, bearings=36)
+    m = LidarLWLR(**FAST, extra_state=("omega", "v", "t", "prev_residual")).fit(log, max_readings=100)
+    env = gym.make("sensor_envs/Neato-v0", lidar="learned", model=m, n_bearings=36, map="seed_room")
+    check_env(env.unwrapped, skip_render_check=True)
+    obs_a, _ = env.reset(seed=3)
+    obs_b, _ = env.reset(seed=3)
+    np.testing.assert_array_equal(obs_a, obs_b)  # same seed, same observations
+    for _ in range(3):
+        obs, *_ = env.step(np.array([0.5, 1.0], dtype=np.float32))
+    assert np.isfinite(obs).all()
+    assert env.unwrapped._motion[1] == pytest.approx(env.unwrapped.omega_max)
+    bad = LidarLWLR(**FAST, extra_state=("noise_a",)).fit(log, max_readings=100)
+    with pytest.raises(ValueError, match=r"state names \['noise_a'\], which Neato-v0 cannot supply"):
+        gym.make("sensor_envs/Neato-v0", lidar="learned", model=bad, n_bearings=36)

@@ -866,10 +866,18 @@ class LearnedLidar:
     model: LidarLWLR
 
     def measure(
-        self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64], rng: np.random.Generator
+        self,
+        nominal_range: NDArray[np.float64],
+        incidence: NDArray[np.float64],
+        rng: np.random.Generator,
+        extra: ArrayLike | None = None,
     ) -> NDArray[np.float64]:
-        """Sample one scan: ``(K,)`` ranges [m] from ``(K,)`` nominal ranges/incidences; ``NaN`` = null."""
-        p = self.model.params_from_features(nominal_range, incidence)
+        """Sample one scan: ``(K,)`` ranges [m] from ``(K,)`` nominal ranges/incidences; ``NaN`` = null.
+
+        ``extra``: values of the model's extra state variables (``(..., K, d)``, see
+        :meth:`LidarLWLR.params_from_features`), needed when the model has extra state.
+        """
+        p = self.model.params_from_features(nominal_range, incidence, extra)
         x = self.model.sample_from_params(p, rng)
         return np.where(x == 0, np.nan, x)
 
