@@ -48,6 +48,8 @@ def register(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None
     q.add_argument("--align", action="store_true", help="scan-match the odometry poses onto the --map grid")
     q.add_argument("--max-range", type=float, default=5.0, help="sensor's maximum range [m] (default 5)")
     q.add_argument("--max-readings", type=positive_int, default=300, help="scans used by the table fit (default 300)")
+    q.add_argument("--spur-above", type=float, default=None, help="spurious returns beyond [m] (default max-range + 1)")
+    q.add_argument("--table-range-step", type=float, default=0.125, help="range step of the tables [m] (default 0.125)")
     add_force(q)
     q.add_argument("--max-add", type=positive_int, default=3, help="at most this many effects are added (default 3)")
     q.add_argument("--permutations", type=positive_int, default=499, help="permutations of the test (default 499)")
@@ -165,7 +167,12 @@ def _diagnose_lidar(args: argparse.Namespace) -> int:
         raise ValueError(f"--max-range: expected > 0, got {args.max_range}")
     check_inputs(args.log, args.model, args.map)
     out = check_output(args.out, inputs=[args.log, args.model, args.map], force=args.force, folder=True)
-    base_model, base_state, params = None, (), {"max_range": args.max_range, "progress": not args.quiet}
+    spur = args.max_range + 1.0 if args.spur_above is None else args.spur_above
+    if not spur > args.max_range or not args.table_range_step > 0:
+        raise ValueError("--spur-above: expected > --max-range; --table-range-step: expected > 0")
+    base_model, base_state = None, ()
+    params: dict[str, Any] = {"max_range": args.max_range, "spur_above": spur, "progress": not args.quiet}
+    params["table_range_step"] = args.table_range_step
     if args.model is not None:
         base_model = LidarLWLR.load(args.model)
         base_state = tuple(base_model.extra_state_)
