@@ -28,6 +28,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sensor_envs.geometry import as_segments, raycast_pose
+from sensor_envs.lidar.kernel import P_EPS
 from sensor_envs.lidar.log import LidarLog
 
 if TYPE_CHECKING:
@@ -163,8 +165,6 @@ def fit_extra_terms(model: LidarLWLR, log: LidarLog) -> None:
     Sets ``extra_state_`` (names), ``extra_mean_``/``extra_scale_`` ``(d,)`` (standardisation) and
     ``extra_coef_`` ``(3, d + 1)`` (rows: logit p_null, bias [m], log sigma; columns: intercept, variables).
     """
-    from sensor_envs.lidar.lwlr import P_EPS, lidar_features
-
     names = check_extra_state(model.extra_state)
     model.extra_state_ = names
     d = len(names)
@@ -174,7 +174,7 @@ def fit_extra_terms(model: LidarLWLR, log: LidarLog) -> None:
         return
     if log.ranges.shape[2] != 1:
         raise ValueError(f"{log.source}: extra_state needs a scan log (one reading per scan and bearing)")
-    r, a = lidar_features(log.poses, model.bearings_, log.require_map(), model.max_range)
+    r, a, _ = raycast_pose(log.poses, model.bearings_, as_segments(log.require_map(), name="map"), model.max_range)
     p = model.params_from_features(r, a, extra=None, base_only=True)
     hit = np.isfinite(r)
     raw = scan_features(log, names, np.where(hit, p["mu"], np.nan))
