@@ -1,11 +1,16 @@
-"""Time ``sensor-envs diagnose radar`` on a 20,000-row rig log with a hidden latency and distractors.
+"""Time ``sensor-envs diagnose radar`` on a 20,000-row rig log with a hidden latency and distractors,
+and ``sensor-envs diagnose lidar`` on a 2,500-scan x 360-bearing synthetic scan log (``--lidar``).
 
 The issue's budget: 20,000 radar rows diagnose in under 10 minutes on 2 cores. The log: reference
 rig sequences (``record_rig_log``, with ``rel_vx``/``rel_vy`` columns), measurements shifted by
 ``-0.4 s * relative velocity`` (undeclared latency), two noise columns and one weak correlate of the
 cause. Runs the full CLI path (read CSV, fit, rank, add, refit, report) with default settings.
 
-Usage: ``PYTHONPATH=. python benchmarks/bench_diagnose.py [--rows 20000] [--out DIR]``
+The lidar log: :func:`tests.test_diagnose_lidar.make_log`'s box world with a hidden range bias of
+3 cm per rad/s of turn rate (``omega``) beside the distractors ``v``, ``noise_a``, ``weak``.
+
+Usage: ``PYTHONPATH=. python benchmarks/bench_diagnose.py [--rows 20000] [--out DIR]``,
+``PYTHONPATH=. python benchmarks/bench_diagnose.py --lidar [--scans 2500] [--bearings 360] [--out DIR]``
 """
 
 from __future__ import annotations
@@ -56,9 +61,37 @@ def run(rows: int, out: Path | None) -> None:
     print(f"added: {rep['added']}; error_before {rep['error_before']:.4f} -> error_after {rep['error_after']:.4f}")
 
 
+def run_lidar(scans: int, bearings: int, out: Path | None) -> None:
+    """Build the scan log, run ``diagnose lidar`` (default settings) and print size, wall time and result."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from test_diagnose_lidar import make_log
+
+    from sensor_envs.lidar.log import save_log
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = save_log(make_log("omega", scans=scans, bearings=bearings), Path(tmp) / "log.npz")
+        dest = out if out is not None else Path(tmp) / "out"
+        t0 = time.perf_counter()
+        code = main(["diagnose", "lidar", str(path), "--out", str(dest), "--force"])
+        wall = time.perf_counter() - t0
+        rep = json.loads((dest / "report.json").read_text())
+    print(f"scans x bearings: {scans} x {bearings} = {scans * bearings} readings, cpus available: {os.cpu_count()}")
+    print(f"diagnose lidar wall time: {wall:.1f} s (budget 600 s), exit code {code}")
+    print(f"effects (top 3): {[(e['name'], round(e['score'], 4), e['p_value']) for e in rep['effects'][:3]]}")
+    print(f"added: {rep['added']}; error_before {rep['error_before']:.4f} -> error_after {rep['error_after']:.4f}")
+
+
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rows", type=int, default=20000)
+    ap.add_argument("--lidar", action="store_true", help="time diagnose lidar instead of diagnose radar")
+    ap.add_argument("--scans", type=int, default=2500)
+    ap.add_argument("--bearings", type=int, default=360)
     ap.add_argument("--out", type=Path, default=None, help="keep the report here (default: a temporary folder)")
     a = ap.parse_args()
-    run(a.rows, a.out)
+    if a.lidar:
+        run_lidar(a.scans, a.bearings, a.out)
+    else:
+        run(a.rows, a.out)

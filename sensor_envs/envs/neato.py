@@ -45,6 +45,9 @@ __all__ = ["NeatoEnv", "NULL_VALUES", "unicycle_step", "apply_null", "collides",
 
 NULL_VALUES = ("zero", "nan", "max")
 _LIDAR_TAG = 0x4C494441  # "LIDA": tags the lidar's stream derived from the reset seed
+WORLD_STATE = ("v", "omega", "t", "prev_residual")
+"""Extra lidar state variables Neato-v0 supplies: the commanded speed [m/s] and turn rate [rad/s] of the last
+action (0 after reset), the time since reset [s] and each bearing's previous residual (from the model's tables)."""
 _BATCHED_LIDARS = (IdealLidar, GaussianLidar)  # and LearnedLidar: measure() broadcasts over leading axes
 
 
@@ -94,6 +97,15 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
                 raise ValueError(f"{name}: must be > 0, got {val!r}")
         self.world_map = load_map(map)
         self.lidar = make_lidar(lidar, model=model, **(lidar_kwargs or {}))
+        self._extra_names = lidar_extra_state(self.lidar)
+        missing = [n for n in self._extra_names if n not in WORLD_STATE]
+        if missing:
+            raise ValueError(
+                f"lidar: the learned model's state names {missing}, which Neato-v0 cannot supply "
+                f"(it supplies {list(WORLD_STATE)})"
+            )
+        self._motion = np.zeros(3)  # v [m/s], omega [rad/s], time since reset [s]
+        self._prev_res = np.zeros(n_bearings)
         self.bearings = np.deg2rad(np.arange(n_bearings) * (360.0 / n_bearings))
         self.max_range, self.null_value, self.dt = float(max_range), null_value, float(dt)
         self.robot_radius, self.goal_tolerance = float(robot_radius), float(goal_tolerance)
@@ -119,6 +131,7 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         """Start a new episode; ``options`` may fix ``start`` and/or ``goal`` poses ``(x, y, theta)``."""
         super().reset(seed=seed)
         self._sensor_rng = sensor_rng(seed, _LIDAR_TAG, self._sensor_rng)
+        self._motion, self._prev_res = np.zeros(3), np.zeros(self.bearings.size)
         options = dict(options or {})
         unknown = set(options) - {"start", "goal"}
         if unknown:
@@ -149,6 +162,7 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             raise ValueError(f"action: expected two finite numbers (v, omega) in [-1, 1], got {action!r}")
         a = np.clip(a.reshape(2), -1.0, 1.0)
         self.pose = unicycle_step(self.pose, a[0] * self.v_max, a[1] * self.omega_max, self.dt)
+        self._motion = np.array([a[0] * self.v_max, a[1] * self.omega_max, self._motion[2] + self.dt])
         collision = self._collides(self.pose)
         obs, info = self._observe(collision=collision)
         reward = step_reward(self.rewards, self._prev_dist, info["distance_to_goal"], info["is_success"], collision)
@@ -171,12 +185,33 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     # ----------------------------------------------------------------------------------- internals
     def _observe(self, collision: bool) -> tuple[NDArray[np.float32], dict[str, Any]]:
         assert self._sensor_rng is not None
-        obs, batch = observe_batch(self, self.pose[None], self.goal[None], [self._sensor_rng], np.array([collision]))
+        extra = self._extra_state() if self._extra_names else None
+        obs, batch = observe_batch(
+            self, self.pose[None], self.goal[None], [self._sensor_rng], np.array([collision]), extra=extra
+        )
         info = {key: val[0] for key, val in batch.items()}
+        if self._extra_names:
+            self._prev_res = self._residual(info["ideal_scan"], info["incidence"], info["scan"])
         info["distance_to_goal"] = float(info["distance_to_goal"])
         info["is_success"], info["collision"] = bool(info["is_success"]), bool(info["collision"])
         self._last = info
         return obs[0], info
+
+    def _extra_state(self) -> NDArray[np.float64]:
+        """``(1, K, d)`` values of the learned lidar's extra state variables (see :data:`WORLD_STATE`)."""
+        k = self.bearings.size
+        cols = {"v": self._motion[0], "omega": self._motion[1], "t": self._motion[2], "prev_residual": self._prev_res}
+        return np.stack([np.broadcast_to(cols[n], (k,)) for n in self._extra_names], axis=-1)[None]
+
+    def _residual(
+        self, nominal: NDArray[np.float64], incidence: NDArray[np.float64], scan: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """Each bearing's residual from the learned lidar's table mean (the next scan's ``prev_residual``)."""
+        from sensor_envs.lidar.extra_state import base_residual
+
+        model = self.lidar.model  # type: ignore[attr-defined]  # a LearnedLidar: only it has extra state
+        mu = model.params_from_features(nominal, incidence, base_only=True)["mu"]
+        return base_residual(scan, mu, np.isfinite(nominal))
 
     def _collides(self, pose: NDArray[np.float64]) -> bool:
         return bool(collides(pose, self.world_map.segments, self.robot_radius)[0])
@@ -276,8 +311,18 @@ def step_reward(
     return float(reward) if reward.ndim == 0 else reward
 
 
+def lidar_extra_state(lidar: LidarSensor) -> tuple[str, ...]:
+    """Names of a learned lidar's extra state variables (``()`` for other lidars or a model without any)."""
+    model = getattr(lidar, "model", None)
+    return tuple(getattr(model, "extra_state_", ()))
+
+
 def measure_rows(
-    lidar: LidarSensor, nominal: NDArray[np.float64], incidence: NDArray[np.float64], rngs: list[np.random.Generator]
+    lidar: LidarSensor,
+    nominal: NDArray[np.float64],
+    incidence: NDArray[np.float64],
+    rngs: list[np.random.Generator],
+    extra: NDArray[np.float64] | None = None,
 ) -> NDArray[np.float64]:
     """Readings ``(N, K)`` [m] (NaN = null) for N robots; row ``i`` draws from ``rngs[i]`` only.
 
@@ -288,6 +333,8 @@ def measure_rows(
     lwlr = sys.modules.get("sensor_envs.lidar.lwlr")  # a LearnedLidar exists only once its module is loaded
     if isinstance(lidar, _BATCHED_LIDARS + ((lwlr.LearnedLidar,) if lwlr is not None else ())):
         rng = rngs[0] if len(rngs) == 1 else RowGenerators(rngs)
+        if extra is not None:  # only a LearnedLidar has extra state
+            return np.asarray(lidar.measure(nominal, incidence, rng, extra=extra), dtype=np.float64)  # type: ignore[call-arg]
         return np.asarray(lidar.measure(nominal, incidence, rng), dtype=np.float64)
     rows = zip(nominal, incidence, rngs, strict=True)
     return np.stack([np.asarray(lidar.measure(n, a, g), dtype=np.float64) for n, a, g in rows])
@@ -299,6 +346,7 @@ def observe_batch(
     goals: NDArray[np.float64],
     rngs: list[np.random.Generator],
     collision: NDArray[np.bool_],
+    extra: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float32], dict[str, NDArray[Any]]]:
     """Observations ``(N, K + 3)`` and info arrays of N robots in ``env``'s world, one raycast and one lidar call.
 
@@ -308,13 +356,14 @@ def observe_batch(
         goals: ``(N, 3)`` goal poses [m, rad].
         rngs: the N robots' lidar generators.
         collision: ``(N,)`` whether each robot touches a wall.
+        extra: ``(N, K, d)`` values of a learned lidar's extra state variables, or ``None``.
 
     Returns:
         ``obs`` (see :class:`NeatoEnv`) and the ``info`` entries of :class:`NeatoEnv`, each with a leading
         robot axis.
     """
     nominal, incidence, _ = raycast_pose(poses, env.bearings, env.world_map.segments, env.max_range)
-    raw = measure_rows(env.lidar, nominal, incidence, rngs)
+    raw = measure_rows(env.lidar, nominal, incidence, rngs, extra)
     ranges = apply_null(raw, env.max_range, env.null_value)
     goal_rel = to_frame(goals[:, :2], poses.T)
     dth = wrap_angle(goals[:, 2] - poses[:, 2])

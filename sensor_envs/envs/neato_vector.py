@@ -50,6 +50,11 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
         if int(max_episode_steps) < 1:
             raise ValueError(f"max_episode_steps: must be >= 1, got {max_episode_steps!r}")
         first = NeatoEnv(render_mode=render_mode, **kwargs)
+        if first._extra_names:
+            raise ValueError(
+                f"lidar: the vector Neato entry does not supply extra lidar state yet; the model's state names "
+                f"{list(first._extra_names)} (use Neato-v0)"
+            )
         shared = {k: v for k, v in kwargs.items() if k not in ("lidar", "model", "lidar_kwargs", "map")}
         self.envs = [first] + [
             NeatoEnv(render_mode=render_mode, map=first.world_map, lidar=first.lidar, **shared)

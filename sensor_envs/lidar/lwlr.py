@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import hashlib
 import itertools
+import json
 import os
 import warnings
 from dataclasses import dataclass
@@ -53,6 +54,7 @@ from sklearn.utils.validation import check_is_fitted
 from tqdm.auto import tqdm
 
 from sensor_envs.geometry import as_segments, raycast_pose
+from sensor_envs.lidar.extra_state import MAX_COEF, apply_extra, check_extra_state, fit_extra_terms
 from sensor_envs.lidar.kernel import (
     P_EPS,
     P_SPUR_EPS,
@@ -71,6 +73,7 @@ from sensor_envs.modelio import (
     ModelFileError,
     Numbers,
     Options,
+    check_finite,
     check_increasing,
     check_positive,
     check_probability,
@@ -106,8 +109,10 @@ __all__ = [
 """Cell-mean residuals [m] are clipped to this before their variance ``tau^2`` is regressed."""
 VARIANTS = ("seed", "extended")
 MODEL_KIND = "sensor_envs.lidar_lwlr"  # the file format's kind string (kept: shipped files carry it)
-FORMAT_VERSION = 2
-"""2 adds ``null_rho`` to the header (version 1 files load with ``null_rho = 0``, independent nulls)."""
+FORMAT_VERSION = 3
+"""2 adds ``null_rho`` to the header (version 1 files load with ``null_rho = 0``, independent nulls); 3 adds the
+extra state (``params.extra_state``, arrays ``extra_mean``, ``extra_scale``, ``extra_coef``; older files load
+with no extra state)."""
 RHO_GRID = (0.0, 0.01, 0.03, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95)
 """Candidate intra-cell correlations of nulls (extended variant)."""
 _PARAMS = {"seed": ("p_null", "bias", "sigma"), "extended": ("p_null", "p_spur", "bias", "log_sigma")}
@@ -227,6 +232,9 @@ class LidarLWLR(BaseEstimator):
         table_alpha_steps: number of incidence knots of the tables over ``[0, pi/2]``.
         random_state: seed or Generator for the fold assignment.
         progress: show tqdm progress bars.
+        extra_state: names of extra state variables of scan logs (``t``, ``prev_residual``, covariate
+            names such as ``v``, ``omega``), linear terms on top of the tables
+            (:mod:`sensor_envs.lidar.extra_state`); queries then pass ``extra``.
     """
 
     _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
@@ -242,6 +250,7 @@ class LidarLWLR(BaseEstimator):
         "table_alpha_steps": [Interval(2, None, integer=True)],
         "random_state": RANDOM_STATE,
         "progress": [InstanceOf(bool)],
+        "extra_state": [InstanceOf(tuple, list)],  # details: check_extra_state
     }
     """One declarative check of every hyperparameter, used by :meth:`fit` and :meth:`load`."""
 
@@ -260,6 +269,7 @@ class LidarLWLR(BaseEstimator):
         table_alpha_steps: int = 9,
         random_state: int | np.random.Generator | None = 0,
         progress: bool = True,
+        extra_state: tuple[str, ...] = (),
     ) -> None:
         self.variant = variant
         self.n_folds = n_folds
@@ -273,10 +283,12 @@ class LidarLWLR(BaseEstimator):
         self.table_alpha_steps = table_alpha_steps
         self.random_state = random_state
         self.progress = progress
+        self.extra_state = extra_state
 
     # ---------------------------------------------------------------------------------------- fitting
     def _check_hyper(self, log: LidarLog) -> None:
         validate_params(self.get_params(), self._hyperparameter_constraints)
+        check_extra_state(self.extra_state)
         if not 2 <= self.n_folds <= log.n_poses:
             raise ValueError(f"n_folds: must be in [2, number of poses = {log.n_poses}], got {self.n_folds}")
 
@@ -302,10 +314,14 @@ class LidarLWLR(BaseEstimator):
         if per_reading or (per_reading is None and log.ranges.shape[2] < 2):
             from sensor_envs.lidar.readings import fit_per_reading
 
-            return fit_per_reading(self, log, **reading_options)
+            fit_per_reading(self, log, **reading_options)
+            fit_extra_terms(self, log)
+            return self
         if reading_options:
             raise TypeError(f"fit: options {sorted(reading_options)} apply to the per-reading fit only")
         self._check_hyper(log)
+        if self.extra_state:
+            raise ValueError(f"{log.source}: extra_state needs a scan log (one reading per scan and bearing)")
         segs = log.require_map()
         r, a = lidar_features(log.poses, log.bearings, segs, self.max_range)
         stats = cell_statistics(log, self.spur_above, split_spurious=self.variant == "extended")
@@ -331,6 +347,7 @@ class LidarLWLR(BaseEstimator):
             "null_fraction": float(np.nanmean(np.where(np.isnan(log.ranges), np.nan, log.ranges == 0))),
             "sha256_of_ranges": hashlib.sha256(np.ascontiguousarray(log.ranges).tobytes()).hexdigest(),
         }
+        fit_extra_terms(self, log)
         return self
 
     def _groups(
@@ -476,12 +493,17 @@ class LidarLWLR(BaseEstimator):
         """Raise sklearn's ``NotFittedError`` unless the model is fitted or loaded."""
         check_is_fitted(self, "tables_", msg=_NOT_FITTED)
 
-    def params_from_features(self, r: ArrayLike, alpha: ArrayLike) -> dict[str, NDArray[np.float64]]:
+    def params_from_features(
+        self, r: ArrayLike, alpha: ArrayLike, extra: ArrayLike | None = None, base_only: bool = False
+    ) -> dict[str, NDArray[np.float64]]:
         """Reading-distribution parameters from features, by bilinear table lookup.
 
         Args:
             r: ``(..., K)`` nominal ranges [m] (``inf``/NaN = no hit), K = the model's bearings.
             alpha: ``(..., K)`` incidence [rad] (NaN where no hit).
+            extra: raw values of the extra state variables ``extra_state_``, broadcastable to
+                ``(..., K, d)``; required when the model has extra state.
+            base_only: the tables alone (extra terms left out; used to fit them).
 
         Returns:
             ``p_null``, ``p_spur`` (0 for the seed variant), ``mu`` [m], ``sigma`` [m] (spread of repeated
@@ -498,6 +520,8 @@ class LidarLWLR(BaseEstimator):
         aq = np.nan_to_num(np.asarray(alpha, dtype=np.float64), nan=0.0)
         v = _bilinear(self.tables_, self.range_grid_, self.alpha_grid_, rq, aq)
         out = dict(zip(self.param_names_, v, strict=True))
+        if getattr(self, "extra_state_", ()) and not base_only:
+            out = apply_extra(self, out, hit, extra)
         p_null = np.where(hit, out["p_null"], 1 - P_EPS)
         if "p_spur" in out:  # null takes precedence: the three outcomes keep >= P_EPS for in-range readings
             p_null = np.minimum(p_null, 1 - P_EPS - P_SPUR_EPS)
@@ -527,11 +551,16 @@ class LidarLWLR(BaseEstimator):
         p = self.params_full(poses, map_segments)
         return p["p_null"], p["mu"], p["sigma"]
 
-    def params_full(self, poses: ArrayLike, map_segments: ArrayLike) -> dict[str, NDArray[np.float64]]:
-        """All parameters (``p_null``, ``p_spur``, ``mu``, ``sigma``), each ``(S, K)``, at poses in a map."""
+    def params_full(
+        self, poses: ArrayLike, map_segments: ArrayLike, extra: ArrayLike | None = None
+    ) -> dict[str, NDArray[np.float64]]:
+        """All parameters (``p_null``, ``p_spur``, ``mu``, ``sigma``), each ``(S, K)``, at poses in a map.
+
+        ``extra``: values of the extra state variables (see :meth:`params_from_features`).
+        """
         self._check_fitted()
         r, a = lidar_features(poses, self.bearings_, map_segments, self.max_range)
-        return self.params_from_features(r, a)
+        return self.params_from_features(r, a, extra)
 
     def sample_from_params(
         self,
@@ -568,7 +597,12 @@ class LidarLWLR(BaseEstimator):
         return np.where(u < p_null, 0.0, x)
 
     def sample(
-        self, poses: ArrayLike, map_segments: ArrayLike, rng: np.random.Generator, n_repeats: int | None = None
+        self,
+        poses: ArrayLike,
+        map_segments: ArrayLike,
+        rng: np.random.Generator,
+        n_repeats: int | None = None,
+        extra: ArrayLike | None = None,
     ) -> NDArray[np.float64]:
         """Sample a log at ``(S, 3)`` approximate poses: ``(S, K)`` or ``(S, K, n_repeats)`` [m], ``0`` = null.
 
@@ -579,26 +613,29 @@ class LidarLWLR(BaseEstimator):
         :func:`null_count_log_prob`, while each reading's marginal null probability stays ``p_null``.
         """
         self._check_fitted()
-        p = self.params_full(poses, map_segments)
+        p = self.params_full(poses, map_segments, extra)
         if n_repeats is None:
             return self.sample_from_params(p, rng, pose_uncertainty=True)
         p = {k: v[..., None] for k, v in p.items()}
         return self.sample_from_params(p, rng, p["mu"].shape[:2] + (int(n_repeats),), pose_uncertainty=True)
 
-    def log_prob(self, ranges: ArrayLike, poses: ArrayLike, map_segments: ArrayLike) -> NDArray[np.float64]:
+    def log_prob(
+        self, ranges: ArrayLike, poses: ArrayLike, map_segments: ArrayLike, extra: ArrayLike | None = None
+    ) -> NDArray[np.float64]:
         """Log-probability of readings: ``log p_null`` for a null, else a log density [1/m].
 
         Args:
             ranges: ``(S, K)`` or ``(S, K, R)`` readings [m], ``0`` = null, ``NaN`` = missing.
             poses: ``(S, 3)`` approximate sensor poses ``x, y, theta`` [m, rad].
             map_segments: ``(M, 2, 2)`` nominal map [m].
+            extra: values of the extra state variables (see :meth:`params_from_features`).
 
         Returns:
             Same shape as ``ranges``; ``NaN`` where missing.
         """
         self._check_fitted()
         x = np.asarray(ranges, dtype=np.float64)
-        p = self.params_full(poses, map_segments)
+        p = self.params_full(poses, map_segments, extra)
         if x.ndim == 3:
             p = {k: v[..., None] for k, v in p.items()}
         return mixture_log_prob(x, p, self.spur_mu_, self.spur_sigma_)
@@ -636,6 +673,9 @@ class LidarLWLR(BaseEstimator):
                 "bearings": self.bearings_,
                 "range_grid": self.range_grid_,
                 "alpha_grid": self.alpha_grid_,
+                "extra_mean": np.asarray(self.extra_mean_, dtype=np.float64),
+                "extra_scale": np.asarray(self.extra_scale_, dtype=np.float64),
+                "extra_coef": np.asarray(self.extra_coef_, dtype=np.float64),
             },
         )
 
@@ -652,9 +692,17 @@ class LidarLWLR(BaseEstimator):
             "range_grid": ("f", 1, True),
             "alpha_grid": ("f", 1, True),
         }
-        header, arr = load_model_file(path, MODEL_KIND, (1, FORMAT_VERSION), schema)
+        version = _peek_version(path)
+        if version >= 3:
+            schema.update({"extra_mean": ("f", 1, True), "extra_scale": ("f", 1, True), "extra_coef": ("f", 2, True)})
+        header, arr = load_model_file(path, MODEL_KIND, (1, 2, FORMAT_VERSION), schema)
         try:
-            model = cls(**params_from_header(path, header, cls._hyperparameter_constraints))
+            params = params_from_header(path, header, cls._hyperparameter_constraints, defaults={"extra_state": ()})
+            try:
+                params["extra_state"] = check_extra_state(params["extra_state"])
+            except ValueError as exc:
+                raise ModelFileError(f"{path}: field 'params.extra_state' is invalid: {exc}") from None
+            model = cls(**params)
             model.h_, model.param_names_ = dict(header["h"]), list(header["param_names"])
             model.spur_mu_, model.spur_sigma_ = float(header["spur_mu"]), float(header["spur_sigma"])
             model.p_out_ = float(header["p_out"])
@@ -670,12 +718,46 @@ class LidarLWLR(BaseEstimator):
         want = (len(model.param_names_), arr["bearings"].size, arr["range_grid"].size, arr["alpha_grid"].size)
         if t.shape != want:
             raise ModelFileError(f"{path}: field 'tables' has shape {t.shape}, expected {want}")
+        _check_extra_values(path, model, arr)
         _check_values(path, model, arr)
         model.tables_, model.bearings_ = t.astype(np.float64), arr["bearings"]
         model.range_grid_, model.alpha_grid_ = arr["range_grid"], arr["alpha_grid"]
         model.training_, model.cv_scores_ = card.pop("training", {}), card.pop("cv_scores", {})
         model.card_extra_ = card
         return model
+
+
+def _peek_version(path: str | os.PathLike[str]) -> int:
+    """The file's ``format_version`` (0 when unreadable: :func:`load_model_file` then names the fault)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            v = json.loads(z["__header__"].tobytes().decode("utf-8")).get("format_version", 0)
+        return int(v) if isinstance(v, int) else 0
+    except Exception:
+        return 0
+
+
+def _check_extra_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dict[str, NDArray[Any]]) -> None:
+    """Extra-state arrays: shapes matching ``extra_state``, finite, positive scales, bounded coefficients.
+
+    Sets ``extra_state_``, ``extra_mean_``, ``extra_scale_``, ``extra_coef_`` (none for format < 3).
+    """
+    d = len(model.extra_state)
+    if "extra_coef" not in arr:
+        if d:
+            raise ModelFileError(f"{path}: field 'extra_coef' is missing for extra_state {list(model.extra_state)}")
+        model.extra_state_, model.extra_mean_, model.extra_scale_ = (), np.zeros(0), np.ones(0)
+        model.extra_coef_ = np.zeros((3, 1))
+        return
+    check_shape(path, "extra_mean", arr["extra_mean"], (d,))
+    check_shape(path, "extra_scale", arr["extra_scale"], (d,))
+    check_shape(path, "extra_coef", arr["extra_coef"], (3, d + 1))
+    check_finite(path, "extra_mean", arr["extra_mean"])
+    check_positive(path, "extra_scale", arr["extra_scale"])
+    check_range(path, "extra_coef", arr["extra_coef"], -MAX_COEF, MAX_COEF)
+    model.extra_state_ = tuple(model.extra_state)
+    model.extra_mean_, model.extra_scale_ = arr["extra_mean"].astype(np.float64), arr["extra_scale"].astype(np.float64)
+    model.extra_coef_ = arr["extra_coef"].astype(np.float64)
 
 
 _NOT_FITTED = "This %(name)s is not fitted yet; call fit(log) or LidarLWLR.load(path) first"
@@ -789,10 +871,18 @@ class LearnedLidar:
     model: LidarLWLR
 
     def measure(
-        self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64], rng: np.random.Generator
+        self,
+        nominal_range: NDArray[np.float64],
+        incidence: NDArray[np.float64],
+        rng: np.random.Generator,
+        extra: ArrayLike | None = None,
     ) -> NDArray[np.float64]:
-        """Sample one scan: ``(K,)`` ranges [m] from ``(K,)`` nominal ranges/incidences; ``NaN`` = null."""
-        p = self.model.params_from_features(nominal_range, incidence)
+        """Sample one scan: ``(K,)`` ranges [m] from ``(K,)`` nominal ranges/incidences; ``NaN`` = null.
+
+        ``extra``: values of the model's extra state variables (``(..., K, d)``, see
+        :meth:`LidarLWLR.params_from_features`), needed when the model has extra state.
+        """
+        p = self.model.params_from_features(nominal_range, incidence, extra)
         x = self.model.sample_from_params(p, rng)
         return np.where(x == 0, np.nan, x)
 

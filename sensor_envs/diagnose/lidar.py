@@ -1,0 +1,159 @@
+"""The lidar side of ``sensor-envs diagnose``: :class:`LidarAdapter` for the learned lidar on scan logs.
+
+Readings are the (scan, bearing) readings of a scan log ``(S, K, 1)`` on rays that hit the map.
+Blocks are ``block_scans`` consecutive scans (:func:`lidar_blocks`); the held-out part is whole blocks.
+
+Residuals of a fitted model on the held-out part:
+
+* ``null``: ``1{null} - p_null``;
+* ``range``: ``x - mu`` [m] of non-null in-range readings (NaN otherwise; spurious far returns
+  ``> spur_above`` excluded), clipped to +-1 m;
+* ``pit``: the reading's PIT under the model minus 0.5 (non-null readings).
+
+Candidates: every per-scan covariate of the log by its name (``cov_omega`` as ``omega``), ``time``
+(time since the first scan), ``scan`` (index), ``bearing`` (index), ``range`` and ``incidence``
+(nominal, from the map) and ``prev_residual`` (the same bearing's residual from the tables' mean at the
+previous scan, :mod:`sensor_envs.lidar.extra_state`). The model can take covariates, ``time`` and
+``prev_residual`` into its state; ``range``, ``incidence`` and ``bearing`` are its own state (tested as
+``state_misfit``); ``scan`` cannot be added.
+
+The base tables do not depend on the extra state (the extra terms are fitted after them), so they are
+fitted once and each refit only adds the linear terms (:func:`~sensor_envs.lidar.extra_state.fit_extra_terms`).
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sensor_envs.diagnose.core import Evaluation
+from sensor_envs.lidar.extra_state import PREV, TIME, fit_extra_terms, scan_features
+from sensor_envs.lidar.log import LidarLog
+from sensor_envs.lidar.lwlr import LidarLWLR, lidar_features, mixture_log_prob
+from sensor_envs.lidar.validate_readings import _pit
+
+__all__ = ["LidarAdapter", "lidar_blocks", "DIAGNOSE_LIDAR_PARAMS"]
+
+DIAGNOSE_LIDAR_PARAMS: dict[str, Any] = {"variant": "extended", "n_folds": 5, "random_state": 0, "progress": False}
+"""Hyperparameters of the diagnosis fits unless ``--model`` gives others."""
+_RENAME = {TIME: "time"}
+_RANGE_CLIP = 1.0
+
+
+def lidar_blocks(n_scans: int, block_scans: int = 5) -> NDArray[np.int64]:
+    """Block id ``(S,)`` of each scan: ``block_scans`` consecutive scans form a block."""
+    return (np.arange(n_scans) // max(int(block_scans), 1)).astype(np.int64)
+
+
+class LidarAdapter:
+    """Diagnosis adapter of the learned lidar (implements :class:`sensor_envs.diagnose.core.DiagnoseAdapter`).
+
+    Args:
+        log: the whole scan log (with a map).
+        held_out: ``(S,)`` scans of the held-out part (whole blocks).
+        blocks: ``(S,)`` block id of each scan.
+        params: hyperparameters of :class:`~sensor_envs.lidar.lwlr.LidarLWLR` (extra state excluded).
+        base_model: a fitted model whose tables are used instead of fitting them (``--model``).
+        max_readings: rows used by the per-reading fit of the tables.
+    """
+
+    kind = "lidar"
+
+    def __init__(
+        self,
+        log: LidarLog,
+        held_out: NDArray[np.bool_],
+        blocks: NDArray[np.int64],
+        params: dict[str, Any] | None = None,
+        base_model: LidarLWLR | None = None,
+        max_readings: int | None = 300,
+    ) -> None:
+        if log.ranges.shape[2] != 1:
+            raise ValueError(f"{log.source}: field 'ranges': diagnose lidar needs a scan log (one reading per scan)")
+        self.log = log
+        self.held = np.asarray(held_out, dtype=bool)
+        self.fit_log = log.subset(~self.held)
+        self.params = {k: v for k, v in {**DIAGNOSE_LIDAR_PARAMS, **(params or {})}.items() if k != "extra_state"}
+        self.max_readings = max_readings
+        self._base = base_model
+        segs = log.require_map()
+        max_range = float(base_model.max_range if base_model is not None else self.params.get("max_range", 5.0))
+        self.r, self.a = lidar_features(log.poses, log.bearings, segs, max_range)
+        x = log.ranges[:, :, 0]
+        self.x = x
+        sel = self.held[:, None] & np.isfinite(self.r) & ~np.isnan(x)  # (S, K) held-out readings on hit rays
+        self.sel = sel
+        self.scan_idx, self.bearing_idx = np.nonzero(sel)
+        self.blocks = np.asarray(blocks)[self.scan_idx].astype(np.int64)
+        if self.scan_idx.size == 0:
+            raise ValueError(f"{log.source}: no held-out reading lies on a ray that hits the map")
+        self._candidates = self._static_candidates()
+
+    # -- candidates -------------------------------------------------------------------------------
+    def _static_candidates(self) -> dict[str, NDArray[np.float64]]:
+        s, k = self.scan_idx, self.bearing_idx
+        out = {name: np.asarray(v, dtype=np.float64)[s] for name, v in sorted(self.log.covariates.items())}
+        if self.log.t is not None:
+            out["time"] = (self.log.t - self.log.t[0])[s]
+        out["scan"] = s.astype(np.float64)
+        out["bearing"] = k.astype(np.float64)
+        out["range"] = self.r[s, k]
+        out["incidence"] = np.nan_to_num(self.a[s, k])
+        return out
+
+    def state_name(self, candidate: str) -> str | None:
+        """State variable that adds ``candidate``: a covariate's name, ``t`` for ``time``, ``prev_residual``."""
+        if candidate == "time":
+            return TIME if self.log.t is not None else None
+        if candidate == PREV or candidate in self.log.covariates:
+            return candidate
+        return None
+
+    def state_features(self) -> tuple[str, ...]:
+        """The model's own state: nominal range, incidence and bearing (per-bearing tables)."""
+        return ("range", "incidence", "bearing")
+
+    # -- fit / evaluate ----------------------------------------------------------------------------
+    def base(self) -> LidarLWLR:
+        """The tables: fitted once on the fit part (or the given model's)."""
+        if self._base is None:
+            self._base = LidarLWLR(**self.params).fit(self.fit_log, max_readings=self.max_readings)
+        return self._base
+
+    def fit(self, extra_state: tuple[str, ...]) -> LidarLWLR:
+        """The base tables with linear terms of ``extra_state`` fitted on the fit part."""
+        model = copy.copy(self.base())
+        model.extra_state = tuple(extra_state)
+        fit_extra_terms(model, self.fit_log)
+        return model
+
+    def evaluate(self, model: LidarLWLR) -> Evaluation:
+        """Residuals, candidates and NLL of ``model`` on the held-out readings (hit rays only)."""
+        base = model.params_from_features(self.r, self.a, base_only=True)
+        mu_table = np.where(np.isfinite(self.r), base["mu"], np.nan)
+        names = tuple(model.extra_state_)
+        feats = scan_features(self.log, tuple(dict.fromkeys((*names, PREV))), mu_table)
+        extra = feats[..., : len(names)] if names else None
+        p = model.params_from_features(self.r, self.a, extra) if names else base
+        s, k = self.scan_idx, self.bearing_idx
+        ps = {n: v[s, k] for n, v in p.items()}
+        x = self.x[s, k]
+        lp = mixture_log_prob(x, ps, model.spur_mu_, model.spur_sigma_)
+        null = x == 0
+        inr = (x > 0) & (x <= model.spur_above)
+        pit = np.where(x > 0, _pit(np.where(x > 0, x, 1.0), ps, (model.spur_mu_, model.spur_sigma_)) - 0.5, np.nan)
+        resid = {
+            "null": null - ps["p_null"],
+            "range": np.where(inr, np.clip(x - ps["mu"], -_RANGE_CLIP, _RANGE_CLIP), np.nan),
+            "pit": pit,
+        }
+        cand = dict(self._candidates)
+        cand[PREV] = feats[s, k, -1 if PREV not in names else names.index(PREV)]
+        return Evaluation(nll=-lp, residuals=resid, candidates=cand, blocks=self.blocks)
+
+    def baseline(self, extra_state: tuple[str, ...]) -> float | None:
+        """No baseline with extra state for the lidar (``None``)."""
+        return None

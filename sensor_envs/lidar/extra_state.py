@@ -1,0 +1,231 @@
+"""Extra state of the learned lidar (scan logs): variables beyond ``(range, incidence)`` as linear terms.
+
+A :class:`~sensor_envs.lidar.lwlr.LidarLWLR` with ``extra_state`` (names) keeps its per-bearing tables
+over ``(r, alpha)`` and adds, for every reading on a ray that hits the map, linear terms in the
+standardised extra variables ``z`` (``(z - mean) / scale`` of the training readings):
+
+* ``logit p_null += c_null . [1, z]`` (Bernoulli likelihood, Newton, on all hit readings);
+* ``mu += c_bias . [1, z]`` [m] (bisquare-weighted least squares of ``x - mu`` over the in-range
+  non-null readings, cut-off 6 mean absolute residuals, 3 passes);
+* ``log sigma += c_sigma . [1, z]`` (Gaussian likelihood of the same residuals, Newton): an effect
+  that explains part of the spread (e.g. the previous residual) also narrows it.
+
+State variables (names):
+
+* ``t``: time since the log's first scan [s] (at run time: time since reset);
+* ``prev_residual``: the same bearing's residual ``x - mu_table`` [m] at the previous scan (clipped to
+  +-:data:`PREV_CLIP`; 0 after a null, a missing reading, a ray without hit, the first scan or a time
+  gap of more than 1.5 median scan periods), ``mu_table`` being the tables' mean (without extra terms);
+* any other name: the log's per-scan covariate ``cov_<name>`` (e.g. ``v``, ``omega``).
+
+The terms are fitted after the tables (on the same readings), so the tables stay what they were.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sensor_envs.geometry import as_segments, raycast_pose
+from sensor_envs.lidar.kernel import P_EPS
+from sensor_envs.lidar.log import LidarLog
+
+if TYPE_CHECKING:
+    from sensor_envs.lidar.lwlr import LidarLWLR
+
+__all__ = ["PREV", "TIME", "PREV_CLIP", "check_extra_state", "scan_features", "fit_extra_terms", "apply_extra"]
+
+PREV = "prev_residual"
+TIME = "t"
+PREV_CLIP = 1.0
+"""Previous residuals are clipped to +- this [m] (a spurious return would otherwise dominate)."""
+MAX_COEF = 50.0
+"""Largest magnitude of a fitted coefficient (logit, m, log m per standard deviation) in a model file."""
+_RIDGE = 1.0
+
+
+def check_extra_state(names: Any) -> tuple[str, ...]:
+    """``names`` as a tuple of distinct non-empty strings, else a ``ValueError`` naming ``extra_state``."""
+    if not isinstance(names, (tuple, list)) or not all(isinstance(n, str) and n for n in names):
+        raise ValueError(f"extra_state: expected a tuple of variable names, got {names!r}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"extra_state: duplicate names in {names!r}")
+    return tuple(names)
+
+
+def base_residual(x: NDArray[np.float64], mu: NDArray[np.float64], hit: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """Residual ``x - mu`` [m] clipped to +-:data:`PREV_CLIP`; 0 for nulls, missing readings, rays without hit."""
+    ok = hit & np.isfinite(x) & (x > 0)
+    return np.where(ok, np.clip(np.where(ok, x, 0.0) - np.where(ok, mu, 0.0), -PREV_CLIP, PREV_CLIP), 0.0)
+
+
+def consecutive(t: NDArray[np.float64] | None, n: int) -> NDArray[np.bool_]:
+    """``(n,)``: whether scan ``s`` directly follows scan ``s - 1`` (no time gap > 1.5 median periods)."""
+    ok = np.ones(n, dtype=bool)
+    ok[:1] = False
+    if t is not None and n > 2:
+        dt = np.diff(t)
+        med = float(np.median(dt))
+        ok[1:] = (dt > 0) & (dt <= 1.5 * med) if med > 0 else dt >= 0
+    return ok
+
+
+def scan_features(log: LidarLog, names: tuple[str, ...], mu_table: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    """Raw extra variables ``(S, K, d)`` of the log's readings (see the module docstring).
+
+    Args:
+        log: a scan log ``(S, K, 1)``.
+        names: the state variable names.
+        mu_table: ``(S, K)`` tables' mean [m] (``NaN``/``inf`` off the map); needed for ``prev_residual``.
+
+    Raises:
+        ValueError: naming the variable the log lacks.
+    """
+    s, k = log.n_poses, log.n_bearings
+    out = np.zeros((s, k, len(names)))
+    for i, n in enumerate(names):
+        if n == TIME:
+            if log.t is None:
+                raise ValueError(f"{log.source}: field 't' is missing, but the lidar's extra state names 't'")
+            out[:, :, i] = (log.t - log.t[0])[:, None]
+        elif n == PREV:
+            if mu_table is None:
+                raise ValueError("prev_residual needs the tables' mean")
+            x = log.ranges[:, :, 0]
+            e = base_residual(x, mu_table, np.isfinite(mu_table))
+            prev = np.zeros_like(e)
+            prev[1:] = e[:-1]
+            out[:, :, i] = np.where(consecutive(log.t, s)[:, None], prev, 0.0)
+        else:
+            if n not in log.covariates:
+                raise ValueError(
+                    f"{log.source}: field 'cov_{n}' is missing, but the lidar's extra state names {n!r} "
+                    f"(covariates: {sorted(log.covariates)})"
+                )
+            out[:, :, i] = np.asarray(log.covariates[n], dtype=np.float64)[:, None]
+    if not np.isfinite(out).all():
+        bad = names[int(np.argmin(np.isfinite(out).all(axis=(0, 1))))]
+        raise ValueError(f"{log.source}: extra state variable {bad!r} holds NaN or infinite values")
+    return out
+
+
+def _design(z: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.concatenate([np.ones(z.shape[:-1] + (1,)), z], axis=-1)
+
+
+def _newton_logit(xd: NDArray[np.float64], y: NDArray[np.float64], offset: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Ridge-penalised logistic regression coefficients of ``y`` on ``xd`` with a fixed logit ``offset``."""
+    beta = np.zeros(xd.shape[1])
+    for _ in range(25):
+        p = 1.0 / (1.0 + np.exp(-np.clip(offset + xd @ beta, -30, 30)))
+        g = xd.T @ (p - y) + _RIDGE * beta
+        h = (xd * (p * (1 - p))[:, None]).T @ xd + _RIDGE * np.eye(xd.shape[1])
+        step = np.linalg.solve(h, g)
+        beta -= step
+        if np.max(np.abs(step)) < 1e-8:
+            break
+    return beta
+
+
+def _fit_bias_sigma(
+    xd: NDArray[np.float64], e: NDArray[np.float64], log_sigma: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Bias coefficients (bisquare IRLS) and log-sigma coefficients (Gaussian likelihood) of residuals ``e``."""
+    w = np.ones(e.size)
+    cb = np.zeros(xd.shape[1])
+    eye = np.eye(xd.shape[1])
+    for _ in range(4):
+        a = (xd * w[:, None]).T @ xd + 1e-9 * _RIDGE * eye * max(w.sum(), 1.0)
+        cb = np.linalg.solve(a, (xd * w[:, None]).T @ e)
+        res = np.abs(e - xd @ cb)
+        cut = 6.0 * max(float(np.average(res, weights=np.maximum(w, 1e-12))), 1e-4)
+        u = res / cut
+        w = np.where(u < 1, (1 - u * u) ** 2, 0.0)
+    m = w > 0
+    r2 = (e - xd @ cb)[m] ** 2
+    xs, ls = xd[m], log_sigma[m]
+    cs = np.zeros(xd.shape[1])
+    for _ in range(30):
+        q = r2 * np.exp(-2 * np.clip(ls + xs @ cs, -20, 20))
+        g = xs.T @ (1 - q) + _RIDGE * cs
+        h = 2 * (xs * q[:, None]).T @ xs + _RIDGE * eye
+        step = np.linalg.solve(h, g)
+        step *= min(1.0, 1.0 / max(np.max(np.abs(step)), 1e-12))  # damped: at most 1 (log m) per step
+        cs -= step
+        if np.max(np.abs(step)) < 1e-8:
+            break
+    return cb, cs
+
+
+def fit_extra_terms(model: LidarLWLR, log: LidarLog) -> None:
+    """Fit the linear extra-state terms of a fitted ``model`` (tables set) on a scan log; sets the attributes.
+
+    Sets ``extra_state_`` (names), ``extra_mean_``/``extra_scale_`` ``(d,)`` (standardisation) and
+    ``extra_coef_`` ``(3, d + 1)`` (rows: logit p_null, bias [m], log sigma; columns: intercept, variables).
+    """
+    names = check_extra_state(model.extra_state)
+    model.extra_state_ = names
+    d = len(names)
+    model.extra_mean_, model.extra_scale_ = np.zeros(d), np.ones(d)
+    model.extra_coef_ = np.zeros((3, d + 1))
+    if not names:
+        return
+    if log.ranges.shape[2] != 1:
+        raise ValueError(f"{log.source}: extra_state needs a scan log (one reading per scan and bearing)")
+    r, a, _ = raycast_pose(log.poses, model.bearings_, as_segments(log.require_map(), name="map"), model.max_range)
+    p = model.params_from_features(r, a, extra=None, base_only=True)
+    hit = np.isfinite(r)
+    raw = scan_features(log, names, np.where(hit, p["mu"], np.nan))
+    x = log.ranges[:, :, 0]
+    valid = hit & ~np.isnan(x)
+    mean = raw[valid].mean(0) if valid.any() else np.zeros(d)
+    scale = raw[valid].std(0) if valid.any() else np.ones(d)
+    scale = np.where(scale > 1e-12, scale, 1.0)
+    xd = _design((raw - mean) / scale)
+    q = np.clip(p["p_null"][valid], P_EPS, 1 - P_EPS)
+    c_null = _newton_logit(xd[valid], (x[valid] == 0).astype(float), np.log(q / (1 - q)))
+    ok = valid & (x > 0) & (x <= (model.spur_above if model.variant == "extended" else np.inf))
+    ok &= np.abs(np.where(ok, x, 0.0) - np.where(ok, p["mu"], 0.0)) < PREV_CLIP
+    if ok.sum() > 2 * (d + 1):
+        c_bias, c_sig = _fit_bias_sigma(xd[ok], x[ok] - p["mu"][ok], np.log(p["sigma"][ok]))
+    else:
+        c_bias, c_sig = np.zeros(d + 1), np.zeros(d + 1)
+    model.extra_mean_, model.extra_scale_ = mean, scale
+    model.extra_coef_ = np.clip(np.stack([c_null, c_bias, c_sig]), -MAX_COEF, MAX_COEF)
+
+
+def apply_extra(
+    model: LidarLWLR, out: dict[str, NDArray[np.float64]], hit: NDArray[np.bool_], extra: Any
+) -> dict[str, NDArray[np.float64]]:
+    """Table values ``out`` (``p_null``, ``bias``, ``sigma`` or ``log_sigma``) with the extra terms added at hits.
+
+    Args:
+        model: the fitted model.
+        out: table values, each ``(..., K)``.
+        hit: ``(..., K)`` rays that hit the map.
+        extra: raw extra variables broadcastable to ``(..., K, d)`` (e.g. ``(d,)`` for one scan's
+            per-scan variables, ``(S, 1, d)`` or ``(S, K, d)``).
+
+    Raises:
+        ValueError: when ``extra`` is missing or has the wrong last axis.
+    """
+    names = model.extra_state_
+    if extra is None:
+        raise ValueError(f"extra: this lidar model's state includes {list(names)}; pass their values")
+    ex = np.asarray(extra, dtype=np.float64)
+    if ex.ndim == 0 or ex.shape[-1] != len(names):
+        raise ValueError(f"extra: expected a last axis of {len(names)} values ({list(names)}), got shape {ex.shape}")
+    xd = _design((np.broadcast_to(ex, hit.shape + (len(names),)) - model.extra_mean_) / model.extra_scale_)
+    lin = xd @ model.extra_coef_.T  # (..., K, 3)
+    q = np.clip(out["p_null"], 1e-12, 1 - 1e-12)
+    res = dict(out)
+    res["p_null"] = np.where(hit, 1.0 / (1.0 + np.exp(-np.clip(np.log(q / (1 - q)) + lin[..., 0], -30, 30))), q)
+    res["bias"] = np.where(hit, out["bias"] + lin[..., 1], out["bias"])
+    ds = np.where(hit, lin[..., 2], 0.0)
+    if "log_sigma" in out:
+        res["log_sigma"] = out["log_sigma"] + ds
+    else:
+        res["sigma"] = out["sigma"] * np.exp(ds)
+    return res

@@ -1,0 +1,160 @@
+"""`diagnose lidar` on scan logs with effects the TEST hides (the tool is not told), and on a log with none.
+
+Synthetic scan logs in a 4 m x 3 m box: a robot wandering inside it, K bearings, readings = nominal
+range + Gaussian noise (sigma = 1 cm + 0.5 % of range), 5 % nulls. Every log carries the covariates
+``v``, ``omega`` (the motion), ``noise_a`` (pure noise) and ``weak`` (correlates weakly, r ~ 0.3, with
+``omega``) and a time ``t``. Hidden effects: the null rate grows with time; a range bias of
+``BIAS_PER_OMEGA * omega`` (motion blur of a rotating scan); AR(1) range errors along the scans
+(temporal correlation, found through the previous residual).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from sensor_envs.diagnose.core import block_split, run_diagnose
+from sensor_envs.diagnose.lidar import LidarAdapter, lidar_blocks
+from sensor_envs.lidar.log import LidarLog, log_from_arrays, save_log
+from sensor_envs.lidar.lwlr import LidarLWLR, lidar_features
+from sensor_envs.modelio import ModelFileError
+
+BOX = np.array([[[0, 0], [4, 0]], [[4, 0], [4, 3]], [[4, 3], [0, 3]], [[0, 3], [0, 0]]], dtype=float)
+BIAS_PER_OMEGA = 0.03
+"""Hidden range bias [m] per rad/s of turn rate."""
+MARGIN = 0.01
+"""error_after must be below error_before by at least this [nats per reading]."""
+FAST = {"variant": "seed", "n_folds": 3, "h_range_grid": (0.25, 1.6), "h_alpha_grid": (0.5, 4.0), "progress": False}
+
+
+def _ar1(rng: np.random.Generator, n: int, rho: float, sd: float) -> np.ndarray:
+    """A stationary AR(1) series with lag-1 correlation ``rho`` and standard deviation ``sd``."""
+    e = rng.normal(0, sd * np.sqrt(1 - rho**2), n)
+    out = np.empty(n)
+    out[0] = rng.normal(0, sd)
+    for i in range(1, n):
+        out[i] = rho * out[i - 1] + e[i]
+    return out
+
+
+def make_log(kind: str, scans: int = 400, bearings: int = 48, seed: int = 0) -> LidarLog:
+    """A synthetic scan log with the hidden effect ``kind`` (``none``, ``time``, ``omega``, ``corr``)."""
+    rng = np.random.default_rng(seed)
+    i = np.arange(scans)
+    t = 0.2 * i
+    omega, v = _ar1(rng, scans, 0.95, 0.5), 0.25 + _ar1(rng, scans, 0.9, 0.08)  # stationary motion [rad/s, m/s]
+    poses = np.stack([2 + 0.8 * np.sin(0.03 * i), 1.5 + 0.6 * np.cos(0.021 * i), np.cumsum(0.2 * omega)], axis=1)
+    b = np.linspace(0, 2 * np.pi, bearings, endpoint=False)
+    r, _ = lidar_features(poses, b, BOX, 5.0)
+    noise = rng.normal(size=r.shape)
+    if kind == "corr":  # AR(1) along the scans, same marginal variance
+        for s in range(1, scans):
+            noise[s] = 0.8 * noise[s - 1] + 0.6 * noise[s]
+    x = r + (0.01 + 0.005 * r) * noise
+    p_null = np.full(r.shape, 0.05)
+    if kind == "omega":
+        x = x + BIAS_PER_OMEGA * omega[:, None]
+    if kind == "time":
+        p_null = 0.02 + 0.25 * (t / t[-1])[:, None] * np.ones_like(r)
+    x = np.where(rng.random(r.shape) < p_null, 0.0, x)
+    cov = {"v": v, "omega": omega, "noise_a": rng.normal(size=scans), "weak": 0.3 * omega / omega.std()}
+    cov["weak"] = cov["weak"] + rng.normal(size=scans)
+    return log_from_arrays(x[..., None], b, poses, BOX, t=t, covariates=cov, source=f"synthetic {kind}")
+
+
+def diagnose(log: LidarLog):
+    blocks = lidar_blocks(log.n_poses, 5)
+    adapter = LidarAdapter(log, block_split(blocks), blocks, params=FAST, max_readings=150)
+    return run_diagnose(adapter, n_permutations=199)
+
+
+@pytest.mark.parametrize(("kind", "cause"), [("time", "time"), ("omega", "omega"), ("corr", "prev_residual")])
+def test_hidden_effect_ranks_first_and_is_added(kind, cause):
+    res = diagnose(make_log(kind))
+    assert res.effects[0]["name"] == cause, res.effects[:3]
+    assert res.effects[0]["significant"]
+    assert res.added[0] == cause
+    assert res.error_after < res.error_before - MARGIN, (res.error_before, res.error_after)
+    for e in res.effects:  # the distractors are never picked
+        if e["name"] in ("noise_a", "v"):
+            assert not e["significant"], e
+
+
+def test_no_hidden_effect_reports_none():
+    res = diagnose(make_log("none", seed=1))
+    assert res.added == []
+    assert not [e for e in res.effects if e["significant"]], res.effects[:3]
+    assert res.error_after == res.error_before
+
+
+def test_extra_state_model_round_trips_and_checks_values(tmp_path):
+    log = make_log("omega", scans=200, bearings=36)
+    m = LidarLWLR(**FAST, extra_state=("omega", "t", "prev_residual")).fit(log, max_readings=100)
+    assert m.extra_state_ == ("omega", "t", "prev_residual")
+    assert m.extra_coef_[1, 1] > 0.5 * BIAS_PER_OMEGA * log.covariates["omega"].std()  # bias grows with omega
+    path = m.save(tmp_path / "m.npz")
+    back = LidarLWLR.load(path)
+    extra = np.zeros((2, 1, 3))
+    extra[:, 0, 0] = [-1.0, 1.0]
+    np.testing.assert_allclose(
+        back.log_prob(log.ranges[:2, :, 0], log.poses[:2], BOX, extra=extra),
+        m.log_prob(log.ranges[:2, :, 0], log.poses[:2], BOX, extra=extra),
+    )
+    mu = back.params_full(log.poses[[0, 0]], BOX, extra=extra)["mu"]
+    assert np.all(mu[1] > mu[0])  # same pose, larger omega: larger mean range
+    with pytest.raises(ValueError, match="extra_state includes|state includes"):
+        back.params_full(log.poses[:2], BOX)
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["extra_scale"] = -arrays["extra_scale"]
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(ModelFileError, match="field 'extra_scale'"):
+        LidarLWLR.load(tmp_path / "bad.npz")
+    arrays["extra_scale"] = -arrays["extra_scale"]
+    arrays["extra_coef"] = arrays["extra_coef"][:, :2]
+    np.savez(tmp_path / "bad2.npz", **arrays)
+    with pytest.raises(ModelFileError, match="field 'extra_coef'"):
+        LidarLWLR.load(tmp_path / "bad2.npz")
+    with pytest.raises(ValueError, match="cov_speed"):
+        LidarLWLR(**FAST, extra_state=("speed",)).fit(log, max_readings=100)
+
+
+def test_cli_diagnose_lidar(tmp_path):
+    log_path = save_log(make_log("omega", scans=300, bearings=36), tmp_path / "log.npz")
+    out = tmp_path / "diag"
+    cmd = [sys.executable, "-m", "sensor_envs.cli.main", "diagnose", "lidar", str(log_path), "--out", str(out)]
+    cmd += ["--permutations", "199", "--max-readings", "100", "--quiet"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    assert proc.returncode == 0, proc.stderr
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["effects"][0]["name"] == "omega" and rep["added"][0] == "omega"
+    assert rep["error_after"] < rep["error_before"]
+    assert (out / "report.md").exists()
+    again = subprocess.run(cmd, capture_output=True, text=True, check=False)  # existing output: refused
+    assert again.returncode == 2 and again.stderr.count("\n") == 1, again.stderr
+
+
+def test_neato_supplies_the_learned_lidars_extra_state():
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
+
+    import sensor_envs  # noqa: F401  (registers the envs)
+
+    log = make_log("omega", scans=200, bearings=36)
+    m = LidarLWLR(**FAST, extra_state=("omega", "v", "t", "prev_residual")).fit(log, max_readings=100)
+    env = gym.make("sensor_envs/Neato-v0", lidar="learned", model=m, n_bearings=36, map="seed_room")
+    check_env(env.unwrapped, skip_render_check=True)
+    obs_a, _ = env.reset(seed=3)
+    obs_b, _ = env.reset(seed=3)
+    np.testing.assert_array_equal(obs_a, obs_b)  # same seed, same observations
+    for _ in range(3):
+        obs, *_ = env.step(np.array([0.5, 1.0], dtype=np.float32))
+    assert np.isfinite(obs).all()
+    assert env.unwrapped._motion[1] == pytest.approx(env.unwrapped.omega_max)
+    bad = LidarLWLR(**FAST, extra_state=("noise_a",)).fit(log, max_readings=100)
+    with pytest.raises(ValueError, match=r"state names \['noise_a'\], which Neato-v0 cannot supply"):
+        gym.make("sensor_envs/Neato-v0", lidar="learned", model=bad, n_bearings=36)
