@@ -334,7 +334,7 @@ def measure_rows(
     if isinstance(lidar, _BATCHED_LIDARS + ((lwlr.LearnedLidar,) if lwlr is not None else ())):
         rng = rngs[0] if len(rngs) == 1 else RowGenerators(rngs)
         if extra is not None:  # only a LearnedLidar has extra state
-            return np.asarray(lidar.measure(nominal, incidence, rng, extra=extra), dtype=np.float64)  # type: ignore[call-arg]
+            return np.asarray(lidar.measure(nominal, incidence, rng, extra=extra), dtype=np.float64)
         return np.asarray(lidar.measure(nominal, incidence, rng), dtype=np.float64)
     rows = zip(nominal, incidence, rngs, strict=True)
     return np.stack([np.asarray(lidar.measure(n, a, g), dtype=np.float64) for n, a, g in rows])
