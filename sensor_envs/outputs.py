@@ -33,6 +33,7 @@ __all__ = [
     "OutputTransaction",
     "atomic_write",
     "jsonable",
+    "output_folder",
     "write_json",
 ]
 
@@ -283,3 +284,16 @@ def write_json(path: PathLike, data: Any) -> Path:
     p = Path(path)
     p.write_text(json.dumps(jsonable(data), indent=2, allow_nan=False) + "\n", encoding="utf-8")
     return p
+
+
+@contextmanager
+def output_folder(out: PathLike, force: bool, inputs: Iterable[PathLike | None] = ()) -> Iterator[Path]:
+    """A temporary folder beside ``out``, renamed onto ``out`` only when the block succeeds.
+
+    The inputs must exist; ``out`` must not be (or hold) one of them; an existing ``out`` needs ``force``.
+    """
+    inputs = list(inputs)
+    check_inputs(*inputs)
+    target = check_output(out, inputs=inputs, force=force, folder=True)
+    with OutputTransaction() as tx:
+        yield tx.folder(target)

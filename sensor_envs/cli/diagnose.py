@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from sensor_envs.cli.args import OneLineParser, add_force, nonneg_int, positive_int
-from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
+from sensor_envs.outputs import check_inputs, check_output, output_folder
 
 
 def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
@@ -71,9 +71,8 @@ def write_folder_atomically(
     The shared safe-output rules (:mod:`sensor_envs.outputs`): ``out`` must not be (or hold) an input,
     an existing ``out`` needs ``force``.
     """
-    target = check_output(out, inputs=inputs, force=force, folder=True)
-    with OutputTransaction() as tx:
-        return write(tx.folder(target))
+    with output_folder(out, force, inputs) as tmp:
+        return write(tmp)
 
 
 def _check_args(args: argparse.Namespace) -> None:

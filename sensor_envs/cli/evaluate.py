@@ -14,30 +14,15 @@ unless ``--force``).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import shlex
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from sensor_envs.cli.args import nonneg_int, positive_float, positive_int
-from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
+from sensor_envs.outputs import output_folder
 
-__all__ = ["register", "output_folder"]
-
-
-@contextlib.contextmanager
-def output_folder(out: str | Path, force: bool, inputs: tuple[str | Path | None, ...] = ()) -> Iterator[Path]:
-    """A temporary folder beside ``out`` that replaces ``out`` only when the block succeeds.
-
-    The shared safe-output rules (:mod:`sensor_envs.outputs`): inputs must exist, ``out`` must not be
-    (or hold) one of them, an existing ``out`` needs ``force``.
-    """
-    check_inputs(*inputs)
-    target = check_output(out, inputs=inputs, force=force, folder=True)
-    with OutputTransaction() as tx:
-        yield tx.folder(target)
+__all__ = ["register"]
 
 
 def _command() -> str:
