@@ -19,26 +19,25 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def positive_int(text: str) -> int:
-    """An integer ``>= 1`` (argparse ``type=``); ``"1e3"`` and ``"2.5"`` are refused, not truncated."""
+def _integer_at_least(text: str, low: int, expected: str) -> int:
+    """``text`` as an integer ``>= low``; ``"1e3"`` and ``"2.5"`` are refused, not truncated."""
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+    if value < low:
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
     return value
+
+
+def positive_int(text: str) -> int:
+    """An integer ``>= 1`` (argparse ``type=``); ``"1e3"`` and ``"2.5"`` are refused, not truncated."""
+    return _integer_at_least(text, 1, "a positive integer")
 
 
 def nonneg_int(text: str) -> int:
     """An integer ``>= 0`` (argparse ``type=``), e.g. a seed."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
-    return value
+    return _integer_at_least(text, 0, "an integer >= 0")
 
 
 def positive_float(text: str) -> float:
