@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from sensor_envs.outputs import atomic_write, check_suffix
 
-__all__ = ["ModelFileError", "save_model_file", "load_model_file", "read_model"]
+__all__ = ["ModelFileError", "save_model_file", "load_model_file", "read_model", "save_rig_file", "load_rig_file"]
 
 
 class ModelFileError(ValueError):
@@ -438,3 +438,67 @@ def optional_positive(path: str | os.PathLike[str] | None, field: str, value: An
     ):
         raise ValueError(f"{field}: expected a finite number > 0 or None, got {value!r}")
     return float(value)
+
+
+# ----------------------------------------------------------------------------------- rig files
+RIG_FORMAT_VERSION = 1
+"""Format version of the rig parameter files written by :func:`save_rig_file`."""
+
+
+def save_rig_file(
+    path: str | os.PathLike[str], kind: str, params: Mapping[str, Any], card: Mapping[str, Any] | None = None
+) -> Path:
+    """Write a reference rig's parameters as JSON ``{"kind", "format_version", "params", "card"}``.
+
+    Rig files are small (a few dozen numbers: statistics of the data they were calibrated on, never
+    the data). ``card`` says what the parameters were calibrated against and how close the rig came.
+    Written to a temporary sibling and renamed.
+
+    Raises:
+        OutputError: when ``path`` does not end in ``.json``.
+    """
+    from sensor_envs.outputs import jsonable
+
+    path = check_suffix(path, ".json", option="rig file")
+    blob = {"kind": kind, "format_version": RIG_FORMAT_VERSION, "params": jsonable(dict(params))}
+    if card is not None:
+        blob["card"] = jsonable(dict(card))
+    text = json.dumps(blob, indent=2, sort_keys=True, allow_nan=False) + "\n"
+    atomic_write(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+    return path
+
+
+def load_rig_file(
+    path: str | os.PathLike[str], kind: str, constraints: dict[str, list[Constraint]]
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Read a rig file written by :func:`save_rig_file`; returns ``(params, card)``.
+
+    ``params`` are checked against ``constraints`` (unknown names are errors; missing names take the
+    rig's defaults); the rig's own ``__post_init__`` checks relations between values.
+
+    Raises:
+        ModelFileError: naming the file and the field at fault.
+    """
+    path = Path(path)
+    try:
+        blob = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ModelFileError(f"{path}: rig file not found") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ModelFileError(f"{path}: not a JSON rig file ({exc})") from None
+    if not isinstance(blob, dict):
+        raise ModelFileError(f"{path}: a rig file must hold a JSON object")
+    if blob.get("kind") != kind:
+        raise ModelFileError(f"{path}: field 'kind' is {blob.get('kind')!r}, expected {kind!r}")
+    if blob.get("format_version") != RIG_FORMAT_VERSION:
+        raise ModelFileError(
+            f"{path}: field 'format_version' is {blob.get('format_version')!r}; this version reads "
+            f"[{RIG_FORMAT_VERSION}]"
+        )
+    params, card = blob.get("params"), blob.get("card", {})
+    if not isinstance(params, dict):
+        raise ModelFileError(f"{path}: field 'params' must be a JSON object")
+    if not isinstance(card, dict):
+        raise ModelFileError(f"{path}: field 'card' must be a JSON object")
+    validate_params(params, constraints, source=path)
+    return params, card

@@ -1,4 +1,4 @@
-"""The ``sensor-envs`` command line: ``demo``, ``record``, ``fit``, ``validate``, ``diagnose``, ``evaluate``."""
+"""The ``sensor-envs`` command line: demo, record, fit, validate, calibrate, diagnose, evaluate."""
 
 from __future__ import annotations
 
@@ -38,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
         ("record", "record a log from a reference rig"),
         ("fit", "fit a sensor model to a log"),
         ("validate", "compare a model with a log and its baselines"),
+        ("calibrate", "fit a reference rig's parameters to real data (simulation-based)"),
     ):
         p = sub.add_parser(verb, help=text)
         verbs[verb] = p.add_subparsers(dest="kind", required=True)
