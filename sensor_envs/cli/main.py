@@ -1,4 +1,7 @@
-"""The ``sensor-envs`` command line: demo, record, fit, validate, calibrate, diagnose, evaluate."""
+"""The ``sensor-envs`` command line.
+
+Commands: ``demo``, ``record``, ``fit``, ``validate``, ``calibrate``, ``diagnose``, ``evaluate``.
+"""
 
 from __future__ import annotations
 
