@@ -374,7 +374,7 @@ def _det_x0(base: RigConfig) -> NDArray[np.float64]:
     pa = rig.detection_probability(np.full(7, 20.0), np.asarray(DETECT_AZIMUTH_KNOTS), np.zeros(7))
     pa = np.clip(pa / max(pa[0], 1e-6), 0.05, 0.95)[1:]
     return np.concatenate(
-        [_logit(np.clip(pr, 0.05, 0.95)), _logit(pa), _logit([min(max(base.occlusion_loss, 0.05), 0.95)])]
+        [_logit(np.clip(pr, 0.05, 0.95)), _logit(pa), _logit(np.array([min(max(base.occlusion_loss, 0.05), 0.95)]))]
     )
 
 

@@ -204,7 +204,10 @@ def load_rig(path: str | os.PathLike[str]) -> tuple[RigConfig, dict[str, Any]]:
     """
     params, card = load_rig_file(path, RIG_KIND, RIG_CONSTRAINTS)
     try:
-        cfg = RigConfig(**{k: (tuple(float(x) for x in v) if isinstance(v, list) else v) for k, v in params.items()})
+        values: dict[str, Any] = {
+            k: (tuple(float(x) for x in v) if isinstance(v, list) else v) for k, v in params.items()
+        }
+        cfg = RigConfig(**values)
     except ValueError as exc:
         name = str(exc).split(":", 1)[0]
         raise ModelFileError(
@@ -361,14 +364,16 @@ class RadarRig:
             lag = box.copy()
             lag[:, :2] -= c.latency * scenario.velocity
             frac = np.clip(rho_ref * frac + np.sqrt(1 - rho_ref**2) * rng.uniform(-spread, spread, n_tgt), -0.5, 0.5)
-            at_corner = None if c.corner_share == 0 else rng.random(n_tgt) < c.corner_share
+            at_corner: NDArray[np.bool_] | None = None
+            if c.corner_share > 0:
+                at_corner = np.asarray(rng.random(n_tgt)) < c.corner_share
             refl = _reflection_point(lag, frac, at_corner)
             r, az = np.hypot(refl[:, 0], refl[:, 1]), np.arctan2(refl[:, 1], refl[:, 0])
             corners = rectangle_corners(box[:, 0], box[:, 1], box[:, 2], box[:, 3], box[:, 4])
             occ = occluded_fraction(corners)
             det = rng.random(n_tgt) < self.detection_probability(r, az, occ)
             normal = np.stack([rng.normal(0, 1, n_tgt), rng.normal(0, 1, n_tgt)], axis=1)
-            u_out = np.ones(n_tgt) if c.outlier_share == 0 else rng.random(n_tgt)
+            u_out = np.ones(n_tgt) if c.outlier_share == 0 else np.asarray(rng.random(n_tgt), dtype=np.float64)
             innov = self.innovation(r, az, normal, u_out)
             err = np.where(tracked[:, None], rho * err + np.sqrt(1 - rho**2) * innov, innov)
             tracked = det
