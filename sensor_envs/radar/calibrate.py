@@ -512,7 +512,7 @@ def calibrate_rig(
     finally:
         bar.close()
     cfg = _fit_clutter(cfg, frames)
-    check = {"seed": seed, "replicates": 8}
+    check = {"seed": seed + 1, "replicates": 8}
     before = discrepancy(rig_statistics(base, frames, 8, seed + 1), real)
     after = discrepancy(rig_statistics(cfg, frames, 8, seed + 1), real)
     card = {
