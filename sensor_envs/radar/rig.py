@@ -222,8 +222,15 @@ def save_rig(path: str | os.PathLike[str], config: RigConfig, card: dict[str, An
 
 
 def default_rig_path() -> Path:
-    """The shipped calibrated rig, ``models/radar_rig.json``."""
-    return default_model_path("radar_rig.json")
+    """The shipped calibrated rig, ``models/radar_rig.json`` (package ``sensor_envs.models``).
+
+    In a source tree whose ``sensor_envs.models`` package is not importable (an editable install
+    pointing at another checkout), the ``models/`` folder beside the package.
+    """
+    try:
+        return default_model_path("radar_rig.json")
+    except ModuleNotFoundError:
+        return Path(__file__).resolve().parents[2] / "models" / "radar_rig.json"
 
 
 @dataclass(frozen=True)
