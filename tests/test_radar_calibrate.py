@@ -189,27 +189,18 @@ def test_cli_bad_input_exit_2_one_line(tmp_path, capsys, case):
     assert not (tmp_path / "r.json").exists() and not (tmp_path / "l.csv").exists()
 
 
-def test_calibrate_on_real_astyx_detection_rates(real_data):
-    """The shipped rig at the real boxes: detection rate within 0.05 of the real per range bin."""
-    frames = frames_from_log(read_log(_astyx_csv(real_data)))
-    cfg, _ = load_rig(SHIPPED_RIG)
+def test_shipped_rig_matches_real_astyx_detection_rates(real_data):
+    """The shipped rig at real boxes (every 4th frame, for speed): detection rate per range bin close to the
+    real one, where the generic rig is far off (the full figures: benchmarks/real_radar_fidelity.py)."""
+    from sensor_envs.radar.astyx import load_astyx
+
+    frames = frames_from_log(load_astyx(real_data / "astyx_hires2019", frames=range(0, 400, 4)))
     real = real_statistics(frames)
-    sim = rig_statistics(cfg, frames, replicates=4, seed=9, expected=True)
-    ok = real["n_range"] >= 30
-    assert np.all(np.abs(sim["det_range"][ok] - real["det_range"][ok]) < 0.05)
-
-
-_CACHE: dict[str, Path] = {}
-
-
-def _astyx_csv(real_data: Path) -> Path:
-    """Astyx converted once per session into a temporary CSV (never into the repository)."""
-    if "csv" not in _CACHE:
-        import tempfile
-
-        from sensor_envs.radar.astyx import load_astyx
-
-        path = Path(tempfile.mkdtemp()) / "astyx.csv"
-        write_log(load_astyx(real_data / "astyx_hires2019"), path)
-        _CACHE["csv"] = path
-    return _CACHE["csv"]
+    ok = real["n_range"] >= 80
+    assert ok.sum() >= 3
+    gaps = {}
+    for name, cfg in (("shipped", load_rig(SHIPPED_RIG)[0]), ("generic", RigConfig())):
+        sim = rig_statistics(cfg, frames, replicates=4, seed=9, expected=True)
+        gaps[name] = np.abs(sim["det_range"][ok] - real["det_range"][ok])
+    assert np.all(gaps["shipped"] < 0.08), gaps
+    assert np.max(gaps["generic"]) > 0.15, gaps
