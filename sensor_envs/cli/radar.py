@@ -25,6 +25,11 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     rec.add_argument("--targets", type=positive_int, default=8, help="target boxes per scenario (default 8)")
     rec.add_argument("--cycle-time", type=positive_float, default=1.0, help="seconds between cycles (default 1.0)")
     rec.add_argument("--astyx", default=None, help="convert this astyx_hires2019 folder instead of the rig")
+    rec.add_argument(
+        "--rig",
+        default=None,
+        help="rig parameter file (.json; default: the shipped calibrated rig models/radar_rig.json)",
+    )
     add_force(rec)
     rec.set_defaults(func=_record)
     fit = verbs["fit"].add_parser("radar", help="fit the KDE radar model and its Gaussian baseline to a log")
@@ -43,6 +48,17 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     fit.add_argument("--seed", type=nonneg_int, default=0)
     add_force(fit)
     fit.set_defaults(func=_fit)
+    cal = verbs["calibrate"].add_parser(
+        "radar", help="fit the reference radar rig's parameters to real single frames (simulation-based)"
+    )
+    cal.add_argument("real_data", help="astyx_hires2019 folder, or a radar log CSV of single frames")
+    cal.add_argument("--out", required=True, help="rig parameter file to write (.json)")
+    cal.add_argument("--seed", type=nonneg_int, default=0, help="seed of the common random numbers (default 0)")
+    cal.add_argument(
+        "--max-evals", type=positive_int, default=1500, help="evaluations of the offset stage (default 1500)"
+    )
+    add_force(cal)
+    cal.set_defaults(func=_calibrate)
     val = verbs["validate"].add_parser("radar", help="compare a KDE model and its baseline with a (held-out) log")
     val.add_argument("model", help="KDE model file (.npz)")
     val.add_argument("log", help="radar log CSV")
@@ -73,26 +89,52 @@ def _baseline_path(model: str) -> Path:
 def _record(args: argparse.Namespace) -> int:
     from sensor_envs.radar.log import write_log
 
-    check_inputs(args.astyx)
-    out = check_output(args.out, inputs=[args.astyx], force=args.force, suffix=".csv")
+    if args.astyx and args.rig:
+        raise ValueError("--rig: a rig file configures the simulated rig; it cannot be used with --astyx")
+    check_inputs(args.astyx, args.rig)
+    out = check_output(args.out, inputs=[args.astyx, args.rig], force=args.force, suffix=".csv")
     if args.astyx:
         from sensor_envs.radar.astyx import load_astyx
 
         log = load_astyx(args.astyx, progress=sys.stderr.isatty())  # no bar in logs (or before a one-line error)
     else:
-        from sensor_envs.radar.rig import RigConfig, record_rig_log
+        from dataclasses import replace
 
+        from sensor_envs.radar.rig import default_rig_path, load_rig, record_rig_log
+
+        config, _ = load_rig(args.rig or default_rig_path())
         log = record_rig_log(
             args.sequences,
             args.cycles,
             args.targets,
             np.random.default_rng(args.seed),
-            RigConfig(cycle_time=args.cycle_time),
+            replace(config, cycle_time=args.cycle_time),
             progress=sys.stderr.isatty(),
         )
     with OutputTransaction() as tx:
         write_log(log, tx.file(out))
     print(f"wrote {len(log)} rows to {out}")
+    return 0
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    from sensor_envs.radar.calibrate import calibrate_rig, load_real
+    from sensor_envs.radar.rig import save_rig
+
+    check_inputs(args.real_data)
+    out = check_output(args.out, inputs=[args.real_data], force=args.force, suffix=".json")
+    t0 = time.perf_counter()
+    with about(args.real_data):
+        frames = load_real(args.real_data, progress=sys.stderr.isatty())
+        config, card = calibrate_rig(frames, seed=args.seed, max_evals=args.max_evals, progress=sys.stderr.isatty())
+    card["seconds"] = round(time.perf_counter() - t0, 1)
+    with OutputTransaction() as tx:
+        save_rig(tx.file(out), config, card)
+    before, after = card["discrepancy_before"], card["discrepancy_after"]
+    print(
+        f"calibrated on {frames.n_frames} frames in {card['seconds']} s -> {out}; discrepancy (generic rig -> "
+        f"calibrated): " + ", ".join(f"{k} {before[k]:.4g} -> {after[k]:.4g}" for k in before)
+    )
     return 0
 
 

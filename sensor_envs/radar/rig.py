@@ -21,21 +21,75 @@ frame (:func:`generate_scenario`). All lengths in metres, angles in radians, tim
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from sensor_envs.geometry import occluded_fraction, rectangle_corners
+from sensor_envs.geometry import closest_corner, occluded_fraction, rectangle_corners
+from sensor_envs.modelio import (
+    Constraint,
+    Interval,
+    ModelFileError,
+    Numbers,
+    default_model_path,
+    load_rig_file,
+    save_rig_file,
+)
 from sensor_envs.radar.log import REQUIRED_COLUMNS, RadarLog
 
-__all__ = ["RigConfig", "Scenario", "generate_scenario", "RadarRig", "record_rig_log"]
+__all__ = [
+    "RigConfig",
+    "RIG_CONSTRAINTS",
+    "load_rig",
+    "save_rig",
+    "default_rig_path",
+    "Scenario",
+    "generate_scenario",
+    "RadarRig",
+    "record_rig_log",
+]
+
+
+Table = tuple[float, ...] | None
 
 
 @dataclass(frozen=True)
 class RigConfig:
-    """Parameters of the reference rig (defaults: a generic 77 GHz long-range object radar)."""
+    """Parameters of the reference rig (defaults: a generic 77 GHz long-range object radar).
+
+    The optional tables (``None`` = the generic rig's closed forms) are what
+    :mod:`sensor_envs.radar.calibrate` fits to real data; values between knots are interpolated
+    linearly, beyond the last knot the last value holds (detection: the logistic fall-off at
+    ``max_range`` multiplies the range table; beyond the last azimuth knot the factor is 0).
+
+    Attributes:
+        detect_range_knots: range knots [m] (of the reflection point) of ``detect_range_table``.
+        detect_range_table: detection probability at each range knot (replaces ``p_detect``).
+        detect_azimuth_knots: ``|azimuth|`` knots [rad] of ``detect_azimuth_table``.
+        detect_azimuth_table: detection factor in [0, 1] at each ``|azimuth|`` knot (replaces the
+            field-of-view edge law; 0 beyond the last knot).
+        offset_range_knots: range knots [m] of the offset-spread tables.
+        sigma_range_table: radial noise std [m] at each knot (replaces ``sigma_range``).
+        sigma_cross_table: cross-range noise std [m] at each knot (replaces ``sigma_azimuth * range``
+            and the edge gain).
+        range_bias: radial offset [m] of every detection (negative: towards the sensor).
+        outlier_share: share of detections whose noise is scaled by ``outlier_scale`` (tail shape).
+        outlier_scale: noise scale factor of those detections (>= 1).
+        corner_share: probability that a cycle's reflection point is the closest corner instead of
+            a point on the face most turned to the sensor.
+        reflection_spread: half-width of the fraction along that face where the point lies (<= 0.5).
+        clutter_dispersion: clutter count over-dispersion ``k``: variance = mean + k mean^2
+            (negative binomial; 0 = Poisson).
+        clutter_range_edges, clutter_range_weights: clutter range bins [m] and their shares
+            (uniform in range inside a bin; ``None``: uniform in area inside ``max_range``).
+        clutter_azimuth_edges, clutter_azimuth_weights: clutter azimuth bins [rad] and their shares
+            (``None``: uniform in ``+-fov``).
+    """
 
     cycle_time: float = 1.0
     latency: float = 0.05
@@ -51,6 +105,132 @@ class RigConfig:
     occlusion_loss: float = 0.9
     clutter_rate: float = 1.5
     reflection_tau: float = 5.0
+    detect_range_knots: Table = None
+    detect_range_table: Table = None
+    detect_azimuth_knots: Table = None
+    detect_azimuth_table: Table = None
+    offset_range_knots: Table = None
+    sigma_range_table: Table = None
+    sigma_cross_table: Table = None
+    range_bias: float = 0.0
+    outlier_share: float = 0.0
+    outlier_scale: float = 1.0
+    corner_share: float = 0.0
+    reflection_spread: float = 0.4
+    clutter_dispersion: float = 0.0
+    clutter_range_edges: Table = None
+    clutter_range_weights: Table = None
+    clutter_azimuth_edges: Table = None
+    clutter_azimuth_weights: Table = None
+
+    def __post_init__(self) -> None:
+        """Check values and the relations between them (``ValueError`` naming the field)."""
+        for name, value in self.__dict__.items():
+            forms = RIG_CONSTRAINTS[name]
+            if not any((c is None and value is None) or (c is not None and c.accepts(value)) for c in forms):
+                raise ValueError(f"{name}: expected {' or '.join('None' if c is None else str(c) for c in forms)}")
+        pairs = (
+            ("detect_range_knots", "detect_range_table"),
+            ("detect_azimuth_knots", "detect_azimuth_table"),
+            ("offset_range_knots", "sigma_range_table"),
+            ("offset_range_knots", "sigma_cross_table"),
+        )
+        for knots, table in pairs:
+            k, t = getattr(self, knots), getattr(self, table)
+            if (k is None) != (t is None) or (k is not None and t is not None and len(k) != len(t)):
+                raise ValueError(f"{table}: must be given with {knots!r} and have one value per knot")
+        for edges, weights in (
+            ("clutter_range_edges", "clutter_range_weights"),
+            ("clutter_azimuth_edges", "clutter_azimuth_weights"),
+        ):
+            e, w = getattr(self, edges), getattr(self, weights)
+            if (e is None) != (w is None) or (e is not None and w is not None and len(e) != len(w) + 1):
+                raise ValueError(f"{weights}: must be given with {edges!r} and have one value per bin")
+            if w is not None and not sum(w) > 0:
+                raise ValueError(f"{weights}: the shares must not all be 0")
+
+    def to_params(self) -> dict[str, Any]:
+        """The parameters as plain JSON values (tuples as lists)."""
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
+
+
+_POS = Interval(0, None, open_low=True)
+_PROB = Interval(0, 1)
+_NONNEG = Interval(0, None)
+RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
+    "cycle_time": [_POS],
+    "latency": [_NONNEG],
+    "max_range": [_POS],
+    "log_range": [_POS],
+    "fov": [Interval(0, np.pi, open_low=True)],
+    "sigma_range": [_NONNEG],
+    "sigma_azimuth": [_NONNEG],
+    "edge_gain": [_NONNEG],
+    "tracker_tau": [_POS],
+    "p_detect": [_PROB],
+    "range_falloff": [_POS],
+    "occlusion_loss": [_PROB],
+    "clutter_rate": [_NONNEG],
+    "reflection_tau": [_POS],
+    "detect_range_knots": [None, Numbers(_NONNEG, min_length=2, increasing=True)],
+    "detect_range_table": [None, Numbers(_PROB, min_length=2)],
+    "detect_azimuth_knots": [None, Numbers(Interval(0, np.pi), min_length=2, increasing=True)],
+    "detect_azimuth_table": [None, Numbers(_PROB, min_length=2)],
+    "offset_range_knots": [None, Numbers(_NONNEG, min_length=2, increasing=True)],
+    "sigma_range_table": [None, Numbers(_NONNEG, min_length=2)],
+    "sigma_cross_table": [None, Numbers(_NONNEG, min_length=2)],
+    "range_bias": [Interval(-10, 10)],
+    "outlier_share": [_PROB],
+    "outlier_scale": [Interval(1, 100)],
+    "corner_share": [_PROB],
+    "reflection_spread": [Interval(0, 0.5)],
+    "clutter_dispersion": [Interval(0, 100)],
+    "clutter_range_edges": [None, Numbers(_NONNEG, min_length=2, increasing=True)],
+    "clutter_range_weights": [None, Numbers(_NONNEG, min_length=1)],
+    "clutter_azimuth_edges": [None, Numbers(Interval(-np.pi, np.pi), min_length=2, increasing=True)],
+    "clutter_azimuth_weights": [None, Numbers(_NONNEG, min_length=1)],
+}
+"""Accepted values of every :class:`RigConfig` field (the rig file's value checks)."""
+
+RIG_KIND = "radar_rig"
+
+
+def load_rig(path: str | os.PathLike[str]) -> tuple[RigConfig, dict[str, Any]]:
+    """Read a radar rig file (kind ``"radar_rig"``); returns the config and the file's card.
+
+    Raises:
+        ModelFileError: naming the file and the field (a bad value, an unknown name, or a relation
+            between fields that does not hold).
+    """
+    params, card = load_rig_file(path, RIG_KIND, RIG_CONSTRAINTS)
+    try:
+        values: dict[str, Any] = {
+            k: (tuple(float(x) for x in v) if isinstance(v, list) else v) for k, v in params.items()
+        }
+        cfg = RigConfig(**values)
+    except ValueError as exc:
+        name = str(exc).split(":", 1)[0]
+        raise ModelFileError(
+            f"{path}: field 'params.{name}' is invalid: {str(exc).split(':', 1)[-1].strip()}"
+        ) from None
+    return cfg, card
+
+
+def save_rig(path: str | os.PathLike[str], config: RigConfig, card: dict[str, Any] | None = None) -> Path:
+    """Write ``config`` (and a ``card``) as a radar rig file (JSON, atomic); returns the path."""
+    return save_rig_file(path, RIG_KIND, config.to_params(), card)
+
+
+def default_rig_path() -> Path:
+    """The shipped calibrated rig, ``models/radar_rig.json`` (package ``sensor_envs.models``).
+
+    In a source tree whose ``sensor_envs.models`` package is not importable (an editable install
+    pointing at another checkout), the ``models/`` folder beside the package.
+    """
+    try:
+        return default_model_path("radar_rig.json")
+    except ModuleNotFoundError:
+        return Path(__file__).resolve().parents[2] / "models" / "radar_rig.json"
 
 
 @dataclass(frozen=True)
@@ -95,8 +275,8 @@ def generate_scenario(n_targets: int, n_cycles: int, cycle_time: float, rng: np.
     return Scenario(t, boxes, vel)
 
 
-def _reflection_point(box: NDArray[np.float64], frac: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Reflection point ``(n, 2)`` on the face most turned to the sensor; ``frac`` in [-0.5, 0.5] along it."""
+def _reflection_geometry(box: NDArray[np.float64]) -> tuple[NDArray, NDArray, NDArray]:
+    """Closest corner, and midpoint and edge vector of the face most turned to the sensor, each ``(n, 2)`` [m]."""
     corners = rectangle_corners(box[:, 0], box[:, 1], box[:, 2], box[:, 3], box[:, 4])  # (n, 4, 2)
     nxt = np.roll(corners, -1, axis=1)
     mid = 0.5 * (corners + nxt)
@@ -106,7 +286,20 @@ def _reflection_point(box: NDArray[np.float64], frac: NDArray[np.float64]) -> ND
     to_sensor = -mid / np.maximum(np.linalg.norm(mid, axis=-1, keepdims=True), 1e-9)
     face = np.argmax(np.sum(normal * to_sensor, axis=-1), axis=1)
     i = np.arange(box.shape[0])
-    return mid[i, face] + frac[:, None] * (nxt[i, face] - corners[i, face])
+    corner, _ = closest_corner(corners)
+    return corner, mid[i, face], nxt[i, face] - corners[i, face]
+
+
+def _reflection_point(
+    box: NDArray[np.float64], frac: NDArray[np.float64], at_corner: NDArray[np.bool_] | None = None
+) -> NDArray[np.float64]:
+    """Reflection point ``(n, 2)`` on the face most turned to the sensor; ``frac`` in [-0.5, 0.5] along it.
+
+    Rows where ``at_corner`` is true reflect at the box's closest corner instead.
+    """
+    corner, mid, edge = _reflection_geometry(box)
+    pt = mid + frac[:, None] * edge
+    return pt if at_corner is None else np.where(at_corner[:, None], corner, pt)
 
 
 class RadarRig:
@@ -123,14 +316,44 @@ class RadarRig:
         """Detection probability ``(n,)`` at range [m], azimuth [rad] and occluded fraction [0, 1]."""
         c = self.config
         p_range = 1.0 / (1.0 + np.exp((rng_m - c.max_range) / c.range_falloff))
-        edge = np.clip(np.abs(az) / c.fov, 0.0, None)
-        p_az = np.where(edge <= 1.0, 1.0 - 0.4 * edge**4, 0.0)
-        return c.p_detect * p_range * p_az * (1.0 - c.occlusion_loss * occluded)
+        if c.detect_range_table is not None and c.detect_range_knots is not None:
+            p_range = p_range * np.interp(rng_m, np.asarray(c.detect_range_knots), np.asarray(c.detect_range_table))
+        else:
+            p_range = c.p_detect * p_range
+        if c.detect_azimuth_table is not None and c.detect_azimuth_knots is not None:
+            p_az = np.interp(
+                np.abs(az), np.asarray(c.detect_azimuth_knots), np.asarray(c.detect_azimuth_table), right=0.0
+            )
+        else:
+            edge = np.clip(np.abs(az) / c.fov, 0.0, None)
+            p_az = np.where(edge <= 1.0, 1.0 - 0.4 * edge**4, 0.0)
+        return p_range * p_az * (1.0 - c.occlusion_loss * occluded)
 
-    def _noise_std(self, az: NDArray) -> tuple[NDArray, NDArray]:
+    def _noise_std(self, rng_m: NDArray, az: NDArray) -> tuple[NDArray, NDArray]:
+        """Radial and cross-range noise std [m] at range [m] and azimuth [rad]."""
         c = self.config
+        if c.offset_range_knots is not None and c.sigma_range_table is not None and c.sigma_cross_table is not None:
+            k = np.asarray(c.offset_range_knots)
+            return np.interp(rng_m, k, np.asarray(c.sigma_range_table)), np.interp(
+                rng_m, k, np.asarray(c.sigma_cross_table)
+            )
         edge = np.clip(np.abs(az) / c.fov, 0.0, 1.0)
-        return np.full_like(az, c.sigma_range), c.sigma_azimuth * (1.0 + c.edge_gain * edge**2)
+        return np.full_like(az, c.sigma_range), c.sigma_azimuth * (1.0 + c.edge_gain * edge**2) * rng_m
+
+    def innovation(self, rng_m: NDArray, az: NDArray, normal: NDArray, u_outlier: NDArray) -> NDArray[np.float64]:
+        """Polar noise ``(n, 2)`` (radial, cross-range) [m] from standard normals ``(n, 2)`` and uniforms ``(n,)``."""
+        c = self.config
+        sr, sc = self._noise_std(rng_m, az)
+        scale = np.where(u_outlier < c.outlier_share, c.outlier_scale, 1.0)
+        return np.stack([normal[:, 0] * sr * scale, normal[:, 1] * sc * scale], axis=1)
+
+    @staticmethod
+    def _to_xy(point: NDArray, err: NDArray, bias: float) -> NDArray[np.float64]:
+        """``point`` moved by a polar error (radial + ``bias``, cross-range) [m]."""
+        az = np.arctan2(point[:, 1], point[:, 0])
+        u = np.stack([np.cos(az), np.sin(az)], axis=1)
+        v = np.stack([-np.sin(az), np.cos(az)], axis=1)
+        return point + (err[:, :1] + bias) * u + err[:, 1:] * v
 
     def record(self, scenario: Scenario, rng: np.random.Generator, sequence: int = 0) -> RadarLog:
         """Simulate every cycle of ``scenario``; returns the log (targets within ``log_range``)."""
@@ -139,31 +362,59 @@ class RadarRig:
         rho = np.exp(-c.cycle_time / c.tracker_tau)
         rho_ref = np.exp(-c.cycle_time / c.reflection_tau)
         err = np.zeros((n_tgt, 2))
-        frac = rng.uniform(-0.4, 0.4, n_tgt)
+        spread = c.reflection_spread
+        frac = rng.uniform(-spread, spread, n_tgt)
         tracked = np.zeros(n_tgt, dtype=bool)
         rows: list[NDArray[np.float64]] = []
         for k in range(n_cyc):
             box = scenario.boxes[k]
             lag = box.copy()
             lag[:, :2] -= c.latency * scenario.velocity
-            frac = np.clip(rho_ref * frac + np.sqrt(1 - rho_ref**2) * rng.uniform(-0.4, 0.4, n_tgt), -0.5, 0.5)
-            refl = _reflection_point(lag, frac)
+            frac = np.clip(rho_ref * frac + np.sqrt(1 - rho_ref**2) * rng.uniform(-spread, spread, n_tgt), -0.5, 0.5)
+            at_corner: NDArray[np.bool_] | None = None
+            if c.corner_share > 0:
+                at_corner = np.asarray(rng.random(n_tgt)) < c.corner_share
+            refl = _reflection_point(lag, frac, at_corner)
             r, az = np.hypot(refl[:, 0], refl[:, 1]), np.arctan2(refl[:, 1], refl[:, 0])
             corners = rectangle_corners(box[:, 0], box[:, 1], box[:, 2], box[:, 3], box[:, 4])
             occ = occluded_fraction(corners)
             det = rng.random(n_tgt) < self.detection_probability(r, az, occ)
-            sr, sa = self._noise_std(az)
-            innov = np.stack([rng.normal(0, 1, n_tgt) * sr, rng.normal(0, 1, n_tgt) * sa * r], axis=1)
+            normal = np.stack([rng.normal(0, 1, n_tgt), rng.normal(0, 1, n_tgt)], axis=1)
+            u_out = np.ones(n_tgt) if c.outlier_share == 0 else np.asarray(rng.random(n_tgt), dtype=np.float64)
+            innov = self.innovation(r, az, normal, u_out)
             err = np.where(tracked[:, None], rho * err + np.sqrt(1 - rho**2) * innov, innov)
             tracked = det
-            u = np.stack([np.cos(az), np.sin(az)], axis=1)
-            v = np.stack([-np.sin(az), np.cos(az)], axis=1)
-            meas = refl + err[:, :1] * u + err[:, 1:] * v
+            meas = self._to_xy(refl, err, c.range_bias)
             meas[~det] = np.nan
             keep = np.hypot(box[:, 0], box[:, 1]) <= c.log_range
             rows.append(self._target_rows(sequence, k, scenario.t[k], box, meas)[keep])
             rows.append(self._clutter_rows(sequence, k, scenario.t[k], rng))
         return _rows_to_log(np.concatenate(rows), f"rig sequence {sequence}")
+
+    def snapshot(
+        self, boxes: NDArray[np.float64], occluded: NDArray[np.float64], draws: SnapshotDraws
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """One cycle of a rig that has been running, at static boxes (single frames such as Astyx).
+
+        The tracker error and the reflection fraction are drawn from their stationary laws (the AR(1)
+        processes of :meth:`record` keep the innovation's variance and the uniform fraction's range).
+
+        Args:
+            boxes: ``(n, 5)`` ``x, y, heading, length, width`` [m, rad].
+            occluded: ``(n,)`` occluded fraction of each box (:func:`geometry.occluded_fraction` of its frame).
+            draws: the random numbers (common random numbers in calibration).
+
+        Returns:
+            ``meas (n, 2)`` [m] (``NaN`` rows: missed) and the detection probability ``(n,)``.
+        """
+        c = self.config
+        spread = c.reflection_spread
+        refl = _reflection_point(boxes, spread * (2 * draws.u_frac - 1), draws.u_corner < c.corner_share)
+        r, az = np.hypot(refl[:, 0], refl[:, 1]), np.arctan2(refl[:, 1], refl[:, 0])
+        p = self.detection_probability(r, az, occluded)
+        meas = self._to_xy(refl, self.innovation(r, az, draws.normal, draws.u_outlier), c.range_bias)
+        meas[~(draws.u_detect < p)] = np.nan
+        return meas, p
 
     @staticmethod
     def _target_rows(seq: int, k: int, t: float, box: NDArray, meas: NDArray) -> NDArray[np.float64]:
@@ -171,15 +422,51 @@ class RadarRig:
         ids = np.stack([np.full(n, seq), np.full(n, k), np.full(n, t), np.arange(n)], axis=1)
         return np.concatenate([ids, box, meas], axis=1)
 
-    def _clutter_rows(self, seq: int, k: int, t: float, rng: np.random.Generator) -> NDArray[np.float64]:
+    def sample_clutter_polar(self, rng: np.random.Generator) -> tuple[NDArray, NDArray]:
+        """One cycle's clutter: range [m] and azimuth [rad] arrays."""
         c = self.config
-        m = rng.poisson(c.clutter_rate)
-        r = c.max_range * np.sqrt(rng.random(m))
-        az = rng.uniform(-c.fov, c.fov, m)
-        out = np.full((m, len(REQUIRED_COLUMNS)), np.nan)
+        if c.clutter_dispersion > 0 and c.clutter_rate > 0:
+            m = rng.poisson(rng.gamma(1.0 / c.clutter_dispersion, c.clutter_rate * c.clutter_dispersion))
+        else:
+            m = rng.poisson(c.clutter_rate)
+        if c.clutter_range_edges is not None and c.clutter_range_weights is not None:
+            r = _from_bins(np.asarray(c.clutter_range_edges), np.asarray(c.clutter_range_weights), m, rng)
+        else:
+            r = c.max_range * np.sqrt(rng.random(m))
+        if c.clutter_azimuth_edges is not None and c.clutter_azimuth_weights is not None:
+            az = _from_bins(np.asarray(c.clutter_azimuth_edges), np.asarray(c.clutter_azimuth_weights), m, rng)
+        else:
+            az = rng.uniform(-c.fov, c.fov, m)
+        return r, az
+
+    def _clutter_rows(self, seq: int, k: int, t: float, rng: np.random.Generator) -> NDArray[np.float64]:
+        r, az = self.sample_clutter_polar(rng)
+        out = np.full((r.size, len(REQUIRED_COLUMNS)), np.nan)
         out[:, :4] = [seq, k, t, -1]
         out[:, 9], out[:, 10] = r * np.cos(az), r * np.sin(az)
         return out
+
+
+@dataclass(frozen=True)
+class SnapshotDraws:
+    """Random numbers of one :meth:`RadarRig.snapshot` of ``n`` boxes (fixed for common random numbers)."""
+
+    u_frac: NDArray[np.float64]
+    u_corner: NDArray[np.float64]
+    u_detect: NDArray[np.float64]
+    u_outlier: NDArray[np.float64]
+    normal: NDArray[np.float64]
+
+    @classmethod
+    def draw(cls, n: int, rng: np.random.Generator) -> SnapshotDraws:
+        """Fresh draws for ``n`` boxes."""
+        return cls(rng.random(n), rng.random(n), rng.random(n), rng.random(n), rng.standard_normal((n, 2)))
+
+
+def _from_bins(edges: NDArray, weights: NDArray, m: int, rng: np.random.Generator) -> NDArray[np.float64]:
+    """``m`` values uniform inside bins ``edges`` chosen with probabilities ``weights`` (normalised)."""
+    b = rng.choice(weights.size, m, p=weights / weights.sum())
+    return edges[b] + (edges[b + 1] - edges[b]) * rng.random(m)
 
 
 def _rows_to_log(rows: NDArray[np.float64], source: str) -> RadarLog:

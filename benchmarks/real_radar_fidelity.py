@@ -1,0 +1,319 @@
+"""Fidelity of the shipped radar models on real Astyx frames, before and after the rig calibration.
+
+The whole chain runs from a fresh clone (~10-15 min on 2 shared cores):
+
+1. AFTER models: record the calibrated rig (``--rig``, default ``models/radar_rig.json``) with the
+   command of the model card and fit the KDE (``--relevance cv``) and the Gaussian baseline on it,
+   both through the ``sensor-envs`` CLI (``--models-from DIR`` skips this and uses
+   ``DIR/radar_kde.npz`` and ``DIR/radar_gaussian.npz``, e.g. ``models``);
+2. BEFORE models: ``git show <--before-rev>:models/radar_kde.npz`` (and the Gaussian): the models
+   shipped before the calibration (fitted on the generic rig);
+3. real data: ``load_astyx`` (cars; measured position = a cluster's detection nearest to the
+   sensor); frames in blocks of ``--block`` consecutive frames, block ``b`` in test fold
+   ``b % --folds`` (``validate.split_by_blocks``). Every fold: a KDE fitted on the other folds
+   (``use_prev=False``, corner variance 48 m^2: what nested CV chose in all folds, see the card)
+   is the "real-fitted" reference. Fixed models (shipped, ideal) are scored on the same test rows.
+
+**Single frames and a tracker-state model.** Astyx frames are snapshots of a radar that has been
+running, not first sightings. A model with ``z_{t-1}`` in its state is therefore evaluated at its
+STATIONARY law at a static box: ``--chains`` independent rollouts of ``--cycles`` cycles at the
+frame's corner (cycle 0 from the start tuple, ``z_{t-1} = NaN``; the model's own output fed back;
+a miss restarts) and the last cycle is taken. Samples (detection rate, energy distance) are the
+last cycle's outputs; the density is the mixture over chains,
+``p(z | corner) = mean_m p(z | corner, z_{t-1}^(m))`` (``z_{t-1}^(m)`` the chain's previous output),
+so NLLs are of the same marginal the samples come from. The "start" rows score the start tuple
+alone (``z_{t-1} = NaN``, what ``validate radar`` does on Astyx) for comparison. Models without
+``z_{t-1}`` (Gaussian, real-fitted KDE) need no rollout. The ideal radar reports every target at
+its closest corner (NLL undefined: a point mass).
+
+Metrics (those of ``validate radar`` that apply to single frames), on the pooled test rows of all
+folds (every row is tested once): detection rate per corner-range and per corner-azimuth bin
+(model: its detection probability; real: the measured share), NLL of outcomes and of ``z`` given a
+detection [nats] (mean over rows; per-fold means in the JSON), energy distance [m] between
+simulated and real detected ``z`` per corner-range bin. Targets (issue 12): detection rates within
+0.05 of the real per bin; other metrics within 15 % of the real-fitted KDE.
+
+    python benchmarks/real_radar_fidelity.py --data ../shared/data/real/astyx_hires2019 --out /tmp/radar_fidelity
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import logsumexp
+
+from sensor_envs.outputs import write_json
+from sensor_envs.radar.astyx import load_astyx
+from sensor_envs.radar.calibrate import DET_AZIMUTH_EDGES
+from sensor_envs.radar.gaussian import GaussianRadar
+from sensor_envs.radar.kde import KDERadarModel
+from sensor_envs.radar.log import target_tuples
+from sensor_envs.radar.sensors import IdealRadar
+from sensor_envs.radar.validate import RANGE_BINS, energy_distance_2d, split_by_blocks
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_DATA = ROOT / ".." / "shared" / "data" / "real" / "astyx_hires2019"
+BEFORE_REV = "f327671"
+"""Commit whose ``models/`` hold the radar models shipped before the calibration (generic rig)."""
+RANGE_LABELS = [f"{lo:g}-{hi:g}" for lo, hi in zip(RANGE_BINS[:-1], RANGE_BINS[1:], strict=True)]
+AZ_DEG = np.rad2deg(DET_AZIMUTH_EDGES)
+AZ_LABELS = [f"{lo:g}..{hi:g}" for lo, hi in zip(AZ_DEG[:-1], AZ_DEG[1:], strict=True)]
+
+
+def cli(*args: str) -> None:
+    """Run ``sensor-envs ARGS`` from the repository root (worktree first on the path)."""
+    env = {"PYTHONPATH": str(ROOT), **{k: v for k, v in __import__("os").environ.items() if k != "PYTHONPATH"}}
+    print("$ sensor-envs " + " ".join(args), flush=True)
+    subprocess.run([sys.executable, "-m", "sensor_envs.cli.main", *args], check=True, cwd=ROOT, env=env)
+
+
+def chain(work: Path, rig: str, seed: int) -> tuple[Path, Path]:
+    """Record the calibrated rig and fit the KDE and Gaussian as the model card says; returns their paths."""
+    work.mkdir(parents=True, exist_ok=True)
+    log = work / "rig_train.csv"
+    kde, gauss = work / "radar_kde.npz", work / "radar_gaussian.npz"
+    cli("record", "radar", "--rig", rig, "--out", str(log), "--seed", str(seed), "--sequences", "50",
+        "--cycles", "40", "--targets", "8", "--cycle-time", "1.0", "--force")  # fmt: skip
+    cli("fit", "radar", str(log), "--out", str(kde), "--baseline-out", str(gauss), "--cycle-time", "1.0",
+        "--seed", str(seed), "--relevance", "cv", "--force")  # fmt: skip
+    return kde, gauss
+
+
+def before_models(work: Path, rev: str) -> tuple[Path, Path]:
+    """The models shipped at ``rev`` (``git show``), written to ``work``."""
+    work.mkdir(parents=True, exist_ok=True)
+    out = []
+    for name in ("radar_kde.npz", "radar_gaussian.npz"):
+        blob = subprocess.run(["git", "show", f"{rev}:models/{name}"], cwd=ROOT, check=True, capture_output=True).stdout
+        (work / name).write_bytes(blob)
+        out.append(work / name)
+    return out[0], out[1]
+
+
+def marginal(model: Any, corner: NDArray, z: NDArray, rng: np.random.Generator, chains: int, cycles: int) -> dict:
+    """Stationary law of ``model`` at static corners: detection probability, one sample, log p(z), log P(det).
+
+    Returns ``p_det (n,)``, ``sample (n, 2)`` (NaN: miss), ``logp (n,)`` (of the observed ``z``,
+    NaN rows = misses) and ``logp_det (n,)``.
+    """
+    n = corner.shape[0]
+    if isinstance(model, IdealRadar):
+        return {"p_det": np.ones(n), "sample": np.zeros((n, 2)), "logp": None}
+    uses_prev = bool(getattr(model, "use_prev", False)) and cycles > 1
+    m = chains if uses_prev else 1
+    cc = np.repeat(corner, m, axis=0)
+    prev = np.full((n * m, 2), np.nan)
+    for _ in range(cycles - 1 if uses_prev else 0):  # one iteration per cycle, vectorised over rows x chains
+        prev, _ = model.sample_cycle(cc, prev, rng)
+    last, _ = model.sample_cycle(cc, prev, rng)
+    state = np.concatenate([cc, prev], axis=1)
+    lp = model.log_prob(np.repeat(z, m, axis=0), state).reshape(n, m)
+    lp_miss = model.log_prob(np.full((n * m, 2), np.nan), state).reshape(n, m)
+    logp = logsumexp(lp, axis=1) - np.log(m)
+    p_miss = np.exp(logsumexp(lp_miss, axis=1) - np.log(m))
+    return {"p_det": 1.0 - p_miss, "sample": last.reshape(n, m, 2)[:, 0], "logp": logp}
+
+
+def scores(res: dict, corner: NDArray, z: NDArray, rng: np.random.Generator) -> dict[str, Any]:
+    """Metrics of one model's stationary law against the real rows (pooled test rows)."""
+    r = np.hypot(corner[:, 0], corner[:, 1])
+    az = np.arctan2(corner[:, 1], corner[:, 0])
+    det = np.isfinite(z[:, 0])
+    out: dict[str, Any] = {"det_range": [], "det_azimuth": [], "energy": []}
+    for lo, hi in zip(RANGE_BINS[:-1], RANGE_BINS[1:], strict=True):
+        s = (r >= lo) & (r < hi)
+        sim = res["sample"][s]
+        out["det_range"].append(float(res["p_det"][s].mean()) if s.any() else None)
+        out["energy"].append(energy_distance_2d(sim[np.isfinite(sim[:, 0])], z[s & det], rng, max_n=1500))
+    for lo, hi in zip(DET_AZIMUTH_EDGES[:-1], DET_AZIMUTH_EDGES[1:], strict=True):
+        s = (az >= lo) & (az < hi)
+        out["det_azimuth"].append(float(res["p_det"][s].mean()) if s.any() else None)
+    if res["logp"] is not None:
+        lp = res["logp"]
+        out["nll_outcome"] = float(-lp.mean())
+        out["nll_z_given_detected"] = float(-(lp[det] - np.log(res["p_det"][det])).mean())
+        out["nll_z_given_detected_median"] = float(-np.median(lp[det] - np.log(res["p_det"][det])))
+    else:
+        out["nll_outcome"] = out["nll_z_given_detected"] = out["nll_z_given_detected_median"] = None
+    return out
+
+
+def real_rates(corner: NDArray, z: NDArray) -> dict[str, list]:
+    """Measured detection shares per range and azimuth bin, and row counts."""
+    r = np.hypot(corner[:, 0], corner[:, 1])
+    az = np.arctan2(corner[:, 1], corner[:, 0])
+    det = np.isfinite(z[:, 0])
+    out: dict[str, list] = {"det_range": [], "n_range": [], "det_azimuth": [], "n_azimuth": []}
+    for lo, hi in zip(RANGE_BINS[:-1], RANGE_BINS[1:], strict=True):
+        s = (r >= lo) & (r < hi)
+        out["det_range"].append(float(det[s].mean()) if s.any() else None)
+        out["n_range"].append(int(s.sum()))
+    for lo, hi in zip(DET_AZIMUTH_EDGES[:-1], DET_AZIMUTH_EDGES[1:], strict=True):
+        s = (az >= lo) & (az < hi)
+        out["det_azimuth"].append(float(det[s].mean()) if s.any() else None)
+        out["n_azimuth"].append(int(s.sum()))
+    return out
+
+
+def fmt(v: Any, nd: int = 3) -> str:
+    return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.{nd}f}"
+
+
+def targets(row: dict, real: dict, ref: dict) -> dict[str, Any]:
+    """Worst gaps to the targets: detection |model - real| per bin, metric ratio to the real-fitted KDE."""
+    gaps = [abs(a - b) for k in ("det_range", "det_azimuth") for a, b in zip(row[k], real[k], strict=True)
+            if a is not None and b is not None]  # fmt: skip
+    out: dict[str, Any] = {
+        "max_det_gap": max(gaps),
+        "det_bins_within_0.05": f"{sum(g <= 0.05 for g in gaps)}/{len(gaps)}",
+    }
+    for k in ("nll_outcome", "nll_z_given_detected"):
+        out[f"{k}_rel"] = None if row[k] is None else (row[k] - ref[k]) / abs(ref[k])
+    e = [(a - b) / b for a, b in zip(row["energy"], ref["energy"], strict=True) if np.isfinite(a) and b > 0]
+    out["energy_max_rel"] = max(e) if e else None
+    return out
+
+
+def markdown(rep: dict) -> str:
+    names = list(rep["models"])
+    real, ref = rep["real"], rep["models"]["kde_real_fitted"]
+    lines = [
+        f"# Radar fidelity on real Astyx frames ({rep['data_name']}, {rep['n_frames']} frames, "
+        f"{rep['n_rows']} car rows, {rep['folds']} folds of {rep['block']}-frame blocks)",
+        "",
+        "Detection rate: model's detection probability vs measured share (target: within 0.05 per bin). "
+        "NLL [nats] and energy distance [m]: target within 15 % of the KDE fitted on the real training folds. "
+        "'stationary' = last of a few cycles at the static box (z_{t-1} fed back); 'start' = the start tuple.",
+        "",
+        "| metric | real | " + " | ".join(names) + " |",
+        "|---|---|" + "---|" * len(names),
+    ]
+    for i, lab in enumerate(RANGE_LABELS):
+        lines.append(f"| det. rate {lab} m (n={real['n_range'][i]}) | {fmt(real['det_range'][i])} | "
+                     + " | ".join(fmt(rep["models"][k]["det_range"][i]) for k in names) + " |")  # fmt: skip
+    for i, lab in enumerate(AZ_LABELS):
+        lines.append(f"| det. rate az {lab} deg (n={real['n_azimuth'][i]}) | {fmt(real['det_azimuth'][i])} | "
+                     + " | ".join(fmt(rep["models"][k]["det_azimuth"][i]) for k in names) + " |")  # fmt: skip
+    for key, lab in (("nll_outcome", "NLL outcomes"), ("nll_z_given_detected", "NLL z given detection (mean)"),
+                     ("nll_z_given_detected_median", "NLL z given detection (median)")):  # fmt: skip
+        lines.append(f"| {lab} | | " + " | ".join(fmt(rep["models"][k][key]) for k in names) + " |")
+    for i, lab in enumerate(RANGE_LABELS):
+        lines.append(
+            f"| energy distance {lab} m | | " + " | ".join(fmt(rep["models"][k]["energy"][i]) for k in names) + " |"
+        )
+    tg = rep["targets"]
+    cells = [f"{fmt(tg[k]['max_det_gap'])} ({tg[k]['det_bins_within_0.05']})" for k in names]
+    lines.append("| max detection gap (bins within 0.05) | | " + " | ".join(cells) + " |")
+    for key, lab in (("nll_outcome_rel", "NLL outcomes vs real-fitted"),
+                     ("nll_z_given_detected_rel", "NLL z given det. vs real-fitted"),
+                     ("energy_max_rel", "worst energy distance vs real-fitted")):  # fmt: skip
+        cells = ["-" if tg[k][key] is None else f"{100 * tg[k][key]:+.0f} %" for k in names]
+        lines.append(f"| {lab} | | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        f"Seconds: {rep['seconds']}. Before = models at commit {rep['before_rev']}; after = {rep['after_from']}.",
+    ]
+    del ref
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", default=str(DEFAULT_DATA), help="astyx_hires2019 folder")
+    ap.add_argument(
+        "--out", required=True, help="output folder (outside the repository; models fitted here stay there)"
+    )
+    ap.add_argument("--rig", default=str(ROOT / "models" / "radar_rig.json"), help="calibrated rig file of the chain")
+    ap.add_argument("--models-from", default=None, help="folder with radar_kde.npz/radar_gaussian.npz: skip the chain")
+    ap.add_argument("--before-rev", default=BEFORE_REV, help="git revision of the BEFORE models")
+    ap.add_argument("--block", type=int, default=10)
+    ap.add_argument("--folds", type=int, default=5)
+    ap.add_argument("--chains", type=int, default=16, help="rollouts per row of the stationary law")
+    ap.add_argument("--cycles", type=int, default=5, help="cycles per rollout (the last is scored)")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.models_from:
+        kde_after, gauss_after = Path(args.models_from) / "radar_kde.npz", Path(args.models_from) / "radar_gaussian.npz"
+    else:
+        kde_after, gauss_after = chain(out / "chain", args.rig, args.seed)
+    kde_before, gauss_before = before_models(out / "before", args.before_rev)
+    fixed = {
+        "kde_before_start": (KDERadarModel.load(kde_before), 1),
+        "kde_before_stationary": (KDERadarModel.load(kde_before), args.cycles),
+        "gaussian_before": (GaussianRadar.load(gauss_before), 1),
+        "kde_after_start": (KDERadarModel.load(kde_after), 1),
+        "kde_after_stationary": (KDERadarModel.load(kde_after), args.cycles),
+        "gaussian_after": (GaussianRadar.load(gauss_after), 1),
+        "ideal": (IdealRadar(), 1),
+    }
+    log = load_astyx(args.data, block=args.block, progress=True)
+    parts: dict[str, list[dict]] = {k: [] for k in ["kde_real_fitted", *fixed]}
+    corners, zs, per_fold = [], [], []
+    for k in range(args.folds):  # one iteration per fold
+        train, test = split_by_blocks(log, block=args.block, n_folds=args.folds, fold=k)
+        tt = target_tuples(test)
+        real_kde = KDERadarModel(
+            use_prev=False, cv_group="sequence", rel_variance=(48.0, 48.0, 0.03, 0.03), random_state=k
+        ).fit(train)
+        fold = {"fold": k, "n_rows": int(tt.z.shape[0])}
+        for name, (model, cycles) in {"kde_real_fitted": (real_kde, 1), **fixed}.items():
+            rng = np.random.default_rng([args.seed, k, len(parts[name])])
+            res = marginal(model, tt.corner, tt.z, rng, args.chains, cycles)
+            parts[name].append(res)
+            if res["logp"] is not None:
+                det = np.isfinite(tt.z[:, 0])
+                cond = res["logp"][det] - np.log(res["p_det"][det])
+                fold[name] = {"nll_outcome": float(-res["logp"].mean()), "nll_z_given_detected": float(-cond.mean())}
+        corners.append(tt.corner)
+        zs.append(tt.z)
+        per_fold.append(fold)
+        print(f"fold {k}: " + json.dumps({n: v for n, v in fold.items() if isinstance(v, dict)}), flush=True)
+    corner, z = np.concatenate(corners), np.concatenate(zs)
+    models = {}
+    for name, res_list in parts.items():
+        res = {
+            "p_det": np.concatenate([r["p_det"] for r in res_list]),
+            "sample": np.concatenate([r["sample"] for r in res_list]),
+            "logp": None if res_list[0]["logp"] is None else np.concatenate([r["logp"] for r in res_list]),
+        }
+        models[name] = scores(res, corner, z, np.random.default_rng([args.seed, 99]))
+    real = real_rates(corner, z)
+    rep = {
+        "data": str(args.data),
+        "data_name": Path(args.data).name,
+        "n_frames": int(np.unique(log["frame"]).size),
+        "n_rows": int(corner.shape[0]),
+        "block": args.block,
+        "folds": args.folds,
+        "chains": args.chains,
+        "cycles": args.cycles,
+        "seed": args.seed,
+        "before_rev": args.before_rev,
+        "after_from": str(args.models_from or f"chain: {args.rig} -> record -> fit --relevance cv"),
+        "range_bins_m": list(RANGE_BINS),
+        "azimuth_bins_deg": AZ_DEG.tolist(),
+        "real": real,
+        "models": models,
+        "targets": {n: targets(m, real, models["kde_real_fitted"]) for n, m in models.items()},
+        "per_fold": per_fold,
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
+    write_json(out / "fidelity.json", rep)
+    text = markdown(rep)
+    (out / "fidelity.md").write_text(text, encoding="utf-8")
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,206 @@
+"""Radar rig files, ``calibrate radar`` (recovery of known rig parameters) and ``record radar --rig``."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sensor_envs.cli.main import main
+from sensor_envs.modelio import ModelFileError
+from sensor_envs.radar.calibrate import (
+    DET_RANGE_EDGES,
+    calibrate_rig,
+    discrepancy,
+    frames_from_log,
+    real_statistics,
+    rig_statistics,
+    snapshot_log,
+)
+from sensor_envs.radar.log import REF_COLUMNS, RadarLog, clutter_counts, read_log, write_log
+from sensor_envs.radar.rig import RadarRig, RigConfig, generate_scenario, load_rig, save_rig
+
+SHIPPED_RIG = Path(__file__).resolve().parents[1] / "models" / "radar_rig.json"
+
+TRUE = RigConfig(
+    max_range=150.0,
+    detect_range_knots=(0.0, 30.0, 60.0, 120.0),
+    detect_range_table=(0.6, 0.8, 0.9, 0.5),
+    detect_azimuth_knots=(0.0, 0.5, 1.0, 1.6),
+    detect_azimuth_table=(1.0, 0.9, 0.6, 0.2),
+    occlusion_loss=0.5,
+    offset_range_knots=(0.0, 50.0, 110.0),
+    sigma_range_table=(0.5, 0.5, 0.5),
+    sigma_cross_table=(0.3, 0.3, 0.3),
+    corner_share=0.7,
+    reflection_spread=0.3,
+    clutter_rate=12.0,
+    clutter_dispersion=0.1,
+    clutter_range_edges=(0.0, 20.0, 60.0),
+    clutter_range_weights=(0.3, 0.7),
+    clutter_azimuth_edges=(-1.0, 0.0, 1.0),
+    clutter_azimuth_weights=(0.5, 0.5),
+)
+
+
+def synthetic_frames(config: RigConfig, n_frames: int = 150, seed: int = 0):
+    """Single frames (static boxes of rig scenarios) observed by a rig with ``config``."""
+    rng = np.random.default_rng(seed)
+    boxes = generate_scenario(8 * n_frames, 1, 1.0, rng).boxes[0]
+    keep = np.hypot(boxes[:, 0], boxes[:, 1]) < 110
+    boxes = boxes[keep]
+    frame = np.arange(boxes.shape[0]) % n_frames
+    placeholder = np.full((boxes.shape[0], 2), np.nan)
+    cols = {k: boxes[:, j] for j, k in enumerate(REF_COLUMNS)}
+    cols.update(
+        sequence=np.zeros(boxes.shape[0]),
+        frame=frame.astype(float),
+        t=frame.astype(float),
+        target=np.arange(boxes.shape[0], dtype=float),
+        meas_x=placeholder[:, 0],
+        meas_y=placeholder[:, 1],
+    )
+    base = frames_from_log(RadarLog(cols, source="boxes"))
+    return frames_from_log(snapshot_log(config, base, rng), source="synthetic")
+
+
+def test_rig_file_round_trip_and_shipped_rig(tmp_path):
+    path = save_rig(tmp_path / "rig.json", TRUE, {"against": "test"})
+    cfg, card = load_rig(path)
+    assert cfg == TRUE and card == {"against": "test"}
+    empty = tmp_path / "generic.json"
+    empty.write_text(json.dumps({"kind": "radar_rig", "format_version": 1, "params": {}}))
+    assert load_rig(empty)[0] == RigConfig()  # missing names take the generic rig's values
+    shipped, card = load_rig(SHIPPED_RIG)
+    assert shipped.detect_range_table is not None
+    assert card["calibrated_against"]["frames"] == 400
+    assert card["discrepancy_after"]["total"] < card["discrepancy_before"]["total"]
+
+
+@pytest.mark.parametrize(
+    ("params", "field"),
+    [
+        ({"occlusion_loss": 1.5}, "params.occlusion_loss"),
+        ({"detect_range_knots": [0, 50, 20], "detect_range_table": [0.5, 0.5, 0.5]}, "params.detect_range_knots"),
+        ({"detect_range_knots": [0, 50], "detect_range_table": [0.5, 0.5, 0.5]}, "params.detect_range_table"),
+        ({"sigma_range_table": [0.1, 0.2]}, "params.sigma_range_table"),
+        ({"clutter_rate": -1}, "params.clutter_rate"),
+        ({"reflection_spread": 0.7}, "params.reflection_spread"),
+        ({"colour": "red"}, "params.colour"),
+    ],
+)
+def test_bad_rig_values_fail_at_load_naming_file_and_field(tmp_path, params, field):
+    path = tmp_path / "bad_rig.json"
+    path.write_text(json.dumps({"kind": "radar_rig", "format_version": 1, "params": params}))
+    with pytest.raises(ModelFileError, match=f"bad_rig.json: field '{field}'"):
+        load_rig(path)
+
+
+def test_snapshot_follows_the_detection_probability():
+    frames = synthetic_frames(TRUE, n_frames=100)
+    st = rig_statistics(TRUE, frames, replicates=8, seed=3)
+    ex = rig_statistics(TRUE, frames, replicates=8, seed=3, expected=True)
+    ok = np.isfinite(ex["det_range"])
+    assert np.all(np.abs(st["det_range"][ok] - ex["det_range"][ok]) < 0.03)
+
+
+def test_calibrate_recovers_known_parameters():
+    frames = synthetic_frames(TRUE, n_frames=150)
+    generic = RigConfig()
+    cfg, card = calibrate_rig(frames, generic, seed=1, replicates=2, max_evals=400)
+    real = real_statistics(frames)
+    after = discrepancy(rig_statistics(cfg, frames, 4, seed=5), real)
+    assert after["total"] < 0.2 * card["discrepancy_before"]["total"]
+    # detection probability along the boresight at the middle of each range bin
+    mids = 0.5 * (np.array(DET_RANGE_EDGES[:-1]) + np.array(DET_RANGE_EDGES[1:]))[:4]
+    zeros = np.zeros(mids.size)
+    p_true = RadarRig(TRUE).detection_probability(mids, zeros, zeros)
+    p_fit = RadarRig(cfg).detection_probability(mids, zeros, zeros)
+    assert np.max(np.abs(p_fit - p_true)) < 0.1, (p_fit, p_true)
+    assert abs(cfg.occlusion_loss - TRUE.occlusion_loss) < 0.3
+    assert abs(cfg.corner_share - TRUE.corner_share) < 0.2
+    # offsets: spread and tail trade off (sigma vs outlier share), so the law is checked, not each number
+    assert after["offset"] < 0.2 * card["discrepancy_before"]["offset"]
+    assert abs(cfg.clutter_rate - 12.0) < 1.0
+    # true law: 30 % uniform in 0-20 m, so 22.5 % in the statistic's first bin (0-15 m)
+    assert cfg.clutter_range_weights is not None and abs(cfg.clutter_range_weights[0] - 0.225) < 0.05
+
+
+def _synthetic_csv(tmp_path: Path) -> Path:
+    frames = synthetic_frames(replace(TRUE, clutter_rate=3.0), n_frames=60, seed=2)
+    log = snapshot_log(TRUE, frames, np.random.default_rng(0))
+    path = tmp_path / "real.csv"
+    write_log(log, path)
+    return path
+
+
+def test_calibrate_cli_writes_a_rig_that_record_uses(tmp_path, capsys):
+    real = _synthetic_csv(tmp_path)
+    rig = tmp_path / "rig.json"
+    assert main(["calibrate", "radar", str(real), "--out", str(rig), "--max-evals", "200"]) == 0
+    cfg, card = load_rig(rig)
+    assert card["calibrated_against"]["data"] == "real.csv" and card["calibrated_against"]["frames"] == 60
+    assert main(["calibrate", "radar", str(real), "--out", str(rig), "--max-evals", "200"]) == 2  # exists
+    assert "--force" in capsys.readouterr().err
+    out = tmp_path / "log.csv"
+    args = ["record", "radar", "--rig", str(rig), "--out", str(out), "--sequences", "3", "--cycles", "10"]
+    assert main(args) == 0
+    counts, _ = clutter_counts(read_log(out))
+    assert abs(counts.mean() - cfg.clutter_rate) < 5 * np.sqrt(cfg.clutter_rate * (1 + 12) / counts.size) + 1
+    again = tmp_path / "again.csv"
+    assert main([*args[:5], str(again), *args[6:]]) == 0
+    assert out.read_bytes() == again.read_bytes()  # same seed, same log
+
+
+@pytest.mark.parametrize("case", ["missing", "no_targets", "bad_rig", "rig_and_astyx", "bad_suffix"])
+def test_cli_bad_input_exit_2_one_line(tmp_path, capsys, case):
+    if case == "missing":
+        argv, name = ["calibrate", "radar", str(tmp_path / "nope.csv"), "--out", str(tmp_path / "r.json")], "nope.csv"
+    elif case == "no_targets":
+        path = tmp_path / "clutter_only.csv"
+        path.write_text(
+            "sequence,frame,t,target,ref_x,ref_y,ref_heading,ref_length,ref_width,meas_x,meas_y\n0,0,0,-1,,,,,,5,1\n"
+        )
+        argv, name = ["calibrate", "radar", str(path), "--out", str(tmp_path / "r.json")], "clutter_only.csv"
+    elif case == "bad_rig":
+        path = tmp_path / "bad_rig.json"
+        path.write_text(json.dumps({"kind": "radar_rig", "format_version": 1, "params": {"corner_share": 2}}))
+        argv, name = ["record", "radar", "--rig", str(path), "--out", str(tmp_path / "l.csv")], "corner_share"
+    elif case == "rig_and_astyx":
+        argv = [
+            "record",
+            "radar",
+            "--rig",
+            str(SHIPPED_RIG),
+            "--astyx",
+            str(tmp_path),
+            "--out",
+            str(tmp_path / "l.csv"),
+        ]
+        name = "--rig"
+    else:
+        argv, name = ["calibrate", "radar", str(_synthetic_csv(tmp_path)), "--out", str(tmp_path / "r.txt")], ".json"
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and name in err, err
+    assert not (tmp_path / "r.json").exists() and not (tmp_path / "l.csv").exists()
+
+
+def test_shipped_rig_matches_real_astyx_detection_rates(real_data):
+    """The shipped rig at real boxes (every 4th frame, for speed): detection rate per range bin close to the
+    real one, where the generic rig is far off (the full figures: benchmarks/real_radar_fidelity.py)."""
+    from sensor_envs.radar.astyx import load_astyx
+
+    frames = frames_from_log(load_astyx(real_data / "astyx_hires2019", frames=range(0, 400, 4)))
+    real = real_statistics(frames)
+    ok = real["n_range"] >= 80
+    assert ok.sum() >= 3
+    gaps = {}
+    for name, cfg in (("shipped", load_rig(SHIPPED_RIG)[0]), ("generic", RigConfig())):
+        sim = rig_statistics(cfg, frames, replicates=4, seed=9, expected=True)
+        gaps[name] = np.abs(sim["det_range"][ok] - real["det_range"][ok])
+    assert np.all(gaps["shipped"] < 0.08), gaps
+    assert np.max(gaps["generic"]) > 0.15, gaps
