@@ -526,13 +526,13 @@ def cycle_period(config: dict[str, Any], radar_rate: str) -> float:
 def check_cycle_time(radar: Any, config: dict[str, Any], radar_rate: str) -> None:
     """Refuse a model whose ``cycle_time_`` [s] differs from the radar period at ``radar_rate``.
 
-    Models without a cycle time (``None``, or no attribute: the ideal radar, test doubles) pass.
+    Models without a cycle time (``None``/NaN, or no attribute: the ideal radar, test doubles) pass.
 
     Raises:
         ValueError: naming ``radar_rate``, both periods and the remedies.
     """
     cycle = getattr(radar, "cycle_time_", None)
-    if cycle is None:
+    if cycle is None or not math.isfinite(float(cycle)):  # NaN: fitted without a cycle time
         return
     period = cycle_period(config, radar_rate)
     if not math.isclose(float(cycle), period, rel_tol=CYCLE_TIME_RTOL):
