@@ -199,3 +199,21 @@ def test_bad_new_track_flags_are_refused_at_load(model, tmp_path, edit, message)
     bad = _rewrite(path, tmp_path / "bad.npz", edit)
     with pytest.raises(ModelFileError, match=message):
         KDERadarModel.load(bad)
+
+
+def test_validate_cli_reports_new_and_after_miss_rates(model, rig_split, tmp_path, capsys):
+    from sensor_envs.cli.main import main
+    from sensor_envs.radar.gaussian import GaussianRadar
+    from sensor_envs.radar.log import write_log
+
+    kde = model.save(tmp_path / "m.npz")
+    GaussianRadar().fit(rig_split[0], cycle_time=1.0).save(tmp_path / "m_gaussian.npz")
+    log = write_log(rig_split[1], tmp_path / "test.csv")
+    assert main(["validate", "radar", str(kde), str(log), "--out", str(tmp_path / "rep")]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    rep = json.loads((tmp_path / "rep" / "report.json").read_text())["model"]["detection_rate_by_previous"]
+    tt = target_tuples(rig_split[1])
+    rec = detection_by_previous(tt, tt.z, tt.z_prev)
+    for key, label in (("new", "new"), ("after_miss", "after miss"), ("after_detection", "after detection")):
+        assert rep["recorded"][key] == pytest.approx(rec[key])
+        assert f"{label} {rep['rollout'][key]['rate']:.3f} vs {rec[key]['rate']:.3f} ({rec[key]['n']} rows)" in line
