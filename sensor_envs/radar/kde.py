@@ -558,8 +558,9 @@ class KDERadarModel(BaseEstimator):
         self._start_tree = start.tree
         self.prior_rate_main_ = self.miss_rate_ if main is None else main.rate
         self.prior_rate_start_ = start.rate
-        self.prior_rate_new_ = start.rate if self._groups[GROUP_NEW] is None else self._groups[GROUP_NEW].rate
-        self.prior_rate_lost_ = start.rate if self._groups[GROUP_LOST] is None else self._groups[GROUP_LOST].rate
+        new, lost = self._groups[GROUP_NEW], self._groups[GROUP_LOST]
+        self.prior_rate_new_ = start.rate if new is None else new.rate
+        self.prior_rate_lost_ = start.rate if lost is None else lost.rate
         self.det_idx_ = np.flatnonzero(~self.miss_)
         self._det_tree = cKDTree(self.states_[self.det_idx_, :2] / self.scale_[:2])
         tree = self._main_tree if self._main_tree is not None else self._start_tree
