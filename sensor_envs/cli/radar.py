@@ -202,4 +202,12 @@ def _validate(args: argparse.Namespace) -> int:
     path = out / "report.json"
     summary = {k: report[k]["nll_z_given_detected"] for k in ("model", "baseline_gaussian")}
     print(f"wrote {path}; NLL(z | detected): {json.dumps(summary)}")
+    by_prev = report["model"].get("detection_rate_by_previous")
+    if by_prev:  # time-series logs: closed-loop rollout vs recorded, split by the previous cycle
+        parts = ", ".join(
+            f"{k.replace('_', ' ')} {by_prev['rollout'][k]['rate']:.3f} vs {by_prev['recorded'][k]['rate']:.3f}"
+            f" ({by_prev['recorded'][k]['n']} rows)"
+            for k in ("new", "after_miss", "after_detection")
+        )
+        print(f"rollout detection rate vs recorded: {parts}")
     return 0

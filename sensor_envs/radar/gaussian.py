@@ -3,8 +3,11 @@
 Fitted on the same log as the KDE model. Per range bin of the closest corner (``range_edges`` [m]):
 the mean and covariance of ``z = meas - corner`` [m] over detected rows and the detection
 probability; bins with fewer than ``min_count`` detections use the pooled values. Outputs are
-independent between cycles (no ``z_{t-1}``). Clutter: Poisson count with the log's mean rate per
-cycle, positions from a 2-D Gaussian fitted to the clutter rows (sensor frame, metres).
+independent between cycles (no ``z_{t-1}``), so the model has no start state: the ``new_track``
+flags of the radar API (new track vs lost track, see :class:`sensor_envs.radar.kde.KDERadarModel`)
+are accepted and ignored - a new and a lost target at the same corner are detected alike. Clutter:
+Poisson count with the log's mean rate per cycle, positions from a 2-D Gaussian fitted to the
+clutter rows (sensor frame, metres).
 
 **Extra state** (``extra_state``, format 2): names of numeric log columns (as for the KDE model)
 entering linearly: the mean is ``mean_bin + B^T (x - x_mean) / x_std`` (least squares, alternated
@@ -183,9 +186,14 @@ class GaussianRadar(BaseEstimator):
         return self.p_detect_[self._bin(np.atleast_2d(corners), self.edges_)]
 
     def sample_cycle(
-        self, corners: NDArray, prev_z: NDArray | None, rng: np.random.Generator, extra: NDArray | None = None
+        self,
+        corners: NDArray,
+        prev_z: NDArray | None,
+        rng: np.random.Generator,
+        extra: NDArray | None = None,
+        new_track: NDArray | None = None,
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-        """``RadarSensor.sample_cycle``; ``prev_z`` is ignored; ``source`` is always -1."""
+        """``RadarSensor.sample_cycle``; ``prev_z`` and ``new_track`` are ignored; ``source`` is always -1."""
         self._check_fitted()
         corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
         n = corners.shape[0]
@@ -196,7 +204,7 @@ class GaussianRadar(BaseEstimator):
         return z, np.full(n, -1, dtype=np.int64)
 
     def sample(
-        self, state: NDArray, rng: np.random.Generator, extra: NDArray | None = None
+        self, state: NDArray, rng: np.random.Generator, extra: NDArray | None = None, new_track: NDArray | None = None
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """Sample for ``(n, 2)`` or ``(n, 4)`` states (only the corner is used) and the extra state."""
         self._check_fitted()
@@ -209,8 +217,13 @@ class GaussianRadar(BaseEstimator):
         m = int(rng.poisson(self.clutter_rate_))
         return rng.multivariate_normal(self.clutter_mean_, self.clutter_cov_, size=m).reshape(m, 2)
 
-    def log_prob(self, z: NDArray, state: NDArray, extra: NDArray | None = None) -> NDArray[np.float64]:
-        """``log p_d + log N(z; mean, cov)`` for detections, ``log(1 - p_d)`` for ``NaN`` rows, ``(n,)``."""
+    def log_prob(
+        self, z: NDArray, state: NDArray, extra: NDArray | None = None, new_track: NDArray | None = None
+    ) -> NDArray[np.float64]:
+        """``log p_d + log N(z; mean, cov)`` for detections, ``log(1 - p_d)`` for ``NaN`` rows, ``(n,)``.
+
+        ``new_track`` is accepted for the common radar API and ignored (no start state).
+        """
         self._check_fitted()
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))

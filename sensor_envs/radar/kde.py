@@ -31,10 +31,16 @@ truncated weights, so they agree exactly.
 track) cross-validation of the conditional density on a regular grid of corner positions, and are
 bilinearly interpolated (in log) at run time; see :func:`cv_bandwidth_table`.
 
-**Missing previous output** (new target, or missed last cycle): the "start" model - a separate tree
+**Missing previous output** (new target, or missed last cycle): the "start" model - separate trees
 over the 2-D corner state of the tuples whose own previous output is missing, with the corner part
-of ``K_rel``. Without ``z_{t-1}`` (``use_prev=False``, e.g. Astyx, which is no time series) every
-query uses a 2-D tree over all tuples.
+of ``K_rel``. Format 4 keeps two of them apart (``new_track_``, one flag per tuple): the **new-track**
+tree (tuples whose target has no previous row in the log: first seen) and the **after-miss** tree
+(the previous row exists but was a miss: a lost track). A query picks its tree by the caller's
+``new_track`` flag (``True`` = first seen, ``False`` = missed last cycle); without a flag (``None``,
+and always for format-3 files, which lack the per-tuple flags) it uses the combined start tree of
+all such tuples, as before. An empty new-track or after-miss tree falls back to the combined one.
+Without ``z_{t-1}`` (``use_prev=False``, e.g. Astyx, which is no time series) every query uses a
+2-D tree over all tuples and the flag is ignored.
 
 **Two-stage sampling** (``sampler="ball"``, the reference): ball query, pick one neighbour with
 probability ``w_i / sum w``, a missed tuple yields a miss (implemented as: draw the outcome with
@@ -64,6 +70,7 @@ ball sampler (the bucket grid is kept for the 2-D/4-D states).
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from itertools import chain
 from pathlib import Path
 from typing import Any, ClassVar
@@ -102,11 +109,14 @@ from sensor_envs.radar.relevance import select_corner_variance, select_extra_var
 __all__ = ["KDERadarModel", "cv_bandwidth_table"]
 
 KIND = "radar_kde"
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 """Model file format: 1 = up to the ball sampler; 2 adds ``sampler``/``bucket_cell``, the relevance
 selection (``relevance*`` params, the fitted ``rel_variance_``) and ``start_split``; 3 adds the extra
-state (``extra_*`` params, the ``extra`` array, ``state_variables`` in the header). Older files load
-with the defaults of the new parameters (no extra state)."""
+state (``extra_*`` params, the ``extra`` array, ``state_variables`` in the header); 4 adds the
+per-tuple ``new_track`` flags (uint8 0/1; new-track vs after-miss start trees). Older files load
+with the defaults of the new parameters (no extra state; one combined start tree)."""
+GROUP_MAIN, GROUP_START, GROUP_NEW, GROUP_LOST = 0, 1, 2, 3
+"""Tree of a query: with ``z_{t-1}``; start (flag unknown); new track; after a miss."""
 AUTO_BUCKET_MIN_NEIGHBOURS = 100
 """``sampler="auto"`` uses the bucket sampler when the median number of tuples in the ball of a stored
 state is at least this (the ball sampler's cost follows it; benchmarks/bench_radar.py, 10-target
@@ -116,6 +126,20 @@ MAX_POSITION = 1e3
 _LOG_2PI = np.log(2.0 * np.pi)
 _POSITIVE = Interval(0, None, open_low=True)
 _NOT_FITTED = "This %(name)s is not fitted yet; call fit(log) or KDERadarModel.load(path) first"
+
+
+@dataclass(frozen=True)
+class _Tree:
+    """One search tree of stored tuples.
+
+    The scaled-state tree, the global tuple index of each of its points, its bucket grid (``None``
+    with extra state or when too large) and its prior miss rate.
+    """
+
+    tree: cKDTree
+    idx: NDArray[np.int64]
+    buckets: Any
+    rate: float
 
 
 def _neighbour_lists(
@@ -386,6 +410,7 @@ class KDERadarModel(BaseEstimator):
         self.states_ = np.concatenate([tt.corner, tt.z_prev], axis=1)
         self.z_ = tt.z
         self.log_row_ = tt.row
+        self.new_track_: NDArray[np.bool_] | None = ~tt.has_prev_row  # first row of its target in the log
         self.rel_variance_ = tuple(float(v) for v in self.rel_variance)
         self.relevance_scores_ = np.zeros(0)
         if self.relevance == "cv":
@@ -475,14 +500,16 @@ class KDERadarModel(BaseEstimator):
         self._check_fitted()
         return ("corner_x", "corner_y", "prev_z_x", "prev_z_y", *self.extra_state_)
 
-    def mean_output(self, state: NDArray, extra: NDArray | None = None) -> tuple[NDArray, NDArray]:
+    def mean_output(
+        self, state: NDArray, extra: NDArray | None = None, new_track: NDArray | None = None
+    ) -> tuple[NDArray, NDArray]:
         """Expected output given a detection ``(n, 2)`` [m] and ``P(miss)`` ``(n,)`` (arguments as :meth:`log_prob`)."""
         self._check_fitted()
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         n = st.shape[0]
         ex = self._extra_query(extra, n)
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
-        gi, w, q, p_miss = self._outcome(st[:, :2], prev, ex)
+        gi, w, q, p_miss = self._outcome(st[:, :2], prev, ex, self._route(_as_prev(prev, n), new_track))
         gi, w, q = self._with_detected_fallback(gi, w, q, st[:, :2])
         wd = w * ~self.miss_[gi]
         zi = np.nan_to_num(self.z_[gi])  # missed tuples have NaN outputs and zero weight here
@@ -492,51 +519,85 @@ class KDERadarModel(BaseEstimator):
     def _build(self) -> None:
         """Build the search trees from the stored tuples (at fit and at load; never per call)."""
         has_prev = ~np.isnan(self.states_[:, 2])
+        empty = np.zeros(0, dtype=np.int64)
+        flags = getattr(self, "new_track_", None)
         if self.use_prev:
             self.main_idx_ = np.flatnonzero(has_prev)
             self.start_idx_ = np.flatnonzero(~has_prev)
             if self.start_idx_.size == 0:
                 self.start_idx_ = np.arange(self.states_.shape[0])
+            self.new_idx_ = empty if flags is None else np.flatnonzero(~has_prev & flags)
+            self.lost_idx_ = empty if flags is None else np.flatnonzero(~has_prev & ~flags)
         else:
-            self.main_idx_ = np.zeros(0, dtype=np.int64)
+            self.main_idx_ = empty
             self.start_idx_ = np.arange(self.states_.shape[0])
+            self.new_idx_, self.lost_idx_ = empty, empty
         if not hasattr(self, "extra_"):  # models fitted/loaded before the extra state existed
             self.extra_state_, self.extra_ = (), np.zeros((self.states_.shape[0], 0))
             self.extra_fill_, self.extra_variance_, self.extra_scale_ = np.zeros(0), (), np.zeros(0)
-        main, start = self.main_idx_, self.start_idx_
-        self._main_tree = cKDTree(self._scaled(self.states_[main], self.extra_[main])) if main.size else None
-        self._start_tree = cKDTree(self._scaled(self.states_[start, :2], self.extra_[start]))
         self.miss_ = np.isnan(self.z_[:, 0])
         self.miss_rate_ = float(self.miss_.mean())
         tree_rate = self.prior_rate == "tree"
-        self.prior_rate_main_ = (
-            float(self.miss_[self.main_idx_].mean()) if tree_rate and self.main_idx_.size else self.miss_rate_
-        )
-        self.prior_rate_start_ = float(self.miss_[self.start_idx_].mean()) if tree_rate else self.miss_rate_
+        self._groups: list[_Tree | None] = []
+        for g, idx in enumerate((self.main_idx_, self.start_idx_, self.new_idx_, self.lost_idx_)):
+            if idx.size == 0:
+                self._groups.append(None)
+                continue
+            dims = 4 if g == GROUP_MAIN else 2
+            tree = cKDTree(self._scaled(self.states_[idx, :dims], self.extra_[idx]))
+            buckets = (
+                None
+                if self.extra_.shape[1]
+                else build_buckets(tree.data, self.bucket_cell, self.radius, flag=self.miss_[idx])
+            )
+            rate = float(self.miss_[idx].mean()) if tree_rate else self.miss_rate_
+            self._groups.append(_Tree(tree, idx, buckets, rate))
+        main, start = self._groups[GROUP_MAIN], self._groups[GROUP_START]
+        assert start is not None  # the start tree always holds tuples
+        self._main_tree = None if main is None else main.tree
+        self._start_tree = start.tree
+        self.prior_rate_main_ = self.miss_rate_ if main is None else main.rate
+        self.prior_rate_start_ = start.rate
+        new, lost = self._groups[GROUP_NEW], self._groups[GROUP_LOST]
+        self.prior_rate_new_ = start.rate if new is None else new.rate
+        self.prior_rate_lost_ = start.rate if lost is None else lost.rate
         self.det_idx_ = np.flatnonzero(~self.miss_)
         self._det_tree = cKDTree(self.states_[self.det_idx_, :2] / self.scale_[:2])
-        self._main_buckets = (
-            None
-            if self._main_tree is None or self.extra_.shape[1]
-            else build_buckets(self._main_tree.data, self.bucket_cell, self.radius, flag=self.miss_[self.main_idx_])
-        )
-        self._start_buckets = (
-            None
-            if self.extra_.shape[1]
-            else build_buckets(self._start_tree.data, self.bucket_cell, self.radius, flag=self.miss_[self.start_idx_])
-        )
         tree = self._main_tree if self._main_tree is not None else self._start_tree
         probe = tree.data[:: max(1, tree.n // 256)]  # a deterministic sample of stored states
         self.median_neighbours_ = float(np.median(tree.query_ball_point(probe, self.radius, return_length=True)))
         self._auto_bucket = self.median_neighbours_ >= AUTO_BUCKET_MIN_NEIGHBOURS
 
+    def _route(self, prev: NDArray, new_track: NDArray | None) -> NDArray[np.int64]:
+        """Tree of each query ``(n,)`` (``GROUP_*``) from its previous output ``(n, 2)`` and ``new_track`` flag.
+
+        Raises:
+            ValueError: when ``new_track`` is not ``n`` booleans, or flags a query that has a previous output.
+        """
+        n = prev.shape[0]
+        has = ~np.isnan(prev[:, 0])
+        grp = np.where(has & (self._groups[GROUP_MAIN] is not None), GROUP_MAIN, GROUP_START).astype(np.int64)
+        if new_track is None:
+            return grp
+        flag = np.asarray(new_track)
+        if flag.dtype != np.bool_ or flag.shape not in ((n,), ()):
+            raise ValueError(f"new_track: expected None or ({n},) booleans, got {flag.dtype} of shape {flag.shape}")
+        flag = np.broadcast_to(flag, (n,))
+        if (flag & has).any():
+            r = int(np.flatnonzero(flag & has)[0])
+            raise ValueError(f"new_track: row {r} is flagged new but has a previous output (prev_z is finite)")
+        if not self.use_prev:
+            return grp
+        start = grp == GROUP_START
+        for g, sel in ((GROUP_NEW, start & flag), (GROUP_LOST, start & ~flag)):
+            if self._groups[g] is not None:
+                grp[sel] = g
+        return grp
+
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        state.pop("_main_tree", None)
-        state.pop("_start_tree", None)
-        state.pop("_det_tree", None)
-        state.pop("_main_buckets", None)
-        state.pop("_start_buckets", None)
+        for key in ("_main_tree", "_start_tree", "_det_tree", "_main_buckets", "_start_buckets", "_groups"):
+            state.pop(key, None)
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -555,9 +616,12 @@ class KDERadarModel(BaseEstimator):
         return np.exp(_interp_log_h(self.grid_x_, self.grid_y_, self.log_h_, np.atleast_2d(corners)))
 
     def _neighbours(
-        self, corners: NDArray, prev_z: NDArray | None, extra: NDArray | None = None
+        self, corners: NDArray, prev_z: NDArray | None, extra: NDArray | None = None, grp: NDArray | None = None
     ) -> tuple[NDArray, NDArray, NDArray]:
-        """Relevant tuples of each query: flat ``(global tuple index, weight, query id)``."""
+        """Relevant tuples of each query: flat ``(global tuple index, weight, query id)``.
+
+        ``grp (n,)`` is the tree of each query (:meth:`_route`; ``None`` = by ``prev_z`` alone).
+        """
         corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
         n = corners.shape[0]
         ex = self._extra_query(extra, n)
@@ -568,16 +632,15 @@ class KDERadarModel(BaseEstimator):
             raise ValueError(
                 f"corners: row {int(np.flatnonzero(~np.isfinite(corners).all(axis=1))[0])} is NaN or infinite"
             )
-        use_main = ~np.isnan(prev[:, 0]) & (self._main_tree is not None)
+        grp = self._route(prev, None) if grp is None else grp
+        full = np.concatenate([corners, prev], axis=1)
         parts = []
-        for mask, tree, idx_map, q in (
-            (use_main, self._main_tree, self.main_idx_, np.concatenate([corners, prev], axis=1)),
-            (~use_main, self._start_tree, self.start_idx_, corners),
-        ):
-            qi = np.flatnonzero(mask)
-            if qi.size == 0:
+        for g, node in enumerate(self._groups):
+            qi = np.flatnonzero(grp == g)
+            if qi.size == 0 or node is None:
                 continue
-            qs = self._scaled(q[qi], ex[qi])
+            tree, idx_map = node.tree, node.idx
+            qs = self._scaled(full[qi, : 4 if g == GROUP_MAIN else 2], ex[qi])
             j, d2, qid = _neighbour_lists(tree, qs, self.radius, self.k_max)
             w = np.exp(-0.5 * d2)
             empty = np.bincount(qid, weights=w, minlength=qi.size) <= 0.0
@@ -598,7 +661,7 @@ class KDERadarModel(BaseEstimator):
         return idx_map[j.ravel()], w.ravel(), np.repeat(qi, k)
 
     def sample(
-        self, state: NDArray, rng: np.random.Generator, extra: NDArray | None = None
+        self, state: NDArray, rng: np.random.Generator, extra: NDArray | None = None, new_track: NDArray | None = None
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """Two-stage sample for a batch of states.
 
@@ -607,6 +670,10 @@ class KDERadarModel(BaseEstimator):
                 sensor frame.
             rng: generator.
             extra: ``(n, E)`` values of the extra state variables (required when the model has any).
+            new_track: ``(n,)`` booleans for the rows without a previous output: ``True`` = the target
+                is seen for the first time (new-track tree), ``False`` = it was missed last cycle
+                (after-miss tree); ``None`` = unknown (the combined start tree). Must be ``False``
+                where the previous output is finite.
 
         Returns:
             ``z (n, 2)`` [m] (``NaN`` rows = missed) and ``source (n,)`` the picked tuple's index.
@@ -614,24 +681,24 @@ class KDERadarModel(BaseEstimator):
         self._check_fitted()
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
-        return self.sample_cycle(st[:, :2], prev, rng, extra=extra)
+        return self.sample_cycle(st[:, :2], prev, rng, extra=extra, new_track=new_track)
 
     def _outcome(
-        self, corners: NDArray, prev_z: NDArray | None, extra: NDArray | None = None
+        self, corners: NDArray, prev_z: NDArray | None, extra: NDArray | None = None, grp: NDArray | None = None
     ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-        """Neighbours ``(gi, w, q)`` and the miss probability ``(n,)`` of each query."""
-        gi, w, q = self._neighbours(corners, prev_z, extra)
+        """Neighbours ``(gi, w, q)`` and the miss probability ``(n,)`` of each query (``grp``: see :meth:`_route`)."""
         n = corners.shape[0]
+        grp = self._route(_as_prev(prev_z, n), None) if grp is None else grp
+        gi, w, q = self._neighbours(corners, prev_z, extra, grp)
         wsum = np.bincount(q, weights=w, minlength=n)
         wmiss = np.bincount(q, weights=w * self.miss_[gi], minlength=n)
-        main = (
-            np.zeros(n, dtype=bool)
-            if prev_z is None or self._main_tree is None
-            else ~np.isnan(np.atleast_2d(np.asarray(prev_z, dtype=np.float64))[:, 0])
-        )
-        rate = np.where(main, self.prior_rate_main_, self.prior_rate_start_)
+        rate = self._group_rates()[grp]
         p_miss = (wmiss + self.miss_prior * rate) / (wsum + self.miss_prior)
         return gi, w, q, p_miss
+
+    def _group_rates(self) -> NDArray[np.float64]:
+        """Prior miss rate ``m`` of each tree (``GROUP_*`` order)."""
+        return np.array([self.prior_rate_main_, self.prior_rate_start_, self.prior_rate_new_, self.prior_rate_lost_])
 
     @staticmethod
     def _pick(gi: NDArray, w: NDArray, q: NDArray, groups: NDArray, rng: np.random.Generator) -> NDArray[np.int64]:
@@ -657,9 +724,17 @@ class KDERadarModel(BaseEstimator):
         return self.det_idx_[j]
 
     def sample_cycle(
-        self, corners: NDArray, prev_z: NDArray | None, rng: np.random.Generator, extra: NDArray | None = None
+        self,
+        corners: NDArray,
+        prev_z: NDArray | None,
+        rng: np.random.Generator,
+        extra: NDArray | None = None,
+        new_track: NDArray | None = None,
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """``RadarSensor.sample_cycle``: outputs for ``n`` targets of one cycle (see :meth:`sample`).
+
+        ``new_track (n,)`` tells a target seen for the first time (``True``) from one missed last
+        cycle (``False``) where ``prev_z`` is ``NaN``; ``None`` = unknown (combined start tree).
 
         The outcome has ``P(miss | x)``; a detected outcome comes from a detected tuple picked with
         probability proportional to its relevance weight, then ``z ~ N(z_i, diag(h^2))``. With
@@ -672,29 +747,32 @@ class KDERadarModel(BaseEstimator):
         n = corners.shape[0]
         if n == 0:
             return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
-        prev = (
-            np.full((n, 2), np.nan)
-            if prev_z is None or not self.use_prev
-            else np.atleast_2d(np.asarray(prev_z, dtype=np.float64))
-        )
+        prev = _as_prev(None if not self.use_prev else prev_z, n)
+        grp = self._route(prev, new_track)
         ex = self._extra_query(extra, n)
         bucket = self.sampler == "bucket" or (self.sampler == "auto" and self._auto_bucket)
         if self.k_max is None and bucket and ex.shape[1] == 0:
-            miss, src = self._draw_bucket(corners, prev, rng)
+            miss, src = self._draw_bucket(corners, prev, rng, grp)
         else:
-            miss, src = self._draw_ball(corners, prev, rng, ex)
+            miss, src = self._draw_ball(corners, prev, rng, ex, grp)
         h = self.bandwidth(corners)
         z = np.where(miss[:, None], np.nan, self.z_[np.maximum(src, 0)] + h * rng.standard_normal((n, 2)))
         return z, src
 
     def _draw_ball(
-        self, corners: NDArray, prev: NDArray, rng: np.random.Generator, extra: NDArray | None = None
+        self,
+        corners: NDArray,
+        prev: NDArray,
+        rng: np.random.Generator,
+        extra: NDArray | None = None,
+        grp: NDArray | None = None,
     ) -> tuple[NDArray, NDArray]:
         """Reference sampler (``sampler="ball"``): full ball query, outcome, then tuple; ``(miss, source)``."""
         n = corners.shape[0]
         ex = self._extra_query(extra, n)
-        rep, inv = _unique_states(corners, np.concatenate([prev, ex], axis=1))
-        gi, w, q, p_miss = self._outcome(corners[rep], prev[rep], ex[rep])
+        grp = self._route(prev, None) if grp is None else grp
+        rep, inv = _unique_states(corners, np.concatenate([prev, ex, grp[:, None].astype(np.float64)], axis=1))
+        gi, w, q, p_miss = self._outcome(corners[rep], prev[rep], ex[rep], grp[rep])
         miss = rng.random(n) < p_miss[inv]
         miss_t = self.miss_[gi]
         if rep.size == n:  # one group per query: pick among the tuples of the drawn outcome at once
@@ -706,16 +784,20 @@ class KDERadarModel(BaseEstimator):
             src[lost] = self._nearest_detected(corners[lost])
         return miss, src
 
-    def _pick_detected_ball(self, corners: NDArray, prev: NDArray, rng: np.random.Generator) -> NDArray[np.int64]:
+    def _pick_detected_ball(
+        self, corners: NDArray, prev: NDArray, rng: np.random.Generator, grp: NDArray
+    ) -> NDArray[np.int64]:
         """A detected tuple with probability ``w_i / sum_{detected} w`` (reference search), per query."""
-        gi, w, q = self._neighbours(corners, prev)
+        gi, w, q = self._neighbours(corners, prev, None, grp)
         src = self._pick(gi, w * ~self.miss_[gi], q, np.arange(corners.shape[0]), rng)
         lost = src < 0
         if lost.any():
             src[lost] = self._nearest_detected(corners[lost])
         return src
 
-    def _draw_bucket(self, corners: NDArray, prev: NDArray, rng: np.random.Generator) -> tuple[NDArray, NDArray]:
+    def _draw_bucket(
+        self, corners: NDArray, prev: NDArray, rng: np.random.Generator, grp: NDArray
+    ) -> tuple[NDArray, NDArray]:
         """Exact bucket-rejection sampler (``sampler="bucket"``), same distribution as :meth:`_draw_ball`.
 
         One proposal stage picks tuple ``i`` with probability ``w_i / (sum w + a)`` or the ``miss_prior``
@@ -729,24 +811,15 @@ class KDERadarModel(BaseEstimator):
         n = corners.shape[0]
         miss, src = np.zeros(n, dtype=bool), np.full(n, -1, dtype=np.int64)
         todo, need_det = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
-        use_main = ~np.isnan(prev[:, 0]) & (self._main_tree is not None)
-        for mask, tree, buckets, idx_map, rate, q in (
-            (
-                use_main,
-                self._main_tree,
-                self._main_buckets,
-                self.main_idx_,
-                self.prior_rate_main_,
-                np.concatenate([corners, prev], axis=1),
-            ),
-            (~use_main, self._start_tree, self._start_buckets, self.start_idx_, self.prior_rate_start_, corners),
-        ):
-            qi = np.flatnonzero(mask)
-            if qi.size == 0 or buckets is None:  # no queries, or a grid too large for memory
+        full = np.concatenate([corners, prev], axis=1)
+        for g, node in enumerate(self._groups):
+            qi = np.flatnonzero(grp == g)
+            if qi.size == 0 or node is None or node.buckets is None:  # no queries, or a grid too large for memory
                 todo[qi] = True
                 continue
-            assert tree is not None  # a bucket grid exists only beside its tree
-            qs = q[qi] / self.scale_[: q.shape[1]]
+            tree, buckets, idx_map, rate = node.tree, node.buckets, node.idx, node.rate
+            d = 4 if g == GROUP_MAIN else 2
+            qs = full[qi, :d] / self.scale_[:d]
             rep, inv = _unique_rows(qs)
             pick, done, via = sample_proportional(
                 buckets, qs[rep], self.miss_prior, rng, allowed=~buckets.flag, pseudo_stop=rate, inv=inv
@@ -761,9 +834,9 @@ class KDERadarModel(BaseEstimator):
             src[qi[tup]] = idx_map[pick[tup]]
             miss[qi[done]] = np.where(tup[done], self.miss_[idx_map[np.maximum(pick[done], 0)]], True)
         if todo.any():
-            miss[todo], src[todo] = self._draw_ball(corners[todo], prev[todo], rng)
+            miss[todo], src[todo] = self._draw_ball(corners[todo], prev[todo], rng, None, grp[todo])
         if need_det.any():  # pseudo-tuple drawn as a detection, rejection gave up: reference pick
-            src[need_det] = self._pick_detected_ball(corners[need_det], prev[need_det], rng)
+            src[need_det] = self._pick_detected_ball(corners[need_det], prev[need_det], rng, grp[need_det])
         return miss, src
 
     def sample_clutter(self, rng: np.random.Generator) -> NDArray[np.float64]:
@@ -775,13 +848,16 @@ class KDERadarModel(BaseEstimator):
         xy = self.clutter_xy_[rng.integers(0, self.clutter_xy_.shape[0], m)]
         return xy + self.clutter_jitter * rng.standard_normal((m, 2))
 
-    def log_prob(self, z: NDArray, state: NDArray, extra: NDArray | None = None) -> NDArray[np.float64]:
+    def log_prob(
+        self, z: NDArray, state: NDArray, extra: NDArray | None = None, new_track: NDArray | None = None
+    ) -> NDArray[np.float64]:
         """Log-probability of outcomes under the truncated-kernel density (the seed's Eq. 10).
 
         Args:
             z: ``(n, 2)`` outputs [m]; a ``NaN`` row is a miss and scores ``log P(miss | x)``.
             state: ``(n, 2)`` or ``(n, 4)`` as in :meth:`sample`.
             extra: ``(n, E)`` values of the extra state variables (required when the model has any).
+            new_track: ``(n,)`` new-track flags as in :meth:`sample` (``None`` = unknown).
 
         Returns:
             ``(n,)``: ``log(1 - P(miss | x)) + log p(z | x, detected)`` [log 1/m^2] for detections,
@@ -792,7 +868,8 @@ class KDERadarModel(BaseEstimator):
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))
         n = st.shape[0]
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
-        gi, w, q, p_miss = self._outcome(st[:, :2], prev, self._extra_query(extra, n))
+        grp = self._route(_as_prev(prev, n), new_track)
+        gi, w, q, p_miss = self._outcome(st[:, :2], prev, self._extra_query(extra, n), grp)
         gi, w, q = self._with_detected_fallback(gi, w, q, st[:, :2])
         h = self.bandwidth(st[:, :2])
         det_t = ~self.miss_[gi]
@@ -822,7 +899,12 @@ class KDERadarModel(BaseEstimator):
         return gi[order], w[order], q[order]
 
     def bin_probabilities(
-        self, state: NDArray, edges_x: NDArray, edges_y: NDArray, extra: NDArray | None = None
+        self,
+        state: NDArray,
+        edges_x: NDArray,
+        edges_y: NDArray,
+        extra: NDArray | None = None,
+        new_track: NDArray | None = None,
     ) -> tuple[NDArray[np.float64], float]:
         """Exact probability of each output bin for ONE state (for the chi-square check).
 
@@ -831,6 +913,7 @@ class KDERadarModel(BaseEstimator):
             edges_x: bin edges [m] of ``z_x``.
             edges_y: bin edges [m] of ``z_y``.
             extra: ``(1, E)`` extra state values (required when the model has any).
+            new_track: ``(1,)`` new-track flag as in :meth:`sample` (``None`` = unknown).
 
         Returns:
             ``(len(edges_x) - 1, len(edges_y) - 1)`` bin probabilities and ``P(miss)``.
@@ -838,7 +921,8 @@ class KDERadarModel(BaseEstimator):
         self._check_fitted()
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))[:1]
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
-        gi, w, q, p_miss = self._outcome(st[:, :2], prev, self._extra_query(extra, 1))
+        grp = self._route(_as_prev(prev, 1), new_track)
+        gi, w, q, p_miss = self._outcome(st[:, :2], prev, self._extra_query(extra, 1), grp)
         gi, w, _ = self._with_detected_fallback(gi, w, q, st[:, :2])
         h = self.bandwidth(st[:, :2])[0]
         det = ~self.miss_[gi]
@@ -866,6 +950,7 @@ class KDERadarModel(BaseEstimator):
             "state_variables": list(self.state_variables),
             "extra_variance_fitted": [float(v) for v in self.extra_variance_],
             "extra_fill": [float(v) for v in self.extra_fill_],
+            "new_track_flags": self.new_track_ is not None,
         }
         arrays = {
             "states": self.states_,
@@ -880,6 +965,8 @@ class KDERadarModel(BaseEstimator):
             "clutter_xy": self.clutter_xy_,
             "extra": self.extra_,
         }
+        if self.new_track_ is not None:
+            arrays["new_track"] = self.new_track_.astype(np.uint8)
         return save_model_file(path, KIND, FORMAT_VERSION, header, arrays)
 
     @classmethod
@@ -897,7 +984,7 @@ class KDERadarModel(BaseEstimator):
             "clutter_counts": ("iu", 1, True),
             "clutter_xy": ("f", 2, True),
         }
-        header, a = load_model_file(path, KIND, (1, 2, FORMAT_VERSION), schema)
+        header, a = load_model_file(path, KIND, (1, 2, 3, FORMAT_VERSION), schema)
         defaults = {  # parameters older formats lack: 1 has no prior_rate, 1 and 2 no extra state
             "prior_rate": "global",
             "extra_state": (),
@@ -920,6 +1007,7 @@ class KDERadarModel(BaseEstimator):
         model.cycle_time_ = optional_positive(path, "cycle_time", header.get("cycle_time"))
         model.card_ = header.get("card", {})
         _load_extra(model, header, a, path)
+        model.new_track_ = _load_new_track(header, a, path, model.states_)
         model._build()
         return model
 
@@ -961,6 +1049,37 @@ def _check_arrays(path: str | os.PathLike[str], a: dict[str, NDArray[Any]]) -> N
     check_finite(path, "cv_candidates", a["cv_candidates"])
 
 
+def _load_new_track(
+    header: dict[str, Any], a: dict[str, NDArray[Any]], path: Any, states: NDArray
+) -> NDArray[np.bool_] | None:
+    """The per-tuple new-track flags of a format-4 file (``None``: older files, or saved without them).
+
+    Raises:
+        ModelFileError: when the flags are announced but missing, not ``n`` values in {0, 1}, or flag a
+            tuple that has a previous output (a new track has none).
+    """
+    announced = header.get("new_track_flags", False)
+    if not isinstance(announced, bool):
+        raise ModelFileError(f"{path}: field 'new_track_flags' must be true or false")
+    if int(header.get("format_version", 0)) < 4 or not announced:
+        if "new_track" in a:
+            raise ModelFileError(f"{path}: field 'new_track' is present but 'new_track_flags' is not true")
+        return None
+    if "new_track" not in a:
+        raise ModelFileError(f"{path}: field 'new_track' is missing")
+    f = a["new_track"]
+    if f.dtype.kind not in "ub" or f.shape != (states.shape[0],):
+        raise ModelFileError(
+            f"{path}: field 'new_track' must be {states.shape[0]} unsigned flags, got {f.dtype} {f.shape}"
+        )
+    if not np.isin(f, (0, 1)).all():
+        raise ModelFileError(f"{path}: field 'new_track' holds values other than 0 and 1")
+    flags = f.astype(bool)
+    if (flags & ~np.isnan(states[:, 2])).any():
+        raise ModelFileError(f"{path}: field 'new_track' flags a tuple that has a previous output")
+    return flags
+
+
 def _check_extra_params(names: Any, variance: Any, candidates: Any) -> None:
     """Validate the ``extra_*`` hyperparameters (raises ValueError naming the parameter)."""
     if isinstance(names, str) or not all(isinstance(n, str) and n for n in names):
@@ -996,6 +1115,16 @@ def _load_extra(model: KDERadarModel, header: dict[str, Any], a: dict[str, NDArr
     model.extra_state_, model.extra_ = names, extra
     model.extra_variance_, model.extra_fill_ = tuple(float(v) for v in var), fill
     model.extra_scale_ = np.sqrt(var)
+
+
+def _as_prev(prev_z: NDArray | None, n: int) -> NDArray[np.float64]:
+    """Previous outputs ``(n, 2)`` [m] (``None`` = all missing); ``ValueError`` on a wrong shape."""
+    if prev_z is None:
+        return np.full((n, 2), np.nan)
+    prev = np.atleast_2d(np.asarray(prev_z, dtype=np.float64))
+    if prev.shape != (n, 2):
+        raise ValueError(f"prev_z must be ({n}, 2) like corners; got {prev.shape}")
+    return prev
 
 
 def _unique_states(corners: NDArray, prev: NDArray, min_n: int = 64) -> tuple[NDArray, NDArray]:

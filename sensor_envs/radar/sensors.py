@@ -14,6 +14,7 @@ Models: :class:`IdealRadar` (here), ``GaussianRadar`` and ``KDERadarModel``
 from __future__ import annotations
 
 import functools
+import inspect
 import os
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -23,7 +24,15 @@ from numpy.typing import NDArray
 
 from sensor_envs.modelio import default_model_path, model_file_key
 
-__all__ = ["RadarSensor", "IdealRadar", "RADAR_NAMES", "DEFAULT_MODEL_FILES", "make_radar"]
+__all__ = [
+    "RadarSensor",
+    "IdealRadar",
+    "RADAR_NAMES",
+    "DEFAULT_MODEL_FILES",
+    "NEW_TRACK_KEYWORD",
+    "make_radar",
+    "takes_new_track",
+]
 
 
 @runtime_checkable
@@ -34,6 +43,12 @@ class RadarSensor(Protocol):
         self, corners: NDArray[np.float64], prev_z: NDArray[np.float64], rng: np.random.Generator
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """Sample the outputs for ``n`` visible targets in one cycle.
+
+        Models that tell a new track from a lost one (:data:`NEW_TRACK_KEYWORD`) also take
+        ``new_track``: ``(n,)`` booleans, ``True`` where the target is seen for the first time,
+        ``False`` where it was seen before (its ``prev_z`` is ``NaN`` when it was missed last cycle);
+        ``None`` = unknown. Callers pass it only to models whose ``sample_cycle`` accepts it
+        (:func:`takes_new_track`), so a sensor without a start state need not declare it.
 
         Args:
             corners: ``(n, 2)`` closest visible corner of each target, sensor frame [m].
@@ -57,15 +72,33 @@ class IdealRadar:
     """Perfect radar: reports every visible target exactly at its closest corner, no clutter."""
 
     def sample_cycle(
-        self, corners: NDArray[np.float64], prev_z: NDArray[np.float64], rng: np.random.Generator
+        self,
+        corners: NDArray[np.float64],
+        prev_z: NDArray[np.float64],
+        rng: np.random.Generator,
+        new_track: NDArray[np.bool_] | None = None,
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-        """Return zero offsets and no source tuple for every target (``rng`` is unused)."""
+        """Return zero offsets and no source tuple for every target (``rng`` and ``new_track`` are unused)."""
         n = np.asarray(corners).shape[0]
         return np.zeros((n, 2)), np.full(n, -1, dtype=np.int64)
 
     def sample_clutter(self, rng: np.random.Generator) -> NDArray[np.float64]:
         """No clutter."""
         return np.zeros((0, 2))
+
+
+NEW_TRACK_KEYWORD = "new_track"
+"""Keyword of ``sample_cycle`` carrying the per-target new-track flags (see :class:`RadarSensor`)."""
+
+
+def takes_new_track(radar: object) -> bool:
+    """Whether ``radar.sample_cycle`` accepts the :data:`NEW_TRACK_KEYWORD` argument."""
+    fn = getattr(radar, "sample_cycle", None)
+    try:
+        params = inspect.signature(fn).parameters if fn is not None else {}
+    except (TypeError, ValueError):  # builtins or C callables without a signature
+        return False
+    return NEW_TRACK_KEYWORD in params or any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
 
 
 RADAR_NAMES = ("ideal", "gaussian", "kde")

@@ -45,10 +45,10 @@ RANGE_BINS = (0.0, 15.0, 30.0, 50.0, 75.0, 120.0)
 
 class _Model(Protocol):
     def sample_cycle(
-        self, corners: NDArray, prev_z: NDArray | None, rng: np.random.Generator
+        self, corners: NDArray, prev_z: NDArray | None, rng: np.random.Generator, new_track: NDArray | None = None
     ) -> tuple[NDArray, NDArray]: ...
 
-    def log_prob(self, z: NDArray, state: NDArray) -> NDArray: ...
+    def log_prob(self, z: NDArray, state: NDArray, new_track: NDArray | None = None) -> NDArray: ...
 
 
 def split_by_blocks(log: RadarLog, block: int, n_folds: int, fold: int) -> tuple[RadarLog, RadarLog]:
@@ -94,7 +94,9 @@ def rollout(model: _Model, tt: TargetTuples, rng: np.random.Generator) -> tuple[
     """Closed-loop simulation over the log's target tracks.
 
     Every cycle, all targets present are sampled at once with their own simulated previous output
-    (``NaN`` when the previous cycle is absent from the log or was a simulated miss).
+    (``NaN`` when the previous cycle is absent from the log or was a simulated miss) and their
+    new-track flag (``True`` where the previous cycle is absent from the log: the track is new;
+    ``False`` otherwise, so a simulated miss continues as a lost track).
 
     Returns:
         ``z (n, 2)`` simulated outputs aligned with ``tt`` and ``z_prev (n, 2)`` the simulated previous ones.
@@ -113,7 +115,7 @@ def rollout(model: _Model, tt: TargetTuples, rng: np.random.Generator) -> tuple[
         rows = np.flatnonzero(frames == f)
         pr = prev_row[rows]
         zp[rows] = np.where((pr >= 0)[:, None], z[np.maximum(pr, 0)], np.nan)
-        z[rows], _ = model.sample_cycle(tt.corner[rows], zp[rows], rng)
+        z[rows], _ = model.sample_cycle(tt.corner[rows], zp[rows], rng, new_track=~tt.has_prev_row[rows])
     return z, zp
 
 
@@ -135,9 +137,10 @@ def detection_by_previous(tt: TargetTuples, z: NDArray, z_prev: NDArray) -> dict
 def nll(model: _Model, tt: TargetTuples) -> dict[str, float]:
     """Mean negative log-likelihoods [nats] of the log's outcomes (see the module docstring)."""
     state = np.concatenate([tt.corner, tt.z_prev], axis=1)
-    lp = model.log_prob(tt.z, state)
+    new = ~tt.has_prev_row
+    lp = model.log_prob(tt.z, state, new_track=new)
     det = ~np.isnan(tt.z[:, 0])
-    lp_miss = model.log_prob(np.full_like(tt.z, np.nan), state)
+    lp_miss = model.log_prob(np.full_like(tt.z, np.nan), state, new_track=new)
     with np.errstate(divide="ignore", invalid="ignore"):
         lp_det = np.log1p(-np.exp(lp_miss))
     cond = lp[det] - lp_det[det]
@@ -182,7 +185,7 @@ def evaluate(
     tt = target_tuples(log)
     state = np.concatenate([tt.corner, tt.z_prev], axis=1)
     res: dict[str, Any] = nll(model, tt)
-    z_sim, _ = model.sample_cycle(state[:, :2], state[:, 2:], rng)
+    z_sim, _ = model.sample_cycle(state[:, :2], state[:, 2:], rng, new_track=~tt.has_prev_row)
     res["per_range_bin"] = _per_bin(tt, z_sim, np.asarray(edges, dtype=np.float64), rng)
     is_ts = bool(tt.has_prev_row.any()) if time_series is None else time_series
     if is_ts:

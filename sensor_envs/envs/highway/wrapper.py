@@ -12,9 +12,10 @@
    (at least ``occlusion_threshold`` of the target's angular extent hidden, see
    :func:`sensor_envs.geometry.occluded_fraction`; the ego's own body is not an occluder);
 4. samples the radar model once (:class:`sensor_envs.radar.sensors.RadarSensor`) with each target's
-   previous output ``z_{t-1}`` (its track state, cleared on ``reset``): misses, correlated position
-   errors ``z`` and clutter. A measured point that falls outside the field of view or range is not
-   reported (counted as a miss); clutter is kept only inside the field of view and range;
+   previous output ``z_{t-1}`` (its track state, cleared on ``reset``) and, for models that take
+   it, its new-track flag (see "Tracks" below): misses, correlated position errors ``z`` and
+   clutter. A measured point that falls outside the field of view or range is not reported (counted
+   as a miss); clutter is kept only inside the field of view and range;
 5. builds an observation with the exact layout of highway-env's ``KinematicObservation`` (ego row
    first, then up to ``vehicles_count - 1`` reported objects, the same selection, sorting,
    normalisation, clipping and zero padding) from the radar's detections instead of the truth.
@@ -29,15 +30,37 @@ computed at all; only ``reset`` still computes it once.
 Reference point: the radar models describe the closest corner, so by default even the ideal radar
 reports closest corners, not the centres highway-env's ``Kinematics`` lists.
 
-Rate: the radar is sampled once per policy step, so ``z_{t-1}`` is the output at the previous
-policy step. The shipped KDE model is fitted on rig series with a cycle time of 1.0 s, matching
-highway-env's default ``policy_frequency`` of 1 Hz; at other policy frequencies the model's time
-correlation is applied per policy step, not per second.
+Tracks: the wrapper keeps, per vehicle, its previous output (``NaN`` when it was missed or out of
+view last cycle) and whether it has been in view before. A visible vehicle never in view since
+``reset`` (or since it last left highway-env's perception distance, as a rig target leaves the
+log range) is a NEW track (``new_track=True``); a vehicle seen before without an output last cycle
+is a LOST track (``False``). Models with separate start trees (:class:`~sensor_envs.radar.kde.KDERadarModel`
+format 4) detect the two differently, as recorded; others ignore the flag.
+
+Rate (``radar_rate=``):
+
+* ``"policy"`` (default): one radar cycle per policy step, when highway-env observes; ``z_{t-1}`` is
+  the output one policy step earlier. The shipped ``radar_kde.npz`` is fitted at a cycle time of
+  1.0 s, highway-env's default ``policy_frequency`` of 1 Hz.
+* ``"simulation"``: one radar cycle after every simulation sub-step (``simulation_frequency`` Hz, e.g.
+  15 Hz in highway-v0: 66.7 ms, a real radar's cycle), so ``z_{t-1}`` is the output one sub-step
+  earlier; the observation is laid out once per policy step from the LATEST cycle. The shipped
+  ``radar_kde_fast.npz`` is fitted at 1/15 s. Mechanism: highway-env's ``AbstractEnv._simulate``
+  calls ``road.step(1 / simulation_frequency)`` exactly once per sub-step; after each ``reset`` (which
+  builds a new ``Road``) the wrapper sets an instance attribute ``step`` on that road object, a
+  :class:`_RoadStepHook` that calls the class's own ``Road.step`` and then samples the radar. No class
+  or module of highway-env is modified; other envs and roads are unaffected. If a future
+  highway-env stops calling ``road.step`` per sub-step, ``step`` raises (the hook counts its calls).
+
+The model's ``cycle_time`` (file header) must equal the period of the rate used (``1 /
+policy_frequency`` or ``1 / simulation_frequency``, relative tolerance 1e-3); a mismatch raises
+``ValueError`` at construction and at ``reset`` (models without a cycle time are not checked).
 
 Velocities (``velocity=``):
 
-* ``"difference"`` (default): the reported world position of a track differenced over the policy
-  step, ``(p_t - p_{t-1}) / dt``. A target detected now but not at the previous step has no
+* ``"difference"`` (default): the reported world position of a track differenced over the radar
+  cycle, ``(p_t - p_{t-1}) / dt`` (``dt`` = the policy step or, with ``radar_rate="simulation"``,
+  the simulation step). A target detected now but not at the previous step has no
   difference; it gets a Doppler-like estimate: the ego velocity plus the radial component (along
   the line of sight from the sensor to the measured point) of the true relative velocity. Clutter
   is reported as stationary (zero world velocity). Headings (``heading``, ``cos_h``, ``sin_h``)
@@ -81,6 +104,7 @@ The public names of all of them are importable from the package, :mod:`sensor_en
 
 from __future__ import annotations
 
+import math
 import warnings
 from pathlib import Path
 from typing import Any
@@ -113,12 +137,24 @@ from sensor_envs.envs.highway.sensor import (
     world_state,
 )
 from sensor_envs.geometry import from_frame
-from sensor_envs.radar.sensors import RADAR_NAMES, RadarSensor
+from sensor_envs.radar.sensors import NEW_TRACK_KEYWORD, RADAR_NAMES, RadarSensor, takes_new_track
 from sensor_envs.rng import sensor_rng
 
 # The split modules' public names are gathered by the package (sensor_envs.envs.highway).
-__all__ = ["RNG_TAG", "IDEAL_KINEMATICS", "RadarObservation", "make_highway"]
+__all__ = [
+    "RNG_TAG",
+    "RADAR_RATES",
+    "IDEAL_KINEMATICS",
+    "RadarObservation",
+    "make_highway",
+    "cycle_period",
+    "check_cycle_time",
+]
 
+RADAR_RATES = ("policy", "simulation")
+"""Values of ``radar_rate``: one radar cycle per policy step, or one per simulation sub-step."""
+CYCLE_TIME_RTOL = 1e-3
+"""Relative tolerance between a model's ``cycle_time`` and the radar period of the wrapper."""
 RNG_TAG = 0x52_41_44_52  # "RADR": separates the radar's stream from any other use of the same seed
 IDEAL_KINEMATICS: dict[str, Any] = {
     "radar": "ideal",
@@ -150,10 +186,13 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         occlusion_threshold: hidden fraction of a target's angular extent that hides it; ``None`` = off.
         reference: ``"corner"`` (closest corner) or ``"centre"``.
         velocity: ``"difference"`` or ``"truth"`` (see the module docstring).
+        radar_rate: ``"policy"`` (one radar cycle per policy step) or ``"simulation"`` (one per
+            simulation sub-step; the observation keeps the latest); see the module docstring.
 
     Raises:
         TypeError: when ``env`` is not a highway-env environment with a ``Kinematics`` observation.
-        ValueError: naming the bad argument or observation key.
+        ValueError: naming the bad argument or observation key, or when the model's cycle time does
+            not match the radar rate.
     """
 
     def __init__(
@@ -168,6 +207,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         occlusion_threshold: float | None = 0.5,
         reference: str = "corner",
         velocity: str = "difference",
+        radar_rate: str = "policy",
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
             self,
@@ -179,7 +219,11 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             occlusion_threshold=occlusion_threshold,
             reference=reference,
             velocity=velocity,
+            radar_rate=radar_rate,
         )
+        if radar_rate not in RADAR_RATES:
+            raise ValueError(f"radar_rate: expected one of {RADAR_RATES}, got {radar_rate!r}")
+        self.radar_rate = radar_rate
         gym.Wrapper.__init__(self, env)
         base: Any = env.unwrapped
         if not hasattr(base, "road") or not hasattr(base, "PERCEPTION_DISTANCE"):
@@ -203,10 +247,14 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._radar_key = None
             self.radar = radar
         self._state_names = model_state_names(self.radar)
+        self._takes_new_track = takes_new_track(self.radar)
+        check_cycle_time(self.radar, base.config, radar_rate)
         low, high = self.layout.bounds()
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self._rng = sensor_rng(None, RNG_TAG, None)
         self._tracks: dict[Any, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+        self._seen: set[Any] = set()
+        self._cycles = 0
         self._features_range: dict[str, tuple[float, float]] | None = None
         self.last_frame: RadarFrame | None = None
         self._last_obs: NDArray[np.float32] | None = None
@@ -226,21 +274,36 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         base: Any = self.env.unwrapped
         if options and "config" in options and KinematicsLayout.from_config(base.config["observation"]) != self.layout:
             raise ValueError("options.config.observation: the observation layout is fixed when the wrapper is built")
+        check_cycle_time(self.radar, base.config, self.radar_rate)
         self._rng = sensor_rng(seed, RNG_TAG, self._rng)
         self._tracks = {}
+        self._seen = set()
         self._features_range = None
-        base.observation_type = _ObservationHook(base.observation_type, self._observe)
+        base.observation_type = _ObservationHook(base.observation_type, self._on_observe)
+        if self.radar_rate == "simulation":
+            _RoadStepHook.install(base.road, self._cycle)
+        self.last_frame = self.sense()
         obs = self._observe()
         assert self.last_frame is not None  # set by _observe
         info.update(self.last_frame.info())
         return obs, info
 
     def step(self, action: Any) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
-        """Step the world; the radar is sampled once, by the hook, when highway-env observes."""
+        """Step the world; the hooks sample the radar.
+
+        Once when highway-env observes (``radar_rate="policy"``) or after every simulation sub-step
+        (``"simulation"``).
+        """
         self._last_obs = None
+        self._cycles = 0
         _, reward, terminated, truncated, info = self.env.step(action)
         if self._last_obs is None:
             raise RuntimeError("the radar hook was not called: reset() the wrapper before step()")
+        if self.radar_rate == "simulation" and self._cycles == 0:
+            raise RuntimeError(
+                "radar_rate='simulation': highway-env did not call road.step() during this step; "
+                "this highway-env version simulates differently (see the wrapper's module docstring)"
+            )
         info.update(self.last_frame.info())
         return self._last_obs, reward, terminated, truncated, info
 
@@ -285,7 +348,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if spec.velocity == "truth":
             vel, head = truth.velocity[vis[ok]], truth.heading[vis[ok]]
         else:
-            dt = 1.0 / base.config["policy_frequency"]
+            dt = cycle_period(base.config, self.radar_rate)
             vel, head = track_velocities(
                 base.vehicle.velocity, truth.velocity[vis[ok]], pose, meas_w[ok], prev_w[ok], dt
             )
@@ -324,9 +387,13 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         prev = [self._tracks.get(truth.objects[i], (_NAN2, _NAN2)) for i in vis]
         prev_z = np.array([p[0] for p in prev]).reshape(-1, 2)
         prev_w = np.array([p[1] for p in prev]).reshape(-1, 2)
+        new_track = np.array([truth.objects[i] not in self._seen for i in vis], dtype=bool)
+        # seen: in view before, and within perception distance ever since (a vehicle that leaves the
+        # truth table and comes back is new, as a rig target that leaves the log range)
+        self._seen = {o for o in truth.objects if o in self._seen} | {truth.objects[i] for i in vis}
         base: Any = self.env.unwrapped  # highway-env's AbstractEnv (untyped)
         extra = world_state(self._state_names, truth, vis, pose, base.vehicle) if self._state_names else None
-        z, source = self._sample_targets(ref_s, prev_z, extra)
+        z, source = self._sample_targets(ref_s, prev_z, extra, new_track)
         meas_s = ref_s + z
         ok = np.asarray(np.isfinite(z).all(axis=1))
         ok[ok] = self.spec_sensor.in_view(meas_s[ok])
@@ -337,25 +404,44 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return meas_s, meas_w, ok, source, prev_w
 
     def _sample_targets(
-        self, ref_s: NDArray[np.float64], prev_z: NDArray[np.float64], extra: NDArray[np.float64] | None = None
+        self,
+        ref_s: NDArray[np.float64],
+        prev_z: NDArray[np.float64],
+        extra: NDArray[np.float64] | None = None,
+        new_track: NDArray[np.bool_] | None = None,
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """One radar cycle for the visible targets (no call, and no draw, when there are none).
 
-        ``extra`` holds the model's extra state variables (:func:`world_state`), when it names any.
+        ``extra`` holds the model's extra state variables (:func:`world_state`), when it names any;
+        ``new_track`` the targets' new-track flags, passed to models that take them.
         """
         if len(ref_s) == 0:
             return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
+        kw: dict[str, Any] = {}
         if extra is not None:
-            z, source = self.radar.sample_cycle(ref_s, prev_z, self._rng, extra=extra)  # type: ignore[call-arg]
-        else:
-            z, source = self.radar.sample_cycle(ref_s, prev_z, self._rng)
+            kw["extra"] = extra
+        if new_track is not None and self._takes_new_track:
+            kw[NEW_TRACK_KEYWORD] = new_track
+        z, source = self.radar.sample_cycle(ref_s, prev_z, self._rng, **kw)
         return np.asarray(z, dtype=np.float64).reshape(-1, 2), np.asarray(source, dtype=np.int64).reshape(-1)
 
     # -- observation --------------------------------------------------------------------------------
 
+    def _on_observe(self) -> NDArray[np.float32]:
+        """highway-env observes: sample the radar (``radar_rate="policy"``), then lay out the latest cycle."""
+        if self.radar_rate == "policy":
+            self.last_frame = self.sense()
+        return self._observe()
+
+    def _cycle(self) -> None:
+        """One radar cycle after a simulation sub-step (``radar_rate="simulation"``)."""
+        self.last_frame = self.sense()
+        self._cycles += 1
+
     def _observe(self) -> NDArray[np.float32]:
-        """Sense, then lay the reported objects out as highway-env's ``Kinematics`` would."""
-        self.last_frame = frame = self.sense()
+        """Lay the objects reported in the latest radar cycle out as highway-env's ``Kinematics`` would."""
+        frame = self.last_frame
+        assert frame is not None  # sensed at reset, then by the hooks
         base: Any = self.env.unwrapped
         ego = base.vehicle
         lay = self.layout
@@ -382,6 +468,32 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return self._features_range
 
 
+class _RoadStepHook:
+    """Set as the ``step`` attribute of ONE highway-env ``Road`` instance (``radar_rate="simulation"``).
+
+    highway-env's ``AbstractEnv._simulate`` calls ``road.step(1 / simulation_frequency)`` once per
+    simulation sub-step; the instance attribute shadows the class's method for this road only, runs
+    the class's ``Road.step`` and then ``after()`` (one radar cycle). A new road (every ``reset``)
+    needs a new hook; re-installing on a hooked road replaces the callback.
+    """
+
+    def __init__(self, step: Any, after: Any) -> None:
+        self.step = step
+        self.after = after
+
+    def __call__(self, dt: float) -> None:
+        """Advance the road by ``dt`` [s], then sample the radar."""
+        self.step(dt)
+        self.after()
+
+    @classmethod
+    def install(cls, road: Any, after: Any) -> None:
+        """Hook ``road.step`` (highway-env's ``Road``) to call ``after()`` after every sub-step."""
+        current = road.__dict__.get("step")
+        inner = current.step if isinstance(current, cls) else type(road).step.__get__(road)
+        road.step = cls(inner, after)
+
+
 class _ObservationHook:
     """Stands in for highway-env's observation type: ``observe()`` samples the radar instead.
 
@@ -405,6 +517,34 @@ class _ObservationHook:
 # ------------------------------------------------------------------------------------------ factory
 
 
+def cycle_period(config: dict[str, Any], radar_rate: str) -> float:
+    """Seconds between radar cycles at ``radar_rate`` under highway-env's ``config``."""
+    key = "policy_frequency" if radar_rate == "policy" else "simulation_frequency"
+    return 1.0 / float(config[key])
+
+
+def check_cycle_time(radar: Any, config: dict[str, Any], radar_rate: str) -> None:
+    """Refuse a model whose ``cycle_time_`` [s] differs from the radar period at ``radar_rate``.
+
+    Models without a cycle time (``None``/NaN, or no attribute: the ideal radar, test doubles) pass.
+
+    Raises:
+        ValueError: naming ``radar_rate``, both periods and the remedies.
+    """
+    cycle = getattr(radar, "cycle_time_", None)
+    if cycle is None or not math.isfinite(float(cycle)):  # NaN: fitted without a cycle time
+        return
+    period = cycle_period(config, radar_rate)
+    if not math.isclose(float(cycle), period, rel_tol=CYCLE_TIME_RTOL):
+        key = "policy_frequency" if radar_rate == "policy" else "simulation_frequency"
+        raise ValueError(
+            f"radar_rate: the radar model is fitted at a cycle time of {float(cycle):.4g} s, but radar_rate="
+            f"{radar_rate!r} samples it every {period:.4g} s (1 / {key} = 1 / {config[key]}); use a model "
+            f"fitted at {period:.4g} s (e.g. radar_kde_fast.npz at 1/15 s with radar_rate='simulation' and "
+            f"simulation_frequency 15), or change radar_rate or {key}"
+        )
+
+
 def make_highway(
     base_id: str,
     radar: str = "kde",
@@ -418,6 +558,7 @@ def make_highway(
     occlusion_threshold: float | None = 0.5,
     reference: str = "corner",
     velocity: str = "difference",
+    radar_rate: str = "policy",
 ) -> gym.Env:
     """Build highway-env's ``base_id`` (e.g. ``"highway-fast-v0"``) and put a radar in front of it.
 
@@ -433,6 +574,8 @@ def make_highway(
         occlusion_threshold: hidden fraction of a target's angular extent that hides it; ``None`` = off.
         reference: ``"corner"`` (closest corner) or ``"centre"``.
         velocity: ``"difference"`` or ``"truth"`` (see the module docstring).
+        radar_rate: ``"policy"`` or ``"simulation"`` (see the module docstring); the model's cycle time
+            must match (e.g. ``radar_model=default_model_path("radar_kde_fast.npz")`` at 15 Hz).
 
     Raises:
         ValueError: naming an unknown ``config`` key or a bad sensor argument.
@@ -456,4 +599,5 @@ def make_highway(
         occlusion_threshold=occlusion_threshold,
         reference=reference,
         velocity=velocity,
+        radar_rate=radar_rate,
     )
