@@ -107,16 +107,22 @@ def marginal(model: Any, corner: NDArray, z: NDArray, rng: np.random.Generator, 
     n = corner.shape[0]
     if isinstance(model, IdealRadar):
         return {"p_det": np.ones(n), "sample": np.zeros((n, 2)), "logp": None}
-    uses_prev = bool(getattr(model, "use_prev", False)) and cycles > 1
+    has_prev = bool(getattr(model, "use_prev", False))
+    uses_prev = has_prev and cycles > 1
     m = chains if uses_prev else 1
     cc = np.repeat(corner, m, axis=0)
     prev = np.full((n * m, 2), np.nan)
-    for _ in range(cycles - 1 if uses_prev else 0):  # one iteration per cycle, vectorised over rows x chains
-        prev, _ = model.sample_cycle(cc, prev, rng)
-    last, _ = model.sample_cycle(cc, prev, rng)
+    kw: dict[str, Any] = {}
+    for k in range(cycles - 1 if uses_prev else 0):  # one iteration per cycle, vectorised over rows x chains
+        if uses_prev:  # cycle 0: a new track; later, no previous output = missed last cycle (format 4 trees)
+            kw = {"new_track": np.full(n * m, k == 0) & np.isnan(prev[:, 0])}
+        prev, _ = model.sample_cycle(cc, prev, rng, **kw)
+    if has_prev:  # the start-tuple score is a new track's; the stationary law's misses are after-miss rows
+        kw = {"new_track": np.full(n * m, not uses_prev) & np.isnan(prev[:, 0])}
+    last, _ = model.sample_cycle(cc, prev, rng, **kw)
     state = np.concatenate([cc, prev], axis=1)
-    lp = model.log_prob(np.repeat(z, m, axis=0), state).reshape(n, m)
-    lp_miss = model.log_prob(np.full((n * m, 2), np.nan), state).reshape(n, m)
+    lp = model.log_prob(np.repeat(z, m, axis=0), state, **kw).reshape(n, m)
+    lp_miss = model.log_prob(np.full((n * m, 2), np.nan), state, **kw).reshape(n, m)
     logp = logsumexp(lp, axis=1) - np.log(m)
     p_miss = np.exp(logsumexp(lp_miss, axis=1) - np.log(m))
     return {"p_det": 1.0 - p_miss, "sample": last.reshape(n, m, 2)[:, 0], "logp": logp}
