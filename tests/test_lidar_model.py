@@ -229,7 +229,16 @@ def test_format_version_1_files_load_with_independent_nulls(rig_fit, tmp_path):
     with np.load(path) as z:
         arrays = {k: z[k] for k in z.files}
     header = json.loads(arrays["__header__"].tobytes().decode("utf-8"))
-    assert header["format_version"] == 3
+    assert header["format_version"] == 4
+    for k in ("bias_shrinkage", "pose_correction"):  # format 4 added the bias shrinkage
+        del header["params"][k]
+    del header["bias_shrinkage"]
+    header["format_version"] = 3
+    arrays["__header__"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
+    np.savez(tmp_path / "v3.npz", **arrays)
+    v3 = LidarLWLR.load(tmp_path / "v3.npz")
+    assert v3.bias_shrinkage_ == 0.0 and v3.bias_shrinkage == 0.0 and v3.pose_correction is False
+    np.testing.assert_array_equal(v3.tables_, ext.tables_)
     del header["params"]["extra_state"]  # format 3 added the extra state (params and arrays)
     for k in ("extra_mean", "extra_scale", "extra_coef"):
         del arrays[k]
@@ -246,11 +255,11 @@ def test_format_version_1_files_load_with_independent_nulls(rig_fit, tmp_path):
     old = LidarLWLR.load(tmp_path / "v1.npz")
     assert old.null_rho_ == 0.0
     np.testing.assert_array_equal(old.tables_, ext.tables_)
-    header["format_version"] = 4
+    header["format_version"] = 5
     arrays["__header__"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
-    np.savez(tmp_path / "v4.npz", **arrays)
-    with pytest.raises(ModelFileError, match=re.escape("field 'format_version' is 4")):
-        LidarLWLR.load(tmp_path / "v4.npz")
+    np.savez(tmp_path / "v5.npz", **arrays)
+    with pytest.raises(ModelFileError, match=re.escape("field 'format_version' is 5")):
+        LidarLWLR.load(tmp_path / "v5.npz")
 
 
 def test_bad_model_files_name_the_field(rig_fit, tmp_path):

@@ -3,15 +3,18 @@
 Used by :mod:`sensor_envs.lidar.lwlr` (per-cell statistics of repeated logs) and
 :mod:`sensor_envs.lidar.readings` (individual readings of scan logs): the Gaussian-kernel LWLR over
 nominal range ``r`` [m], incidence ``alpha`` [rad] and neighbouring bearings, its ridge-regularised
-solve, the per-parameter finishing (clipping probabilities, sigma floors) and bilinear table lookup.
+solve, the per-parameter finishing (clipping probabilities, sigma floors), bilinear table lookup, and
+the fold-checked choice of the bias shrinkage (:func:`choose_shrinkage`).
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["P_EPS", "P_SPUR_EPS", "SIGMA_FLOOR", "TAU_CLIP", "lwlr"]
+__all__ = ["P_EPS", "P_SPUR_EPS", "SIGMA_FLOOR", "TAU_CLIP", "SHRINKAGE_GRID", "choose_shrinkage", "lwlr"]
 
 P_EPS = 1e-3
 
@@ -24,6 +27,9 @@ SIGMA_FLOOR = 5e-4
 
 TAU_CLIP = 0.5
 
+
+SHRINKAGE_GRID = tuple(round(0.05 * i, 2) for i in range(21))
+"""Candidate shrinkages of the bias toward zero (``0`` = the learned bias, ``1`` = the plain raycast)."""
 
 _RIDGE = (1e-3, 1e-2)  # (intercept pull to the bearing's mean, slope shrinkage) in kernel-weight units
 
@@ -159,3 +165,80 @@ def _bilinear(
     v00, v01 = flat[:, base], flat[:, base + 1]
     v10, v11 = flat[:, base + na], flat[:, base + na + 1]
     return (v00 * (1 - wa) + v01 * wa) * (1 - wr) + (v10 * (1 - wa) + v11 * wa) * wr
+
+
+# ------------------------------------------------------------------------------------ bias shrinkage
+SHRINKAGE_RULE = (
+    "among the candidate shrinkages s (mu = r + (1 - s) bias) whose held-out MAE of mu is <= the raycast's "
+    "(s = 1) in every CV fold, the one of least pooled CV MAE (ties: the larger s); s = 1 always qualifies"
+)
+
+
+def choose_shrinkage(
+    y: NDArray[np.float64],
+    oof: NDArray[np.float64],
+    mask: NDArray[np.bool_],
+    fold: NDArray[np.int64],
+    setting: str | float = "cv",
+    grid: tuple[float, ...] = SHRINKAGE_GRID,
+) -> tuple[float, dict[str, Any]]:
+    """Shrinkage of the learned bias toward zero, checked fold by fold against the raycast.
+
+    Rule (``setting="cv"``): among the candidates ``s`` in ``grid`` whose held-out MAE of ``mu`` is at most
+    the raycast's (``s = 1``) in EVERY fold, the one of least pooled CV MAE; ties go to the larger ``s``.
+    ``s = 1`` (the zero-bias model) always qualifies, so the chosen ``mu`` is never worse than the raycast
+    in any CV fold. A number ``setting`` is used as given (the per-fold table is still reported).
+
+    Args:
+        y: ``(P, ...)`` held-out target ``cell mean - r`` [m] (rows = poses).
+        oof: ``(P, ...)`` out-of-fold bias prediction [m] (each row predicted without its fold).
+        mask: ``(P, ...)`` cells scored (a hit and at least 2 in-range readings).
+        fold: ``(P,)`` fold of every row.
+        setting: ``"cv"`` or a shrinkage in ``[0, 1]``.
+        grid: candidate shrinkages (``1`` is added when absent).
+
+    Returns:
+        The shrinkage and a report: the rule, candidates, per-fold MAE of ``mu`` [m] (raycast, unshrunk
+        learned, chosen), pooled CV MAEs and the number of candidates that pass every fold.
+    """
+    cand = np.unique(np.append(np.asarray(grid, dtype=np.float64), 1.0))
+    folds = [f for f in np.unique(fold) if mask[fold == f].any()]
+    err = np.zeros((cand.size, len(folds)))
+    cnt = np.zeros(len(folds))
+    for j, f in enumerate(folds):
+        m = mask[fold == f]
+        yf, pf = y[fold == f][m], oof[fold == f][m]
+        err[:, j] = np.abs((1 - cand[:, None]) * pf[None] - yf[None]).sum(1)
+        cnt[j] = m.sum()
+    fold_mae = err / np.maximum(cnt, 1)[None]
+    pooled = err.sum(1) / max(cnt.sum(), 1)
+    ray = fold_mae[-1]  # cand is sorted: the last candidate is s = 1, the raycast
+    ok = np.all(fold_mae <= ray[None] + 1e-12, axis=1)
+    if setting == "cv":
+        s = float(cand[max(np.flatnonzero(ok), key=lambda i: (-pooled[i], cand[i]))])
+    else:
+        s = float(setting)
+    chosen = np.zeros(len(folds))
+    for j, f in enumerate(folds):
+        m = mask[fold == f]
+        chosen[j] = np.abs((1 - s) * oof[fold == f][m] - y[fold == f][m]).sum() / max(cnt[j], 1)
+    report = {
+        "rule": SHRINKAGE_RULE if setting == "cv" else "given",
+        "chosen": s,
+        "candidates": [float(v) for v in cand],
+        "n_pass_every_fold": int(ok.sum()),
+        "cv_mae_raycast": float(pooled[-1]),
+        "cv_mae_unshrunk": float(pooled[0]) if cand[0] == 0 else float("nan"),
+        "cv_mae_chosen": float((chosen * cnt).sum() / max(cnt.sum(), 1)),
+        "per_fold": [
+            {
+                "fold": int(f),
+                "n_cells": int(cnt[j]),
+                "mae_raycast": float(ray[j]),
+                "mae_unshrunk": float(fold_mae[0, j]) if cand[0] == 0 else float("nan"),
+                "mae_chosen": float(chosen[j]),
+            }
+            for j, f in enumerate(folds)
+        ],
+    }
+    return s, report

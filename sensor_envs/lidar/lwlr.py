@@ -32,6 +32,15 @@ interpolates bilinearly. Queries outside the training cells' range of ``r``/``al
 (widened by one kernel width) are clamped to it (constant extrapolation). Rays with no hit within
 ``max_range`` are nulls with probability ``1 - P_EPS``.
 
+The bias (``mu - r``) learned at approximate poses partly fits those poses' errors, which do not
+recur at other poses. ``bias_shrinkage`` shrinks it toward zero at prediction, ``mu = r + (1 - s) bias``
+(``s = 1`` is the plain raycast), with ``s`` chosen by leave-poses-out CV (:func:`choose_shrinkage`,
+rule there: never worse than the raycast in any CV fold) or given. ``pose_correction=True`` (static
+logs with repeats) first corrects every training pose by least squares of its cell means against the
+map's raycast, jointly with a per-bearing constant bias (:mod:`sensor_envs.lidar.pose_correction`,
+the seed's remedy for approximate poses), and learns the tables at the corrected poses; the
+shrinkage CV and ``tau`` still score the held-out poses at their approximate poses, as a user's are.
+
 Model files hold only the tables, hyperparameters and the card (never training readings).
 """
 
@@ -58,13 +67,16 @@ from sensor_envs.lidar.extra_state import MAX_COEF, apply_extra, check_extra_sta
 from sensor_envs.lidar.kernel import (
     P_EPS,
     P_SPUR_EPS,
+    SHRINKAGE_GRID,
     SIGMA_FLOOR,
     TAU_CLIP,
     _bilinear,
     _finish,
+    choose_shrinkage,
     lwlr,
 )
 from sensor_envs.lidar.log import LidarLog
+from sensor_envs.lidar.pose_correction import correct_poses
 from sensor_envs.modelio import (
     RANDOM_STATE,
     Constraint,
@@ -96,6 +108,9 @@ __all__ = [
     "mixture_log_prob",
     "null_count_log_prob",
     "RHO_GRID",
+    "SHRINKAGE_GRID",
+    "choose_shrinkage",
+    "pose_fold_groups",
     "P_EPS",
     "SIGMA_FLOOR",
     "VARIANTS",
@@ -109,10 +124,11 @@ __all__ = [
 """Cell-mean residuals [m] are clipped to this before their variance ``tau^2`` is regressed."""
 VARIANTS = ("seed", "extended")
 MODEL_KIND = "sensor_envs.lidar_lwlr"  # the file format's kind string (kept: shipped files carry it)
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 """2 adds ``null_rho`` to the header (version 1 files load with ``null_rho = 0``, independent nulls); 3 adds the
 extra state (``params.extra_state``, arrays ``extra_mean``, ``extra_scale``, ``extra_coef``; older files load
-with no extra state)."""
+with no extra state); 4 adds the bias shrinkage (header ``bias_shrinkage``, ``params.bias_shrinkage``,
+``params.pose_correction``; older files load with shrinkage 0 and no pose correction, their old behaviour)."""
 RHO_GRID = (0.0, 0.01, 0.03, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95)
 """Candidate intra-cell correlations of nulls (extended variant)."""
 _PARAMS = {"seed": ("p_null", "bias", "sigma"), "extended": ("p_null", "p_spur", "bias", "log_sigma")}
@@ -214,6 +230,29 @@ def _cv_loss(name: str, pred: NDArray[np.float64], y: NDArray[np.float64], m: ND
     return float(np.abs(p - y)[m].sum()), float(m.sum())
 
 
+def pose_fold_groups(poses: ArrayLike, decimals: int = 4) -> NDArray[np.int64]:
+    """Group id of every row for leave-poses-out folds: rows at the same pose share one id.
+
+    Readings of one pose are near-duplicates (the same rays, the same pose error), so a pose recorded in
+    several rows must not be split between training and held-out folds. Poses equal after rounding to
+    ``decimals`` (0.1 mm, 1e-4 rad) are one group; ids follow the first occurrence, so a log whose poses
+    are all distinct gets ``0 .. P - 1`` (the folds of :func:`~sensor_envs.rng.fold_ids` with ``P`` rows).
+
+    Args:
+        poses: ``(P, 3)`` poses ``x, y, theta`` [m, rad].
+        decimals: rounding before comparison.
+
+    Returns:
+        ``(P,)`` group ids.
+    """
+    key = np.round(np.atleast_2d(np.asarray(poses, dtype=np.float64)), decimals)
+    if key.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    rank = np.argsort(np.argsort(first))
+    return rank[inv.ravel()].astype(np.int64)
+
+
 # ------------------------------------------------------------------------------------------------ model
 class LidarLWLR(BaseEstimator):
     """Per-bearing LWLR lidar model (a scikit-learn estimator: ``get_params``/``set_params``/``clone``).
@@ -235,6 +274,13 @@ class LidarLWLR(BaseEstimator):
         extra_state: names of extra state variables of scan logs (``t``, ``prev_residual``, covariate
             names such as ``v``, ``omega``), linear terms on top of the tables
             (:mod:`sensor_envs.lidar.extra_state`); queries then pass ``extra``.
+        bias_shrinkage: ``"cv"`` (default) or a number in ``[0, 1]``: the learned bias is shrunk toward
+            zero, ``mu = r + (1 - s) bias``; ``"cv"`` chooses ``s`` in :data:`SHRINKAGE_GRID` by the
+            leave-poses-out folds of the kernel widths with the rule of :func:`choose_shrinkage`: the
+            candidate of least CV MAE of ``mu`` among those whose MAE is <= the raycast's (``s = 1``)
+            in EVERY fold, so the chosen ``mu`` is never worse than the raycast in any CV fold.
+        pose_correction: correct the training poses (dx, dy, dtheta each) jointly with a per-bearing bias
+            before learning the tables (:mod:`sensor_envs.lidar.pose_correction`; static logs with repeats).
     """
 
     _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
@@ -251,6 +297,8 @@ class LidarLWLR(BaseEstimator):
         "random_state": RANDOM_STATE,
         "progress": [InstanceOf(bool)],
         "extra_state": [InstanceOf(tuple, list)],  # details: check_extra_state
+        "bias_shrinkage": [Options("cv"), Interval(0, 1)],
+        "pose_correction": [InstanceOf(bool)],
     }
     """One declarative check of every hyperparameter, used by :meth:`fit` and :meth:`load`."""
 
@@ -270,6 +318,8 @@ class LidarLWLR(BaseEstimator):
         random_state: int | np.random.Generator | None = 0,
         progress: bool = True,
         extra_state: tuple[str, ...] = (),
+        bias_shrinkage: str | float = "cv",
+        pose_correction: bool = False,
     ) -> None:
         self.variant = variant
         self.n_folds = n_folds
@@ -284,13 +334,17 @@ class LidarLWLR(BaseEstimator):
         self.random_state = random_state
         self.progress = progress
         self.extra_state = extra_state
+        self.bias_shrinkage = bias_shrinkage
+        self.pose_correction = pose_correction
 
     # ---------------------------------------------------------------------------------------- fitting
     def _check_hyper(self, log: LidarLog) -> None:
         validate_params(self.get_params(), self._hyperparameter_constraints)
         check_extra_state(self.extra_state)
-        if not 2 <= self.n_folds <= log.n_poses:
-            raise ValueError(f"n_folds: must be in [2, number of poses = {log.n_poses}], got {self.n_folds}")
+        n = int(pose_fold_groups(log.poses).max(initial=-1)) + 1
+        if not 2 <= self.n_folds <= n:
+            what = "number of poses" if n == log.n_poses else "number of distinct poses"
+            raise ValueError(f"n_folds: must be in [2, {what} = {n}], got {self.n_folds}")
 
     def fit(self, log: LidarLog, *, per_reading: bool | None = None, **reading_options: Any) -> LidarLWLR:
         """Fit the model to a log (approximate poses + nominal map), choosing kernel widths by CV.
@@ -323,14 +377,25 @@ class LidarLWLR(BaseEstimator):
         if self.extra_state:
             raise ValueError(f"{log.source}: extra_state needs a scan log (one reading per scan and bearing)")
         segs = log.require_map()
-        r, a = lidar_features(log.poses, log.bearings, segs, self.max_range)
+        r_ap, a_ap = lidar_features(log.poses, log.bearings, segs, self.max_range)
         stats = cell_statistics(log, self.spur_above, split_spurious=self.variant == "extended")
+        corr_info = None
+        if self.pose_correction:
+            poses, _, corr_info = correct_poses(log, stats["mean"], stats["n_ok"], self.max_range)
+            r, a = lidar_features(poses, log.bearings, segs, self.max_range)
+        else:
+            r, a = r_ap, a_ap
         groups = self._groups(stats, r)
         r0, a0 = np.where(np.isfinite(r), r, 0.0), np.nan_to_num(a)
-        self.h_, self.cv_scores_ = self._cross_validate(r0, a0, groups)
+        fold = self._folds(log)
+        self.h_, self.cv_scores_ = self._cross_validate(r0, a0, groups, fold)
+        held_out = self._held_out_bias(stats, r_ap, a_ap, r0, a0, groups, fold)
+        self.bias_shrinkage_, self.cv_scores_["bias_shrinkage"] = choose_shrinkage(*held_out, fold, self.bias_shrinkage)
+        if corr_info is not None:
+            self.cv_scores_["pose_correction"] = corr_info
         self.bearings_ = log.bearings.copy()
         if self.variant == "extended":
-            groups.append(self._tau_group(r0, a0, groups, stats["n_ok"]))
+            groups.append(self._tau_group(r0, a0, groups, stats["n_ok"], held_out))
             self.h_["tau2"] = list(self.h_["bias"])
         self._tabulate(r, a, groups)
         del self._bias_oof
@@ -367,19 +432,57 @@ class LidarLWLR(BaseEstimator):
         return out
 
     def _tau_group(
-        self, r: NDArray[np.float64], a: NDArray[np.float64], groups: list[Any], n_ok: NDArray[np.float64]
+        self,
+        r: NDArray[np.float64],
+        a: NDArray[np.float64],
+        groups: list[Any],
+        n_ok: NDArray[np.float64],
+        held_out: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]],
     ) -> tuple[tuple[str, ...], NDArray[np.float64], NDArray[np.float64], bool]:
         """Target of ``tau2`` (squared out-of-fold residual of the cell means) on the non-outlying cells.
 
-        Also sets ``p_out_``: the fraction of in-range readings in cells whose mean is an outlier (bisquare
-        weight 0), the weight of the uniform outlier component of :meth:`log_prob`.
+        The residual is that of the shrunk ``mu`` (``bias_shrinkage_``) at the held-out cells' approximate
+        poses (``held_out``: target, out-of-fold bias and mask of :meth:`_held_out_bias`). Also sets
+        ``p_out_``: the fraction of in-range readings in cells whose mean is an outlier (bisquare weight 0),
+        the weight of the uniform outlier component of :meth:`log_prob`.
         """
         _, y, weight, _ = next(g for g in groups if g[0][0] == "bias")
         w = _robust_weights(r, a, y[..., :1], weight)
         out = (weight > 0) & (w == 0)
         self.p_out_ = float(np.clip((n_ok * out).sum() / max((n_ok * (weight > 0)).sum(), 1), P_EPS, 0.5))
-        e2 = np.minimum((y[..., 0] - self._bias_oof) ** 2, TAU_CLIP**2)
-        return ("tau2",), e2[..., None], w, False
+        y_ev, oof, m_ev = held_out
+        e2 = np.where(m_ev, np.minimum((y_ev - (1 - self.bias_shrinkage_) * oof) ** 2, TAU_CLIP**2), 0.0)
+        return ("tau2",), e2[..., None], w * m_ev, False
+
+    def _held_out_bias(
+        self,
+        stats: dict[str, NDArray[np.float64]],
+        r_ap: NDArray[np.float64],
+        a_ap: NDArray[np.float64],
+        r: NDArray[np.float64],
+        a: NDArray[np.float64],
+        groups: list[Any],
+        fold: NDArray[np.int64],
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+        """Held-out bias target ``mean - r`` [m], its out-of-fold prediction and the cells scored, each ``(P, K)``.
+
+        Every cell is scored at its log's (approximate) pose, as a user's poses are. Without pose correction
+        these are the bandwidth CV's own out-of-fold predictions; with it, the chosen kernel widths are refitted
+        per fold on the training folds' corrected cells and read at the held-out approximate features.
+        """
+        names, y, weight, robust = next(g for g in groups if g[0][0] == "bias")
+        if not self.pose_correction:
+            return y[..., 0], self._bias_oof, weight > 0
+        y_ap, m_ap = _targets(stats, r_ap, "bias")
+        q_r, q_a = np.where(m_ap, r_ap, 0.0), np.nan_to_num(a_ap)
+        h_r, h_a, h_b, deg = self.h_["bias"]
+        oof = np.zeros_like(y_ap)
+        for f in np.unique(fold):
+            tr, te = fold != f, fold == f
+            w_tr = _robust_weights(r[tr], a[tr], y[tr], weight[tr]) if robust else weight[tr]
+            pred = lwlr(q_r[te], q_a[te], r[tr], a[tr], y[tr][..., :1], w_tr, h_r, h_a, (h_b,), (int(deg),))
+            oof[te] = pred[0, 0, ..., 0]
+        return y_ap, oof, m_ap
 
     def _fit_null_rho(self, stats: dict[str, NDArray[np.float64]], r: NDArray[np.float64]) -> float:
         """Intra-cell correlation of nulls (``0`` = independent readings).
@@ -399,14 +502,14 @@ class LidarLWLR(BaseEstimator):
         }
         return float(RHO_GRID[int(np.argmax(ll))])
 
-    def _folds(self, n: int) -> NDArray[np.int64]:
-        return fold_ids(n, self.n_folds, random_state=self.random_state)
+    def _folds(self, log: LidarLog) -> NDArray[np.int64]:
+        """Leave-poses-out fold of every row of ``log``; rows at one pose share a fold (:func:`pose_fold_groups`)."""
+        return fold_ids(pose_fold_groups(log.poses), self.n_folds, random_state=self.random_state)
 
     def _cross_validate(
-        self, r: NDArray[np.float64], a: NDArray[np.float64], groups: list[Any]
-    ) -> tuple[dict[str, list[float]], dict[str, dict[str, float]]]:
-        """Leave-poses-out CV: per parameter, the kernel widths and degree with the least mean absolute error."""
-        fold = self._folds(r.shape[0])
+        self, r: NDArray[np.float64], a: NDArray[np.float64], groups: list[Any], fold: NDArray[np.int64]
+    ) -> tuple[dict[str, list[float]], dict[str, Any]]:
+        """Leave-poses-out CV (folds ``fold`` per row): per parameter, the kernel widths and degree of least MAE."""
         hb = (0.0,) if self.variant == "seed" else tuple(float(v) for v in self.h_bearing_grid)
         hra = list(itertools.product(self.h_range_grid, self.h_alpha_grid))
         degs = (1,) if self.variant == "seed" else tuple(int(v) for v in self.degree_grid)
@@ -506,7 +609,8 @@ class LidarLWLR(BaseEstimator):
             base_only: the tables alone (extra terms left out; used to fit them).
 
         Returns:
-            ``p_null``, ``p_spur`` (0 for the seed variant), ``mu`` [m], ``sigma`` [m] (spread of repeated
+            ``p_null``, ``p_spur`` (0 for the seed variant), ``mu = r + (1 - bias_shrinkage_) bias`` [m]
+            (plus the extra terms), ``sigma`` [m] (spread of repeated
             readings) and ``tau`` [m] (spread of a cell's mean around ``mu`` at an approximate pose; 0 for
             the seed variant), each ``(..., K)``.
         """
@@ -520,6 +624,7 @@ class LidarLWLR(BaseEstimator):
         aq = np.nan_to_num(np.asarray(alpha, dtype=np.float64), nan=0.0)
         v = _bilinear(self.tables_, self.range_grid_, self.alpha_grid_, rq, aq)
         out = dict(zip(self.param_names_, v, strict=True))
+        out["bias"] = (1.0 - getattr(self, "bias_shrinkage_", 0.0)) * out["bias"]  # toward the raycast
         if getattr(self, "extra_state_", ()) and not base_only:
             out = apply_extra(self, out, hit, extra)
         p_null = np.where(hit, out["p_null"], 1 - P_EPS)
@@ -658,6 +763,7 @@ class LidarLWLR(BaseEstimator):
             "spur_sigma": self.spur_sigma_,
             "p_out": self.p_out_,
             "null_rho": self.null_rho_,
+            "bias_shrinkage": self.bias_shrinkage_,
             "card": card,
         }
 
@@ -695,9 +801,12 @@ class LidarLWLR(BaseEstimator):
         version = _peek_version(path)
         if version >= 3:
             schema.update({"extra_mean": ("f", 1, True), "extra_scale": ("f", 1, True), "extra_coef": ("f", 2, True)})
-        header, arr = load_model_file(path, MODEL_KIND, (1, 2, FORMAT_VERSION), schema)
+        header, arr = load_model_file(path, MODEL_KIND, (1, 2, 3, FORMAT_VERSION), schema)
+        defaults: dict[str, Any] = {"extra_state": ()}
+        if version < 4:  # before the shrinkage: the learned bias as is, no pose correction (their old behaviour)
+            defaults.update(bias_shrinkage=0.0, pose_correction=False)
         try:
-            params = params_from_header(path, header, cls._hyperparameter_constraints, defaults={"extra_state": ()})
+            params = params_from_header(path, header, cls._hyperparameter_constraints, defaults=defaults)
             try:
                 params["extra_state"] = check_extra_state(params["extra_state"])
             except ValueError as exc:
@@ -707,6 +816,8 @@ class LidarLWLR(BaseEstimator):
             model.spur_mu_, model.spur_sigma_ = float(header["spur_mu"]), float(header["spur_sigma"])
             model.p_out_ = float(header["p_out"])
             model.null_rho_ = float(header.get("null_rho", 0.0))
+            shrink = header["bias_shrinkage"] if version >= 4 else 0.0
+            model.bias_shrinkage_ = float(check_range(path, "bias_shrinkage", shrink, 0.0, 1.0))
             card = dict(header["card"])
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             if isinstance(exc, ModelFileError):
@@ -790,6 +901,12 @@ def _check_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dict[str,
     check_positive(path, "spur_sigma", model.spur_sigma_, high=MAX_SIGMA)
     check_probability(path, "p_out", model.p_out_)
     check_range(path, "null_rho", model.null_rho_, 0.0, 0.999)
+    check_range(path, "bias_shrinkage", model.bias_shrinkage_, 0.0, 1.0)
+    if model.bias_shrinkage != "cv" and model.bias_shrinkage_ != float(model.bias_shrinkage):
+        raise ModelFileError(
+            f"{path}: field 'bias_shrinkage' is {model.bias_shrinkage_}, but params.bias_shrinkage fixes it at "
+            f"{model.bias_shrinkage}"
+        )
     if not set(model.param_names_) <= set(model.h_):
         raise ModelFileError(
             f"{path}: field 'h' lacks kernel widths of {sorted(set(model.param_names_) - set(model.h_))}"

@@ -62,6 +62,7 @@ from sensor_envs.lidar.kernel import (
     _finish,
     _solve,
     _target_sums,
+    choose_shrinkage,
     lwlr,
 )
 from sensor_envs.lidar.log import LidarLog, LidarLogError
@@ -283,6 +284,8 @@ def fit_per_reading(
         ValueError: for bad hyperparameters, a log without map or a map that does not cover the scans.
     """
     model._check_hyper(log)
+    if model.pose_correction:
+        raise ValueError(f"{log.source}: pose_correction needs a static log with repeats (the per-cell fit)")
     segs = log.require_map()
     r, a = map_features(log.poses, log.bearings, segs, model.max_range)
     coverage = check_map_covers(log, r, model.max_range)
@@ -369,7 +372,8 @@ def fit_per_reading(
         bias_oof[te] = lwlr_chunked(
             tr_r[te], tr_a[te], tr_r[tr], tr_a[tr], y_bias[tr][..., None], w_bias[tr], h_r, h_a, (h_b,), (int(deg),)
         )[0, 0, ..., 0]
-    e_abs = np.where(w_bias > 0, np.minimum(np.abs(y_bias - bias_oof), cut), 0.0)
+    model.bias_shrinkage_, shrink_scores = choose_shrinkage(y_bias, bias_oof, w_bias > 0, fold, model.bias_shrinkage)
+    e_abs = np.where(w_bias > 0, np.minimum(np.abs(y_bias - (1 - model.bias_shrinkage_) * bias_oof), cut), 0.0)
     w_sig = (w_bias > 0).astype(float)
     s_name = "log_sigma" if ext else "sigma"
     h[s_name], scores[s_name] = cv("sigma", e_abs, w_sig)
@@ -381,6 +385,7 @@ def fit_per_reading(
     if ext:
         h["tau2"] = list(h["bias"])
     scores["blocks"] = {**block_info, "n_folds": int(folds.size)}
+    scores["bias_shrinkage"] = {**shrink_scores, "cells": "inlying in-range readings (bisquare weight > 0)"}
     scores["per_reading"] = {
         "rows_used": int(x.shape[0]),
         "rows_in_log": int(log.n_poses * log.ranges.shape[2]),

@@ -334,6 +334,36 @@ def _drop_spurious(log: LidarLog, spur_above: float = 6.0) -> LidarLog:
     return dataclasses.replace(log, ranges=np.where(log.ranges > spur_above, np.nan, log.ranges))
 
 
+def _shrinkage_markdown(model: LidarLWLR) -> list[str]:
+    """Card lines on the bias shrinkage (rule, per-fold MAE of mu vs the raycast) and the pose correction."""
+    sc = model.cv_scores_.get("bias_shrinkage")
+    if not sc:
+        return [
+            f"Bias shrinkage: {getattr(model, 'bias_shrinkage_', 0.0)} (older model file: not cross-validated).",
+            "",
+        ]
+    lines = [
+        f"Bias shrinkage toward the raycast, `mu = r + (1 - s) bias`: s = {model.bias_shrinkage_} "
+        f"(setting `{model.bias_shrinkage}`; rule: {sc['rule']}). Held-out MAE of mu [m] per CV fold:",
+        "",
+        "| fold | cells | raycast | learned (s = 0) | chosen s |",
+        "|---|---|---|---|---|",
+    ]
+    for p in sc["per_fold"]:
+        maes = " | ".join(f"{p[k]:.5f}" for k in ("mae_raycast", "mae_unshrunk", "mae_chosen"))
+        lines.append(f"| {p['fold']} | {p['n_cells']} | {maes} |")
+    lines.append(f"| pooled | | {sc['cv_mae_raycast']:.5f} | {sc['cv_mae_unshrunk']:.5f} | {sc['cv_mae_chosen']:.5f} |")
+    pc = model.cv_scores_.get("pose_correction")
+    if pc:
+        lines += [
+            "",
+            f"Pose correction of the training poses: rms dx {pc['rms_dx']:.4f} m, dy {pc['rms_dy']:.4f} m, "
+            f"dtheta {pc['rms_dtheta']:.4f} rad (largest shift {pc['max_shift']:.3f} m); median |residual| "
+            f"{pc['median_abs_residual_before']:.4f} -> {pc['median_abs_residual_after']:.4f} m.",
+        ]
+    return lines + [""]
+
+
 def _put(dst: Params, idx: NDArray[np.bool_], src: Params) -> None:
     for k, v in src.items():
         dst.setdefault(k, np.zeros(idx.shape + v.shape[1:]))[idx] = v
@@ -422,6 +452,7 @@ def model_card_markdown(model: LidarLWLR, commands: list[str], validation: dict[
             f"{rho_s['ll_per_reading_independent']:.4f} for independent readings).",
             "",
         ]
+    lines += _shrinkage_markdown(model)
     lines += [f"File format version {FORMAT_VERSION} (`{MODEL_KIND}`).", ""]
     if validation is not None:
         lines += [
