@@ -13,9 +13,14 @@ The whole chain, from a fresh clone:
    before the calibration, fitted on a log of the uncalibrated ``NeatoRig()`` defaults);
 4. on the real log (29 poses), ``--folds`` leave-poses-out folds: the model fitted directly on the real
    training poses (same variant and settings), the Gaussian lidar refitted on them, and the ideal
-   raycast predict the held-out poses; the shipped BEFORE and AFTER models predict every pose (they
-   never saw real readings). Metrics pool all held-out cells: every metric of ``sensor-envs validate
-   lidar`` (Table I MAEs on all and clean cells, MAE p_spur, LL per reading, null-count LL).
+   raycast predict the held-out poses; the shipped BEFORE and AFTER models predict every pose. Metrics
+   pool all held-out cells: every metric of ``sensor-envs validate lidar`` (Table I MAEs on all and
+   clean cells, MAE p_spur, LL per reading, null-count LL).
+5. ``calibrated_per_fold``: the honest figure for unseen poses. The shipped rig's per-bearing effects
+   (null offsets, spurious weights) are statistics of all 29 real poses, held-out ones included, so
+   ``shipped_after`` is optimistic on them. Per fold, those per-bearing effects are re-derived from the
+   training poses only (``calibrate.bearing_profile``; the rig's other parameters, a dozen numbers,
+   are kept), a training log is recorded and the model refitted, and it predicts the held-out poses.
 
 Target (issue 12): shipped default within 15 % of the real-fitted model on every metric: an error
 (MAE) at most 1.15 x the real-fitted one, a log-likelihood at most 0.15 x |real-fitted| below it.
@@ -25,7 +30,6 @@ Writes ``OUT/fidelity.md`` and ``OUT/fidelity.json`` (never inside the repositor
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 import time
@@ -34,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from sensor_envs.lidar.calibrate import load_real_log, ranges_sha256
+from sensor_envs.lidar.calibrate import bearing_profile, load_real_log, ranges_sha256
 from sensor_envs.lidar.lwlr import LidarLWLR, lidar_features
 from sensor_envs.lidar.rig import NeatoRig
 from sensor_envs.lidar.validate import baseline_params, fit_gaussian_lidar, metrics_markdown, table_one
@@ -43,6 +47,8 @@ from sensor_envs.outputs import write_json
 from sensor_envs.rng import fold_ids
 
 ROOT = Path(__file__).resolve().parents[1]
+TRAIN_POSES, TRAIN_REPEATS, TRAIN_SEED = 30, 200, 1
+"""The shipped model's training log (models/neato_lidar.md): poses, repeats, seed of ``record lidar``."""
 MAE = [
     ("all", "mae_mu"),
     ("all", "mae_sigma"),
@@ -103,7 +109,8 @@ def main() -> None:
 
     # 1-2. the chain: calibrated rig -> training log -> the shipped model's fit
     rig = NeatoRig.from_file(args.rig)
-    train, _ = rig.record(load_map("seed_room").segments, np.random.default_rng(1), n_poses=30, repeats=200)
+    room = load_map("seed_room").segments
+    train, _ = rig.record(room, np.random.default_rng(TRAIN_SEED), n_poses=TRAIN_POSES, repeats=TRAIN_REPEATS)
     print(f"recorded the calibrated rig's training log ({args.rig}): {train.ranges.shape}", flush=True)
     after = _model().fit(train)
     after.save(out / "neato_lidar_after.npz")
@@ -119,7 +126,7 @@ def main() -> None:
     # 4. leave-poses-out folds of the real log
     r, a = lidar_features(real.poses, real.bearings, real.require_map(), 5.0)
     fold = fold_ids(real.n_poses, args.folds, random_state=args.seed)
-    names = ("shipped_before", "shipped_after", "real_fitted", "ideal", "gaussian")
+    names = ("shipped_before", "shipped_after", "calibrated_per_fold", "real_fitted", "ideal", "gaussian")
     pred: dict[str, dict[str, np.ndarray]] = {n: {} for n in names}
     spur = {n: (np.zeros(real.n_poses), np.ones(real.n_poses)) for n in names}
     for name, model in (("shipped_before", before), ("shipped_after", after)):
@@ -131,9 +138,14 @@ def main() -> None:
         m = _model().fit(real.subset(tr))
         _put(pred["real_fitted"], te, m.params_from_features(r[te], a[te]))
         spur["real_fitted"][0][te], spur["real_fitted"][1][te] = m.spur_mu_, m.spur_sigma_
+        rig_f = bearing_profile(rig, real.subset(tr))
+        log_f, _ = rig_f.record(room, np.random.default_rng(TRAIN_SEED), n_poses=TRAIN_POSES, repeats=TRAIN_REPEATS)
+        m = _model().fit(log_f)
+        _put(pred["calibrated_per_fold"], te, m.params_from_features(r[te], a[te]))
+        spur["calibrated_per_fold"][0][te], spur["calibrated_per_fold"][1][te] = m.spur_mu_, m.spur_sigma_
         _put(pred["ideal"], te, baseline_params("ideal", r[te], a[te]))
         _put(pred["gaussian"], te, baseline_params("gaussian", r[te], a[te], fit_gaussian_lidar(real.subset(tr))))
-        print(f"fold {f + 1}/{args.folds}: {int(te.sum())} held-out poses, fit {time.perf_counter() - t1:.0f} s")
+        print(f"fold {f + 1}/{args.folds}: {int(te.sum())} held-out poses, two fits {time.perf_counter() - t1:.0f} s")
     metrics = {n: table_one(real, pred[n], spur[n]) for n in names}
 
     # target check: shipped (before, after) vs real-fitted on every metric
@@ -141,13 +153,13 @@ def main() -> None:
     for tag, key in MAE:
         label = key if tag is None else f"{tag}: {key}"
         checks[label] = {"higher_better": False}
-        for n in ("shipped_before", "shipped_after", "ideal", "gaussian"):
+        for n in ("shipped_before", "shipped_after", "calibrated_per_fold", "ideal", "gaussian"):
             g, ok = _gap(_metric(metrics[n], tag, key), _metric(metrics["real_fitted"], tag, key), False)
             checks[label][n] = {"value": _metric(metrics[n], tag, key), "gap": g, "within_15pct": ok}
         checks[label]["real_fitted"] = _metric(metrics["real_fitted"], tag, key)
     for key in LL:
         checks[key] = {"higher_better": True}
-        for n in ("shipped_before", "shipped_after", "ideal", "gaussian"):
+        for n in ("shipped_before", "shipped_after", "calibrated_per_fold", "ideal", "gaussian"):
             g, ok = _gap(metrics[n][key], metrics["real_fitted"][key], True)
             checks[key][n] = {"value": metrics[n][key], "gap": g, "within_15pct": ok}
         checks[key]["real_fitted"] = metrics["real_fitted"][key]
@@ -167,14 +179,16 @@ def main() -> None:
         "Gap = (shipped - real_fitted) / |real_fitted| for errors, (real_fitted - shipped) / |real_fitted| for "
         "log-likelihoods; > 0 is worse than the real-fitted model.",
         "",
-        "| metric | real_fitted | shipped_before | gap | shipped_after | gap | within 15 % (after) |",
-        "|---|---|---|---|---|---|---|",
+        "| metric | real_fitted | shipped_before | gap | shipped_after | gap | within 15 % | calibrated_per_fold "
+        "| gap | within 15 % |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for label, c in checks.items():
-        b, a2 = c["shipped_before"], c["shipped_after"]
+        b, a2, cf = c["shipped_before"], c["shipped_after"], c["calibrated_per_fold"]
         lines.append(
             f"| {label} | {c['real_fitted']:.4g} | {b['value']:.4g} | {b['gap']:+.1%} | {a2['value']:.4g} | "
-            f"{a2['gap']:+.1%} | {'yes' if a2['within_15pct'] else 'NO'} |"
+            f"{a2['gap']:+.1%} | {'yes' if a2['within_15pct'] else 'NO'} | {cf['value']:.4g} | {cf['gap']:+.1%} | "
+            f"{'yes' if cf['within_15pct'] else 'NO'} |"
         )
     secs = time.perf_counter() - t0
     lines += ["", f"Run time {secs:.0f} s. Command: `python {' '.join(sys.argv)}`", ""]

@@ -34,7 +34,6 @@ from sensor_envs.cli.args import OneLineParser, about, add_force, nonneg_int, po
 from sensor_envs.modelio import read_model
 from sensor_envs.outputs import OutputTransaction, check_inputs, check_output, write_json
 
-
 _REAL_NAME = "neato_mar27_train.npz"
 
 

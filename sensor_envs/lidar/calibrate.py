@@ -51,6 +51,7 @@ __all__ = [
     "discrepancy",
     "calibrate_rig",
     "load_real_log",
+    "bearing_profile",
 ]
 
 REAL_LOG_NAME = "neato_mar27_train.npz"
@@ -72,6 +73,7 @@ STATISTICS: dict[str, tuple[float, str]] = {
     "spur_rate": (0.005, "fraction of readings beyond spur_above (spurious far returns)"),
     "spur_cells": (0.005, "share of unblocked cells with at least one spurious reading"),
     "spur_post_distance": (3.0, "mean distance [deg] of the spurious cells to the nearest post"),
+    "spur_bearing": (0.05, "share of the poses whose cell at a bearing has spurious readings, per bearing"),
     "spur_cell_frac": (0.1, "mean spurious fraction of the cells with spurious readings"),
     "spur_value": (0.05, "median and standard deviation [m] of the spurious readings"),
     "sigma_range": (0.2, "log of the median standard deviation of clean cells per 0.5 m bin (0-4 m)"),
@@ -89,13 +91,19 @@ SEARCH: tuple[str, ...] = (
     "bias_mean_mm",
     "log_bias_sd_mm",
     "logit_spur_prone",
-    "spur_window_deg",
     "logit_spur_frac_low",
     "log_pose_sd_xy_cm",
     "log_pose_sd_theta_deg",
     "log_sigma_scale",
 )
 """The coordinates of the Nelder-Mead search (transformed rig parameters)."""
+BLOCKS: tuple[tuple[tuple[int, ...], float], ...] = (
+    ((0, 1, 2, 3), 0.3),  # nulls: range and incidence slopes, persistence, arcs
+    ((6, 7), 0.1),  # spurious returns: prone share, fraction
+    ((4, 5, 8, 9, 10), 0.3),  # bias, pose error, sigma scale
+    (tuple(range(11)), 0.3),  # all together
+)
+"""Blocks of :data:`SEARCH` coordinates searched in turn, with their shares of the evaluations."""
 
 
 # ----------------------------------------------------------------------------------------------- data
@@ -188,11 +196,13 @@ def log_summary(log: LidarLog, max_range: float = 5.0, spur_above: float = 6.0) 
         "spur_cells": float(sp_cells.sum() / max((has & ~blocked[None]).sum(), 1)),
         "spur_post_distance": float(np.broadcast_to(dist, pn.shape)[sp_cells].mean()) if sp_cells.any() else None,
         "spur_cell_frac": float(st["p_spur"][sp_cells].mean()) if sp_cells.any() else None,
+        "spur_bearing": np.where(blocked, np.nan, sp_cells.mean(0)).tolist(),
         "spur_value": [float(np.median(sv)), float(np.std(sv))] if sv.size >= 2 else [None, None],
         "sigma_range": sig,
         "bias_mean": float(b.mean()) if b.size else None,
         "bias_sd": float(b.std()) if b.size else None,
         "mu_error": float(np.nanmean(np.abs(dev))) if okb.any() else None,
+        "n_poses": log.n_poses,
     }
 
 
@@ -254,6 +264,57 @@ def _sigma_knots(real: dict[str, Any]) -> tuple[tuple[float, ...], tuple[float, 
     return tuple(float(v) for v in kr), tuple(float(f"{v:.3g}") for v in kv)
 
 
+def _null_offsets(
+    r: NDArray[np.float64],
+    a: NDArray[np.float64],
+    hit: NDArray[np.bool_],
+    target: NDArray[np.float64],
+    slopes: tuple[float, float],
+) -> tuple[float, tuple[float, ...]]:
+    """Intercept and per-bearing offsets (rounded to 0.01) of logit ``p_null`` matching per-bearing null rates."""
+    b = profile_bearing_intercepts(r, a, hit, target, slopes)
+    used = hit.any(0) & np.isfinite(target)
+    c0 = float(np.median(b[used])) if used.any() else -4.0
+    return c0, tuple(float(v) for v in np.where(used, np.round(b - c0, 2), 0.0))
+
+
+SPUR_WEIGHT_PRIOR = 0.1
+"""Pseudo-count of spurious cells per bearing added before normalising the per-bearing weights."""
+
+
+def _spur_weights(stats: dict[str, Any]) -> tuple[float, ...]:
+    """Per-bearing proneness to spurious returns (mean 1 over unblocked bearings) from a log's statistics."""
+    share = np.asarray(stats["spur_bearing"], dtype=np.float64)
+    ok = np.isfinite(share)
+    if not ok.any():
+        return ()
+    w = np.where(ok, share + SPUR_WEIGHT_PRIOR / max(int(stats["n_poses"]), 1), 0.0)
+    w = w / w[ok].mean()
+    return tuple(float(f"{v:.3g}") for v in w)
+
+
+def bearing_profile(rig: NeatoRig, log: LidarLog) -> NeatoRig:
+    """``rig`` with its per-bearing effects (null offsets, spurious weights) re-derived from ``log``.
+
+    Keeps every other parameter (slopes, persistence, noise, pose error...). Used to measure the
+    calibration honestly by leave-poses-out folds: the per-bearing effects are statistics of the
+    poses they were computed on.
+    """
+    stats = log_summary(log, rig.max_range)
+    r, a = lidar_features(log.poses, log.bearings, log.require_map(), rig.max_range)
+    blocked = np.zeros(log.n_bearings, dtype=bool)
+    blocked[stats["blocked"]] = True
+    hit = np.isfinite(r) & ~blocked[None]
+    target = np.asarray(stats["p_null_bearing"], dtype=np.float64)
+    c0, off = _null_offsets(r, a, hit, target, (rig.null_logit[1], rig.null_logit[2]))
+    return dataclasses.replace(
+        rig,
+        null_logit=(round(c0, 4), rig.null_logit[1], rig.null_logit[2]),
+        null_bearing_logit=off,
+        spur_bearing_weight=_spur_weights(stats),
+    )
+
+
 class _Problem:
     """The rig as a function of the search coordinates, and the discrepancy of its recording."""
 
@@ -273,6 +334,7 @@ class _Problem:
             sigma_knots_r=self.knots_r,
             sigma_knots=self.knots,
             spur_value=(float(sv[0]), float(sv[1])) if sv[0] is not None else base.spur_value,
+            spur_bearing_weight=_spur_weights(real),
         )
 
     def x0(self, rig: NeatoRig) -> NDArray[np.float64]:
@@ -286,7 +348,6 @@ class _Problem:
                 rig.bias_mean * 1e3,
                 np.log(max(rig.bias_sd * 1e3, 0.1)),
                 np.log(max(rig.spur_prone, 1e-3) / (1 - min(rig.spur_prone, 1 - 1e-3))),
-                rig.spur_window,
                 np.log(max(rig.spur_frac[0], 1e-3) / (1 - min(rig.spur_frac[0], 1 - 1e-3))),
                 np.log(max(rig.pose_sd[0] * 100, 0.01)),
                 np.log(max(np.rad2deg(rig.pose_sd[1]), 0.01)),
@@ -298,23 +359,19 @@ class _Problem:
         """The rig at search coordinates ``x`` (per-bearing null offsets profiled, rounded to 0.01)."""
         c1, c2 = float(x[0]), float(x[1])
         corr, arc = float(np.clip(_logistic(np.array(x[2])), 0.0, 0.9999)), float(min(np.exp(x[3]), 60.0))
-        b = profile_bearing_intercepts(self.r, self.a, self.hit, self.target, (c1, c2))
-        used = self.hit.any(0) & np.isfinite(self.target)
-        c0 = float(np.median(b[used])) if used.any() else -4.0
-        off = np.where(used, np.round(b - c0, 2), 0.0)
-        scale = float(np.exp(x[11]))
+        c0, off = _null_offsets(self.r, self.a, self.hit, self.target, (c1, c2))
+        scale = float(np.exp(x[10]))
         return dataclasses.replace(
             self.base,
             null_logit=(round(c0, 4), round(c1, 4), round(c2, 4)),
-            null_bearing_logit=tuple(float(v) for v in off),
+            null_bearing_logit=off,
             null_cell_corr=round(corr, 5),
             null_arc=round(arc, 3),
             bias_mean=round(float(np.clip(x[4], -100, 100)) * 1e-3, 6),
             bias_sd=round(float(min(np.exp(x[5]), 100.0)) * 1e-3, 6),
             spur_prone=round(float(_logistic(np.array(x[6]))), 5),
-            spur_window=round(float(np.clip(x[7], 0.0, 180.0)), 3),
-            spur_frac=(round(float(_logistic(np.array(x[8]))), 4), 1.0),
-            pose_sd=(round(float(np.exp(x[9])) / 100, 5), round(float(np.deg2rad(np.exp(x[10]))), 5)),
+            spur_frac=(round(float(_logistic(np.array(x[7]))), 4), 1.0),
+            pose_sd=(round(float(np.exp(x[8])) / 100, 5), round(float(np.deg2rad(np.exp(x[9]))), 5)),
             sigma_knots=tuple(float(f"{v * scale:.3g}") for v in self.knots),
         )
 
@@ -345,7 +402,8 @@ def calibrate_rig(
         real_log: the real log (``(P, K, R)`` ranges with ``R >= 2``, approximate poses, map).
         seed: seed of the common random numbers of every simulation.
         max_evals: most discrepancy evaluations of the Nelder-Mead search.
-        start: rig the search starts from (default: :class:`NeatoRig` defaults, also the "before").
+        start: rig the search starts from (default: :class:`NeatoRig` defaults, also the "before"); its
+            per-bearing bias mean and spread start at the real log's statistics.
         progress: show a tqdm bar.
         callback: called with ``(evaluation, discrepancy)`` after each evaluation.
 
@@ -359,8 +417,9 @@ def calibrate_rig(
     prob = _Problem(real_log, real, seed, before_rig)
     before, before_stats = prob.evaluate(before_rig)
     x0 = prob.x0(before_rig)
-    steps = np.array([0.3, 0.3, 0.5, 0.5, 2.0, 0.5, 0.7, 8.0, 0.7, 0.5, 0.5, 0.2])
-    simplex = np.vstack([x0, x0 + np.diag(steps)])
+    if real["bias_mean"] is not None:  # start the bias at the real per-bearing statistics (the search refines it)
+        x0[4], x0[5] = real["bias_mean"] * 1e3, np.log(max(real["bias_sd"] * 1e3, 0.1))
+    steps = np.array([0.3, 0.3, 0.5, 0.5, 2.0, 0.5, 0.7, 0.7, 0.5, 0.5, 0.2])
     n_eval = 0
     best = (np.inf, x0)
     bar = tqdm(total=max_evals, desc="calibrate lidar rig", disable=not progress)
@@ -377,12 +436,29 @@ def calibrate_rig(
             callback(n_eval, d)
         return d
 
-    res = minimize(
-        objective,
-        x0,
-        method="Nelder-Mead",
-        options={"maxfev": max_evals, "initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-3},
-    )
+    converged = []
+    for block, share in BLOCKS:  # nearly separable: Nelder-Mead per block of coordinates, then all together
+        idx = np.asarray(block, dtype=int)
+        budget = max(int(share * max_evals), len(idx) + 2)
+        budget = min(budget, max_evals - n_eval)
+        if budget < len(idx) + 2:
+            break
+        x_best = best[1].copy()
+
+        def sub(y: NDArray[np.float64], idx: NDArray[np.int64] = idx, x_best: NDArray[np.float64] = x_best) -> float:
+            x = x_best.copy()
+            x[idx] = y
+            return objective(x)
+
+        start = x_best[idx]
+        simplex = np.vstack([start, start + np.diag(steps[idx])])
+        res = minimize(
+            sub,
+            start,
+            method="Nelder-Mead",
+            options={"maxfev": budget, "initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-3},
+        )
+        converged.append(bool(res.success))
     bar.close()
     rig = prob.rig(best[1])
     after, after_stats = prob.evaluate(rig)
@@ -408,13 +484,14 @@ def calibrate_rig(
         "statistics": {
             k: {"real": real[k], "before": before_stats[k], "after": after_stats[k]}
             for k in STATISTICS
-            if k not in ("p_null_bearing",)
+            if k not in ("p_null_bearing", "spur_bearing")
         },
         "search": {
             "method": "scipy.optimize.minimize Nelder-Mead, common random numbers",
             "coordinates": list(SEARCH),
             "evaluations": n_eval,
-            "converged": bool(res.success),
+            "blocks": [[SEARCH[i] for i in blk] for blk, _ in BLOCKS],
+            "block_converged": converged,
             "seed": seed,
             "seconds": round(time.perf_counter() - t0, 1),
         },

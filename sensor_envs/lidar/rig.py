@@ -38,21 +38,23 @@ Effects off by default, set by a calibrated rig file (``sensor-envs calibrate li
   is correlated along the bearings of a pose by a Gaussian kernel of ``null_arc`` bearings (standard
   deviation): the real persistent nulls come in arcs of a few bearings. Unlike ``null_rho`` (a Beta
   draw) it uses a fixed number of normal draws, so simulations with common random numbers change
-  smoothly with the parameters (simulation-based calibration).
+  smoothly with the parameters (simulation-based calibration);
+* ``spur_bearing_weight`` ``(K,)``: relative proneness of each bearing to spurious far returns (the
+  real spurious cells recur at some bearings); a cell is prone with probability
+  ``min(spur_prone * weight, 1)`` instead of ``spur_prone`` within ``spur_window`` of a post.
 
 Frames and units: metres and radians; bearings counter-clockwise from the sensor's x axis.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-
-import os
-from pathlib import Path
-from typing import Any
 
 from sensor_envs.geometry import as_segments, raycast_pose, sample_free_poses
 from sensor_envs.lidar.log import LidarLog, log_from_arrays
@@ -107,6 +109,7 @@ RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
     "sigma_knots": [Numbers(Interval(0, 10, open_low=True), min_length=2)],
     "spur_window": [Interval(0, 180)],
     "spur_prone": [Interval(0, 1)],
+    "spur_bearing_weight": [Numbers(Interval(0, 1e4), min_length=0)],
     "spur_frac": [Numbers(Interval(0, 1), length=2)],
     "spur_value": [Numbers(_NONNEG, length=2)],
     "quantum": [Interval(0, 1, open_low=True)],
@@ -126,7 +129,9 @@ def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
     start = int(np.flatnonzero(~mask)[0]) + 1  # begin just after a False entry: no run is cut
     m = np.roll(mask, -start)
     d = np.diff(np.r_[0, m.astype(np.int8), 0])
-    return [((int(a) + start) % n, int(b - a)) for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True)]
+    return [
+        ((int(a) + start) % n, int(b - a)) for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True)
+    ]
 
 
 def smooth_along_bearings(z: NDArray[np.float64], width: float) -> NDArray[np.float64]:
@@ -167,6 +172,7 @@ class NeatoRig:
     sigma_knots_r: tuple[float, ...] = _SIGMA_KNOTS_R
     sigma_knots: tuple[float, ...] = _SIGMA_KNOTS
     spur_window: float = 15.0
+    spur_bearing_weight: tuple[float, ...] = ()
     spur_prone: float = 0.09
     spur_frac: tuple[float, float] = (0.4, 1.0)
     spur_value: tuple[float, float] = (16.9, 0.1)
@@ -186,6 +192,8 @@ class NeatoRig:
         bad = []
         if self.null_bearing_logit and len(self.null_bearing_logit) != self.n_bearings:
             bad.append(("null_bearing_logit", f"has {len(self.null_bearing_logit)} values, expected 0 or n_bearings"))
+        if self.spur_bearing_weight and len(self.spur_bearing_weight) != self.n_bearings:
+            bad.append(("spur_bearing_weight", f"has {len(self.spur_bearing_weight)} values, expected 0 or n_bearings"))
         if len(self.sigma_knots) != len(self.sigma_knots_r):
             bad.append(("sigma_knots", f"has {len(self.sigma_knots)} values, sigma_knots_r {len(self.sigma_knots_r)}"))
         if any(b >= self.n_bearings for b in self.blocked):
@@ -253,6 +261,13 @@ class NeatoRig:
     def near_posts(self) -> NDArray[np.bool_]:
         """``(K,)`` True at unblocked bearings within ``spur_window`` degrees of a post."""
         return (self.post_distance() <= self.spur_window) & ~self.blocked_mask()
+
+    def spur_prone_per_bearing(self) -> NDArray[np.float64]:
+        """``(K,)`` probability that a cell at each bearing is prone to spurious far returns."""
+        if self.spur_bearing_weight:
+            w = np.asarray(self.spur_bearing_weight, dtype=np.float64)
+            return np.where(self.blocked_mask(), 0.0, np.minimum(self.spur_prone * w, 1.0))
+        return np.asarray(self.near_posts() * self.spur_prone, dtype=np.float64)
 
     def sigma(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
         """Noise standard deviation [m] at true range ``r`` [m]."""
@@ -325,7 +340,7 @@ class NeatoRig:
         A scan has no pose identity, so each near-post bearing is spurious with the average rate; with
         ``null_cell_corr > 0`` each scan draws its own per-cell null effects (the marginal null rate).
         """
-        p_spur = np.asarray(self.near_posts() * self.spur_prone * float(np.mean(self.spur_frac)), dtype=np.float64)
+        p_spur = self.spur_prone_per_bearing() * float(np.mean(self.spur_frac))
         r = np.asarray(nominal_range, float)
         a = np.asarray(incidence, float)
         pn = self.cell_p_null(r, a, rng) if self.null_cell_corr > 0 else None
@@ -363,7 +378,7 @@ class NeatoRig:
         )
         r, a, _ = raycast_pose(true_poses, self.bearings, true_map, self.max_range)
         unit = np.random.default_rng([self.unit_seed, 2])  # prone cells belong to the unit and the place
-        prone = (rng.random(r.shape) < self.spur_prone) & self.near_posts()[None]
+        prone = rng.random(r.shape) < self.spur_prone_per_bearing()[None]
         p_spur = np.where(prone, unit.uniform(*self.spur_frac, r.shape), 0.0)
         pn = self.cell_p_null(r, a, rng)
         x = self._readings(
