@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from sensor_envs.lidar.calibrate import bearing_profile, load_real_log, ranges_sha256
+from sensor_envs.lidar.log import load_log, save_log
 from sensor_envs.lidar.lwlr import LidarLWLR, lidar_features
 from sensor_envs.lidar.rig import NeatoRig
 from sensor_envs.lidar.validate import baseline_params, fit_gaussian_lidar, metrics_markdown, table_one
@@ -111,6 +112,7 @@ def main() -> None:
     rig = NeatoRig.from_file(args.rig)
     room = load_map("seed_room").segments
     train, _ = rig.record(room, np.random.default_rng(TRAIN_SEED), n_poses=TRAIN_POSES, repeats=TRAIN_REPEATS)
+    train = load_log(save_log(train, out / "neato_rig_train.npz"))  # as `record lidar` writes it (float32 ranges)
     print(f"recorded the calibrated rig's training log ({args.rig}): {train.ranges.shape}", flush=True)
     after = _model().fit(train)
     after.save(out / "neato_lidar_after.npz")
@@ -140,6 +142,7 @@ def main() -> None:
         spur["real_fitted"][0][te], spur["real_fitted"][1][te] = m.spur_mu_, m.spur_sigma_
         rig_f = bearing_profile(rig, real.subset(tr))
         log_f, _ = rig_f.record(room, np.random.default_rng(TRAIN_SEED), n_poses=TRAIN_POSES, repeats=TRAIN_REPEATS)
+        log_f = load_log(save_log(log_f, out / "fold_train.npz"))
         m = _model().fit(log_f)
         _put(pred["calibrated_per_fold"], te, m.params_from_features(r[te], a[te]))
         spur["calibrated_per_fold"][0][te], spur["calibrated_per_fold"][1][te] = m.spur_mu_, m.spur_sigma_
