@@ -1,6 +1,8 @@
 """``sensor-envs record|fit|validate lidar``: record a rig log, fit the learned lidar, validate it.
 
-    sensor-envs record lidar --out LOG.npz [--map NAME] [--poses N] [--repeats R] [--seed S] [--unit-seed U]
+    sensor-envs record lidar --out LOG.npz [--rig RIG.json] [--map NAME] [--poses N] [--repeats R] [--seed S]
+        [--unit-seed U]
+    sensor-envs calibrate lidar REAL_DATA --out RIG.json [--seed S] [--max-evals N]
     sensor-envs fit lidar LOG --out MODEL [--variant seed|extended] [--folds 10] [--seed S] [LOG OPTIONS]
         [--max-range M] [--spur-above M] [--table-range-step M] [--max-readings N] [--cv-block-scans N]
     sensor-envs validate lidar MODEL LOG --out DIR [--card] [LOG OPTIONS]
@@ -13,11 +15,14 @@ TRAINING blocks only, in ``fit`` and in ``validate`` alike. Logs with one readin
 are fitted per reading and validated per reading (held-out NLL, null-rate calibration, PIT, lag-1 ACF).
 
 ``fit`` also writes the model card ``MODEL.md``; ``validate --card`` rewrites it with the validation.
+``record`` records from a rig file (default: the shipped calibrated ``models/neato_rig.json``);
+``calibrate`` fits a rig file to a real static-pose log (the ``.npz`` or its folder) by simulation.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import shlex
 import sys
 import time
@@ -29,18 +34,34 @@ from sensor_envs.cli.args import OneLineParser, about, add_force, nonneg_int, po
 from sensor_envs.modelio import read_model
 from sensor_envs.outputs import OutputTransaction, check_inputs, check_output, write_json
 
+_REAL_NAME = "neato_mar27_train.npz"
+
 
 def register(verbs: dict[str, argparse._SubParsersAction[OneLineParser]]) -> None:
     """Add the ``lidar`` sub-commands under each verb parser in ``verbs``."""
     rec = verbs["record"].add_parser("lidar", help="record a static-pose log from the reference Neato rig")
     rec.add_argument("--out", required=True, help="output log (.npz)")
+    rec.add_argument(
+        "--rig", default=None, help="rig file (.json) to record from (default: the shipped models/neato_rig.json)"
+    )
     rec.add_argument("--map", default="seed_room", help="map name or file (default: seed_room)")
     rec.add_argument("--poses", type=positive_int, default=30, help="number of static poses (default: 30)")
     rec.add_argument("--repeats", type=positive_int, default=200, help="readings per pose and bearing (default: 200)")
     rec.add_argument("--seed", type=nonneg_int, default=0, help="seed of poses, map error and noise (default: 0)")
-    rec.add_argument("--unit-seed", type=nonneg_int, default=0, help="seed of the rig unit's bias (default: 0)")
+    rec.add_argument(
+        "--unit-seed", type=nonneg_int, default=None, help="seed of the rig unit's bias (default: the rig file's)"
+    )
     add_force(rec)
     rec.set_defaults(func=_record)
+    cal = verbs["calibrate"].add_parser("lidar", help="fit the Neato rig's parameters to a real static-pose log")
+    cal.add_argument("real_data", metavar="REAL_DATA", help=f"real log (.npz) or the folder holding {_REAL_NAME}")
+    cal.add_argument("--out", required=True, help="output rig file (.json)")
+    cal.add_argument("--seed", type=nonneg_int, default=0, help="seed of the common random numbers (default: 0)")
+    cal.add_argument(
+        "--max-evals", type=positive_int, default=200, help="most simulations of the search (default: 200)"
+    )
+    add_force(cal)
+    cal.set_defaults(func=_calibrate)
     fit = verbs["fit"].add_parser("lidar", help="fit the per-bearing LWLR lidar model to a log")
     fit.add_argument("log", help="lidar log (.npz, CARMEN log or ROS bag)")
     fit.add_argument("--out", required=True, help="output model file (.npz); the card goes to MODEL.md")
@@ -106,14 +127,37 @@ def _record(args: argparse.Namespace) -> int:
     from sensor_envs.lidar.rig import NeatoRig
     from sensor_envs.maps import load_map
 
-    out = check_output(args.out, inputs=[args.map], force=args.force, suffix=".npz")
-    log, _ = NeatoRig(unit_seed=args.unit_seed).record(
+    check_inputs(args.rig)
+    out = check_output(args.out, inputs=[args.map, args.rig], force=args.force, suffix=".npz")
+    rig = NeatoRig.from_file(args.rig)
+    if args.unit_seed is not None:
+        rig = dataclasses.replace(rig, unit_seed=args.unit_seed)
+    log, _ = rig.record(
         load_map(args.map).segments, np.random.default_rng(args.seed), n_poses=args.poses, repeats=args.repeats
     )
     with OutputTransaction() as tx:
         save_log(log, tx.file(out))
     path = out
     print(f"wrote {path}: {log.n_poses} poses x {log.n_bearings} bearings x {log.ranges.shape[2]} repeats")
+    return 0
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    from sensor_envs.lidar.calibrate import calibrate_rig, load_real_log
+
+    check_inputs(args.real_data)
+    out = check_output(args.out, inputs=[args.real_data], force=args.force, suffix=".json")
+    log = load_real_log(args.real_data)
+    rig, card = calibrate_rig(log, seed=args.seed, max_evals=args.max_evals)
+    card["command"] = _command()
+    with OutputTransaction() as tx:
+        rig.to_file(tx.file(out), card)
+    b, a = card["before"]["per_statistic"], card["after"]["per_statistic"]
+    print(f"discrepancy D before (NeatoRig defaults) {b['total']:.4g}, after {a['total']:.4g}")
+    for k in b:
+        if k != "total":
+            print(f"  {k:20s} {b[k]:10.4g} -> {a[k]:10.4g}")
+    print(f"wrote {out} ({card['search']['evaluations']} simulations, {card['search']['seconds']} s)")
     return 0
 
 

@@ -25,20 +25,56 @@ the real and rig statistics side by side):
 * pose error: ``Normal(0, 1.77 cm)`` per axis (2.5 cm rms) and ``Normal(0, 2 deg)`` in heading,
   fixed per pose; map error: segment end points moved by ``Normal(0, 1 cm)``.
 
+Effects off by default, set by a calibrated rig file (``sensor-envs calibrate lidar``, shipped as
+``models/neato_rig.json``; :meth:`NeatoRig.from_file` / :meth:`NeatoRig.to_file`):
+
+* ``null_bearing_logit`` ``(K,)``: the unit's per-bearing offsets of logit ``p_null`` (the real sensor's
+  null rate depends strongly on the bearing: held-out MAE p_null of a bearing-blind logistic on the
+  real log 0.23, with per-bearing offsets 0.12);
+* ``null_cell_corr``, ``null_arc``: persistent nulls by a Gaussian copula: a reading is null when
+  ``sqrt(c) u + sqrt(1 - c) e < Phi^-1(p_null)``, ``u`` a per-cell standard normal shared by the cell's
+  readings, ``e`` per reading, ``c = null_cell_corr``; the null rate stays ``p_null`` on average and cells
+  become all-or-nothing as ``c -> 1`` (real: 6 % of the cells are neither always nor never null). ``u``
+  is correlated along the bearings of a pose by a Gaussian kernel of ``null_arc`` bearings (standard
+  deviation): the real persistent nulls come in arcs of a few bearings. Unlike ``null_rho`` (a Beta
+  draw) it uses a fixed number of normal draws, so simulations with common random numbers change
+  smoothly with the parameters (simulation-based calibration);
+* ``spur_bearing_weight`` ``(K,)``: relative proneness of each bearing to spurious far returns (the
+  real spurious cells recur at some bearings); a cell is prone with probability
+  ``min(spur_prone * weight, 1)`` instead of ``spur_prone`` within ``spur_window`` of a post.
+
 Frames and units: metres and radians; bearings counter-clockwise from the sensor's x axis.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, raycast_pose, sample_free_poses
 from sensor_envs.lidar.log import LidarLog, log_from_arrays
+from sensor_envs.modelio import (
+    Constraint,
+    Interval,
+    ModelFileError,
+    Numbers,
+    default_model_path,
+    load_rig_file,
+    save_rig_file,
+    validate_params,
+)
 
-__all__ = ["NeatoRig", "POST_BEARINGS", "BLOCKED_BEARINGS", "sample_free_poses"]
+__all__ = ["NeatoRig", "POST_BEARINGS", "BLOCKED_BEARINGS", "RIG_KIND", "RIG_CONSTRAINTS", "sample_free_poses"]
+
+RIG_KIND = "neato_rig"
+"""``kind`` of a Neato rig parameter file."""
+SHIPPED_RIG = "neato_rig.json"
+"""File name of the shipped calibrated rig in ``models/``."""
 
 BLOCKED_BEARINGS = tuple(
     list(range(30, 33)) + list(range(81, 86)) + list(range(165, 171)) + list(range(250, 257)) + list(range(326, 331))
@@ -52,6 +88,65 @@ _SIGMA_KNOTS = (0.0002, 0.0002, 0.0007, 0.0034, 0.0095, 0.0293, 0.0379, 0.0488, 
 
 def _logistic(z: NDArray[np.float64]) -> NDArray[np.float64]:
     return 1.0 / (1.0 + np.exp(-z))
+
+
+_FINITE = Interval(-1e6, 1e6)
+_NONNEG = Interval(0, None)
+RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
+    "unit_seed": [Interval(0, None, integer=True)],
+    "n_bearings": [Interval(1, 100_000, integer=True)],
+    "max_range": [Interval(0, None, open_low=True)],
+    "bias_mean": [Interval(-1, 1)],
+    "bias_sd": [Interval(0, 1)],
+    "blocked": [Numbers(Interval(0, None, integer=True), min_length=0)],
+    "null_logit": [Numbers(_FINITE, length=3)],
+    "null_bearing_logit": [Numbers(Interval(-50, 50), min_length=0)],
+    "null_rho": [Interval(0, 1, open_high=True)],
+    "null_cell_corr": [Interval(0, 1, open_high=True)],
+    "null_arc": [Interval(0, 180)],
+    "k_far": [_NONNEG],
+    "sigma_knots_r": [Numbers(_NONNEG, min_length=2, increasing=True)],
+    "sigma_knots": [Numbers(Interval(0, 10, open_low=True), min_length=2)],
+    "spur_window": [Interval(0, 180)],
+    "spur_prone": [Interval(0, 1)],
+    "spur_bearing_weight": [Numbers(Interval(0, 1e4), min_length=0)],
+    "spur_frac": [Numbers(Interval(0, 1), length=2)],
+    "spur_value": [Numbers(_NONNEG, length=2)],
+    "quantum": [Interval(0, 1, open_low=True)],
+    "pose_sd": [Numbers(_NONNEG, length=2)],
+    "map_sd": [_NONNEG],
+}
+"""Accepted values of every :class:`NeatoRig` parameter (checked at construction and when a rig file loads)."""
+
+
+def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """Circular runs ``(start, length)`` of True entries of a 1-D mask (a run may wrap past the end)."""
+    n = mask.size
+    if not mask.any():
+        return []
+    if mask.all():
+        return [(0, n)]
+    start = int(np.flatnonzero(~mask)[0]) + 1  # begin just after a False entry: no run is cut
+    m = np.roll(mask, -start)
+    d = np.diff(np.r_[0, m.astype(np.int8), 0])
+    return [
+        ((int(a) + start) % n, int(b - a)) for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True)
+    ]
+
+
+def smooth_along_bearings(z: NDArray[np.float64], width: float) -> NDArray[np.float64]:
+    """Unit-variance circular Gaussian smoothing of white noise ``z (..., K)`` along the last axis.
+
+    ``width`` is the kernel's standard deviation [bearing steps]; ``0`` returns ``z``. The result is a
+    stationary field whose neighbouring bearings are correlated over about ``width`` steps.
+    """
+    if width <= 0:
+        return z
+    k = z.shape[-1]
+    d = (np.arange(k) + k // 2) % k - k // 2
+    ker = np.exp(-0.5 * (d / width) ** 2)
+    ker /= np.sqrt((ker**2).sum())
+    return np.fft.irfft(np.fft.rfft(z, axis=-1) * np.fft.rfft(ker), n=k, axis=-1)
 
 
 @dataclass(frozen=True)
@@ -69,9 +164,15 @@ class NeatoRig:
     bias_sd: float = 0.0076
     blocked: tuple[int, ...] = BLOCKED_BEARINGS
     null_logit: tuple[float, float, float] = (-4.03, 1.38, 1.36)
+    null_bearing_logit: tuple[float, ...] = ()
     null_rho: float = 0.0
+    null_cell_corr: float = 0.0
+    null_arc: float = 0.0
     k_far: float = 0.05
+    sigma_knots_r: tuple[float, ...] = _SIGMA_KNOTS_R
+    sigma_knots: tuple[float, ...] = _SIGMA_KNOTS
     spur_window: float = 15.0
+    spur_bearing_weight: tuple[float, ...] = ()
     spur_prone: float = 0.09
     spur_frac: tuple[float, float] = (0.4, 1.0)
     spur_value: tuple[float, float] = (16.9, 0.1)
@@ -81,7 +182,57 @@ class NeatoRig:
     bearings: NDArray[np.float64] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        validate_params(self.params(), RIG_CONSTRAINTS)
+        for name, msg in self._relation_errors():
+            raise ValueError(f"{name}: {msg}")
         object.__setattr__(self, "bearings", np.deg2rad(np.arange(self.n_bearings) * 360.0 / self.n_bearings))
+
+    def _relation_errors(self) -> list[tuple[str, str]]:
+        """``(field, message)`` for values that are fine alone but inconsistent with the others."""
+        bad = []
+        if self.null_bearing_logit and len(self.null_bearing_logit) != self.n_bearings:
+            bad.append(("null_bearing_logit", f"has {len(self.null_bearing_logit)} values, expected 0 or n_bearings"))
+        if self.spur_bearing_weight and len(self.spur_bearing_weight) != self.n_bearings:
+            bad.append(("spur_bearing_weight", f"has {len(self.spur_bearing_weight)} values, expected 0 or n_bearings"))
+        if len(self.sigma_knots) != len(self.sigma_knots_r):
+            bad.append(("sigma_knots", f"has {len(self.sigma_knots)} values, sigma_knots_r {len(self.sigma_knots_r)}"))
+        if any(b >= self.n_bearings for b in self.blocked):
+            bad.append(("blocked", f"holds an index >= n_bearings ({self.n_bearings})"))
+        if self.spur_frac[0] > self.spur_frac[1]:
+            bad.append(("spur_frac", f"low {self.spur_frac[0]} > high {self.spur_frac[1]}"))
+        return bad
+
+    # ------------------------------------------------------------------------------------ rig files
+    def params(self) -> dict[str, Any]:
+        """The rig's parameters ``name -> value`` (what a rig file holds)."""
+        return {k: getattr(self, k) for k in RIG_CONSTRAINTS}
+
+    def to_file(self, path: str | os.PathLike[str], card: dict[str, Any] | None = None) -> Path:
+        """Write the parameters (and a ``card``: what they were calibrated against) to a JSON rig file."""
+        return save_rig_file(path, RIG_KIND, self.params(), card)
+
+    @classmethod
+    def from_file(cls, path: str | os.PathLike[str] | None = None) -> NeatoRig:
+        """The rig of a rig file (default: the shipped calibrated ``models/neato_rig.json``).
+
+        Raises:
+            ModelFileError: naming the file and the field at fault (missing parameters take the defaults).
+        """
+        path = default_model_path(SHIPPED_RIG) if path is None else Path(path)
+        params, _ = load_rig_file(path, RIG_KIND, RIG_CONSTRAINTS)
+        params = {k: tuple(v) if isinstance(v, list) else v for k, v in params.items()}
+        probe = cls.__new__(cls)  # relations between values, named like the other field errors
+        for k in RIG_CONSTRAINTS:
+            object.__setattr__(probe, k, params.get(k, getattr(cls, k, None)))
+        for name, msg in probe._relation_errors():
+            raise ModelFileError(f"{path}: field 'params.{name}' is invalid: {msg}")
+        return cls(**params)
+
+    @staticmethod
+    def card_of(path: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+        """The card of a rig file (default: the shipped one): what it was calibrated against, discrepancies."""
+        path = default_model_path(SHIPPED_RIG) if path is None else Path(path)
+        return load_rig_file(path, RIG_KIND, RIG_CONSTRAINTS)[1]
 
     # ------------------------------------------------------------------------------ unit properties
     def bias(self) -> NDArray[np.float64]:
@@ -94,29 +245,65 @@ class NeatoRig:
         m[np.asarray(self.blocked, dtype=int) % self.n_bearings] = True
         return m
 
+    def post_bearings(self) -> NDArray[np.float64]:
+        """Centres [deg] of the groups of adjacent blocked bearings (the casing's posts)."""
+        step = 360.0 / self.n_bearings
+        return np.array([((a + (n - 1) / 2.0) * step) % 360.0 for a, n in _runs(self.blocked_mask())])
+
+    def post_distance(self) -> NDArray[np.float64]:
+        """``(K,)`` angular distance [deg] of each bearing to the nearest post (inf without posts)."""
+        posts = self.post_bearings()
+        if posts.size == 0:
+            return np.full(self.n_bearings, np.inf)
+        deg = np.rad2deg(self.bearings)
+        return np.abs((deg[:, None] - posts[None] + 180.0) % 360.0 - 180.0).min(axis=1)
+
     def near_posts(self) -> NDArray[np.bool_]:
         """``(K,)`` True at unblocked bearings within ``spur_window`` degrees of a post."""
-        deg = np.rad2deg(self.bearings)
-        d = np.abs((deg[:, None] - np.asarray(POST_BEARINGS)[None] + 180.0) % 360.0 - 180.0).min(axis=1)
-        return (d <= self.spur_window) & ~self.blocked_mask()
+        return (self.post_distance() <= self.spur_window) & ~self.blocked_mask()
+
+    def spur_prone_per_bearing(self) -> NDArray[np.float64]:
+        """``(K,)`` probability that a cell at each bearing is prone to spurious far returns."""
+        if self.spur_bearing_weight:
+            w = np.asarray(self.spur_bearing_weight, dtype=np.float64)
+            return np.where(self.blocked_mask(), 0.0, np.minimum(self.spur_prone * w, 1.0))
+        return np.asarray(self.near_posts() * self.spur_prone, dtype=np.float64)
 
     def sigma(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
         """Noise standard deviation [m] at true range ``r`` [m]."""
-        return np.interp(r, _SIGMA_KNOTS_R, _SIGMA_KNOTS) + self.k_far * np.maximum(r - 4.0, 0.0) ** 2
+        return np.interp(r, self.sigma_knots_r, self.sigma_knots) + self.k_far * np.maximum(r - 4.0, 0.0) ** 2
 
     def p_null(self, r: NDArray[np.float64], alpha: NDArray[np.float64]) -> NDArray[np.float64]:
         """Dropout probability at true range ``r`` [m] and incidence ``alpha`` [rad] (1 if no hit/blocked)."""
+        return np.where(np.isfinite(r) & ~self.blocked_mask(), _logistic(self.null_linear(r, alpha)), 1.0)
+
+    def null_linear(self, r: NDArray[np.float64], alpha: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Logit of the dropout probability ``(..., K)`` before the per-cell effect (any value where no hit)."""
         c0, c1, c2 = self.null_logit
-        hit = np.isfinite(r)
-        p = _logistic(c0 + c1 * np.where(hit, r, 0.0) + c2 * np.nan_to_num(alpha))
-        return np.where(hit & ~self.blocked_mask(), p, 1.0)
+        z = c0 + c1 * np.where(np.isfinite(r), r, 0.0) + c2 * np.nan_to_num(alpha)
+        if self.null_bearing_logit:
+            z = z + np.asarray(self.null_bearing_logit, dtype=np.float64)
+        return np.asarray(z, dtype=np.float64)
 
     # ------------------------------------------------------------------------------------ readings
     def cell_p_null(
         self, r: NDArray[np.float64], alpha: NDArray[np.float64], rng: np.random.Generator
     ) -> NDArray[np.float64]:
-        """One null probability per cell ``(..., K)``: ``Beta`` with mean :meth:`p_null`, correlation ``null_rho``."""
+        """One null probability per cell ``(..., K)``.
+
+        With ``null_cell_corr = c > 0``: ``Phi((Phi^-1(p_null) - sqrt(c) u) / sqrt(1 - c))``, ``u`` a unit
+        normal field smoothed along the bearings over ``null_arc`` steps (mean over cells: ``p_null``);
+        else, with ``null_rho > 0``, ``Beta`` with mean :meth:`p_null` and intra-cell correlation
+        ``null_rho``; else :meth:`p_null`.
+        """
         p = self.p_null(r, alpha)
+        if self.null_cell_corr > 0:
+            from scipy.special import ndtr, ndtri
+
+            u = smooth_along_bearings(rng.standard_normal(np.shape(p)), self.null_arc)
+            c = self.null_cell_corr
+            q = ndtr((ndtri(np.clip(p, 1e-12, 1 - 1e-12)) - np.sqrt(c) * u) / np.sqrt(1 - c))
+            return np.where(p < 1.0, q, 1.0)
         if self.null_rho <= 0:
             return p
         c = 1 / self.null_rho - 1
@@ -150,12 +337,14 @@ class NeatoRig:
     ) -> NDArray[np.float64]:
         """One scan ``(K,)`` [m], NaN = null, from true features (a :class:`~sensor_envs.lidar.sensors.LidarSensor`).
 
-        A scan has no pose identity, so each near-post bearing is spurious with the average rate.
+        A scan has no pose identity, so each near-post bearing is spurious with the average rate; with
+        ``null_cell_corr > 0`` each scan draws its own per-cell null effects (the marginal null rate).
         """
-        p_spur = np.asarray(self.near_posts() * self.spur_prone * float(np.mean(self.spur_frac)), dtype=np.float64)
-        x = self._readings(
-            np.asarray(nominal_range, float)[:, None], np.asarray(incidence, float)[:, None], p_spur[:, None], rng
-        )[:, 0]
+        p_spur = self.spur_prone_per_bearing() * float(np.mean(self.spur_frac))
+        r = np.asarray(nominal_range, float)
+        a = np.asarray(incidence, float)
+        pn = self.cell_p_null(r, a, rng) if self.null_cell_corr > 0 else None
+        x = self._readings(r[:, None], a[:, None], p_spur[:, None], rng, pn)[:, 0]
         return np.where(x == 0, np.nan, x)
 
     def record(
@@ -189,7 +378,7 @@ class NeatoRig:
         )
         r, a, _ = raycast_pose(true_poses, self.bearings, true_map, self.max_range)
         unit = np.random.default_rng([self.unit_seed, 2])  # prone cells belong to the unit and the place
-        prone = (rng.random(r.shape) < self.spur_prone) & self.near_posts()[None]
+        prone = rng.random(r.shape) < self.spur_prone_per_bearing()[None]
         p_spur = np.where(prone, unit.uniform(*self.spur_frac, r.shape), 0.0)
         pn = self.cell_p_null(r, a, rng)
         x = self._readings(
