@@ -450,11 +450,11 @@ def calibrate_rig(
             x[idx] = y
             return objective(x)
 
-        start = x_best[idx]
-        simplex = np.vstack([start, start + np.diag(steps[idx])])
+        y0 = x_best[idx]
+        simplex = np.vstack([y0, y0 + np.diag(steps[idx])])
         res = minimize(
             sub,
-            start,
+            y0,
             method="Nelder-Mead",
             options={"maxfev": budget, "initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-3},
         )
