@@ -142,9 +142,10 @@ def test_autocorrelation_reproduced_with_previous_output(rig_split, model):
     train, test = rig_split
     tt = target_tuples(test)
     measured = lag1_autocorr(tt.z, tt.z_prev)
-    with_prev = lag1_autocorr(*rollout(model, tt, np.random.default_rng(0)))
+    # mean of 5 rollouts: one rollout's lag-1 autocorrelation varies by ~0.015-0.05 (std) from seed to seed
+    with_prev = np.mean([lag1_autocorr(*rollout(model, tt, np.random.default_rng(s))) for s in range(5)], axis=0)
     no_prev_model = KDERadarModel(use_prev=False, random_state=0).fit(train)
-    without = lag1_autocorr(*rollout(no_prev_model, tt, np.random.default_rng(0)))
+    without = np.mean([lag1_autocorr(*rollout(no_prev_model, tt, np.random.default_rng(s))) for s in range(5)], axis=0)
     assert np.all(np.abs(with_prev - measured) < AUTOCORR_TOL), (with_prev, measured)
     assert np.all(without < with_prev - 0.1), (without, with_prev)
 
