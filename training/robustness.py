@@ -91,22 +91,22 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
             "hyperparams": None,
         },
     },
-    # "full" is sized for the shared 2-core machine without a GPU (README: measured wall time, ~1 h per domain
-    # at --workers 2 under load): PPO budgets at which the policies are measurably better than untrained ones
-    # (Neato: success rises from 0; highway: fewer crashes), 3 seeds; the eval runs without EvalCallback.
+    # "full" is sized for the shared 2-core machine without a GPU: it must run in about an hour per domain at
+    # --workers 2 while other jobs load the cores (README: budgets, wall time, how much the policies learned);
+    # final models only (no EvalCallback during training): the matrix is the evaluation.
     "full": {
         "neato": {
             "seeds": 3,
             "eval_episodes": 10,
             "max_episode_steps": 300,
-            "set": {"n_timesteps": 100000, "n_envs": 4, "eval_freq": 10**9, "eval_episodes": 1},
+            "set": {"n_timesteps": 60000, "n_envs": 4, "eval_freq": 10**9, "eval_episodes": 1},
             "hyperparams": None,
         },
         "highway": {
             "seeds": 3,
-            "eval_episodes": 10,
+            "eval_episodes": 8,
             "max_episode_steps": None,
-            "set": {"n_timesteps": 3072, "n_envs": 2, "eval_freq": 10**9, "eval_episodes": 1},
+            "set": {"n_timesteps": 2048, "n_envs": 2, "eval_freq": 10**9, "eval_episodes": 1},
             "hyperparams": None,
         },
     },
