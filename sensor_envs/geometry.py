@@ -15,6 +15,7 @@ frame has x forward and y left; bearings are measured counter-clockwise from the
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -111,7 +112,7 @@ def raycast(
     e = segments[:, 1] - a
     ex, ey = np.ascontiguousarray(e[:, 0]), np.ascontiguousarray(e[:, 1])
     seg_len = np.hypot(ex, ey)
-    return kernel(  # type: ignore[no-any-return]
+    return kernel(
         np.ascontiguousarray(o[:, 0]),
         np.ascontiguousarray(o[:, 1]),
         np.ascontiguousarray(ang),
@@ -188,10 +189,11 @@ def _raycast_numpy(
 
 
 # ---------------------------------------------------------------------------------------------- compiled kernel
-_KERNEL: list = []  # [kernel or None], filled on first use
+_RaycastResult = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]
+_KERNEL: list[Callable[..., _RaycastResult] | None] = []  # [kernel or None], filled on first use
 
 
-def _compiled_kernel():  # type: ignore[no-untyped-def]
+def _compiled_kernel() -> Callable[..., _RaycastResult] | None:
     """The numba kernel of :func:`raycast` when numba is installed (the ``fast`` extra), else None.
 
     ``SENSOR_ENVS_NO_NUMBA=1`` forces the numpy path. Both paths do the same float64 operations in the same
@@ -212,7 +214,20 @@ def _compiled_kernel():  # type: ignore[no-untyped-def]
     return _KERNEL[0]
 
 
-def _raycast_loops(ox, oy, ang, ax, ay, ex, ey, col_tol, cx, cy, eps, max_range):  # type: ignore[no-untyped-def]
+def _raycast_loops(
+    ox: NDArray[np.float64],
+    oy: NDArray[np.float64],
+    ang: NDArray[np.float64],
+    ax: NDArray[np.float64],
+    ay: NDArray[np.float64],
+    ex: NDArray[np.float64],
+    ey: NDArray[np.float64],
+    col_tol: NDArray[np.float64],
+    cx: NDArray[np.float64],
+    cy: NDArray[np.float64],
+    eps: float,
+    max_range: float,
+) -> _RaycastResult:
     """:func:`raycast` in loops: per ray and segment the arithmetic of :func:`_raycast_numpy`, in its order.
 
     Segments are tried in order and a later one wins only when strictly nearer (``argmin``'s first-minimum
