@@ -3,13 +3,15 @@
 Run: python benchmarks/bench_neato_vector.py [--lidars ideal gaussian learned] [--sizes 1 8 64] [--steps 20000]
 
 A "step" is one robot-step (a vector step of N robots counts N). Random actions (seeded), autoreset on;
-median of ``--repeats`` timed runs per cell, both modes measured in one process, one after the other.
+median of ``--repeats`` timed runs per cell; both modes in one process, alternating run by run;
+rates by wall clock and by CPU time (steadier when other jobs share the cores).
 Goal of issue 14: the vector entry point >= 10x SyncVectorEnv at N = 64.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import gymnasium as gym
@@ -18,20 +20,33 @@ import numpy as np
 import sensor_envs  # noqa: F401
 
 
-def robot_steps_per_second(mode: str, lidar: str, n: int, robot_steps: int, repeats: int) -> float:
-    env = gym.make_vec("sensor_envs/Neato-v0", num_envs=n, vectorization_mode=mode, lidar=lidar)
+def robot_steps_per_second(lidar: str, n: int, robot_steps: int, repeats: int) -> dict[str, dict[str, float]]:
+    """Median robot-steps/s of each mode, by wall clock and by this process's CPU time.
+
+    The two modes alternate run by run (sync, vector, sync, ...), so both see the same machine load; the CPU-time
+    rate is the steadier one on a shared machine (both modes are single-threaded).
+    """
+    modes = ("sync", "vector_entry_point")
+    envs = {m: gym.make_vec("sensor_envs/Neato-v0", num_envs=n, vectorization_mode=m, lidar=lidar) for m in modes}
     n_steps = max(1, robot_steps // n)
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1, 1, size=(n_steps, n, 2)).astype(np.float32)
-    rates = []
+    rates: dict[str, dict[str, list[float]]] = {m: {"wall": [], "cpu": []} for m in modes}
+    for m in modes:  # warm-up (first calls, compiled kernels)
+        envs[m].reset(seed=0)
+        envs[m].step(actions[0])
     for _ in range(repeats):
-        env.reset(seed=0)
-        t0 = time.perf_counter()
-        for a in actions:
-            env.step(a)
-        rates.append(n_steps * n / (time.perf_counter() - t0))
-    env.close()
-    return float(np.median(rates))
+        for m in modes:
+            env = envs[m]
+            env.reset(seed=0)
+            w0, c0 = time.perf_counter(), time.process_time()
+            for a in actions:
+                env.step(a)
+            rates[m]["wall"].append(n_steps * n / (time.perf_counter() - w0))
+            rates[m]["cpu"].append(n_steps * n / (time.process_time() - c0))
+    for env in envs.values():
+        env.close()
+    return {m: {k: float(np.median(v)) for k, v in r.items()} for m, r in rates.items()}
 
 
 def main() -> None:
@@ -42,13 +57,19 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
     print(f"Neato-v0 robot-steps/s, {args.steps} robot-steps per run, median of {args.repeats}")
-    print("| lidar | N | SyncVectorEnv | vector_entry_point | speed-up |")
-    print("|---|---:|---:|---:|---:|")
+    print(f"load average before: {' '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
+    print("| lidar | N | SyncVectorEnv (wall) | vector_entry_point (wall) | speed-up (wall) | speed-up (CPU time) |")
+    print("|---|---:|---:|---:|---:|---:|")
     for lidar in args.lidars:
         for n in args.sizes:
-            sync = robot_steps_per_second("sync", lidar, n, args.steps, args.repeats)
-            vec = robot_steps_per_second("vector_entry_point", lidar, n, args.steps, args.repeats)
-            print(f"| {lidar} | {n} | {sync:,.0f} | {vec:,.0f} | {vec / sync:.1f}x |", flush=True)
+            r = robot_steps_per_second(lidar, n, args.steps, args.repeats)
+            sync, vec = r["sync"], r["vector_entry_point"]
+            print(
+                f"| {lidar} | {n} | {sync['wall']:,.0f} | {vec['wall']:,.0f} | {vec['wall'] / sync['wall']:.1f}x "
+                f"| {vec['cpu'] / sync['cpu']:.1f}x |",
+                flush=True,
+            )
+    print(f"load average after: {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
 
 
 if __name__ == "__main__":

@@ -14,6 +14,9 @@ frame has x forward and y left; bearings are measured counter-clockwise from the
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -102,9 +105,58 @@ def raycast(
     ang = np.asarray(angles, dtype=np.float64)
     if ang.ndim == 1:
         ang = np.broadcast_to(ang, (o.shape[0], ang.shape[0]))
+    kernel = _compiled_kernel()
+    if kernel is None:
+        return _raycast_numpy(o, ang, segments, max_range)
+    a = segments[:, 0]
+    e = segments[:, 1] - a
+    ex, ey = np.ascontiguousarray(e[:, 0]), np.ascontiguousarray(e[:, 1])
+    seg_len = np.hypot(ex, ey)
+    return kernel(
+        np.ascontiguousarray(o[:, 0]),
+        np.ascontiguousarray(o[:, 1]),
+        np.ascontiguousarray(ang),
+        np.ascontiguousarray(a[:, 0]),
+        np.ascontiguousarray(a[:, 1]),
+        ex,
+        ey,
+        1e-12 * (1.0 + seg_len),
+        ex / seg_len,
+        ey / seg_len,
+        RAY_EPS,
+        float(max_range),
+    )
+
+
+def _finish(
+    t: NDArray[np.float64],
+    idx: NDArray[np.int64],
+    dx: NDArray[np.float64],
+    dy: NDArray[np.float64],
+    ex: NDArray[np.float64],
+    ey: NDArray[np.float64],
+    max_range: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+    """Ranges, incidence and segment index from the nearest hit ``t (P, K)`` and its segment ``idx (P, K)``."""
+    hit = np.isfinite(t) & (t <= max_range)
+    rng = np.where(hit, t, np.inf)
+    # Incidence: |cos| between ray and segment direction -> angle to normal = arccos(|sin|).
+    seg_len = np.hypot(ex, ey)
+    cx, cy = (ex / seg_len)[idx], (ey / seg_len)[idx]
+    sin_ = np.abs(dx * cy - dy * cx)
+    incidence = np.where(hit, np.arccos(np.clip(sin_, 0.0, 1.0)), np.nan)
+    return rng, incidence, np.where(hit, idx, -1).astype(np.int64)
+
+
+def _raycast_numpy(
+    o: NDArray[np.float64], ang: NDArray[np.float64], segments: NDArray[np.float64], max_range: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+    """:func:`raycast` in numpy (no compiled kernel): ``(M, P, K)`` temporaries, processed in blocks of poses."""
     block = max(1, _BLOCK_ELEMENTS // (segments.shape[0] * max(1, ang.shape[1])))
     if o.shape[0] > block:  # many poses: blocks whose (M, P, K) temporaries stay in cache; same numbers
-        parts = [raycast(o[i : i + block], ang[i : i + block], segments, max_range) for i in range(0, len(o), block)]
+        parts = [
+            _raycast_numpy(o[i : i + block], ang[i : i + block], segments, max_range) for i in range(0, len(o), block)
+        ]
         return tuple(np.concatenate(x) for x in zip(*parts, strict=True))  # type: ignore[return-value]
     # Layout (M, P, K): the long bearing axis innermost keeps numpy's inner loops long and contiguous.
     dx, dy = np.cos(ang)[None], np.sin(ang)[None]  # (1, P, K)
@@ -133,14 +185,89 @@ def raycast(
         t = np.where(col & (tc < t), tc, t)
     idx = np.argmin(t, axis=0)  # (P, K)
     rng = np.take_along_axis(t, idx[None], axis=0)[0]
-    hit = np.isfinite(rng) & (rng <= max_range)
-    rng = np.where(hit, rng, np.inf)
-    # Incidence: |cos| between ray and segment direction -> angle to normal = arccos(|sin|).
-    seg_len = np.hypot(ex, ey)
-    cx, cy = (ex / seg_len)[idx], (ey / seg_len)[idx]
-    sin_ = np.abs(dx[0] * cy - dy[0] * cx)
-    incidence = np.where(hit, np.arccos(np.clip(sin_, 0.0, 1.0)), np.nan)
-    return rng, incidence, np.where(hit, idx, -1).astype(np.int64)
+    return _finish(rng, idx, dx[0], dy[0], ex, ey, max_range)
+
+
+# ---------------------------------------------------------------------------------------------- compiled kernel
+_RaycastResult = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]
+_KERNEL: list[Callable[..., _RaycastResult] | None] = []  # [kernel or None], filled on first use
+
+
+def _compiled_kernel() -> Callable[..., _RaycastResult] | None:
+    """The numba kernel of :func:`raycast` when numba is installed (the ``fast`` extra), else None.
+
+    ``SENSOR_ENVS_NO_NUMBA=1`` forces the numpy path. Both paths do the same float64 operations in the same
+    order per ray and segment (no fused multiply-add, no fast-math), so they return the same bits.
+    """
+    if not _KERNEL:
+        import os
+
+        kernel = None
+        if os.environ.get("SENSOR_ENVS_NO_NUMBA", "") in ("", "0"):
+            try:
+                import numba
+            except ImportError:
+                pass
+            else:
+                kernel = numba.njit(cache=True, nogil=True)(_raycast_loops)
+        _KERNEL.append(kernel)
+    return _KERNEL[0]
+
+
+def _raycast_loops(
+    ox: NDArray[np.float64],
+    oy: NDArray[np.float64],
+    ang: NDArray[np.float64],
+    ax: NDArray[np.float64],
+    ay: NDArray[np.float64],
+    ex: NDArray[np.float64],
+    ey: NDArray[np.float64],
+    col_tol: NDArray[np.float64],
+    cx: NDArray[np.float64],
+    cy: NDArray[np.float64],
+    eps: float,
+    max_range: float,
+) -> _RaycastResult:
+    """:func:`raycast` in loops: per ray and segment the arithmetic of :func:`_raycast_numpy`, in its order.
+
+    Segments are tried in order and a later one wins only when strictly nearer (``argmin``'s first-minimum
+    rule); ``cx, cy`` are the segments' unit directions and ``col_tol`` the collinearity tolerances.
+    """
+    n_p, n_k = ang.shape
+    n_m = ax.shape[0]
+    rng = np.empty((n_p, n_k))
+    inc = np.empty((n_p, n_k))
+    idx = np.empty((n_p, n_k), dtype=np.int64)
+    for p in range(n_p):
+        for k in range(n_k):
+            dxk, dyk = math.cos(ang[p, k]), math.sin(ang[p, k])
+            best, best_m = np.inf, 0
+            for m in range(n_m):
+                wx = ax[m] - ox[p]
+                wy = ay[m] - oy[p]
+                den = dxk * ey[m] - dyk * ex[m]
+                t_num = wx * ey[m] - wy * ex[m]
+                t = np.inf
+                if abs(den) > 1e-12:
+                    u = (wx * dyk - wy * dxk) / den
+                    tt = t_num / den
+                    if u >= 0.0 and u <= 1.0 and tt > eps:
+                        t = tt
+                elif abs(t_num) <= col_tol[m]:  # collinear: the nearer end, if the segment lies ahead
+                    ta = wx * dxk + wy * dyk
+                    tb = (wx + ex[m]) * dxk + (wy + ey[m]) * dyk
+                    if ta > eps and tb > eps:
+                        t = min(ta, tb)
+                if t < best:
+                    best, best_m = t, m
+            if best < np.inf and best <= max_range:  # a hit
+                rng[p, k] = best
+                sin_ = abs(dxk * cy[best_m] - dyk * cx[best_m])
+                inc[p, k] = math.acos(min(max(sin_, 0.0), 1.0))
+                idx[p, k] = best_m
+            else:
+                rng[p, k], inc[p, k], idx[p, k] = np.inf, np.nan, -1
+    return rng, inc, idx
 
 
 def raycast_pose(

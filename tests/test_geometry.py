@@ -189,3 +189,26 @@ def test_occluded_fraction_edge_cases():
     assert occluded_fraction(two, targets=[-1, 0]).tolist() == [1.0, 0.0]
     with pytest.raises(IndexError):
         occluded_fraction(two, targets=[2])
+
+
+def test_compiled_raycast_gives_the_numpy_numbers():
+    """The numba kernel (``fast`` extra) and the numpy path: same ranges, incidence and indices, bit for bit."""
+    pytest.importorskip("numba", reason="numba is not installed (the fast extra)")
+    from sensor_envs import geometry
+
+    assert geometry._compiled_kernel() is not None
+    rng = np.random.default_rng(3)
+    for trial in range(12):
+        if trial % 3 == 0:  # integer grid: rays along the axes and diagonals meet ends and collinear segments
+            ends = rng.integers(-3, 4, size=(30, 2, 2)).astype(float)
+            segs = as_segments(ends[np.abs(ends[:, 1] - ends[:, 0]).sum(axis=1) > 0])
+            o = rng.integers(-3, 4, size=(6, 2)).astype(float)
+            ang = np.tile(np.arange(8) * np.pi / 4, (6, 1))
+        else:
+            segs = as_segments(rng.uniform(-3, 3, size=(int(rng.integers(1, 30)), 2, 2)))
+            o, ang = rng.uniform(-3, 3, size=(6, 2)), rng.uniform(-np.pi, np.pi, size=(6, 40))
+        for max_range in (np.inf, 2.0):
+            fast = raycast(o, ang, segs, max_range)
+            ref = geometry._raycast_numpy(o, ang, segs, max_range)
+            for x, y in zip(fast, ref, strict=True):
+                assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=True)
