@@ -556,3 +556,23 @@ def test_user_model_file_is_loaded_once_per_path(tmp_path):
     ra, rb = a.get_wrapper_attr("radar"), b.get_wrapper_attr("radar")
     assert ra is rb and ra is not load_radar("kde")
     assert a.reset(seed=0)[0] in a.observation_space
+
+
+def test_clutter_fraction_thins_the_models_clutter():
+    """``clutter_fraction=0`` removes every clutter detection; 1 keeps the model's; bad values are refused."""
+    counts = {}
+    for frac in (0.0, 1.0):
+        env = gym.make("sensor_envs/HighwayFast-v0", radar="kde", clutter_fraction=frac)
+        _, info = env.reset(seed=3)
+        n = 0
+        for _ in range(3):
+            _, _, term, trunc, info = env.step(1)
+            n += int(np.sum(np.asarray(info["radar"].detection_target) < 0))
+            if term or trunc:
+                break
+        counts[frac] = n
+        env.close()
+    assert counts[0.0] == 0 and counts[1.0] > 0
+    for bad in (-0.1, 1.5, float("nan"), True):
+        with pytest.raises(ValueError, match="clutter_fraction"):
+            gym.make("sensor_envs/HighwayFast-v0", radar="kde", clutter_fraction=bad)

@@ -212,7 +212,8 @@ def test_shipped_model_file_still_loads():
     if not path.exists():
         pytest.skip(f"{path} absent")
     m = LidarLWLR.load(path)
-    assert m.bias_shrinkage_ == 0.0 and m.pose_correction is False  # an older format: its old behaviour
+    # refitted in format 4 with the default CV shrinkage (older formats load with 0: test_lidar_model)
+    assert m.bias_shrinkage == "cv" and 0.0 <= m.bias_shrinkage_ <= 1.0 and m.pose_correction is False
 
 
 def test_real_log_shrinkage_never_worse_in_any_fold(real_data):

@@ -188,6 +188,10 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         velocity: ``"difference"`` or ``"truth"`` (see the module docstring).
         radar_rate: ``"policy"`` (one radar cycle per policy step) or ``"simulation"`` (one per
             simulation sub-step; the observation keeps the latest); see the module docstring.
+        clutter_fraction: share of the model's clutter detections kept, each independently, in [0, 1].
+            The calibrated KDE radar reports the Astyx rate, ~94 clutter detections per cycle (every
+            unannotated cluster, static infrastructure included), which crowds the nearest observation
+            rows; lower it to model a radar whose tracker suppresses more of them.
 
     Raises:
         TypeError: when ``env`` is not a highway-env environment with a ``Kinematics`` observation.
@@ -208,6 +212,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         reference: str = "corner",
         velocity: str = "difference",
         radar_rate: str = "policy",
+        clutter_fraction: float = 1.0,
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
             self,
@@ -220,10 +225,15 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             reference=reference,
             velocity=velocity,
             radar_rate=radar_rate,
+            clutter_fraction=clutter_fraction,
         )
         if radar_rate not in RADAR_RATES:
             raise ValueError(f"radar_rate: expected one of {RADAR_RATES}, got {radar_rate!r}")
         self.radar_rate = radar_rate
+        ok = isinstance(clutter_fraction, (int, float)) and not isinstance(clutter_fraction, bool)
+        if not (ok and 0.0 <= float(clutter_fraction) <= 1.0):
+            raise ValueError(f"clutter_fraction: expected a number in [0, 1], got {clutter_fraction!r}")
+        self.clutter_fraction = float(clutter_fraction)
         gym.Wrapper.__init__(self, env)
         base: Any = env.unwrapped
         if not hasattr(base, "road") or not hasattr(base, "PERCEPTION_DISTANCE"):
@@ -354,6 +364,8 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             )
         clut_s = np.asarray(self.radar.sample_clutter(self._rng), dtype=np.float64).reshape(-1, 2)
         clut_s = clut_s[spec.in_view(clut_s)]
+        if self.clutter_fraction < 1.0:  # independent thinning (draws nothing at the default 1.0)
+            clut_s = clut_s[self._rng.random(len(clut_s)) < self.clutter_fraction]
         return RadarFrame.assemble(
             truth,
             pose,
@@ -559,6 +571,7 @@ def make_highway(
     reference: str = "corner",
     velocity: str = "difference",
     radar_rate: str = "policy",
+    clutter_fraction: float = 1.0,
 ) -> gym.Env:
     """Build highway-env's ``base_id`` (e.g. ``"highway-fast-v0"``) and put a radar in front of it.
 
@@ -576,6 +589,8 @@ def make_highway(
         velocity: ``"difference"`` or ``"truth"`` (see the module docstring).
         radar_rate: ``"policy"`` or ``"simulation"`` (see the module docstring); the model's cycle time
             must match (e.g. ``radar_model=default_model_path("radar_kde_fast.npz")`` at 15 Hz).
+        clutter_fraction: share of the model's clutter detections kept, each independently, in [0, 1]
+            (1 = the model's calibrated clutter; 0 = none).
 
     Raises:
         ValueError: naming an unknown ``config`` key or a bad sensor argument.
@@ -600,4 +615,5 @@ def make_highway(
         reference=reference,
         velocity=velocity,
         radar_rate=radar_rate,
+        clutter_fraction=clutter_fraction,
     )
