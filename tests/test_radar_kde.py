@@ -252,3 +252,20 @@ def test_clutter_follows_the_log(rig_split, model):
     assert abs(n.mean() - counts.mean()) < 4 * counts.std() / np.sqrt(len(n)) + 4 * counts.std() / np.sqrt(len(counts))
     pts = np.concatenate(sims)
     assert abs(np.median(np.hypot(*pts.T)) - np.median(np.hypot(*xy.T))) < 3.0
+
+
+def test_stored_clutter_is_capped_by_a_uniform_subsample(rig_split, monkeypatch):
+    """Beyond ``MAX_CLUTTER_POSITIONS`` the model stores a uniform subsample of the clutter rows (same law)."""
+    import sensor_envs.radar.kde as kde
+
+    train, _ = rig_split
+    full = KDERadarModel(random_state=0).fit(train)
+    n = full.clutter_xy_.shape[0]
+    monkeypatch.setattr(kde, "MAX_CLUTTER_POSITIONS", n // 4)
+    capped = KDERadarModel(random_state=0).fit(train)
+    assert capped.clutter_xy_.shape[0] == n // 4
+    np.testing.assert_array_equal(capped.clutter_counts_, full.clutter_counts_)  # counts per cycle untouched
+    rows = {tuple(r) for r in full.clutter_xy_}
+    assert all(tuple(r) in rows for r in capped.clutter_xy_)  # a subset of the log's rows
+    np.testing.assert_allclose(capped.clutter_xy_.mean(0), full.clutter_xy_.mean(0), atol=3.0)
+    np.testing.assert_array_equal(capped.z_, full.z_)  # the cap is drawn last: nothing else changes

@@ -55,7 +55,10 @@ buckets (:mod:`sensor_envs.radar.buckets`, :meth:`KDERadarModel._draw_bucket`), 
 follows the number of candidate buckets instead of neighbours; ``"auto"`` picks by model size.
 
 **Clutter**: the number of clutter detections per cycle is resampled from the log's per-cycle
-counts; positions are clutter rows of the log plus Gaussian jitter ``clutter_jitter`` [m].
+counts; positions are clutter rows of the log plus Gaussian jitter ``clutter_jitter`` [m]. At most
+:data:`MAX_CLUTTER_POSITIONS` positions are stored (a uniform subsample of the log's clutter rows,
+drawn from ``random_state``): clutter is resampled i.i.d., so the subsample keeps its spatial law
+while a long, cluttered log (e.g. the calibrated rig at 15 Hz, ~750,000 rows) stays a small file.
 
 **Extra state** (``extra_state``, format 3): names of numeric log columns (e.g. ``rel_vx``,
 ``aspect``, ``occlusion``; :mod:`sensor_envs.radar.features`) appended to the state as further
@@ -122,6 +125,8 @@ AUTO_BUCKET_MIN_NEIGHBOURS = 100
 state is at least this (the ball sampler's cost follows it; benchmarks/bench_radar.py, 10-target
 cycles: 25 neighbours, ball 0.28 ms vs bucket 0.42 ms; 250 neighbours, 0.91 vs 0.45 ms)."""
 MAX_POSITION = 1e3
+MAX_CLUTTER_POSITIONS = 200_000
+"""Most clutter positions a fitted model stores (a uniform subsample beyond that)."""
 """Largest sensor-frame coordinate, output offset, bandwidth or relevance sigma [m] a model file may hold."""
 _LOG_2PI = np.log(2.0 * np.pi)
 _POSITIVE = Interval(0, None, open_low=True)
@@ -448,6 +453,8 @@ class KDERadarModel(BaseEstimator):
             rng,
         )
         counts, xy = clutter_counts(log)
+        if xy.shape[0] > MAX_CLUTTER_POSITIONS:  # drawn last: smaller logs keep every earlier draw
+            xy = xy[np.sort(rng.choice(xy.shape[0], MAX_CLUTTER_POSITIONS, replace=False))]
         self.clutter_counts_, self.clutter_xy_ = counts, xy
         self.cycle_time_ = cycle
         self._build()
