@@ -19,7 +19,15 @@ from numpy.typing import NDArray
 
 from sensor_envs.outputs import atomic_write, check_suffix
 
-__all__ = ["ModelFileError", "save_model_file", "load_model_file", "read_model", "save_rig_file", "load_rig_file"]
+__all__ = [
+    "ModelFileError",
+    "save_model_file",
+    "load_model_file",
+    "read_model",
+    "save_rig_file",
+    "load_rig_file",
+    "read_rig",
+]
 
 
 class ModelFileError(ValueError):
@@ -502,3 +510,26 @@ def load_rig_file(
         raise ModelFileError(f"{path}: field 'card' must be a JSON object")
     validate_params(params, constraints, source=path)
     return params, card
+
+
+R = TypeVar("R")
+
+
+def read_rig(
+    path: str | os.PathLike[str], kind: str, constraints: dict[str, list[Constraint]], cls: Callable[..., R]
+) -> tuple[R, dict[str, Any]]:
+    """Read a rig file and build ``cls(**params)`` (JSON lists as tuples); returns ``(rig, card)``.
+
+    The rig's constructor checks relations between values and raises ``ValueError("<name>: <message>")``;
+    that becomes a :class:`ModelFileError` naming the file and the field ``params.<name>``.
+
+    Raises:
+        ModelFileError: naming the file and the field at fault.
+    """
+    params, card = load_rig_file(path, kind, constraints)
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in params.items()}
+    try:
+        return cls(**values), card
+    except ValueError as exc:
+        name, _, msg = str(exc).partition(":")
+        raise ModelFileError(f"{path}: field 'params.{name}' is invalid: {msg.strip()}") from None

@@ -61,10 +61,10 @@ from sensor_envs.lidar.log import LidarLog, log_from_arrays
 from sensor_envs.modelio import (
     Constraint,
     Interval,
-    ModelFileError,
     Numbers,
     default_model_path,
     load_rig_file,
+    read_rig,
     save_rig_file,
     validate_params,
 )
@@ -219,14 +219,7 @@ class NeatoRig:
             ModelFileError: naming the file and the field at fault (missing parameters take the defaults).
         """
         path = default_model_path(SHIPPED_RIG) if path is None else Path(path)
-        params, _ = load_rig_file(path, RIG_KIND, RIG_CONSTRAINTS)
-        params = {k: tuple(v) if isinstance(v, list) else v for k, v in params.items()}
-        probe = cls.__new__(cls)  # relations between values, named like the other field errors
-        for k in RIG_CONSTRAINTS:
-            object.__setattr__(probe, k, params.get(k, getattr(cls, k, None)))
-        for name, msg in probe._relation_errors():
-            raise ModelFileError(f"{path}: field 'params.{name}' is invalid: {msg}")
-        return cls(**params)
+        return read_rig(path, RIG_KIND, RIG_CONSTRAINTS, cls)[0]
 
     @staticmethod
     def card_of(path: str | os.PathLike[str] | None = None) -> dict[str, Any]:

@@ -34,11 +34,11 @@ from sensor_envs.geometry import closest_corner, occluded_fraction, rectangle_co
 from sensor_envs.modelio import (
     Constraint,
     Interval,
-    ModelFileError,
     Numbers,
     default_model_path,
-    load_rig_file,
+    read_rig,
     save_rig_file,
+    validate_params,
 )
 from sensor_envs.radar.log import REQUIRED_COLUMNS, RadarLog
 
@@ -125,10 +125,7 @@ class RigConfig:
 
     def __post_init__(self) -> None:
         """Check values and the relations between them (``ValueError`` naming the field)."""
-        for name, value in self.__dict__.items():
-            forms = RIG_CONSTRAINTS[name]
-            if not any((c is None and value is None) or (c is not None and c.accepts(value)) for c in forms):
-                raise ValueError(f"{name}: expected {' or '.join('None' if c is None else str(c) for c in forms)}")
+        validate_params(self.__dict__, RIG_CONSTRAINTS)
         pairs = (
             ("detect_range_knots", "detect_range_table"),
             ("detect_azimuth_knots", "detect_azimuth_table"),
@@ -202,18 +199,7 @@ def load_rig(path: str | os.PathLike[str]) -> tuple[RigConfig, dict[str, Any]]:
         ModelFileError: naming the file and the field (a bad value, an unknown name, or a relation
             between fields that does not hold).
     """
-    params, card = load_rig_file(path, RIG_KIND, RIG_CONSTRAINTS)
-    try:
-        values: dict[str, Any] = {
-            k: (tuple(float(x) for x in v) if isinstance(v, list) else v) for k, v in params.items()
-        }
-        cfg = RigConfig(**values)
-    except ValueError as exc:
-        name = str(exc).split(":", 1)[0]
-        raise ModelFileError(
-            f"{path}: field 'params.{name}' is invalid: {str(exc).split(':', 1)[-1].strip()}"
-        ) from None
-    return cfg, card
+    return read_rig(path, RIG_KIND, RIG_CONSTRAINTS, RigConfig)
 
 
 def save_rig(path: str | os.PathLike[str], config: RigConfig, card: dict[str, Any] | None = None) -> Path:
@@ -222,15 +208,8 @@ def save_rig(path: str | os.PathLike[str], config: RigConfig, card: dict[str, An
 
 
 def default_rig_path() -> Path:
-    """The shipped calibrated rig, ``models/radar_rig.json`` (package ``sensor_envs.models``).
-
-    In a source tree whose ``sensor_envs.models`` package is not importable (an editable install
-    pointing at another checkout), the ``models/`` folder beside the package.
-    """
-    try:
-        return default_model_path("radar_rig.json")
-    except ModuleNotFoundError:
-        return Path(__file__).resolve().parents[2] / "models" / "radar_rig.json"
+    """The shipped calibrated rig, ``models/radar_rig.json`` (package ``sensor_envs.models``)."""
+    return default_model_path("radar_rig.json")
 
 
 @dataclass(frozen=True)
