@@ -1,10 +1,11 @@
-"""Shared fixtures: the real-data folder (skips cleanly when absent)."""
+"""Shared fixtures: the real-data folder (skips cleanly when absent); a rig radar log and its KDE model."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 _DEFAULT = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real"
@@ -17,3 +18,21 @@ def real_data() -> Path:
     if not REAL_DATA.is_dir():
         pytest.skip(f"real data folder {REAL_DATA} is absent (set SENSOR_ENVS_REAL_DATA to point at it)")
     return REAL_DATA
+
+
+@pytest.fixture(scope="session")
+def rig_split():
+    """A generic-rig radar log (60 sequences x 40 cycles x 8 targets, seed 11) as ``(train, test)`` blocks."""
+    from sensor_envs.radar.rig import record_rig_log
+    from sensor_envs.radar.validate import split_by_blocks
+
+    log = record_rig_log(60, 40, 8, np.random.default_rng(11))
+    return split_by_blocks(log, block=1000, n_folds=4, fold=0)
+
+
+@pytest.fixture(scope="session")
+def model(rig_split):
+    """The KDE radar fitted on ``rig_split``'s training part at 1 s cycles (shared, never modified)."""
+    from sensor_envs.radar.kde import KDERadarModel
+
+    return KDERadarModel(random_state=0).fit(rig_split[0], cycle_time=1.0)

@@ -8,21 +8,10 @@ from sensor_envs.modelio import ModelFileError
 from sensor_envs.radar.kde import KDERadarModel
 from sensor_envs.radar.log import REQUIRED_COLUMNS, RadarLog, target_tuples
 from sensor_envs.radar.rig import record_rig_log
-from sensor_envs.radar.validate import chi_square, lag1_autocorr, rollout, split_by_blocks
+from sensor_envs.radar.validate import chi_square, lag1_autocorr, rollout
 
 P_MIN = 1e-3  # chi-square tests: a correct sampler fails each with probability 0.1 % (seeds are fixed)
 AUTOCORR_TOL = 0.15  # |lag-1 autocorrelation simulated - recorded| allowed with z_{t-1} (rig, 1 s cycles)
-
-
-@pytest.fixture(scope="module")
-def rig_split():
-    log = record_rig_log(60, 40, 8, np.random.default_rng(11))
-    return split_by_blocks(log, block=1000, n_folds=4, fold=0)
-
-
-@pytest.fixture(scope="module")
-def model(rig_split):
-    return KDERadarModel(random_state=0).fit(rig_split[0], cycle_time=1.0)
 
 
 def _states(model):

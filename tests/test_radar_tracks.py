@@ -9,8 +9,7 @@ import pytest
 from sensor_envs.modelio import ModelFileError, save_model_file
 from sensor_envs.radar.kde import GROUP_LOST, GROUP_MAIN, GROUP_NEW, GROUP_START, KIND, KDERadarModel
 from sensor_envs.radar.log import target_tuples
-from sensor_envs.radar.rig import record_rig_log
-from sensor_envs.radar.validate import chi_square, detection_by_previous, rollout, split_by_blocks
+from sensor_envs.radar.validate import chi_square, detection_by_previous, rollout
 
 P_MIN = 1e-3  # chi-square: a correct sampler fails with probability 0.1 % (seeds are fixed)
 NEW_TRACK_TOL = 0.10
@@ -29,17 +28,6 @@ def _new_track_rate(model, tt, n_rollouts=5):
             ]
         )
     )
-
-
-@pytest.fixture(scope="module")
-def rig_split():
-    log = record_rig_log(60, 40, 8, np.random.default_rng(11))
-    return split_by_blocks(log, block=1000, n_folds=4, fold=0)
-
-
-@pytest.fixture(scope="module")
-def model(rig_split):
-    return KDERadarModel(random_state=0).fit(rig_split[0], cycle_time=1.0)
 
 
 def _as_format3(model, path):
