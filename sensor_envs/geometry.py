@@ -20,6 +20,8 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sensor_envs.jit import compiled
+
 __all__ = [
     "RAY_EPS",
     "as_segments",
@@ -105,17 +107,33 @@ def raycast(
     ang = np.asarray(angles, dtype=np.float64)
     if ang.ndim == 1:
         ang = np.broadcast_to(ang, (o.shape[0], ang.shape[0]))
+    return _raycast_dirs(o, np.cos(ang), np.sin(ang), segments, max_range)
+
+
+def _raycast_dirs(
+    o: NDArray[np.float64],
+    dx: NDArray[np.float64],
+    dy: NDArray[np.float64],
+    segments: NDArray[np.float64],
+    max_range: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+    """:func:`raycast` of rays from ``o (P, 2)`` with unit directions ``(dx, dy)``, each ``(P, K)``, in the map frame.
+
+    The compiled kernel when numba is installed, else numpy; both take the same direction cosines, so they
+    return the same bits.
+    """
     kernel = _compiled_kernel()
     if kernel is None:
-        return _raycast_numpy(o, ang, segments, max_range)
+        return _raycast_numpy(o, dx, dy, segments, max_range)
     a = segments[:, 0]
     e = segments[:, 1] - a
     ex, ey = np.ascontiguousarray(e[:, 0]), np.ascontiguousarray(e[:, 1])
     seg_len = np.hypot(ex, ey)
-    return kernel(
+    return kernel(  # type: ignore[no-any-return]
         np.ascontiguousarray(o[:, 0]),
         np.ascontiguousarray(o[:, 1]),
-        np.ascontiguousarray(ang),
+        np.ascontiguousarray(dx),
+        np.ascontiguousarray(dy),
         np.ascontiguousarray(a[:, 0]),
         np.ascontiguousarray(a[:, 1]),
         ex,
@@ -149,17 +167,22 @@ def _finish(
 
 
 def _raycast_numpy(
-    o: NDArray[np.float64], ang: NDArray[np.float64], segments: NDArray[np.float64], max_range: float
+    o: NDArray[np.float64],
+    dx2: NDArray[np.float64],
+    dy2: NDArray[np.float64],
+    segments: NDArray[np.float64],
+    max_range: float,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
-    """:func:`raycast` in numpy (no compiled kernel): ``(M, P, K)`` temporaries, processed in blocks of poses."""
-    block = max(1, _BLOCK_ELEMENTS // (segments.shape[0] * max(1, ang.shape[1])))
+    """:func:`_raycast_dirs` in numpy (no compiled kernel): ``(M, P, K)`` temporaries, in blocks of poses."""
+    block = max(1, _BLOCK_ELEMENTS // (segments.shape[0] * max(1, dx2.shape[1])))
     if o.shape[0] > block:  # many poses: blocks whose (M, P, K) temporaries stay in cache; same numbers
         parts = [
-            _raycast_numpy(o[i : i + block], ang[i : i + block], segments, max_range) for i in range(0, len(o), block)
+            _raycast_numpy(o[i : i + block], dx2[i : i + block], dy2[i : i + block], segments, max_range)
+            for i in range(0, len(o), block)
         ]
         return tuple(np.concatenate(x) for x in zip(*parts, strict=True))  # type: ignore[return-value]
     # Layout (M, P, K): the long bearing axis innermost keeps numpy's inner loops long and contiguous.
-    dx, dy = np.cos(ang)[None], np.sin(ang)[None]  # (1, P, K)
+    dx, dy = dx2[None], dy2[None]  # (1, P, K)
     a = segments[:, 0]  # (M, 2)
     e = segments[:, 1] - a  # (M, 2)
     ex, ey = e[:, 0], e[:, 1]
@@ -190,7 +213,6 @@ def _raycast_numpy(
 
 # ---------------------------------------------------------------------------------------------- compiled kernel
 _RaycastResult = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]
-_KERNEL: list[Callable[..., _RaycastResult] | None] = []  # [kernel or None], filled on first use
 
 
 def _compiled_kernel() -> Callable[..., _RaycastResult] | None:
@@ -199,25 +221,14 @@ def _compiled_kernel() -> Callable[..., _RaycastResult] | None:
     ``SENSOR_ENVS_NO_NUMBA=1`` forces the numpy path. Both paths do the same float64 operations in the same
     order per ray and segment (no fused multiply-add, no fast-math), so they return the same bits.
     """
-    if not _KERNEL:
-        import os
-
-        kernel = None
-        if os.environ.get("SENSOR_ENVS_NO_NUMBA", "") in ("", "0"):
-            try:
-                import numba
-            except ImportError:
-                pass
-            else:
-                kernel = numba.njit(cache=True, nogil=True)(_raycast_loops)
-        _KERNEL.append(kernel)
-    return _KERNEL[0]
+    return compiled(_raycast_loops)
 
 
 def _raycast_loops(
     ox: NDArray[np.float64],
     oy: NDArray[np.float64],
-    ang: NDArray[np.float64],
+    dx: NDArray[np.float64],
+    dy: NDArray[np.float64],
     ax: NDArray[np.float64],
     ay: NDArray[np.float64],
     ex: NDArray[np.float64],
@@ -231,16 +242,17 @@ def _raycast_loops(
     """:func:`raycast` in loops: per ray and segment the arithmetic of :func:`_raycast_numpy`, in its order.
 
     Segments are tried in order and a later one wins only when strictly nearer (``argmin``'s first-minimum
-    rule); ``cx, cy`` are the segments' unit directions and ``col_tol`` the collinearity tolerances.
+    rule); ``dx, dy`` are the rays' unit directions, ``cx, cy`` the segments' and ``col_tol`` the collinearity
+    tolerances.
     """
-    n_p, n_k = ang.shape
+    n_p, n_k = dx.shape
     n_m = ax.shape[0]
     rng = np.empty((n_p, n_k))
     inc = np.empty((n_p, n_k))
     idx = np.empty((n_p, n_k), dtype=np.int64)
     for p in range(n_p):
         for k in range(n_k):
-            dxk, dyk = math.cos(ang[p, k]), math.sin(ang[p, k])
+            dxk, dyk = dx[p, k], dy[p, k]
             best, best_m = np.inf, 0
             for m in range(n_m):
                 wx = ax[m] - ox[p]
@@ -291,7 +303,9 @@ def raycast_pose(
     single = p.ndim == 1
     p = np.atleast_2d(p)
     b = np.asarray(bearings, dtype=np.float64)
-    out = raycast(p[:, :2], p[:, 2:3] + b[None, :], segments, max_range)
+    cb, sb = np.cos(b)[None], np.sin(b)[None]  # a ray's direction: the bearing's rotated by the heading
+    ct, st = np.cos(p[:, 2:3]), np.sin(p[:, 2:3])
+    out = _raycast_dirs(p[:, :2], ct * cb - st * sb, st * cb + ct * sb, segments, max_range)
     if single:
         return out[0][0], out[1][0], out[2][0]
     return out

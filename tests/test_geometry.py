@@ -209,6 +209,6 @@ def test_compiled_raycast_gives_the_numpy_numbers():
             o, ang = rng.uniform(-3, 3, size=(6, 2)), rng.uniform(-np.pi, np.pi, size=(6, 40))
         for max_range in (np.inf, 2.0):
             fast = raycast(o, ang, segs, max_range)
-            ref = geometry._raycast_numpy(o, ang, segs, max_range)
+            ref = geometry._raycast_numpy(o, np.cos(ang), np.sin(ang), segs, max_range)
             for x, y in zip(fast, ref, strict=True):
                 assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=True)

@@ -14,6 +14,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sensor_envs.jit import compiled
+
 __all__ = ["P_EPS", "P_SPUR_EPS", "SIGMA_FLOOR", "TAU_CLIP", "SHRINKAGE_GRID", "choose_shrinkage", "lwlr"]
 
 P_EPS = 1e-3
@@ -154,7 +156,30 @@ def _bilinear(
     r: NDArray[np.float64],
     a: NDArray[np.float64],
 ) -> NDArray[np.float64]:
-    """Bilinear lookup of ``tables (n, K, n_r, n_a)`` (regular grids) at ``r, a (..., K)`` -> ``(n, ..., K)``."""
+    """Bilinear lookup of ``tables (n, K, n_r, n_a)`` (regular grids) at ``r, a (..., K)`` -> ``(n, ..., K)``.
+
+    ``r`` [m] and ``a`` [rad] must be finite; values beyond a grid take its edge. With numba (the ``fast``
+    extra) a compiled loop does the same float64 operations in the same order: the same bits, ~10x faster.
+    """
+    kernel = compiled(_bilinear_loops)
+    if kernel is None:
+        return _bilinear_numpy(tables, rg, ag, r, a)
+    n, k = tables.shape[:2]
+    shape = np.broadcast_shapes(np.shape(r), np.shape(a))
+    r2 = np.ascontiguousarray(np.broadcast_to(r, shape), dtype=np.float64).reshape(-1, k)
+    a2 = np.ascontiguousarray(np.broadcast_to(a, shape), dtype=np.float64).reshape(-1, k)
+    out = kernel(np.ascontiguousarray(tables), float(rg[0]), float(rg[1]), float(ag[0]), float(ag[1]), r2, a2)
+    return np.asarray(out).reshape(n, *shape)
+
+
+def _bilinear_numpy(
+    tables: NDArray[np.float64],
+    rg: NDArray[np.float64],
+    ag: NDArray[np.float64],
+    r: NDArray[np.float64],
+    a: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """:func:`_bilinear` in numpy (the path without numba)."""
     n, k, nr, na = tables.shape
     fr = np.clip((r - rg[0]) / (rg[1] - rg[0]), 0.0, nr - 1 - 1e-9)
     fa = np.clip((a - ag[0]) / (ag[1] - ag[0]), 0.0, na - 1 - 1e-9)
@@ -165,6 +190,37 @@ def _bilinear(
     v00, v01 = np.take(flat, base, axis=1), np.take(flat, base + 1, axis=1)  # take: ~1.6x faster than [:, base]
     v10, v11 = np.take(flat, base + na, axis=1), np.take(flat, base + na + 1, axis=1)
     return (v00 * (1 - wa) + v01 * wa) * (1 - wr) + (v10 * (1 - wa) + v11 * wa) * wr
+
+
+def _bilinear_loops(
+    tables: NDArray[np.float64],
+    r0: float,
+    r1: float,
+    a0: float,
+    a1: float,
+    r: NDArray[np.float64],
+    a: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """:func:`_bilinear_numpy` in loops over ``r, a (P, K)``, in its order of operations -> ``(n, P, K)``.
+
+    ``r0, r1`` and ``a0, a1`` are the first two nodes of the range and incidence grids.
+    """
+    n, k, nr, na = tables.shape
+    n_p = r.shape[0]
+    out = np.empty((n, n_p, k))
+    hi_r, hi_a = nr - 1 - 1e-9, na - 1 - 1e-9
+    dr, da = r1 - r0, a1 - a0
+    for p in range(n_p):
+        for kk in range(k):
+            fr = min(max((r[p, kk] - r0) / dr, 0.0), hi_r)
+            fa = min(max((a[p, kk] - a0) / da, 0.0), hi_a)
+            i, j = int(fr), int(fa)
+            wr, wa = fr - i, fa - j
+            for q in range(n):
+                v00, v01 = tables[q, kk, i, j], tables[q, kk, i, j + 1]
+                v10, v11 = tables[q, kk, i + 1, j], tables[q, kk, i + 1, j + 1]
+                out[q, p, kk] = (v00 * (1 - wa) + v01 * wa) * (1 - wr) + (v10 * (1 - wa) + v11 * wa) * wr
+    return out
 
 
 # ------------------------------------------------------------------------------------ bias shrinkage

@@ -49,6 +49,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import math
 import os
 import warnings
 from dataclasses import dataclass
@@ -63,6 +64,7 @@ from sklearn.utils.validation import check_is_fitted
 from tqdm.auto import tqdm
 
 from sensor_envs.geometry import as_segments, raycast_pose
+from sensor_envs.jit import compiled
 from sensor_envs.lidar.extra_state import MAX_COEF, apply_extra, check_extra_state, fit_extra_terms
 from sensor_envs.lidar.kernel import (
     P_EPS,
@@ -701,6 +703,70 @@ class LidarLWLR(BaseEstimator):
             x = np.where(spur, self.spur_mu_ + self.spur_sigma_ * z, x)
         return np.where(u < p_null, 0.0, x)
 
+    def sample_scan(
+        self, r: NDArray[np.float64], alpha: NDArray[np.float64], rng: np.random.Generator
+    ) -> NDArray[np.float64]:
+        """Readings [m] (``0`` = null), one per cell: ``sample_from_params(params_from_features(r, alpha), rng)``.
+
+        The simulator's hot path (no extra state, no pose uncertainty): with numba (the ``fast`` extra) one
+        compiled loop does the lookup and the draw per cell, with the same float64 operations in the same
+        order as the two numpy methods and the same draws of ``rng``, so it returns the same bits.
+
+        Args:
+            r: ``(..., K)`` nominal ranges [m] (``inf``/NaN = no hit).
+            alpha: ``(..., K)`` incidence [rad] (NaN where no hit).
+            rng: a ``Generator`` (or :class:`~sensor_envs.rng.RowGenerators`) for the uniform and normal draws.
+        """
+        kernel = compiled(_scan_loops)
+        if kernel is None or getattr(self, "extra_state_", ()):
+            return self.sample_from_params(self.params_from_features(r, alpha), rng)
+        self._check_fitted()
+        r = np.asarray(r, dtype=np.float64)
+        k = self.tables_.shape[1]
+        if r.shape[-1] != k:
+            raise ValueError(f"nominal_range: last axis has {r.shape[-1]} bearings, the model has {k}")
+        shape = r.shape
+        u = rng.random(shape)
+        z = rng.standard_normal(shape)
+        names = list(self.param_names_)
+        idx = [names.index(n) if n in names else -1 for n in ("p_null", "p_spur", "bias", "sigma", "log_sigma")]
+        rg, ag = self.range_grid_, self.alpha_grid_
+        out = kernel(
+            self._cell_major_tables(),
+            float(rg[0]),
+            float(rg[1]),
+            float(rg[-1]),
+            float(ag[0]),
+            float(ag[1]),
+            np.ascontiguousarray(r.reshape(-1, k)),
+            np.ascontiguousarray(np.asarray(alpha, dtype=np.float64).reshape(-1, k)),
+            np.ascontiguousarray(u.reshape(-1, k)),
+            np.ascontiguousarray(z.reshape(-1, k)),
+            np.asarray(idx, dtype=np.int64),
+            float(getattr(self, "bias_shrinkage_", 0.0)),
+            float(self.spur_mu_) if self.variant == "extended" else 0.0,
+            float(self.spur_sigma_) if self.variant == "extended" else 0.0,
+            self.variant == "extended",
+        )
+        return np.asarray(out).reshape(shape)
+
+    def _cell_major_tables(self) -> NDArray[np.float64]:
+        """``tables_`` laid out ``(K, n_r, n_alpha, n_params)`` (a lookup reads one cell's parameters together).
+
+        Stored as float32 when that is exact (tables are rounded to float32 at fit and in the file), so the
+        lookup's float64 arithmetic gives the same bits from half the memory.
+
+        Cached beside the array it was made from and rebuilt when ``tables_`` is replaced (fit, load).
+        """
+        cache = self.__dict__.get("_cell_major")
+        if cache is None or cache[0] is not self.tables_:
+            cells = np.moveaxis(self.tables_, 0, -1)
+            if np.array_equal(cells.astype(np.float32), cells):  # fitted/loaded tables are float32 values
+                cells = cells.astype(np.float32)  # exact, and half the memory a lookup walks
+            cache = (self.tables_, np.ascontiguousarray(cells))
+            self.__dict__["_cell_major"] = cache
+        return cache[1]
+
     def sample(
         self,
         poses: ArrayLike,
@@ -980,6 +1046,83 @@ def mixture_log_prob(
     return np.where(np.isnan(x), np.nan, out)
 
 
+def _scan_loops(
+    cells: NDArray[np.floating[Any]],
+    r0: float,
+    r1: float,
+    r_last: float,
+    a0: float,
+    a1: float,
+    r: NDArray[np.float64],
+    alpha: NDArray[np.float64],
+    u: NDArray[np.float64],
+    z: NDArray[np.float64],
+    idx: NDArray[np.int64],
+    shrink: float,
+    spur_mu: float,
+    spur_sigma: float,
+    extended: bool,
+) -> NDArray[np.float64]:
+    """:meth:`LidarLWLR.sample_scan` in loops over cells ``(P, K)``: lookup, then the draw, in the numpy order.
+
+    ``cells`` are the tables ``(K, n_r, n_alpha, n_params)`` (float32 or float64, read as float64);
+    ``r0, r1, r_last`` and ``a0, a1`` are grid nodes; ``idx`` the table index of ``p_null, p_spur, bias, sigma,
+    log_sigma`` (-1 where the model has none); ``u, z`` the uniform and normal draws. Returns readings [m],
+    ``0`` = null. The loop is bearing-major (one bearing's tables stay in cache for all poses) over a flat
+    view of the tables; each parameter is :func:`~sensor_envs.lidar.kernel._bilinear`'s expression.
+    """
+    n_k, nr, na, nq = cells.shape
+    flat = cells.ravel()
+    n_p = r.shape[0]
+    out = np.empty((n_p, n_k))
+    hi_r, hi_a = nr - 1 - 1e-9, na - 1 - 1e-9
+    dr, da = r1 - r0, a1 - a0
+    i_null, i_spur, i_bias = idx[0], idx[1], idx[2]
+    i_scale = idx[4] if idx[4] >= 0 else idx[3]  # log_sigma (extended) or sigma (seed)
+    row = na * nq  # offset of the next range node
+    for k in range(n_k):
+        for p in range(n_p):
+            rk = r[p, k]
+            hit = math.isfinite(rk)
+            rq = rk if hit else r_last
+            ak = alpha[p, k]
+            aq = 0.0 if math.isnan(ak) else ak
+            fr = min(max((rq - r0) / dr, 0.0), hi_r)
+            fa = min(max((aq - a0) / da, 0.0), hi_a)
+            i, j = int(fr), int(fa)
+            wr, wa = fr - i, fa - j
+            c = ((k * nr + i) * na + j) * nq
+            q = c + i_null
+            v_null = (np.float64(flat[q]) * (1 - wa) + np.float64(flat[q + nq]) * wa) * (1 - wr) + (
+                np.float64(flat[q + row]) * (1 - wa) + np.float64(flat[q + row + nq]) * wa
+            ) * wr
+            q = c + i_bias
+            v_bias = (np.float64(flat[q]) * (1 - wa) + np.float64(flat[q + nq]) * wa) * (1 - wr) + (
+                np.float64(flat[q + row]) * (1 - wa) + np.float64(flat[q + row + nq]) * wa
+            ) * wr
+            q = c + i_scale
+            v_scale = (np.float64(flat[q]) * (1 - wa) + np.float64(flat[q + nq]) * wa) * (1 - wr) + (
+                np.float64(flat[q + row]) * (1 - wa) + np.float64(flat[q + row + nq]) * wa
+            ) * wr
+            bias = (1.0 - shrink) * v_bias
+            p_null = v_null if hit else 1 - P_EPS
+            p_spur = 0.0
+            if i_spur >= 0:
+                q = c + i_spur
+                v_spur = (np.float64(flat[q]) * (1 - wa) + np.float64(flat[q + nq]) * wa) * (1 - wr) + (
+                    np.float64(flat[q + row]) * (1 - wa) + np.float64(flat[q + row + nq]) * wa
+                ) * wr
+                p_null = min(p_null, 1 - P_EPS - P_SPUR_EPS)
+                p_spur = min(max(v_spur, P_SPUR_EPS), 1 - P_EPS - p_null)
+            sigma = math.exp(v_scale) if idx[4] >= 0 else v_scale
+            mu = rq + bias
+            x = max(mu + sigma * z[p, k], 1e-4)
+            if extended and u[p, k] >= p_null and u[p, k] < p_null + p_spur:
+                x = spur_mu + spur_sigma * z[p, k]
+            out[p, k] = 0.0 if u[p, k] < p_null else x
+    return out
+
+
 # ---------------------------------------------------------------------------------------- the adapter
 @dataclass(frozen=True)
 class LearnedLidar:
@@ -999,8 +1142,10 @@ class LearnedLidar:
         ``extra``: values of the model's extra state variables (``(..., K, d)``, see
         :meth:`LidarLWLR.params_from_features`), needed when the model has extra state.
         """
-        p = self.model.params_from_features(nominal_range, incidence, extra)
-        x = self.model.sample_from_params(p, rng)
+        if extra is None and not getattr(self.model, "extra_state_", ()):
+            x = self.model.sample_scan(nominal_range, incidence, rng)
+        else:
+            x = self.model.sample_from_params(self.model.params_from_features(nominal_range, incidence, extra), rng)
         return np.where(x == 0, np.nan, x)
 
 
