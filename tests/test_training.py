@@ -58,6 +58,7 @@ def test_config_errors_exit_2_with_one_line_naming_the_key(tmp_path, capsys):
         (["--set", "n_timesteps=-3"], "n_timesteps"),
         (["--algo", "sac", "--env", "sensor_envs/HighwayFast-v0"], "algos.sac"),
         (["--env", "sensor_envs/Nope-v0"], "--env"),
+        (["--env", "sensor_envs/HighwayFast-v0", "--set", "vec_env=vector"], "vec_env"),
     ]
     for extra, key in cases:
         argv = ["--env", "sensor_envs/Neato-v0", "--out", str(tmp_path / "x"), *extra]

@@ -1,7 +1,7 @@
 """Train a stable-baselines3 agent on a sensor_envs env from a YAML config keyed by env id.
 
     python training/train.py --env sensor_envs/Neato-v0 --out runs/neato [--seed 1] [--algo sac]
-        [--sensor gaussian] [--device auto] [--set n_timesteps=5000] [--set vec_env=subproc]
+        [--sensor gaussian] [--device auto] [--set n_timesteps=5000] [--set vec_env=subproc|vector]
 
 Writes into ``--out``: ``config.json`` (the resolved config, the seed and the command line), SB3
 checkpoints (``checkpoints/``), TensorBoard logs (``tb/``; ``tensorboard --logdir runs``), ``best_model.zip``
@@ -28,7 +28,7 @@ from tqdm import TqdmExperimentalWarning
 import sensor_envs  # noqa: F401  (registers the ids)
 
 ALGOS = ("ppo", "sac", "a2c", "dqn")
-VEC_ENVS = ("dummy", "subproc")
+VEC_ENVS = ("dummy", "subproc", "vector")
 KEYS = {
     "algo",
     "policy",
@@ -108,6 +108,9 @@ def load_config(
         raise ConfigError(f"{path} [{env_id}]: algo must be one of {ALGOS}, got {cfg.get('algo')!r}")
     if cfg.setdefault("vec_env", "dummy") not in VEC_ENVS:
         raise ConfigError(f"{path} [{env_id}]: vec_env must be one of {VEC_ENVS}, got {cfg['vec_env']!r}")
+    spec = gym.registry.get(env_id)
+    if cfg["vec_env"] == "vector" and (spec is None or spec.vector_entry_point is None):
+        raise ConfigError(f"{path} [{env_id}]: vec_env: 'vector' needs a vector entry point, which this id has not")
     cfg.setdefault("device", "auto")
     for key in ("n_timesteps", "n_envs", "eval_freq", "eval_episodes"):
         if key in cfg and (not isinstance(cfg[key], int) or isinstance(cfg[key], bool) or cfg[key] < 1):
@@ -122,11 +125,17 @@ def make_env(env_id: str, cfg: dict[str, Any], n_envs: int, seed: int) -> Any:
     """SB3 vector env of ``n_envs`` copies; ``vec_env: subproc`` runs them in worker processes.
 
     The workers import ``sensor_envs`` through the ``"sensor_envs:<id>"`` form of the id, so spawn and
-    forkserver start methods find the registered ids.
+    forkserver start methods find the registered ids. ``vec_env: vector`` steps all copies with the id's
+    gymnasium vector entry point (Neato-v0: one batched raycast) through
+    :func:`sensor_envs.envs.sb3_vec.make_sb3_vector_env`.
     """
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
+    if cfg.get("vec_env") == "vector":
+        from sensor_envs.envs.sb3_vec import make_sb3_vector_env
+
+        return make_sb3_vector_env(env_id, n_envs, seed=seed, env_kwargs=dict(cfg.get("env_kwargs") or {}))
     subproc = cfg.get("vec_env") == "subproc" and n_envs > 1
     return make_vec_env(
         f"sensor_envs:{env_id}",
@@ -172,7 +181,7 @@ def train(
         ),
     ]
     warnings.filterwarnings("ignore", category=TqdmExperimentalWarning)  # SB3's rich progress bar
-    warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")  # subproc vs dummy
+    warnings.filterwarnings("ignore", message="Training and eval env are not of the same type")  # subproc, vector
     model.learn(total_timesteps=int(cfg["n_timesteps"]), callback=callbacks, progress_bar=progress_bar)
     model.save(out / "final_model")
     mean, std = evaluate_policy(model, eval_env, n_eval_episodes=int(cfg.get("eval_episodes", 5)))
