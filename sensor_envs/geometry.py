@@ -129,7 +129,7 @@ def _raycast_dirs(
     e = segments[:, 1] - a
     ex, ey = np.ascontiguousarray(e[:, 0]), np.ascontiguousarray(e[:, 1])
     seg_len = np.hypot(ex, ey)
-    return kernel(  # type: ignore[no-any-return]
+    return kernel(
         np.ascontiguousarray(o[:, 0]),
         np.ascontiguousarray(o[:, 1]),
         np.ascontiguousarray(dx),

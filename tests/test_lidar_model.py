@@ -99,6 +99,43 @@ def test_samples_match_params(rig_fit):
     assert stats.kstest(z, "norm").pvalue > ALPHA
 
 
+@pytest.mark.parametrize("which", [2, 3])
+def test_compiled_scan_gives_the_numpy_numbers(rig_fit, which):
+    """The simulator's fused lookup-and-draw (numba) and the two numpy methods: same readings, bit for bit.
+
+    Both variants, shrunk bias, hits and misses (``inf`` range, NaN incidence), ranges and incidences beyond
+    the grids, one and several leading axes; the draws come from the same generator states.
+    """
+    pytest.importorskip("numba", reason="numba is not installed (the fast extra)")
+    from sensor_envs.jit import compiled
+    from sensor_envs.lidar import kernel, lwlr
+    from sensor_envs.rng import RowGenerators
+
+    assert compiled(lwlr._scan_loops) is not None and compiled(kernel._bilinear_loops) is not None
+    model = rig_fit[which]
+    k = model.tables_.shape[1]
+    rng = np.random.default_rng(7)
+    r = rng.uniform(-0.5, 1.3 * model.max_range, size=(6, k))
+    r[rng.random(r.shape) < 0.2] = np.inf
+    a = np.where(np.isfinite(r), rng.uniform(-0.2, 1.8, size=r.shape), np.nan)
+    fitted = model.bias_shrinkage_
+    for shrink in (0.0, 0.4, fitted):  # the fixture's model is shared: its own value comes last
+        model.bias_shrinkage_ = shrink
+        for rows in (r, r[0]):
+            gens = [[np.random.default_rng(s) for s in range(6)] for _ in range(2)]
+            draw = [RowGenerators(g) if rows.ndim == 2 else g[0] for g in gens]
+            ref = model.sample_from_params(
+                model.params_from_features(rows, a[: len(rows)] if rows.ndim == 2 else a[0]), draw[0]
+            )
+            fast = model.sample_scan(rows, a[: len(rows)] if rows.ndim == 2 else a[0], draw[1])
+            assert fast.shape == ref.shape and np.array_equal(fast, ref)
+            assert 0 < (ref == 0).mean() < 1
+    aq = np.nan_to_num(a)
+    rq = np.where(np.isfinite(r), r, model.range_grid_[-1])
+    args = (model.tables_, model.range_grid_, model.alpha_grid_, rq, aq)
+    assert np.array_equal(kernel._bilinear(*args), kernel._bilinear_numpy(*args))
+
+
 def test_log_prob_integrates_to_one(rig_fit):
     log, _, ext, seed = rig_fit
     grid = np.arange(-0.5, 25.0, 2e-5) + 1e-6  # never exactly 0 (that is the null atom)

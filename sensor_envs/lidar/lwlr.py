@@ -718,7 +718,7 @@ class LidarLWLR(BaseEstimator):
             rng: a ``Generator`` (or :class:`~sensor_envs.rng.RowGenerators`) for the uniform and normal draws.
         """
         kernel = compiled(_scan_loops)
-        if kernel is None or getattr(self, "extra_state_", ()):
+        if kernel is None or len(getattr(self, "extra_state_", ())) > 0:
             return self.sample_from_params(self.params_from_features(r, alpha), rng)
         self._check_fitted()
         r = np.asarray(r, dtype=np.float64)
