@@ -107,23 +107,30 @@ def raycast(
     ang = np.asarray(angles, dtype=np.float64)
     if ang.ndim == 1:
         ang = np.broadcast_to(ang, (o.shape[0], ang.shape[0]))
-    return _raycast_dirs(o, np.cos(ang), np.sin(ang), segments, max_range)
+    one, zero = np.ones(o.shape[0]), np.zeros(o.shape[0])  # no rotation: the directions are the angles' own
+    return _raycast_dirs(o, one, zero, np.cos(ang), np.sin(ang), segments, max_range)
 
 
 def _raycast_dirs(
     o: NDArray[np.float64],
-    dx: NDArray[np.float64],
-    dy: NDArray[np.float64],
+    ct: NDArray[np.float64],
+    st: NDArray[np.float64],
+    cb: NDArray[np.float64],
+    sb: NDArray[np.float64],
     segments: NDArray[np.float64],
     max_range: float,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
-    """:func:`raycast` of rays from ``o (P, 2)`` with unit directions ``(dx, dy)``, each ``(P, K)``, in the map frame.
+    """:func:`raycast` of rays from ``o (P, 2)`` in the map frame, given by direction cosines.
 
-    The compiled kernel when numba is installed, else numpy; both take the same direction cosines, so they
-    return the same bits.
+    Ray ``(p, k)`` points along ``(cb, sb)[p, k]`` (or ``[0, k]`` when ``cb, sb`` have one row: bearings shared by
+    all poses) rotated by the heading whose cosine and sine are ``ct[p], st[p]``: ``dx = ct cb - st sb``,
+    ``dy = st cb + ct sb``. The compiled kernel when numba is installed, else numpy; both do that arithmetic
+    in that order, so they return the same bits.
     """
     kernel = _compiled_kernel()
     if kernel is None:
+        dx = ct[:, None] * cb - st[:, None] * sb
+        dy = st[:, None] * cb + ct[:, None] * sb
         return _raycast_numpy(o, dx, dy, segments, max_range)
     a = segments[:, 0]
     e = segments[:, 1] - a
@@ -132,8 +139,10 @@ def _raycast_dirs(
     return kernel(
         np.ascontiguousarray(o[:, 0]),
         np.ascontiguousarray(o[:, 1]),
-        np.ascontiguousarray(dx),
-        np.ascontiguousarray(dy),
+        np.ascontiguousarray(ct),
+        np.ascontiguousarray(st),
+        np.ascontiguousarray(cb),
+        np.ascontiguousarray(sb),
         np.ascontiguousarray(a[:, 0]),
         np.ascontiguousarray(a[:, 1]),
         ex,
@@ -227,8 +236,10 @@ def _compiled_kernel() -> Callable[..., _RaycastResult] | None:
 def _raycast_loops(
     ox: NDArray[np.float64],
     oy: NDArray[np.float64],
-    dx: NDArray[np.float64],
-    dy: NDArray[np.float64],
+    ct: NDArray[np.float64],
+    st: NDArray[np.float64],
+    cb: NDArray[np.float64],
+    sb: NDArray[np.float64],
     ax: NDArray[np.float64],
     ay: NDArray[np.float64],
     ex: NDArray[np.float64],
@@ -242,17 +253,20 @@ def _raycast_loops(
     """:func:`raycast` in loops: per ray and segment the arithmetic of :func:`_raycast_numpy`, in its order.
 
     Segments are tried in order and a later one wins only when strictly nearer (``argmin``'s first-minimum
-    rule); ``dx, dy`` are the rays' unit directions, ``cx, cy`` the segments' and ``col_tol`` the collinearity
-    tolerances.
+    rule); the rays' directions are ``(cb, sb)`` rotated by ``(ct, st)`` as in :func:`_raycast_dirs`, ``cx, cy``
+    are the segments' unit directions and ``col_tol`` the collinearity tolerances.
     """
-    n_p, n_k = dx.shape
+    n_p, n_k = ct.shape[0], cb.shape[1]
+    shared = cb.shape[0] == 1
     n_m = ax.shape[0]
     rng = np.empty((n_p, n_k))
     inc = np.empty((n_p, n_k))
     idx = np.empty((n_p, n_k), dtype=np.int64)
     for p in range(n_p):
         for k in range(n_k):
-            dxk, dyk = dx[p, k], dy[p, k]
+            b = 0 if shared else p
+            dxk = ct[p] * cb[b, k] - st[p] * sb[b, k]
+            dyk = st[p] * cb[b, k] + ct[p] * sb[b, k]
             best, best_m = np.inf, 0
             for m in range(n_m):
                 wx = ax[m] - ox[p]
@@ -304,8 +318,7 @@ def raycast_pose(
     p = np.atleast_2d(p)
     b = np.asarray(bearings, dtype=np.float64)
     cb, sb = np.cos(b)[None], np.sin(b)[None]  # a ray's direction: the bearing's rotated by the heading
-    ct, st = np.cos(p[:, 2:3]), np.sin(p[:, 2:3])
-    out = _raycast_dirs(p[:, :2], ct * cb - st * sb, st * cb + ct * sb, segments, max_range)
+    out = _raycast_dirs(p[:, :2], np.cos(p[:, 2]), np.sin(p[:, 2]), cb, sb, segments, max_range)
     if single:
         return out[0][0], out[1][0], out[2][0]
     return out

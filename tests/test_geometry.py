@@ -191,7 +191,7 @@ def test_occluded_fraction_edge_cases():
         occluded_fraction(two, targets=[2])
 
 
-def test_compiled_raycast_gives_the_numpy_numbers():
+def test_compiled_raycast_gives_the_numpy_numbers(monkeypatch):
     """The numba kernel (``fast`` extra) and the numpy path: same ranges, incidence and indices, bit for bit."""
     pytest.importorskip("numba", reason="numba is not installed (the fast extra)")
     from sensor_envs import geometry
@@ -210,5 +210,12 @@ def test_compiled_raycast_gives_the_numpy_numbers():
         for max_range in (np.inf, 2.0):
             fast = raycast(o, ang, segs, max_range)
             ref = geometry._raycast_numpy(o, np.cos(ang), np.sin(ang), segs, max_range)
+            assert all(np.array_equal(x, y, equal_nan=True) for x, y in zip(fast, ref, strict=True))
+            pose = np.column_stack([o, ang[:, 0]])  # raycast_pose: the bearings rotated by the heading
+            fast_pose = geometry.raycast_pose(pose, ang[0] - ang[0, 0], segs, max_range)
+            with monkeypatch.context() as m:
+                m.setattr(geometry, "_compiled_kernel", lambda: None)
+                ref_pose = geometry.raycast_pose(pose, ang[0] - ang[0, 0], segs, max_range)
+            assert all(np.array_equal(x, y, equal_nan=True) for x, y in zip(fast_pose, ref_pose, strict=True))
             for x, y in zip(fast, ref, strict=True):
                 assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=True)
