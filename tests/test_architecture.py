@@ -18,6 +18,7 @@ LAYERS = {
     "maps": 0,
     "modelio": 0,
     "rng": 0,
+    "jit": 0,
     "outputs": 0,
     "lidar": 1,
     "radar": 1,
