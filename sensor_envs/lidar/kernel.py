@@ -159,7 +159,7 @@ def _bilinear(
     """Bilinear lookup of ``tables (n, K, n_r, n_a)`` (regular grids) at ``r, a (..., K)`` -> ``(n, ..., K)``.
 
     ``r`` [m] and ``a`` [rad] must be finite; values beyond a grid take its edge. With numba (the ``fast``
-    extra) a compiled loop does the same float64 operations in the same order: the same bits, ~10x faster.
+    extra) a compiled loop does the same float64 operations in the same order: the same bits, faster.
     """
     kernel = compiled(_bilinear_loops)
     if kernel is None:
