@@ -616,11 +616,7 @@ class LidarLWLR(BaseEstimator):
             readings) and ``tau`` [m] (spread of a cell's mean around ``mu`` at an approximate pose; 0 for
             the seed variant), each ``(..., K)``.
         """
-        self._check_fitted()
-        r = np.asarray(r, dtype=np.float64)
-        k = self.tables_.shape[1]
-        if r.shape[-1] != k:
-            raise ValueError(f"nominal_range: last axis has {r.shape[-1]} bearings, the model has {k}")
+        r = self._nominal_ranges(r)
         hit = np.isfinite(r)
         rq = np.where(hit, r, self.range_grid_[-1])
         aq = np.nan_to_num(np.asarray(alpha, dtype=np.float64), nan=0.0)
@@ -720,19 +716,14 @@ class LidarLWLR(BaseEstimator):
         kernel = compiled(_scan_loops)
         if kernel is None or len(getattr(self, "extra_state_", ())) > 0:
             return self.sample_from_params(self.params_from_features(r, alpha), rng)
-        self._check_fitted()
-        r = np.asarray(r, dtype=np.float64)
-        k = self.tables_.shape[1]
-        if r.shape[-1] != k:
-            raise ValueError(f"nominal_range: last axis has {r.shape[-1]} bearings, the model has {k}")
-        shape = r.shape
+        r = self._nominal_ranges(r)
+        shape, k = r.shape, r.shape[-1]
         u = rng.random(shape)
         z = rng.standard_normal(shape)
-        names = list(self.param_names_)
-        idx = [names.index(n) if n in names else -1 for n in ("p_null", "p_spur", "bias", "sigma", "log_sigma")]
+        cells, idx = self._scan_tables()
         rg, ag = self.range_grid_, self.alpha_grid_
         out = kernel(
-            self._cell_major_tables(),
+            cells,
             float(rg[0]),
             float(rg[1]),
             float(rg[-1]),
@@ -742,7 +733,7 @@ class LidarLWLR(BaseEstimator):
             np.ascontiguousarray(np.asarray(alpha, dtype=np.float64).reshape(-1, k)),
             np.ascontiguousarray(u.reshape(-1, k)),
             np.ascontiguousarray(z.reshape(-1, k)),
-            np.asarray(idx, dtype=np.int64),
+            idx,
             float(getattr(self, "bias_shrinkage_", 0.0)),
             float(self.spur_mu_) if self.variant == "extended" else 0.0,
             float(self.spur_sigma_) if self.variant == "extended" else 0.0,
@@ -750,22 +741,36 @@ class LidarLWLR(BaseEstimator):
         )
         return np.asarray(out).reshape(shape)
 
-    def _cell_major_tables(self) -> NDArray[np.float64]:
-        """``tables_`` laid out ``(K, n_r, n_alpha, n_params)`` (a lookup reads one cell's parameters together).
+    def _nominal_ranges(self, r: ArrayLike) -> NDArray[np.float64]:
+        """``r`` [m] as float64 ``(..., K)``, checked against the fitted model's ``K`` bearings."""
+        self._check_fitted()
+        r = np.asarray(r, dtype=np.float64)
+        k = self.tables_.shape[1]
+        if r.shape[-1] != k:
+            raise ValueError(f"nominal_range: last axis has {r.shape[-1]} bearings, the model has {k}")
+        return r
 
-        Stored as float32 when that is exact (tables are rounded to float32 at fit and in the file), so the
-        lookup's float64 arithmetic gives the same bits from half the memory.
+    def _scan_tables(self) -> tuple[NDArray[np.floating[Any]], NDArray[np.int64]]:
+        """What :func:`_scan_loops` reads: the tables laid out ``(K, n_r, n_alpha, n_params)``, the parameter indices.
 
-        Cached beside the array it was made from and rebuilt when ``tables_`` is replaced (fit, load).
+        The indices are those of ``p_null, p_spur, bias, sigma, log_sigma`` in ``tables_`` (-1 where absent).
+
+        The layout reads one cell's parameters together; it is float32 when that is exact (tables are rounded
+        to float32 at fit and in the file), so the lookup's float64 arithmetic gives the same bits from half
+        the memory. Cached beside the array it was made from and rebuilt when ``tables_`` is replaced (fit,
+        load), so the hot path pays for neither.
         """
-        cache = self.__dict__.get("_cell_major")
+        cache = self.__dict__.get("_scan_cache")
         if cache is None or cache[0] is not self.tables_:
             cells = np.moveaxis(self.tables_, 0, -1)
             if np.array_equal(cells.astype(np.float32), cells):  # fitted/loaded tables are float32 values
                 cells = cells.astype(np.float32)  # exact, and half the memory a lookup walks
-            cache = (self.tables_, np.ascontiguousarray(cells))
-            self.__dict__["_cell_major"] = cache
-        return cache[1]
+            names = list(self.param_names_)
+            wanted = ("p_null", "p_spur", "bias", "sigma", "log_sigma")
+            idx = np.array([names.index(n) if n in names else -1 for n in wanted], dtype=np.int64)
+            cache = (self.tables_, np.ascontiguousarray(cells), idx)
+            self.__dict__["_scan_cache"] = cache
+        return cache[1], cache[2]
 
     def sample(
         self,
@@ -1077,8 +1082,10 @@ def _scan_loops(
     out = np.empty((n_p, n_k))
     hi_r, hi_a = nr - 1 - 1e-9, na - 1 - 1e-9
     dr, da = r1 - r0, a1 - a0
-    i_null, i_spur, i_bias = idx[0], idx[1], idx[2]
-    i_scale = idx[4] if idx[4] >= 0 else idx[3]  # log_sigma (extended) or sigma (seed)
+    i_spur = idx[1]
+    # table indices of the parameters looked up: p_null, bias, log_sigma (extended) or sigma (seed), p_spur
+    want = np.array([idx[0], idx[2], idx[4] if idx[4] >= 0 else idx[3], idx[1] if idx[1] >= 0 else idx[0]])
+    v = np.empty(4)
     row = na * nq  # offset of the next range node
     for k in range(n_k):
         for p in range(n_p):
@@ -1092,26 +1099,16 @@ def _scan_loops(
             i, j = int(fr), int(fa)
             wr, wa = fr - i, fa - j
             c = ((k * nr + i) * na + j) * nq
-            q = c + i_null
-            v_null = (np.float64(flat[q]) * (1 - wa) + np.float64(flat[q + nq]) * wa) * (1 - wr) + (
-                np.float64(flat[q + row]) * (1 - wa) + np.float64(flat[q + row + nq]) * wa
-            ) * wr
-            q = c + i_bias
-            v_bias = (np.float64(flat[q]) * (1 - wa) + np.float64(flat[q + nq]) * wa) * (1 - wr) + (
-                np.float64(flat[q + row]) * (1 - wa) + np.float64(flat[q + row + nq]) * wa
-            ) * wr
-            q = c + i_scale
-            v_scale = (np.float64(flat[q]) * (1 - wa) + np.float64(flat[q + nq]) * wa) * (1 - wr) + (
-                np.float64(flat[q + row]) * (1 - wa) + np.float64(flat[q + row + nq]) * wa
-            ) * wr
+            for t in range(4):
+                q = c + want[t]
+                v[t] = (np.float64(flat[q]) * (1 - wa) + np.float64(flat[q + nq]) * wa) * (1 - wr) + (
+                    np.float64(flat[q + row]) * (1 - wa) + np.float64(flat[q + row + nq]) * wa
+                ) * wr
+            v_null, v_bias, v_scale, v_spur = v[0], v[1], v[2], v[3]
             bias = (1.0 - shrink) * v_bias
             p_null = v_null if hit else 1 - P_EPS
             p_spur = 0.0
             if i_spur >= 0:
-                q = c + i_spur
-                v_spur = (np.float64(flat[q]) * (1 - wa) + np.float64(flat[q + nq]) * wa) * (1 - wr) + (
-                    np.float64(flat[q + row]) * (1 - wa) + np.float64(flat[q + row + nq]) * wa
-                ) * wr
                 p_null = min(p_null, 1 - P_EPS - P_SPUR_EPS)
                 p_spur = min(max(v_spur, P_SPUR_EPS), 1 - P_EPS - p_null)
             sigma = math.exp(v_scale) if idx[4] >= 0 else v_scale
