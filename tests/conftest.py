@@ -20,6 +20,14 @@ def real_data() -> Path:
     return REAL_DATA
 
 
+@pytest.fixture
+def compiled_kernels() -> None:
+    """Skips the test unless the numba kernels are in use: numba installed and ``SENSOR_ENVS_NO_NUMBA`` unset."""
+    pytest.importorskip("numba", reason="numba is not installed (the fast extra)")
+    if os.environ.get("SENSOR_ENVS_NO_NUMBA", "") not in ("", "0"):
+        pytest.skip("SENSOR_ENVS_NO_NUMBA is set: the numpy path is forced, there is no compiled kernel to compare")
+
+
 @pytest.fixture(scope="session")
 def rig_split():
     """A generic-rig radar log (60 sequences x 40 cycles x 8 targets, seed 11) as ``(train, test)`` blocks."""

@@ -191,9 +191,8 @@ def test_occluded_fraction_edge_cases():
         occluded_fraction(two, targets=[2])
 
 
-def test_compiled_raycast_gives_the_numpy_numbers(monkeypatch):
+def test_compiled_raycast_gives_the_numpy_numbers(monkeypatch, compiled_kernels):
     """The numba kernel (``fast`` extra) and the numpy path: same ranges, incidence and indices, bit for bit."""
-    pytest.importorskip("numba", reason="numba is not installed (the fast extra)")
     from sensor_envs import geometry
 
     assert geometry._compiled_kernel() is not None

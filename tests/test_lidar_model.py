@@ -100,13 +100,12 @@ def test_samples_match_params(rig_fit):
 
 
 @pytest.mark.parametrize("which", [2, 3])
-def test_compiled_scan_gives_the_numpy_numbers(rig_fit, which):
+def test_compiled_scan_gives_the_numpy_numbers(rig_fit, which, compiled_kernels):
     """The simulator's fused lookup-and-draw (numba) and the two numpy methods: same readings, bit for bit.
 
     Both variants, shrunk bias, hits and misses (``inf`` range, NaN incidence), ranges and incidences beyond
     the grids, one and several leading axes; the draws come from the same generator states.
     """
-    pytest.importorskip("numba", reason="numba is not installed (the fast extra)")
     from sensor_envs.jit import compiled
     from sensor_envs.lidar import kernel, lwlr
     from sensor_envs.rng import RowGenerators
