@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
+from test_highway import CountingRadar  # the test double, written once (tests/ is on the path)
 
 import sensor_envs  # noqa: F401  (registers the ids)
 from sensor_envs.envs.highway import RadarObservation
@@ -31,17 +32,6 @@ class FlagRadar:
         z = np.zeros((n, 2))
         z[rng.random(n) < self.miss] = np.nan
         return z, np.full(n, -1)
-
-    def sample_clutter(self, rng):
-        return np.zeros((0, 2))
-
-
-class CountingRadar:
-    """Test double: z = previous z + (1, 0), a new track starts at 0; never misses, no clutter."""
-
-    def sample_cycle(self, corners, prev_z, rng):
-        z = np.where(np.isnan(prev_z), 0.0, prev_z + np.array([1.0, 0.0]))
-        return z, np.arange(len(corners))
 
     def sample_clutter(self, rng):
         return np.zeros((0, 2))
