@@ -8,6 +8,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sensor_envs.jit import compiled
+
 __all__ = ["sensor_rng", "fold_ids", "RowGenerators"]
 
 
@@ -63,28 +65,91 @@ class RowGenerators:
     / ``rng.uniform(low, high, shape)`` gets, row by row, exactly the numbers that N separate calls with
     ``shape[1:]`` on the N generators would give: one batched sensor call serves N independent worlds
     whose streams stay their own (a vector env then matches N single envs seed for seed).
+
+    With numba (the ``fast`` extra) one compiled loop draws all rows from the generators themselves (numba
+    draws a ``Generator``'s own stream, number for number); it reads them from a numba list built once per
+    object, so a caller that draws every step keeps one ``RowGenerators`` (see :meth:`replace`, :meth:`select`).
     """
 
     def __init__(self, generators: Sequence[np.random.Generator]) -> None:
         self.generators = list(generators)
+        self._typed: Any = None  # numba list of the generators, built on the first compiled draw
+        self._index: NDArray[np.int64] | None = None  # rows of ``_typed`` this object draws from
 
-    def _rows(self, draw: Callable[[np.random.Generator, tuple[int, ...]], Any], size: Any) -> NDArray[np.float64]:
+    def replace(self, row: int, generator: np.random.Generator) -> None:
+        """Row ``row`` draws from ``generator`` from now on (a robot's stream after a seeded reset)."""
+        if self.generators[row] is not generator:
+            self.generators[row] = generator
+            if self._typed is not None:
+                if self._index is not None:
+                    raise ValueError("RowGenerators: replace a row of the full set, not of a select()ion")
+                self._typed[row] = generator
+
+    def select(self, rows: ArrayLike) -> RowGenerators:
+        """The generators of ``rows`` (in that order) as a ``RowGenerators`` sharing this one's compiled list."""
+        idx = np.asarray(rows, dtype=np.int64)
+        out = RowGenerators([self.generators[i] for i in idx])
+        if self._index is None and self._compiled_list() is not None:
+            out._typed, out._index = self._typed, idx
+        return out
+
+    def _compiled_list(self) -> Any:
+        """The numba list of the generators (built once), or None without numba or for a non-``Generator``."""
+        if self._typed is None and compiled(_draw_rows) is not None:
+            if all(type(g) is np.random.Generator for g in self.generators):
+                from numba.typed import List
+
+                self._typed = List(self.generators)
+        return self._typed
+
+    def _rows(
+        self, draw: Callable[[np.random.Generator, tuple[int, ...]], Any], size: Any, kind: int, low: float, high: float
+    ) -> NDArray[np.float64]:
         shape = (size,) if isinstance(size, (int, np.integer)) else tuple(size or ())
         if not shape or shape[0] != len(self.generators):
             raise ValueError(f"RowGenerators: size {shape} must lead with the number of rows {len(self.generators)}")
-        return np.stack([draw(g, shape[1:]) for g in self.generators])
+        typed = self._compiled_list()
+        if typed is None:
+            return np.stack([draw(g, shape[1:]) for g in self.generators])
+        out = np.empty(shape)
+        index = np.arange(shape[0], dtype=np.int64) if self._index is None else self._index
+        kernel = compiled(_draw_rows)
+        assert kernel is not None
+        kernel(typed, index, out.reshape(shape[0], -1), kind, float(low), float(high))
+        return out
 
     def random(self, size: Any = None) -> NDArray[np.float64]:
         """Uniform [0, 1) draws of shape ``size`` (``size[0]`` = number of rows)."""
-        return self._rows(lambda g, s: g.random(s), size)
+        return self._rows(lambda g, s: g.random(s), size, 0, 0.0, 1.0)
 
     def standard_normal(self, size: Any = None) -> NDArray[np.float64]:
         """Standard normal draws of shape ``size`` (``size[0]`` = number of rows)."""
-        return self._rows(lambda g, s: g.standard_normal(s), size)
+        return self._rows(lambda g, s: g.standard_normal(s), size, 1, 0.0, 1.0)
 
     def uniform(self, low: float = 0.0, high: float = 1.0, size: Any = None) -> NDArray[np.float64]:
         """Uniform ``[low, high)`` draws (scalar bounds) of shape ``size`` (``size[0]`` = number of rows)."""
-        return self._rows(lambda g, s: g.uniform(low, high, s), size)
+        return self._rows(lambda g, s: g.uniform(low, high, s), size, 2, low, high)
 
     def __getattr__(self, name: str) -> Any:
         raise AttributeError(f"RowGenerators: {name!r} is not supported row by row (random, standard_normal, uniform)")
+
+
+def _draw_rows(
+    generators: Any, index: NDArray[np.int64], out: NDArray[np.float64], kind: int, low: float, high: float
+) -> None:
+    """Fill row ``p`` of ``out (P, n)`` from ``generators[index[p]]``, element by element.
+
+    ``kind``: 0 uniform [0, 1), 1 standard normal, 2 uniform [low, high). Numba draws a ``Generator``'s own
+    stream one number at a time, which is the stream a batched numpy call of that generator draws.
+    """
+    for p in range(out.shape[0]):
+        g = generators[index[p]]
+        if kind == 0:
+            for i in range(out.shape[1]):
+                out[p, i] = g.random()
+        elif kind == 1:
+            for i in range(out.shape[1]):
+                out[p, i] = g.standard_normal()
+        else:
+            for i in range(out.shape[1]):
+                out[p, i] = g.uniform(low, high)

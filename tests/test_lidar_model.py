@@ -118,7 +118,7 @@ def test_compiled_scan_gives_the_numpy_numbers(rig_fit, which, compiled_kernels)
     r[rng.random(r.shape) < 0.2] = np.inf
     a = np.where(np.isfinite(r), rng.uniform(-0.2, 1.8, size=r.shape), np.nan)
     fitted = model.bias_shrinkage_
-    for shrink in (0.0, 0.4, fitted):  # the fixture's model is shared: its own value comes last
+    for shrink in (0.0, 0.4, 1.0, fitted):  # 1.0: no bias lookup; the fixture's model is shared: its own value last
         model.bias_shrinkage_ = shrink
         for rows in (r, r[0]):
             gens = [[np.random.default_rng(s) for s in range(6)] for _ in range(2)]

@@ -140,3 +140,51 @@ def test_ros_map_world(real_data):
     env = NeatoEnv(map=real_data / "neato_ros1_bags" / "mymap.yaml")
     obs, _ = env.reset(seed=0)
     assert obs in env.observation_space
+
+
+def test_compiled_observation_gives_the_numpy_numbers(monkeypatch, compiled_kernels):
+    """The fused observation pass (numba) and the numpy calls it replaces: same obs, scan and incidence bits,
+    for every null fill, with NaN, +-inf, negative and beyond-range readings and values beyond the bounds."""
+    from sensor_envs.envs import neato
+
+    rng = np.random.default_rng(5)
+    raw = rng.uniform(-1.0, 8.0, size=(4, 20))
+    raw[rng.random(raw.shape) < 0.2] = np.nan
+    raw[0, :3] = [np.inf, -np.inf, 0.0]
+    inc = np.where(np.isnan(raw), np.nan, rng.uniform(0, 1.6, raw.shape))
+    inc[1, 0] = np.inf
+    goal_rel, dth = rng.uniform(-30, 30, size=(4, 2)), rng.uniform(-4, 4, size=4)
+    low = np.concatenate([np.zeros(20), [-20.0, -20.0, -np.pi]]).astype(np.float32)
+    high = np.concatenate([np.full(20, 6.0), [20.0, 20.0, np.pi]]).astype(np.float32)
+    for null_value in ("zero", "nan", "max"):
+        fast = neato.finish_observation(raw, inc, goal_rel, dth, low, high, 6.0, null_value)
+        with monkeypatch.context() as m:
+            m.setattr(neato, "compiled", lambda loops: None)
+            ref = neato.finish_observation(raw, inc, goal_rel, dth, low, high, 6.0, null_value)
+        for x, y in zip(fast, ref, strict=True):
+            assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y, equal_nan=True)
+        assert (fast[0][:, 20:] != np.float32(np.c_[goal_rel, dth])).any()  # some goals were clipped
+
+
+@pytest.mark.parametrize("lidar", [GaussianLidar(), GaussianLidar(p_null_floor=0.1, k_range=1e300)])
+def test_compiled_gaussian_lidar_gives_the_numpy_numbers(monkeypatch, compiled_kernels, lidar):
+    """The Gaussian lidar's compiled pass and its numpy path: same readings from the same draws, bit for bit
+    (misses, NaN/+-inf incidence, incidences beyond alpha_max, a spread that overflows, dropout)."""
+    from sensor_envs.lidar import sensors
+    from sensor_envs.rng import RowGenerators
+
+    rng = np.random.default_rng(0)
+    r, a = rng.uniform(0.2, 5, (6, 50)), rng.uniform(-0.3, 1.7, (6, 50))
+    r[:, :5], a[:, :5] = np.inf, np.nan
+    a[0, 10], a[1, 11], a[2, 12] = np.inf, -np.inf, np.nan
+    out = []
+    for kernel in (True, False):
+        with monkeypatch.context() as m:
+            if not kernel:
+                m.setattr(sensors, "compiled", lambda loops: None)
+            rows = lidar.measure(r, a, RowGenerators([np.random.default_rng(i) for i in range(6)]))
+            one = lidar.measure(r[0], a[0], np.random.default_rng(1))
+            out.append((rows, one))
+    for x, y in zip(out[0], out[1], strict=True):
+        assert x.shape == y.shape and np.array_equal(x, y, equal_nan=True)
+    assert 0 < np.isnan(out[0][0]).mean() < 0.5

@@ -81,3 +81,18 @@ def test_row_generators_match_separate_generators():
         rows.random((3, 5))
     with pytest.raises(AttributeError, match="not supported"):
         rows.beta(1.0, 1.0, (2, 5))
+
+
+def test_row_generators_select_and_replace_keep_each_rows_stream():
+    """A kept ``RowGenerators`` (compiled draws with numba, else numpy): a selection of rows and a replaced row
+    draw what the generators alone would draw, and the generators themselves advance."""
+    gens = [np.random.default_rng(s) for s in range(5)]
+    ref = [np.random.default_rng(s) for s in range(5)]
+    rows = RowGenerators(gens)
+    assert np.array_equal(rows.uniform(-1.0, 2.0, (5, 2, 3)), np.stack([g.uniform(-1.0, 2.0, (2, 3)) for g in ref]))
+    part = rows.select([4, 1])
+    assert np.array_equal(part.standard_normal((2, 7)), np.stack([ref[i].standard_normal(7) for i in (4, 1)]))
+    rows.replace(2, np.random.default_rng(99))
+    ref[2] = np.random.default_rng(99)
+    assert np.array_equal(rows.random((5, 4)), np.stack([g.random(4) for g in ref]))
+    assert all(g.random() == r.random() for g, r in zip(rows.generators, ref, strict=True))  # same states after

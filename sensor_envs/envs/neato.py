@@ -26,6 +26,7 @@ from its own generator derived from the reset seed, so changing the lidar never 
 
 from __future__ import annotations
 
+import math
 import sys
 from os import PathLike
 from typing import Any
@@ -37,6 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.envs.neato_render import render_world
 from sensor_envs.geometry import point_segment_distance, raycast_pose, sample_free_poses, to_frame, wrap_angle
+from sensor_envs.jit import compiled
 from sensor_envs.lidar.sensors import GaussianLidar, IdealLidar, LidarSensor, make_lidar
 from sensor_envs.maps import SegmentMap, load_map
 from sensor_envs.rng import RowGenerators, sensor_rng
@@ -286,6 +288,93 @@ def apply_null(raw: NDArray[np.float64], max_range: float, null_value: str) -> N
     return np.where(null, fill, raw)
 
 
+def finish_observation(
+    raw: NDArray[np.float64],
+    incidence: NDArray[np.float64],
+    goal_rel: NDArray[np.float64],
+    dth: NDArray[np.float64],
+    low: NDArray[np.float32],
+    high: NDArray[np.float32],
+    max_range: float,
+    null_value: str,
+) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.float64]]:
+    """Observations of N robots and the NaN-free ``scan`` and ``incidence`` of their ``info``.
+
+    Args:
+        raw: ``(N, K)`` lidar readings [m], NaN = null.
+        incidence: ``(N, K)`` incidence [rad], NaN where no hit.
+        goal_rel: ``(N, 2)`` goal position in the robot frame [m].
+        dth: ``(N,)`` goal heading minus robot heading [rad].
+        low: the observation space's float32 lower bounds ``(K + 3,)``.
+        high: its upper bounds ``(K + 3,)``.
+        max_range: readings beyond it [m] are nulls.
+        null_value: the nulls' fill (see :data:`NULL_VALUES`).
+
+    Returns:
+        ``obs (N, K + 3)`` float32: :func:`apply_null`'s ranges, ``goal_rel``, ``dth``, cast to float32 and
+        clipped to the bounds; ``raw`` and ``incidence`` with NaN as 0 (``np.nan_to_num``). With numba one
+        compiled pass computes the same bits as those numpy calls.
+    """
+    fill = {"zero": 0.0, "nan": np.nan, "max": max_range}[null_value]
+    kernel = compiled(_finish_loops)
+    if kernel is not None:
+        return kernel(
+            np.ascontiguousarray(raw, dtype=np.float64),
+            np.ascontiguousarray(incidence, dtype=np.float64),
+            np.ascontiguousarray(goal_rel, dtype=np.float64),
+            np.ascontiguousarray(dth, dtype=np.float64),
+            np.ascontiguousarray(low, dtype=np.float32),
+            np.ascontiguousarray(high, dtype=np.float32),
+            float(max_range),
+            float(fill),
+        )
+    ranges = apply_null(raw, max_range, null_value)
+    obs = np.concatenate([ranges, goal_rel, dth[:, None]], axis=1).astype(np.float32)
+    obs = np.clip(obs, low, high)
+    return obs, np.nan_to_num(raw, nan=0.0), np.nan_to_num(incidence, nan=0.0)
+
+
+def _finish_loops(
+    raw: NDArray[np.float64],
+    incidence: NDArray[np.float64],
+    goal_rel: NDArray[np.float64],
+    dth: NDArray[np.float64],
+    low: NDArray[np.float32],
+    high: NDArray[np.float32],
+    max_range: float,
+    fill: float,
+) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`finish_observation` in one loop over the cells: each value as the numpy calls compute it.
+
+    ``np.clip`` is ``minimum(maximum(x, low), high)``, which keeps NaN; ``np.nan_to_num`` maps NaN to 0 and
+    +-inf to the largest finite float64.
+    """
+    n, k = raw.shape
+    obs = np.empty((n, k + 3), dtype=np.float32)
+    scan = np.empty((n, k))
+    inc = np.empty((n, k))
+    big = np.finfo(np.float64).max
+    for p in range(n):
+        for j in range(k + 3):
+            if j < k:
+                x = raw[p, j]
+                v = fill if (not math.isfinite(x) or x > max_range or x <= 0.0) else x
+                scan[p, j] = 0.0 if math.isnan(x) else (big if x == math.inf else (-big if x == -math.inf else x))
+                a = incidence[p, j]
+                inc[p, j] = 0.0 if math.isnan(a) else (big if a == math.inf else (-big if a == -math.inf else a))
+            elif j < k + 2:
+                v = goal_rel[p, j - k]
+            else:
+                v = dth[p]
+            f = np.float32(v)
+            if f < low[j]:
+                f = low[j]
+            if f > high[j]:
+                f = high[j]
+            obs[p, j] = f
+    return obs, scan, inc
+
+
 def collides(poses: ArrayLike, segments: NDArray[np.float64], robot_radius: float) -> NDArray[np.bool_]:
     """``(N,)`` whether a round robot of ``robot_radius`` [m] at ``(3,)``/``(N, 3)`` poses touches a wall."""
     xy = np.atleast_2d(np.asarray(poses, dtype=np.float64))[:, :2]
@@ -321,7 +410,7 @@ def measure_rows(
     lidar: LidarSensor,
     nominal: NDArray[np.float64],
     incidence: NDArray[np.float64],
-    rngs: list[np.random.Generator],
+    rngs: list[np.random.Generator] | RowGenerators,
     extra: NDArray[np.float64] | None = None,
 ) -> NDArray[np.float64]:
     """Readings ``(N, K)`` [m] (NaN = null) for N robots; row ``i`` draws from ``rngs[i]`` only.
@@ -332,11 +421,16 @@ def measure_rows(
     """
     lwlr = sys.modules.get("sensor_envs.lidar.lwlr")  # a LearnedLidar exists only once its module is loaded
     if isinstance(lidar, _BATCHED_LIDARS + ((lwlr.LearnedLidar,) if lwlr is not None else ())):
-        rng = rngs[0] if len(rngs) == 1 else RowGenerators(rngs)
+        rng: np.random.Generator | RowGenerators
+        if isinstance(rngs, RowGenerators):
+            rng = rngs
+        else:
+            rng = rngs[0] if len(rngs) == 1 else RowGenerators(rngs)
         if extra is not None:  # only a LearnedLidar has extra state
             return np.asarray(lidar.measure(nominal, incidence, rng, extra=extra), dtype=np.float64)
         return np.asarray(lidar.measure(nominal, incidence, rng), dtype=np.float64)
-    rows = zip(nominal, incidence, rngs, strict=True)
+    gens = rngs.generators if isinstance(rngs, RowGenerators) else rngs
+    rows = zip(nominal, incidence, gens, strict=True)
     return np.stack([np.asarray(lidar.measure(n, a, g), dtype=np.float64) for n, a, g in rows])
 
 
@@ -344,7 +438,7 @@ def observe_batch(
     env: NeatoEnv,
     poses: NDArray[np.float64],
     goals: NDArray[np.float64],
-    rngs: list[np.random.Generator],
+    rngs: list[np.random.Generator] | RowGenerators,
     collision: NDArray[np.bool_],
     extra: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float32], dict[str, NDArray[Any]]]:
@@ -354,7 +448,8 @@ def observe_batch(
         env: the world (map, bearings, lidar, ranges, tolerances and observation bounds are read from it).
         poses: ``(N, 3)`` true robot poses [m, rad] in the map frame.
         goals: ``(N, 3)`` goal poses [m, rad].
-        rngs: the N robots' lidar generators.
+        rngs: the N robots' lidar generators (a :class:`~sensor_envs.rng.RowGenerators` that a caller keeps
+            across steps saves building one per call).
         collision: ``(N,)`` whether each robot touches a wall.
         extra: ``(N, K, d)`` values of a learned lidar's extra state variables, or ``None``.
 
@@ -364,13 +459,13 @@ def observe_batch(
     """
     nominal, incidence, _ = raycast_pose(poses, env.bearings, env.world_map.segments, env.max_range)
     raw = measure_rows(env.lidar, nominal, incidence, rngs, extra)
-    ranges = apply_null(raw, env.max_range, env.null_value)
     goal_rel = to_frame(goals[:, :2], poses.T)
     dth = wrap_angle(goals[:, 2] - poses[:, 2])
-    obs = np.concatenate([ranges, goal_rel, dth[:, None]], axis=1).astype(np.float32)
     box = env.observation_space
     assert isinstance(box, spaces.Box)
-    obs = np.clip(obs, box.low, box.high)
+    obs, scan, incidence_info = finish_observation(
+        raw, incidence, goal_rel, dth, box.low, box.high, env.max_range, env.null_value
+    )
     d = goals[:, :2] - poses[:, :2]
     dist = np.hypot(d[:, 0], d[:, 1])
     success = (dist <= env.goal_tolerance) & ~collision
@@ -379,8 +474,8 @@ def observe_batch(
     info = {
         "pose": poses.copy(),
         "ideal_scan": nominal,
-        "incidence": np.nan_to_num(incidence, nan=0.0),
-        "scan": np.nan_to_num(raw, nan=0.0),
+        "incidence": incidence_info,
+        "scan": scan,
         "goal": goals.copy(),
         "distance_to_goal": dist,
         "is_success": success,

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from sensor_envs.envs.neato import NeatoEnv, collides, observe_batch, step_reward, unicycle_step
 from sensor_envs.envs.neato_render import render_world
+from sensor_envs.rng import RowGenerators
 
 __all__ = ["NeatoVectorEnv"]
 
@@ -73,6 +74,7 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
         self._autoreset = np.zeros(n, dtype=bool)
         self._scan = np.zeros((n, first.bearings.size))
         self._obs = np.zeros(self._obs_shape, dtype=np.float32)
+        self._rngs: RowGenerators | None = None  # the robots' lidar generators, kept across steps
         self._started = False
 
     # ----------------------------------------------------------------------------------- gym API
@@ -93,6 +95,10 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
                 raise ValueError(f"seed: expected {self.num_envs} seeds, got {len(seeds)}")
         rows = np.flatnonzero(mask)
         infos = self._reset_rows(rows, self._obs, seeds=[seeds[i] for i in rows], options=options or None)
+        if self._rngs is None:
+            self._rngs = RowGenerators([e._sensor_rng for e in self.envs])  # type: ignore[misc]
+        for i in rows:  # a seeded reset gives a robot a new stream
+            self._rngs.replace(int(i), self.envs[i]._sensor_rng)  # type: ignore[arg-type]
         self._steps[rows] = 0
         self._autoreset[rows] = False
         self._started = True
@@ -116,8 +122,9 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
         if live.size:
             pose = unicycle_step(self._pose[live], a[live, 0] * env.v_max, a[live, 1] * env.omega_max, env.dt)
             hit = collides(pose, env.world_map.segments, env.robot_radius)
-            rngs = [self.envs[i]._sensor_rng for i in live]
-            live_obs, info = observe_batch(env, pose, self._goal[live], rngs, hit)  # type: ignore[arg-type]
+            assert self._rngs is not None
+            rngs = self._rngs if live.size == self.num_envs else self._rngs.select(live)
+            live_obs, info = observe_batch(env, pose, self._goal[live], rngs, hit)
             dist, success = info["distance_to_goal"], info["is_success"]
             reward[live] = step_reward(env.rewards, self._prev_dist[live], dist, success, hit)
             self._pose[live], self._prev_dist[live], self._scan[live] = pose, dist, info["scan"]

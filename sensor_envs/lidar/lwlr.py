@@ -720,7 +720,8 @@ class LidarLWLR(BaseEstimator):
         shape, k = r.shape, r.shape[-1]
         u = rng.random(shape)
         z = rng.standard_normal(shape)
-        cells, idx = self._scan_tables()
+        shrink = float(getattr(self, "bias_shrinkage_", 0.0))
+        cells, idx = self._scan_tables(with_bias=shrink != 1.0)
         rg, ag = self.range_grid_, self.alpha_grid_
         out = kernel(
             cells,
@@ -734,7 +735,7 @@ class LidarLWLR(BaseEstimator):
             np.ascontiguousarray(u.reshape(-1, k)),
             np.ascontiguousarray(z.reshape(-1, k)),
             idx,
-            float(getattr(self, "bias_shrinkage_", 0.0)),
+            shrink,
             float(self.spur_mu_) if self.variant == "extended" else 0.0,
             float(self.spur_sigma_) if self.variant == "extended" else 0.0,
             self.variant == "extended",
@@ -750,27 +751,34 @@ class LidarLWLR(BaseEstimator):
             raise ValueError(f"nominal_range: last axis has {r.shape[-1]} bearings, the model has {k}")
         return r
 
-    def _scan_tables(self) -> tuple[NDArray[np.floating[Any]], NDArray[np.int64]]:
-        """What :func:`_scan_loops` reads: the tables laid out ``(K, n_r, n_alpha, n_params)``, the parameter indices.
+    def _scan_tables(self, with_bias: bool = True) -> tuple[NDArray[np.floating[Any]], NDArray[np.int64]]:
+        """What :func:`_scan_loops` reads: the looked-up tables laid out ``(K, n_r, n_alpha, n)``, and their slots.
 
-        The indices are those of ``p_null, p_spur, bias, sigma, log_sigma`` in ``tables_`` (-1 where absent).
-
-        The layout reads one cell's parameters together; it is float32 when that is exact (tables are rounded
-        to float32 at fit and in the file), so the lookup's float64 arithmetic gives the same bits from half
-        the memory. Cached beside the array it was made from and rebuilt when ``tables_`` is replaced (fit,
-        load), so the hot path pays for neither.
+        The ``n`` parameters are ``p_null``, the bias (unless ``with_bias`` is False: a bias shrunk fully to
+        zero adds nothing), the scale (``log_sigma`` of the extended variant, ``sigma`` of the seed's) and
+        ``p_spur`` (when the model has it); the slots are ``(bias, scale, p_spur, scale is log_sigma)``, -1 where
+        absent. The layout reads one cell's parameters together and holds no table the scan does not read; it
+        is float32 when that is exact (tables are rounded to float32 at fit and in the file), so the lookup's
+        float64 arithmetic gives the same bits from half the memory (a 64-robot step walks most of it, so its
+        size sets the step's cache misses). Cached beside the array it was made from and rebuilt when
+        ``tables_`` is replaced (fit, load), so the hot path pays for neither.
         """
-        cache = self.__dict__.get("_scan_cache")
-        if cache is None or cache[0] is not self.tables_:
-            cells = np.moveaxis(self.tables_, 0, -1)
+        cache = self.__dict__.setdefault("_scan_cache", {})
+        hit = cache.get(with_bias)
+        if hit is None or hit[0] is not self.tables_:
+            names = list(self.param_names_)
+            scale = "log_sigma" if "log_sigma" in names else "sigma"
+            wanted = ["p_null"] + (["bias"] if with_bias else []) + [scale] + (["p_spur"] if "p_spur" in names else [])
+            cells = np.moveaxis(self.tables_[[names.index(n) for n in wanted]], 0, -1)
             if np.array_equal(cells.astype(np.float32), cells):  # fitted/loaded tables are float32 values
                 cells = cells.astype(np.float32)  # exact, and half the memory a lookup walks
-            names = list(self.param_names_)
-            wanted = ("p_null", "p_spur", "bias", "sigma", "log_sigma")
-            idx = np.array([names.index(n) if n in names else -1 for n in wanted], dtype=np.int64)
-            cache = (self.tables_, np.ascontiguousarray(cells), idx)
-            self.__dict__["_scan_cache"] = cache
-        return cache[1], cache[2]
+            slot = {n: i for i, n in enumerate(wanted)}
+            idx = np.array(
+                [slot.get("bias", -1), slot[scale], slot.get("p_spur", -1), int(scale == "log_sigma")], dtype=np.int64
+            )
+            hit = (self.tables_, np.ascontiguousarray(cells), idx)
+            cache[with_bias] = hit
+        return hit[1], hit[2]
 
     def sample(
         self,
@@ -1070,11 +1078,12 @@ def _scan_loops(
 ) -> NDArray[np.float64]:
     """:meth:`LidarLWLR.sample_scan` in loops over cells ``(P, K)``: lookup, then the draw, in the numpy order.
 
-    ``cells`` are the tables ``(K, n_r, n_alpha, n_params)`` (float32 or float64, read as float64);
-    ``r0, r1, r_last`` and ``a0, a1`` are grid nodes; ``idx`` the table index of ``p_null, p_spur, bias, sigma,
-    log_sigma`` (-1 where the model has none); ``u, z`` the uniform and normal draws. Returns readings [m],
-    ``0`` = null. The loop is bearing-major (one bearing's tables stay in cache for all poses) over a flat
-    view of the tables; each parameter is :func:`~sensor_envs.lidar.kernel._bilinear`'s expression.
+    ``cells`` are :meth:`LidarLWLR._scan_tables` ``(K, n_r, n_alpha, n)`` (float32 or float64, read as float64),
+    ``p_null`` in slot 0 and ``idx`` the slots of bias, scale and ``p_spur`` (-1 where absent: no bias adds 0)
+    and whether the scale is ``log_sigma``; ``r0, r1, r_last`` and ``a0, a1`` are grid nodes; ``u, z`` the
+    uniform and normal draws. Returns readings [m], ``0`` = null. The loop is bearing-major (one bearing's
+    tables stay in cache for all poses) over a flat view of the tables; each parameter is
+    :func:`~sensor_envs.lidar.kernel._bilinear`'s expression.
     """
     n_k, nr, na, nq = cells.shape
     flat = cells.ravel()
@@ -1082,10 +1091,7 @@ def _scan_loops(
     out = np.empty((n_p, n_k))
     hi_r, hi_a = nr - 1 - 1e-9, na - 1 - 1e-9
     dr, da = r1 - r0, a1 - a0
-    i_spur = idx[1]
-    # table indices of the parameters looked up: p_null, bias, log_sigma (extended) or sigma (seed), p_spur
-    want = np.array([idx[0], idx[2], idx[4] if idx[4] >= 0 else idx[3], idx[1] if idx[1] >= 0 else idx[0]])
-    v = np.empty(4)
+    i_bias, i_scale, i_spur, log_scale = idx[0], idx[1], idx[2], idx[3] == 1
     row = na * nq  # offset of the next range node
     for k in range(n_k):
         for p in range(n_p):
@@ -1099,24 +1105,30 @@ def _scan_loops(
             i, j = int(fr), int(fa)
             wr, wa = fr - i, fa - j
             c = ((k * nr + i) * na + j) * nq
-            for t in range(4):
-                q = c + want[t]
-                v[t] = (np.float64(flat[q]) * (1 - wa) + np.float64(flat[q + nq]) * wa) * (1 - wr) + (
-                    np.float64(flat[q + row]) * (1 - wa) + np.float64(flat[q + row + nq]) * wa
-                ) * wr
-            v_null, v_bias, v_scale, v_spur = v[0], v[1], v[2], v[3]
-            bias = (1.0 - shrink) * v_bias
-            p_null = v_null if hit else 1 - P_EPS
-            p_spur = 0.0
+
+            # The cell's bilinear value of the parameter in ``slot``; numba inlines it, and it is only called
+            # within this iteration, so reading the loop's c, wa, wr is what is meant (B023).
+            def lookup(slot: int) -> float:
+                q = c + slot  # noqa: B023
+                a, b = np.float64(flat[q]), np.float64(flat[q + nq])
+                a2, b2 = np.float64(flat[q + row]), np.float64(flat[q + row + nq])
+                return float((a * (1 - wa) + b * wa) * (1 - wr) + (a2 * (1 - wa) + b2 * wa) * wr)  # noqa: B023
+
+            p_null = lookup(0) if hit else 1 - P_EPS
             if i_spur >= 0:
                 p_null = min(p_null, 1 - P_EPS - P_SPUR_EPS)
-                p_spur = min(max(v_spur, P_SPUR_EPS), 1 - P_EPS - p_null)
-            sigma = math.exp(v_scale) if idx[4] >= 0 else v_scale
-            mu = rq + bias
-            x = max(mu + sigma * z[p, k], 1e-4)
-            if extended and u[p, k] >= p_null and u[p, k] < p_null + p_spur:
-                x = spur_mu + spur_sigma * z[p, k]
-            out[p, k] = 0.0 if u[p, k] < p_null else x
+            uk = u[p, k]
+            if uk < p_null:  # a null: the reading is 0 whatever the other parameters
+                out[p, k] = 0.0
+                continue
+            if extended and i_spur >= 0:
+                p_spur = min(max(lookup(i_spur), P_SPUR_EPS), 1 - P_EPS - p_null)
+                if uk < p_null + p_spur:  # a spurious return
+                    out[p, k] = spur_mu + spur_sigma * z[p, k]
+                    continue
+            mu = rq + (1.0 - shrink) * lookup(i_bias) if i_bias >= 0 else rq
+            sigma = math.exp(lookup(i_scale)) if log_scale else lookup(i_scale)
+            out[p, k] = max(mu + sigma * z[p, k], 1e-4)
     return out
 
 

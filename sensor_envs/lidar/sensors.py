@@ -10,6 +10,7 @@ interface.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from os import PathLike
 from typing import Any, Protocol, runtime_checkable
@@ -17,6 +18,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from sensor_envs.jit import compiled
 from sensor_envs.modelio import default_model_path, model_file_key
 
 __all__ = ["LidarSensor", "IdealLidar", "GaussianLidar", "make_lidar", "LIDAR_NAMES"]
@@ -107,14 +109,68 @@ class GaussianLidar:
     def measure(
         self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64], rng: np.random.Generator
     ) -> NDArray[np.float64]:
-        """Sample ranges [m]: ``Normal(r, sigma(r, alpha))``, ``NaN`` where no hit or dropped."""
+        """Sample ranges [m]: ``Normal(r, sigma(r, alpha))``, ``NaN`` where no hit or dropped.
+
+        With numba (the ``fast`` extra) one compiled pass does the arithmetic of :meth:`sigma` and the draw,
+        in the numpy order, from the same draws of ``rng``: the same bits.
+        """
         r = np.asarray(nominal_range, dtype=np.float64)
-        hit = np.isfinite(r)
         noise = rng.standard_normal(r.shape)
+        drop = rng.random(r.shape) if self.p_null_floor > 0 else None
+        kernel = compiled(_gaussian_loops)
+        if kernel is not None:
+            shape = np.broadcast_shapes(r.shape, np.shape(incidence))
+            out = kernel(
+                np.ascontiguousarray(np.broadcast_to(r, shape)).ravel(),
+                np.ascontiguousarray(np.broadcast_to(np.asarray(incidence, dtype=np.float64), shape)).ravel(),
+                noise.ravel(),
+                np.zeros(1) if drop is None else drop.ravel(),
+                float(self.sigma0),
+                float(self.k_range),
+                float(self.k_incidence),
+                float(self.alpha_max),
+                float(self.p_null_floor),
+            )
+            return np.asarray(out).reshape(shape)
+        hit = np.isfinite(r)
         out = np.where(hit, np.where(hit, r, 0.0) + noise * np.nan_to_num(self.sigma(r, incidence)), np.nan)
-        if self.p_null_floor > 0:
-            out = np.where(rng.random(r.shape) < self.p_null_floor, np.nan, out)
+        if drop is not None:
+            out = np.where(drop < self.p_null_floor, np.nan, out)
         return np.maximum(out, 0.0)
+
+
+def _gaussian_loops(
+    r: NDArray[np.float64],
+    incidence: NDArray[np.float64],
+    noise: NDArray[np.float64],
+    drop: NDArray[np.float64],
+    sigma0: float,
+    k_range: float,
+    k_incidence: float,
+    alpha_max: float,
+    p_null_floor: float,
+) -> NDArray[np.float64]:
+    """:meth:`GaussianLidar.measure` per cell (flat arrays): the numpy path's operations in its order.
+
+    ``drop`` holds the dropout draws when ``p_null_floor > 0`` (else it is not read); NaN = null.
+    ``np.nan_to_num`` is spelled out: NaN -> 0, +-inf -> +-``big``.
+    """
+    big = np.finfo(np.float64).max
+    out = np.empty(r.shape[0])
+    for i in range(r.shape[0]):
+        x = r[i]
+        if not math.isfinite(x):
+            out[i] = np.nan
+            continue
+        a = incidence[i]
+        a = min(0.0 if math.isnan(a) else (big if a == math.inf else (-big if a == -math.inf else a)), alpha_max)
+        s = sigma0 + k_range * (x * x) + k_incidence * x * math.tan(a)
+        s = 0.0 if math.isnan(s) else (big if s == math.inf else (-big if s == -math.inf else s))
+        y = x + noise[i] * s
+        if p_null_floor > 0 and drop[i] < p_null_floor:
+            y = np.nan
+        out[i] = y if (y >= 0.0 or math.isnan(y)) else 0.0
+    return out
 
 
 LIDAR_NAMES = ("ideal", "gaussian", "learned")
