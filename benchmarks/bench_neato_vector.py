@@ -3,8 +3,10 @@
 Run: python benchmarks/bench_neato_vector.py [--lidars ideal gaussian learned] [--sizes 1 8 64] [--steps 20000]
 
 A "step" is one robot-step (a vector step of N robots counts N). Random actions (seeded), autoreset on;
-median of ``--repeats`` timed runs per cell; both modes in one process, alternating run by run;
-rates by wall clock and by CPU time (steadier when other jobs share the cores).
+both modes in one process, alternating run by run; rates by wall clock and by CPU time (steadier when other
+jobs share the cores), the median of ``--repeats`` timed runs per mode. The speed-up is the median over the
+repeats of each pair's ratio (a sync run and the vector run right after it see the same machine; this
+machine's speed drifts by tens of percent over minutes), with the lowest and highest pair ratio beside it.
 Goal of issue 14: the vector entry point >= 10x SyncVectorEnv at N = 64.
 """
 
@@ -20,8 +22,8 @@ import numpy as np
 import sensor_envs  # noqa: F401
 
 
-def robot_steps_per_second(lidar: str, n: int, robot_steps: int, repeats: int) -> dict[str, dict[str, float]]:
-    """Median robot-steps/s of each mode, by wall clock and by this process's CPU time.
+def robot_steps_per_second(lidar: str, n: int, robot_steps: int, repeats: int) -> dict[str, dict[str, list[float]]]:
+    """Robot-steps/s of each mode in each repeat, by wall clock and by this process's CPU time.
 
     The two modes alternate run by run (sync, vector, sync, ...), so both see the same machine load; the CPU-time
     rate is the steadier one on a shared machine (both modes are single-threaded).
@@ -46,7 +48,7 @@ def robot_steps_per_second(lidar: str, n: int, robot_steps: int, repeats: int) -
             rates[m]["cpu"].append(n_steps * n / (time.process_time() - c0))
     for env in envs.values():
         env.close()
-    return {m: {k: float(np.median(v)) for k, v in r.items()} for m, r in rates.items()}
+    return rates
 
 
 def main() -> None:
@@ -58,15 +60,20 @@ def main() -> None:
     args = parser.parse_args()
     print(f"Neato-v0 robot-steps/s, {args.steps} robot-steps per run, median of {args.repeats}")
     print(f"load average before: {' '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
-    print("| lidar | N | SyncVectorEnv (wall) | vector_entry_point (wall) | speed-up (wall) | speed-up (CPU time) |")
+    print(
+        "| lidar | N | SyncVectorEnv (wall) | vector_entry_point (wall) | speed-up (wall, pair ratios: median "
+        "[min, max]) | speed-up (CPU time, median pair ratio) |"
+    )
     print("|---|---:|---:|---:|---:|---:|")
     for lidar in args.lidars:
         for n in args.sizes:
             r = robot_steps_per_second(lidar, n, args.steps, args.repeats)
             sync, vec = r["sync"], r["vector_entry_point"]
+            wall = np.array(vec["wall"]) / np.array(sync["wall"])
+            cpu = np.array(vec["cpu"]) / np.array(sync["cpu"])
             print(
-                f"| {lidar} | {n} | {sync['wall']:,.0f} | {vec['wall']:,.0f} | {vec['wall'] / sync['wall']:.1f}x "
-                f"| {vec['cpu'] / sync['cpu']:.1f}x |",
+                f"| {lidar} | {n} | {np.median(sync['wall']):,.0f} | {np.median(vec['wall']):,.0f} "
+                f"| {np.median(wall):.1f}x [{wall.min():.1f}, {wall.max():.1f}] | {np.median(cpu):.1f}x |",
                 flush=True,
             )
     print(f"load average after: {' '.join(f'{x:.1f}' for x in os.getloadavg())}")

@@ -218,3 +218,19 @@ def test_compiled_raycast_gives_the_numpy_numbers(monkeypatch, compiled_kernels)
             assert all(np.array_equal(x, y, equal_nan=True) for x, y in zip(fast_pose, ref_pose, strict=True))
             for x, y in zip(fast, ref, strict=True):
                 assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=True)
+
+
+def test_compiled_nearest_wall_distance_gives_the_numpy_numbers(monkeypatch, compiled_kernels):
+    """The compiled nearest-wall loop and ``point_segment_distance(...).min(axis=1)``: the same bits."""
+    from sensor_envs import geometry
+
+    rng = np.random.default_rng(4)
+    segs = as_segments(rng.uniform(-3, 3, size=(9, 2, 2)))
+    pts = np.vstack([rng.uniform(-4, 4, size=(50, 2)), segs[:, 0], segs[:, 1]])  # ends: distance 0
+    fast = geometry.nearest_wall_distance(pts, segs)
+    poses = geometry.nearest_wall_distance(np.column_stack([pts, rng.uniform(-3, 3, len(pts))]), segs)
+    with monkeypatch.context() as m:
+        m.setattr(geometry, "compiled", lambda loops: None)
+        ref = geometry.nearest_wall_distance(pts, segs)
+    assert np.array_equal(fast, ref) and np.array_equal(poses, ref)
+    assert np.array_equal(ref, geometry.point_segment_distance(pts, segs).min(axis=1)) and (ref == 0).sum() >= 9

@@ -37,7 +37,7 @@ from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.envs.neato_render import render_world
-from sensor_envs.geometry import point_segment_distance, raycast_pose, sample_free_poses, to_frame, wrap_angle
+from sensor_envs.geometry import nearest_wall_distance, raycast_pose, sample_free_poses, to_frame, wrap_angle
 from sensor_envs.jit import compiled
 from sensor_envs.lidar.sensors import GaussianLidar, IdealLidar, LidarSensor, make_lidar
 from sensor_envs.maps import SegmentMap, load_map
@@ -377,8 +377,7 @@ def _finish_loops(
 
 def collides(poses: ArrayLike, segments: NDArray[np.float64], robot_radius: float) -> NDArray[np.bool_]:
     """``(N,)`` whether a round robot of ``robot_radius`` [m] at ``(3,)``/``(N, 3)`` poses touches a wall."""
-    xy = np.atleast_2d(np.asarray(poses, dtype=np.float64))[:, :2]
-    return point_segment_distance(xy, segments).min(axis=1) < robot_radius
+    return nearest_wall_distance(poses, segments) < robot_radius
 
 
 def step_reward(

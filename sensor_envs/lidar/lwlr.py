@@ -595,8 +595,9 @@ class LidarLWLR(BaseEstimator):
 
     # ------------------------------------------------------------------------------------ prediction
     def _check_fitted(self) -> None:
-        """Raise sklearn's ``NotFittedError`` unless the model is fitted or loaded."""
-        check_is_fitted(self, "tables_", msg=_NOT_FITTED)
+        """Raise sklearn's ``NotFittedError`` unless the model is fitted or loaded (fast when it is: scans call it)."""
+        if "tables_" not in self.__dict__:
+            check_is_fitted(self, "tables_", msg=_NOT_FITTED)
 
     def params_from_features(
         self, r: ArrayLike, alpha: ArrayLike, extra: ArrayLike | None = None, base_only: bool = False
