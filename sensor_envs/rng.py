@@ -76,6 +76,10 @@ class RowGenerators:
         self._typed: Any = None  # numba list of the generators, built on the first compiled draw
         self._index: NDArray[np.int64] | None = None  # rows of ``_typed`` this object draws from
 
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickle (and deepcopy) the generators only; the numba list is rebuilt on the next draw."""
+        return {"generators": self.generators, "_typed": None, "_index": None}
+
     def replace(self, row: int, generator: np.random.Generator) -> None:
         """Row ``row`` draws from ``generator`` from now on (a robot's stream after a seeded reset)."""
         if self.generators[row] is not generator:
