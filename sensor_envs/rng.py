@@ -74,31 +74,37 @@ class RowGenerators:
     def __init__(self, generators: Sequence[np.random.Generator]) -> None:
         self.generators = list(generators)
         self._typed: Any = None  # numba list of the generators, built on the first compiled draw
-        self._index: NDArray[np.int64] | None = None  # rows of ``_typed`` this object draws from
+        self._parent: RowGenerators | None = None  # a select()ion draws through its parent's list ...
+        self._index: NDArray[np.int64] | None = None  # ... at these rows of it
 
     def __getstate__(self) -> dict[str, Any]:
-        """Pickle (and deepcopy) the generators only; the numba list is rebuilt on the next draw."""
-        return {"generators": self.generators, "_typed": None, "_index": None}
+        """Pickle (and deepcopy) the generators only: the copy stands alone, its numba list built on its first draw."""
+        return {"generators": self.generators, "_typed": None, "_parent": None, "_index": None}
 
     def replace(self, row: int, generator: np.random.Generator) -> None:
         """Row ``row`` draws from ``generator`` from now on (a robot's stream after a seeded reset)."""
+        if self._parent is not None:
+            raise ValueError("RowGenerators: replace a row of the full set, not of a select()ion")
         if self.generators[row] is not generator:
             self.generators[row] = generator
             if self._typed is not None:
-                if self._index is not None:
-                    raise ValueError("RowGenerators: replace a row of the full set, not of a select()ion")
                 self._typed[row] = generator
 
     def select(self, rows: ArrayLike) -> RowGenerators:
-        """The generators of ``rows`` (in that order) as a ``RowGenerators`` sharing this one's compiled list."""
+        """The generators of ``rows`` (in that order) as a ``RowGenerators`` drawing through this one's numba list."""
         idx = np.asarray(rows, dtype=np.int64)
         out = RowGenerators([self.generators[i] for i in idx])
-        if self._index is None and self._compiled_list() is not None:
-            out._typed, out._index = self._typed, idx
+        out._parent = self if self._parent is None else self._parent
+        out._index = idx if self._index is None else self._index[idx]
         return out
 
     def _compiled_list(self) -> Any:
-        """The numba list of the generators (built once), or None without numba or for a non-``Generator``."""
+        """The numba list drawn from (a selection's is its parent's), built once.
+
+        None without numba, or when a generator is not a ``numpy.random.Generator`` (then numpy draws).
+        """
+        if self._parent is not None:
+            return self._parent._compiled_list()
         if self._typed is None and compiled(_draw_rows) is not None:
             if all(type(g) is np.random.Generator for g in self.generators):
                 from numba.typed import List

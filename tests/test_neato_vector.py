@@ -92,6 +92,7 @@ def test_row_generators_select_and_replace_keep_each_rows_stream():
     assert np.array_equal(rows.uniform(-1.0, 2.0, (5, 2, 3)), np.stack([g.uniform(-1.0, 2.0, (2, 3)) for g in ref]))
     part = rows.select([4, 1])
     assert np.array_equal(part.standard_normal((2, 7)), np.stack([ref[i].standard_normal(7) for i in (4, 1)]))
+    assert np.array_equal(part.select([1]).random((1, 2)), ref[1].random((1, 2)))  # a selection of a selection
     rows.replace(2, np.random.default_rng(99))
     ref[2] = np.random.default_rng(99)
     assert np.array_equal(rows.random((5, 4)), np.stack([g.random(4) for g in ref]))
