@@ -8,7 +8,7 @@ held-out boxes, ``--replicates`` simulations per box, seed ``--seed``). The offs
 parameters are those of ``--rig`` (held fixed: the reflection points the detection law sees); the
 detection law starts from the generic rig's, as in the calibration. Candidates: the ridge weights
 ``--ridges``, each with the signed azimuth table and, for comparison, with the symmetric ``|azimuth|``
-table (``calibrate_rig(signed_azimuth=False)``, the law before). Prints the mean held-out discrepancy
+table (``calibrate_rig(signed_azimuth=False)``, the default: this check is why). Prints the mean held-out discrepancy
 per term (x 1e-4), its sum per fold, and the held-out detection rate per signed azimuth bin (pooled
 over folds) as a markdown table. Models and data stay in memory (~2 min for 4 ridges).
 

@@ -162,7 +162,7 @@ def test_calibrate_fits_a_signed_azimuth_table_to_a_lopsided_rig():
     frames = synthetic_frames(LOPSIDED, n_frames=150)
     real = real_statistics(frames)
     assert real["det_azimuth"][1] < real["det_azimuth"][5] - 0.2, real["n_azimuth"]  # -40..-20 vs 20..40 deg
-    cfg, card = calibrate_rig(frames, RigConfig(), seed=1, replicates=2, max_evals=100)
+    cfg, card = calibrate_rig(frames, RigConfig(), seed=1, replicates=2, max_evals=100, signed_azimuth=True)
     assert cfg.detect_azimuth_signed and card["signed_azimuth"] is True
     az = np.deg2rad([-30.0, 30.0])
     p_true = RadarRig(LOPSIDED).detection_probability(np.full(2, 30.0), az, np.zeros(2))
@@ -170,6 +170,17 @@ def test_calibrate_fits_a_signed_azimuth_table_to_a_lopsided_rig():
     assert p_fit[1] - p_fit[0] > 0.2 and np.max(np.abs(p_fit - p_true)) < 0.12, (p_fit, p_true)
     sim = rig_statistics(cfg, frames, 4, seed=5, expected=True)
     assert np.all(np.abs(sim["det_azimuth"] - real["det_azimuth"])[1:6] < 0.05), (sim["det_azimuth"], real)
+
+
+def test_calibrate_cli_signed_azimuth_flag_fits_the_signed_table(tmp_path):
+    real = _synthetic_csv(tmp_path)
+    rig = tmp_path / "rig.json"
+    assert main(["calibrate", "radar", str(real), "--out", str(rig), "--max-evals", "20", "--signed-azimuth"]) == 0
+    cfg, card = load_rig(rig)
+    assert cfg.detect_azimuth_signed and card["signed_azimuth"] is True
+    knots = np.asarray(cfg.detect_azimuth_knots)
+    assert knots.min() < -1.5 and knots.max() > 1.5  # -90 .. 90 deg, left and right apart
+    assert cfg.detect_azimuth_table is not None and cfg.detect_azimuth_table[int(np.argmin(np.abs(knots)))] == 1.0
 
 
 def _synthetic_csv(tmp_path: Path) -> Path:
@@ -186,6 +197,9 @@ def test_calibrate_cli_writes_a_rig_that_record_uses(tmp_path, capsys):
     assert main(["calibrate", "radar", str(real), "--out", str(rig), "--max-evals", "200"]) == 0
     cfg, card = load_rig(rig)
     assert card["calibrated_against"]["data"] == "real.csv" and card["calibrated_against"]["frames"] == 60
+    # default: the symmetric |azimuth| table (the signed one generalises worse across real frames)
+    assert not cfg.detect_azimuth_signed and card["signed_azimuth"] is False
+    assert cfg.detect_azimuth_knots is not None and min(cfg.detect_azimuth_knots) == 0.0
     assert main(["calibrate", "radar", str(real), "--out", str(rig), "--max-evals", "200"]) == 2  # exists
     assert "--force" in capsys.readouterr().err
     out = tmp_path / "log.csv"
