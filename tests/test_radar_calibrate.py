@@ -80,6 +80,13 @@ def test_rig_file_round_trip_and_shipped_rig(tmp_path):
     assert card["discrepancy_after"]["total"] < card["discrepancy_before"]["total"]
 
 
+SIGNED = {
+    "detect_azimuth_knots": [-1.0, 0.0, 1.0],
+    "detect_azimuth_table": [0.5, 1.0, 0.8],
+    "detect_azimuth_signed": True,
+}
+
+
 @pytest.mark.parametrize(
     ("params", "field"),
     [
@@ -90,6 +97,19 @@ def test_rig_file_round_trip_and_shipped_rig(tmp_path):
         ({"clutter_rate": -1}, "params.clutter_rate"),
         ({"reflection_spread": 0.7}, "params.reflection_spread"),
         ({"colour": "red"}, "params.colour"),
+        # the azimuth table: |azimuth| knots unless signed; signed knots in [-pi, pi], increasing, finite
+        (
+            {"detect_azimuth_knots": [-1.0, 0.0, 1.0], "detect_azimuth_table": [0.5, 1.0, 0.5]},
+            "params.detect_azimuth_knots",
+        ),
+        ({**SIGNED, "detect_azimuth_table": [0.5, 1.2, 0.5]}, "params.detect_azimuth_table"),
+        ({**SIGNED, "detect_azimuth_table": [0.5, float("nan"), 0.5]}, "params.detect_azimuth_table"),
+        ({**SIGNED, "detect_azimuth_knots": [-1.0, 1.0, 0.0]}, "params.detect_azimuth_knots"),
+        ({**SIGNED, "detect_azimuth_knots": [-4.0, 0.0, 1.0]}, "params.detect_azimuth_knots"),
+        ({**SIGNED, "detect_azimuth_knots": [-1.0, float("inf"), 1.0]}, "params.detect_azimuth_knots"),
+        ({**SIGNED, "detect_azimuth_table": [0.5, 1.0]}, "params.detect_azimuth_table"),
+        ({**SIGNED, "detect_azimuth_signed": "yes"}, "params.detect_azimuth_signed"),
+        ({**SIGNED, "detect_azimuth_signed": 1}, "params.detect_azimuth_signed"),
     ],
 )
 def test_bad_rig_values_fail_at_load_naming_file_and_field(tmp_path, params, field):
@@ -129,6 +149,40 @@ def test_calibrate_recovers_known_parameters():
     assert cfg.clutter_range_weights is not None and abs(cfg.clutter_range_weights[0] - 0.225) < 0.05
 
 
+LOPSIDED = replace(
+    TRUE,
+    detect_azimuth_knots=tuple(np.deg2rad([-90.0, -45.0, 0.0, 45.0, 90.0]).tolist()),
+    detect_azimuth_table=(0.2, 0.3, 1.0, 1.0, 0.9),
+    detect_azimuth_signed=True,
+)
+"""A rig that misses targets on its right (azimuth < 0) far more often than on its left."""
+
+
+def test_calibrate_fits_a_signed_azimuth_table_to_a_lopsided_rig():
+    frames = synthetic_frames(LOPSIDED, n_frames=150)
+    real = real_statistics(frames)
+    assert real["det_azimuth"][1] < real["det_azimuth"][5] - 0.2, real["n_azimuth"]  # -40..-20 vs 20..40 deg
+    cfg, card = calibrate_rig(frames, RigConfig(), seed=1, replicates=2, max_evals=100, signed_azimuth=True)
+    assert cfg.detect_azimuth_signed and card["signed_azimuth"] is True
+    az = np.deg2rad([-30.0, 30.0])
+    p_true = RadarRig(LOPSIDED).detection_probability(np.full(2, 30.0), az, np.zeros(2))
+    p_fit = RadarRig(cfg).detection_probability(np.full(2, 30.0), az, np.zeros(2))
+    assert p_fit[1] - p_fit[0] > 0.2 and np.max(np.abs(p_fit - p_true)) < 0.12, (p_fit, p_true)
+    sim = rig_statistics(cfg, frames, 4, seed=5, expected=True)
+    assert np.all(np.abs(sim["det_azimuth"] - real["det_azimuth"])[1:6] < 0.05), (sim["det_azimuth"], real)
+
+
+def test_calibrate_cli_signed_azimuth_flag_fits_the_signed_table(tmp_path):
+    real = _synthetic_csv(tmp_path)
+    rig = tmp_path / "rig.json"
+    assert main(["calibrate", "radar", str(real), "--out", str(rig), "--max-evals", "20", "--signed-azimuth"]) == 0
+    cfg, card = load_rig(rig)
+    assert cfg.detect_azimuth_signed and card["signed_azimuth"] is True
+    knots = np.asarray(cfg.detect_azimuth_knots)
+    assert knots.min() < -1.5 and knots.max() > 1.5  # -90 .. 90 deg, left and right apart
+    assert cfg.detect_azimuth_table is not None and cfg.detect_azimuth_table[int(np.argmin(np.abs(knots)))] == 1.0
+
+
 def _synthetic_csv(tmp_path: Path) -> Path:
     frames = synthetic_frames(replace(TRUE, clutter_rate=3.0), n_frames=60, seed=2)
     log = snapshot_log(TRUE, frames, np.random.default_rng(0))
@@ -143,6 +197,9 @@ def test_calibrate_cli_writes_a_rig_that_record_uses(tmp_path, capsys):
     assert main(["calibrate", "radar", str(real), "--out", str(rig), "--max-evals", "200"]) == 0
     cfg, card = load_rig(rig)
     assert card["calibrated_against"]["data"] == "real.csv" and card["calibrated_against"]["frames"] == 60
+    # default: the symmetric |azimuth| table (the signed one generalises worse across real frames)
+    assert not cfg.detect_azimuth_signed and card["signed_azimuth"] is False
+    assert cfg.detect_azimuth_knots is not None and min(cfg.detect_azimuth_knots) == 0.0
     assert main(["calibrate", "radar", str(real), "--out", str(rig), "--max-evals", "200"]) == 2  # exists
     assert "--force" in capsys.readouterr().err
     out = tmp_path / "log.csv"
@@ -155,7 +212,7 @@ def test_calibrate_cli_writes_a_rig_that_record_uses(tmp_path, capsys):
     assert out.read_bytes() == again.read_bytes()  # same seed, same log
 
 
-@pytest.mark.parametrize("case", ["missing", "no_targets", "bad_rig", "rig_and_astyx", "bad_suffix"])
+@pytest.mark.parametrize("case", ["missing", "no_targets", "bad_rig", "bad_signed_rig", "rig_and_astyx", "bad_suffix"])
 def test_cli_bad_input_exit_2_one_line(tmp_path, capsys, case):
     if case == "missing":
         argv, name = ["calibrate", "radar", str(tmp_path / "nope.csv"), "--out", str(tmp_path / "r.json")], "nope.csv"
@@ -169,6 +226,12 @@ def test_cli_bad_input_exit_2_one_line(tmp_path, capsys, case):
         path = tmp_path / "bad_rig.json"
         path.write_text(json.dumps({"kind": "radar_rig", "format_version": 1, "params": {"corner_share": 2}}))
         argv, name = ["record", "radar", "--rig", str(path), "--out", str(tmp_path / "l.csv")], "corner_share"
+    elif case == "bad_signed_rig":
+        path = tmp_path / "bad_rig.json"
+        params = {**SIGNED, "detect_azimuth_table": [0.5, 1.0, 1.5]}
+        path.write_text(json.dumps({"kind": "radar_rig", "format_version": 1, "params": params}))
+        argv = ["record", "radar", "--rig", str(path), "--out", str(tmp_path / "l.csv")]
+        name = "bad_rig.json: field 'params.detect_azimuth_table'"
     elif case == "rig_and_astyx":
         argv = [
             "record",

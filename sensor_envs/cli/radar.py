@@ -57,6 +57,12 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     cal.add_argument(
         "--max-evals", type=positive_int, default=1500, help="evaluations of the offset stage (default 1500)"
     )
+    cal.add_argument(
+        "--signed-azimuth",
+        action="store_true",
+        help="fit a signed (left/right) azimuth detection table instead of the symmetric |azimuth| one "
+        "(generalises worse across Astyx frames held out: benchmarks/real_radar_calibration_cv.py)",
+    )
     add_force(cal)
     cal.set_defaults(func=_calibrate)
     val = verbs["validate"].add_parser("radar", help="compare a KDE model and its baseline with a (held-out) log")
@@ -126,7 +132,13 @@ def _calibrate(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with about(args.real_data):
         frames = load_real(args.real_data, progress=sys.stderr.isatty())
-        config, card = calibrate_rig(frames, seed=args.seed, max_evals=args.max_evals, progress=sys.stderr.isatty())
+        config, card = calibrate_rig(
+            frames,
+            seed=args.seed,
+            max_evals=args.max_evals,
+            signed_azimuth=args.signed_azimuth,
+            progress=sys.stderr.isatty(),
+        )
     card["seconds"] = round(time.perf_counter() - t0, 1)
     with OutputTransaction() as tx:
         save_rig(tx.file(out), config, card)

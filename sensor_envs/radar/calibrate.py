@@ -6,10 +6,11 @@ their stationary laws), and the same statistics are computed on the rig's output
 data:
 
 * ``det_range`` / ``det_azimuth``: detection rate per corner-range bin (:data:`DET_RANGE_EDGES`) and
-  per corner-azimuth bin (:data:`DET_AZIMUTH_EDGES`);
+  per signed corner-azimuth bin (:data:`DET_AZIMUTH_EDGES`; left > 0, so a lopsided sensor shows);
 * ``det_occlusion``: detection rate per bin of the box's occluded fraction (geometric, from the
   frame's boxes: :func:`sensor_envs.geometry.occluded_fraction`; 0, (0, 0.5), [0.5, 1]);
-* ``det_cells``: detection rate per (corner range x ``|azimuth|``) cell (the joint the marginals hide);
+* ``det_cells``: detection rate per (corner range x signed azimuth) cell (:data:`CELL_AZIMUTH_EDGES`;
+  the joint the marginals hide);
 * ``offset``: quantiles (:data:`QUANTILES`) of the radial and cross-range components of
   ``z = measured - closest corner`` [m] per corner-range bin (spread and shape), detected rows;
 * ``clutter_count``: mean and standard deviation of the clutter count per frame;
@@ -29,7 +30,14 @@ the discrepancy is a deterministic function of the parameters):
 1. detection tables and occlusion loss: ``scipy.optimize.least_squares`` on the detection terms'
    residuals (the rig's detection PROBABILITY at the simulated reflection points, i.e. the exact
    expectation of its detection rate given the draws), plus a small ridge on second differences
-   of the tables' logits (smoothness where data are thin);
+   of the tables' probabilities (smoothness where data are thin). By default the azimuth table is
+   left-right SYMMETRIC (knots ``0, 15, ..., 90`` deg of ``|azimuth|``, factor 1 at 0 deg); with
+   ``signed_azimuth=True`` it is SIGNED (:data:`DETECT_AZIMUTH_KNOTS` over ``[-90, 90]`` deg,
+   ``detect_azimuth_signed``): left and right of the boresight fitted apart. The signed table is not
+   the default because it generalises worse across frames on Astyx HiRes2019: held out on 10-frame
+   blocks (``benchmarks/real_radar_calibration_cv.py``, 5 folds, ridge 0.002) its detection
+   discrepancy is 252.9e-4 vs the symmetric table's 238.2e-4 (worse in 4 of 5 folds): the pooled
+   left-right difference comes from a few scenes, not from the sensor;
 2. offset parameters (radial/cross-range spread per range knot, radial bias, outlier share and
    scale, closest-corner share, reflection spread): ``scipy.optimize.minimize(method="Powell")``
    on the ``offset`` term (derivative-free: quantiles are piecewise smooth under common random numbers);
@@ -75,9 +83,11 @@ __all__ = [
 DET_RANGE_EDGES = (0.0, 15.0, 30.0, 50.0, 75.0, 120.0)
 """Corner-range bins [m] of the detection and offset statistics (those of ``validate radar``)."""
 DET_AZIMUTH_EDGES = tuple(np.deg2rad([-180.0, -40.0, -20.0, -5.0, 5.0, 20.0, 40.0, 180.0]).tolist())
-"""Corner-azimuth bins [rad] of the detection statistic."""
-CELL_AZIMUTH_EDGES = tuple(np.deg2rad([0.0, 10.0, 25.0, 40.0, 55.0, 180.0]).tolist())
-"""``|azimuth|`` bins [rad] of the joint range x azimuth detection cells."""
+"""Signed corner-azimuth bins [rad] of the detection statistic (left > 0)."""
+CELL_AZIMUTH_EDGES = tuple(
+    np.deg2rad([-180.0, -55.0, -40.0, -25.0, -10.0, 0.0, 10.0, 25.0, 40.0, 55.0, 180.0]).tolist()
+)
+"""Signed azimuth bins [rad] of the joint range x azimuth detection cells (left > 0)."""
 OCCLUSION_EDGES = (0.0, 1e-9, 0.5, 1.0 + 1e-9)
 """Occluded-fraction bins: none, partly (< 0.5), mostly."""
 QUANTILES = (0.05, 0.1, 0.25, 0.5, 0.75, 0.9, 0.95)
@@ -88,8 +98,10 @@ CLUTTER_AZIMUTH_EDGES = tuple(np.deg2rad([-90.0, -60.0, -40.0, -20.0, -5.0, 5.0,
 """Clutter azimuth bins [rad]."""
 DETECT_RANGE_KNOTS = (0.0, 10.0, 20.0, 35.0, 50.0, 75.0, 100.0, 120.0)
 """Range knots [m] of the calibrated detection table."""
-DETECT_AZIMUTH_KNOTS = tuple(np.deg2rad([0.0, 15.0, 30.0, 45.0, 60.0, 75.0, 90.0]).tolist())
-"""``|azimuth|`` knots [rad] of the calibrated detection factor (1 at 0 by construction)."""
+DETECT_AZIMUTH_KNOTS = tuple(np.deg2rad(np.arange(-90.0, 91.0, 15.0)).tolist())
+"""Signed azimuth knots [rad] (left > 0) of the calibrated detection factor (1 at 0 by construction)."""
+_AZ0 = DETECT_AZIMUTH_KNOTS.index(0.0)
+"""Index of the 0-deg knot (the fixed factor 1)."""
 OFFSET_RANGE_KNOTS = (0.0, 20.0, 40.0, 70.0, 110.0)
 """Range knots [m] of the calibrated offset-spread tables."""
 
@@ -202,7 +214,7 @@ class _Bins:
 def _bins(frames: RealFrames) -> _Bins:
     r = np.hypot(frames.corner[:, 0], frames.corner[:, 1])
     az = np.arctan2(frames.corner[:, 1], frames.corner[:, 0])
-    rb, ab = _bin(r, DET_RANGE_EDGES), _bin(np.abs(az), CELL_AZIMUTH_EDGES)
+    rb, ab = _bin(r, DET_RANGE_EDGES), _bin(az, CELL_AZIMUTH_EDGES)
     cell = np.where((rb >= 0) & (ab >= 0), rb * (len(CELL_AZIMUTH_EDGES) - 1) + ab, -1)
     return _Bins(rb, _bin(az, DET_AZIMUTH_EDGES), _bin(frames.occluded, OCCLUSION_EDGES), cell)
 
@@ -354,32 +366,63 @@ def _sigmoid(x: NDArray | float) -> NDArray[np.float64]:
     return 1.0 / (1.0 + np.exp(-np.asarray(x, dtype=np.float64)))
 
 
-def _det_config(x: NDArray, base: RigConfig) -> RigConfig:
+def _az_knots(signed: bool) -> tuple[tuple[float, ...], int]:
+    """The azimuth knots [rad] of the fitted table and the index of its 0-deg knot (factor fixed at 1).
+
+    ``signed``: :data:`DETECT_AZIMUTH_KNOTS` (left > 0); else their ``|azimuth|`` half (symmetric table).
+    """
+    return (DETECT_AZIMUTH_KNOTS, _AZ0) if signed else (DETECT_AZIMUTH_KNOTS[_AZ0:], 0)
+
+
+def _az_logits(x: NDArray, signed: bool) -> NDArray[np.float64]:
+    """The azimuth table's logits at every knot, the fixed 0-deg knot included (factor ~1)."""
+    _, i0 = _az_knots(signed)
+    free = x[len(DETECT_RANGE_KNOTS) : -1]
+    return np.concatenate([free[:i0], [_logit(0.999)], free[i0:]])
+
+
+def _det_config(x: NDArray, base: RigConfig, signed: bool) -> RigConfig:
+    """The detection law of parameters ``x``.
+
+    ``x`` = logits of the range table, of the azimuth table without its 0-deg knot (fixed at 1), and
+    of the occlusion loss.
+    """
     nr = len(DETECT_RANGE_KNOTS)
+    knots, i0 = _az_knots(signed)
+    table = _sigmoid(x[nr:-1]).tolist()
     return replace(
         base,
         detect_range_knots=DETECT_RANGE_KNOTS,
         detect_range_table=tuple(_sigmoid(x[:nr]).tolist()),
-        detect_azimuth_knots=DETECT_AZIMUTH_KNOTS,
-        detect_azimuth_table=(1.0, *_sigmoid(x[nr:-1]).tolist()),
+        detect_azimuth_knots=knots,
+        detect_azimuth_table=(*table[:i0], 1.0, *table[i0:]),
+        detect_azimuth_signed=signed,
         occlusion_loss=float(_sigmoid(x[-1])),
     )
 
 
-def _det_x0(base: RigConfig) -> NDArray[np.float64]:
+def _det_x0(base: RigConfig, signed: bool) -> NDArray[np.float64]:
     rig = RadarRig(base)
     pr = rig.detection_probability(
         np.asarray(DETECT_RANGE_KNOTS), np.zeros(len(DETECT_RANGE_KNOTS)), np.zeros(len(DETECT_RANGE_KNOTS))
     )
-    pa = rig.detection_probability(np.full(7, 20.0), np.asarray(DETECT_AZIMUTH_KNOTS), np.zeros(7))
-    pa = np.clip(pa / max(pa[0], 1e-6), 0.05, 0.95)[1:]
+    knots, i0 = _az_knots(signed)
+    na = len(knots)
+    pa = rig.detection_probability(np.full(na, 20.0), np.asarray(knots), np.zeros(na))
+    pa = np.delete(np.clip(pa / max(pa[i0], 1e-6), 0.05, 0.95), i0)
     return np.concatenate(
         [_logit(np.clip(pr, 0.05, 0.95)), _logit(pa), _logit(np.array([min(max(base.occlusion_loss, 0.05), 0.95)]))]
     )
 
 
-def _fit_detection(base: RigConfig, sim: _Sim, real: dict[str, NDArray], ridge: float, bar: Any) -> RigConfig:
-    """Stage 1/3: detection tables by least squares on the detection terms (expected rates)."""
+def _fit_detection(
+    base: RigConfig, sim: _Sim, real: dict[str, NDArray], ridge: float, bar: Any, signed: bool = False
+) -> RigConfig:
+    """Stage 1/3: detection tables by least squares on the detection terms (expected rates).
+
+    The ridge penalises second differences of the tables' PROBABILITIES (not logits: near 1 a logit
+    ridge makes any dip prohibitively expensive and would pin the table to a straight logit line).
+    """
     from scipy.optimize import least_squares
 
     keys = (
@@ -393,17 +436,16 @@ def _fit_detection(base: RigConfig, sim: _Sim, real: dict[str, NDArray], ridge: 
 
     def residuals(x: NDArray) -> NDArray[np.float64]:
         bar.update(1)
-        cfg = _det_config(x, base)
+        cfg = _det_config(x, base, signed)
         _, p = RadarRig(cfg).snapshot(sim.boxes, sim.occluded, sim.draws)
         st = _detection_stats(p, sim.bins)
         res = [weights[k] * np.nan_to_num(st[k] - real[k]) for k, _ in keys]
-        az = np.concatenate([[_logit(0.999)], x[nr:-1]])
-        res.append(np.sqrt(ridge) * np.diff(x[:nr], 2))
-        res.append(np.sqrt(ridge) * np.diff(az, 2))
+        res.append(np.sqrt(ridge) * np.diff(_sigmoid(x[:nr]), 2))
+        res.append(np.sqrt(ridge) * np.diff(_sigmoid(_az_logits(x, signed)), 2))
         return np.concatenate(res)
 
-    fit = least_squares(residuals, _det_x0(base), max_nfev=300, x_scale=1.0)
-    return _det_config(fit.x, base)
+    fit = least_squares(residuals, _det_x0(base, signed), max_nfev=300, x_scale=1.0)
+    return _det_config(fit.x, base, signed)
 
 
 def _off_config(x: NDArray, base: RigConfig) -> RigConfig:
@@ -488,6 +530,7 @@ def calibrate_rig(
     replicates: int = 4,
     max_evals: int = 1500,
     ridge: float = 0.002,
+    signed_azimuth: bool = False,
     progress: bool = False,
 ) -> tuple[RigConfig, dict[str, Any]]:
     """Fit the rig's parameters to ``frames`` (see the module docstring); returns the config and its card.
@@ -498,7 +541,10 @@ def calibrate_rig(
         seed: seed of the common random numbers and of the before/after check.
         replicates: simulations of every real frame per discrepancy evaluation.
         max_evals: function evaluations of the offset stage (Powell).
-        ridge: weight of the smoothness penalty on the detection tables' logits.
+        ridge: weight of the smoothness penalty (second differences) on the detection tables' probabilities.
+        signed_azimuth: ``False`` (default): an ``|azimuth|`` table (left-right symmetric); ``True``: a
+            signed azimuth table (left and right apart; generalises worse across Astyx frames, see the
+            module docstring).
         progress: show a tqdm bar over function evaluations.
     """
     base = base or RigConfig()
@@ -506,9 +552,9 @@ def calibrate_rig(
     sim = _sim_setup(frames, replicates, np.random.default_rng([seed, 7]))
     bar = tqdm(total=2 * 300 + max_evals, disable=not progress, desc="calibrate radar", unit="eval")
     try:
-        cfg = _fit_detection(replace(base, max_range=150.0), sim, real, ridge, bar)
+        cfg = _fit_detection(replace(base, max_range=150.0), sim, real, ridge, bar, signed_azimuth)
         cfg = _fit_offsets(cfg, sim, real, max_evals, bar)
-        cfg = _fit_detection(cfg, sim, real, ridge, bar)
+        cfg = _fit_detection(cfg, sim, real, ridge, bar, signed_azimuth)
     finally:
         bar.close()
     cfg = _fit_clutter(cfg, frames)
@@ -524,9 +570,12 @@ def calibrate_rig(
             "clutter_per_frame": float(frames.clutter_counts.mean()),
         },
         "procedure": "sensor_envs.radar.calibrate (simulation at the real boxes, common random numbers; "
-        "least_squares on detection terms, Powell on offset quantiles, closed-form clutter)",
+        f"least_squares on detection terms ({'signed azimuth' if signed_azimuth else 'symmetric |azimuth|'} table), "
+        "Powell on offset quantiles, closed-form clutter)",
         "seed": seed,
         "replicates": replicates,
+        "ridge": ridge,
+        "signed_azimuth": signed_azimuth,
         "discrepancy_check": check,
         "discrepancy_before": before,
         "discrepancy_after": after,

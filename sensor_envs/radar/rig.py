@@ -12,7 +12,9 @@ Used when no recording is at hand and for time series (Astyx has none). Per rada
   smoothed, ``e_t = rho e_{t-1} + sqrt(1 - rho^2) n_t`` with ``rho = exp(-cycle_time / tracker_tau)``,
   so consecutive outputs are correlated; the tracker restarts after a miss;
 * **detection probability** vs range (logistic fall-off at ``max_range``), azimuth (zero outside the
-  field of view, lower near its edge) and occlusion (``geometry.occluded_fraction``): object loss;
+  field of view, lower near its edge; a calibrated table of ``|azimuth|`` or, with
+  ``detect_azimuth_signed``, of the signed azimuth: left and right may differ) and occlusion
+  (``geometry.occluded_fraction``): object loss;
 * **clutter**: Poisson(``clutter_rate``) detections per cycle, uniform in range and azimuth.
 
 The sensor sits at the origin of its frame (x forward, y left); targets are boxes moving in that
@@ -35,6 +37,7 @@ from sensor_envs.modelio import (
     Constraint,
     Interval,
     Numbers,
+    Options,
     default_model_path,
     read_rig,
     save_rig_file,
@@ -70,9 +73,14 @@ class RigConfig:
     Attributes:
         detect_range_knots: range knots [m] (of the reflection point) of ``detect_range_table``.
         detect_range_table: detection probability at each range knot (replaces ``p_detect``).
-        detect_azimuth_knots: ``|azimuth|`` knots [rad] of ``detect_azimuth_table``.
-        detect_azimuth_table: detection factor in [0, 1] at each ``|azimuth|`` knot (replaces the
-            field-of-view edge law; 0 beyond the last knot).
+        detect_azimuth_knots: azimuth knots [rad] of ``detect_azimuth_table``: ``|azimuth|`` in
+            ``[0, pi]`` (left-right symmetric), or, with ``detect_azimuth_signed``, the signed azimuth
+            in ``[-pi, pi]`` (sensor frame: positive to the left).
+        detect_azimuth_table: detection factor in [0, 1] at each azimuth knot (replaces the
+            field-of-view edge law; 0 beyond the last knot, and with ``detect_azimuth_signed`` also
+            before the first).
+        detect_azimuth_signed: whether ``detect_azimuth_knots`` are signed azimuths (a lopsided
+            sensor) instead of ``|azimuth|`` (``False``: what rig files without the field mean).
         offset_range_knots: range knots [m] of the offset-spread tables.
         sigma_range_table: radial noise std [m] at each knot (replaces ``sigma_range``).
         sigma_cross_table: cross-range noise std [m] at each knot (replaces ``sigma_azimuth * range``
@@ -109,6 +117,7 @@ class RigConfig:
     detect_range_table: Table = None
     detect_azimuth_knots: Table = None
     detect_azimuth_table: Table = None
+    detect_azimuth_signed: bool = False
     offset_range_knots: Table = None
     sigma_range_table: Table = None
     sigma_cross_table: Table = None
@@ -136,6 +145,14 @@ class RigConfig:
             k, t = getattr(self, knots), getattr(self, table)
             if (k is None) != (t is None) or (k is not None and t is not None and len(k) != len(t)):
                 raise ValueError(f"{table}: must be given with {knots!r} and have one value per knot")
+        if (
+            not self.detect_azimuth_signed
+            and self.detect_azimuth_knots is not None
+            and self.detect_azimuth_knots[0] < 0
+        ):
+            raise ValueError(
+                "detect_azimuth_knots: |azimuth| knots must be >= 0 (signed knots need 'detect_azimuth_signed': true)"
+            )
         for edges, weights in (
             ("clutter_range_edges", "clutter_range_weights"),
             ("clutter_azimuth_edges", "clutter_azimuth_weights"),
@@ -171,8 +188,9 @@ RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
     "reflection_tau": [_POS],
     "detect_range_knots": [None, Numbers(_NONNEG, min_length=2, increasing=True)],
     "detect_range_table": [None, Numbers(_PROB, min_length=2)],
-    "detect_azimuth_knots": [None, Numbers(Interval(0, np.pi), min_length=2, increasing=True)],
+    "detect_azimuth_knots": [None, Numbers(Interval(-np.pi, np.pi), min_length=2, increasing=True)],
     "detect_azimuth_table": [None, Numbers(_PROB, min_length=2)],
+    "detect_azimuth_signed": [Options(True, False)],
     "offset_range_knots": [None, Numbers(_NONNEG, min_length=2, increasing=True)],
     "sigma_range_table": [None, Numbers(_NONNEG, min_length=2)],
     "sigma_cross_table": [None, Numbers(_NONNEG, min_length=2)],
@@ -292,7 +310,7 @@ class RadarRig:
         self.config = config or RigConfig()
 
     def detection_probability(self, rng_m: NDArray, az: NDArray, occluded: NDArray) -> NDArray[np.float64]:
-        """Detection probability ``(n,)`` at range [m], azimuth [rad] and occluded fraction [0, 1]."""
+        """Detection probability ``(n,)`` at range [m], azimuth [rad] (left > 0) and occluded fraction [0, 1]."""
         c = self.config
         p_range = 1.0 / (1.0 + np.exp((rng_m - c.max_range) / c.range_falloff))
         if c.detect_range_table is not None and c.detect_range_knots is not None:
@@ -300,9 +318,11 @@ class RadarRig:
         else:
             p_range = c.p_detect * p_range
         if c.detect_azimuth_table is not None and c.detect_azimuth_knots is not None:
-            p_az = np.interp(
-                np.abs(az), np.asarray(c.detect_azimuth_knots), np.asarray(c.detect_azimuth_table), right=0.0
-            )
+            knots, table = np.asarray(c.detect_azimuth_knots), np.asarray(c.detect_azimuth_table)
+            if c.detect_azimuth_signed:  # signed azimuth (left > 0): 0 outside the knots on either side
+                p_az = np.interp(az, knots, table, left=0.0, right=0.0)
+            else:
+                p_az = np.interp(np.abs(az), knots, table, right=0.0)
         else:
             edge = np.clip(np.abs(az) / c.fov, 0.0, None)
             p_az = np.where(edge <= 1.0, 1.0 - 0.4 * edge**4, 0.0)

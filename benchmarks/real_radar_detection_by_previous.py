@@ -1,0 +1,69 @@
+"""A tracker-state radar model's detection probability at the real Astyx boxes, split by the previous cycle.
+
+For every real car row (closest corner of its reference box) the model's detection probability is
+queried as a NEW track (``z_{t-1}`` missing, ``new_track=True``), AFTER A MISS (``z_{t-1}`` missing,
+``new_track=False``) and AFTER A DETECTION (``z_{t-1}`` = one sample of the model's own new-track
+output at that corner, seed ``--seed``; rows whose sample was a miss are left out). With ``p_d`` and
+``p_m`` the bin means after a detection and after a miss, ``p_m / (1 - p_d + p_m)`` is the stationary
+detection rate of the two-state chain (what a running radar at a static box converges to). Printed per
+corner-range bin and per signed azimuth bin (left > 0) next to the real detected share: it shows
+where the stationary law of ``benchmarks/real_radar_fidelity.py`` loses detections (a repeated miss).
+
+    python benchmarks/real_radar_detection_by_previous.py --data ../shared/data/real/astyx_hires2019 \
+        --model models/radar_kde.npz
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from sensor_envs.radar.calibrate import DET_AZIMUTH_EDGES, load_real
+from sensor_envs.radar.kde import KDERadarModel
+from sensor_envs.radar.validate import RANGE_BINS
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", default=str(ROOT / ".." / "shared" / "data" / "real" / "astyx_hires2019"))
+    ap.add_argument("--model", nargs="+", default=[str(ROOT / "models" / "radar_kde.npz")], help="KDE model files")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    frames = load_real(args.data)
+    c = frames.corner
+    n = c.shape[0]
+    r = np.hypot(c[:, 0], c[:, 1])
+    az = np.arctan2(c[:, 1], c[:, 0])
+    det = np.isfinite(frames.meas[:, 0])
+    bins = {f"{lo:g}-{hi:g} m": (r >= lo) & (r < hi) for lo, hi in zip(RANGE_BINS[:-1], RANGE_BINS[1:], strict=True)}
+    deg = np.rad2deg(DET_AZIMUTH_EDGES)
+    for lo, hi, a, b in zip(deg[:-1], deg[1:], DET_AZIMUTH_EDGES[:-1], DET_AZIMUTH_EDGES[1:], strict=True):
+        bins[f"az {lo:g}..{hi:g} deg"] = (az >= a) & (az < b)
+    bins["all"] = np.ones(n, dtype=bool)
+    nan = np.full((n, 2), np.nan)
+    for path in args.model:  # one iteration per model file
+        model = KDERadarModel.load(path)
+        rng = np.random.default_rng(args.seed)
+
+        def p_detect(prev: np.ndarray, new: bool, m: KDERadarModel = model) -> np.ndarray:
+            state = np.concatenate([c, prev], axis=1)
+            return 1.0 - np.exp(m.log_prob(nan, state, new_track=np.full(n, new)))
+
+        p_new, p_miss = p_detect(nan, True), p_detect(nan, False)
+        z, _ = model.sample_cycle(c, nan, rng, new_track=np.full(n, True))
+        p_det = np.where(np.isfinite(z[:, 0]), p_detect(z, False), np.nan)
+        print(f"\n{path} (n = real car rows)\n")
+        print("| bin | n | real | new track | after a detection | after a miss | two-state stationary |")
+        print("|---|---|---|---|---|---|---|")
+        for name, s in bins.items():
+            pd, pm = float(np.nanmean(p_det[s])), float(p_miss[s].mean())
+            print(f"| {name} | {s.sum()} | {det[s].mean():.3f} | {p_new[s].mean():.3f} | {pd:.3f} | {pm:.3f} | "
+                  f"{pm / (1 - pd + pm):.3f} |")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
