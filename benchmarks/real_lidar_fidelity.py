@@ -181,7 +181,7 @@ def main() -> None:
         "",
         f"Real log `{Path(real.source).name}` (sha256 of ranges `{ranges_sha256(real)[:16]}...`), "
         f"{real.n_poses} poses, {args.folds} leave-poses-out folds (seed {args.seed}). `shipped_before`: "
-        f"`models/neato_lidar.npz` at `{args.before_rev}` (rig defaults); `shipped_after`: refitted in this run "
+        f"`models/neato_lidar.npz` at `{args.before_rev}` (shipped then); `shipped_after`: refitted in this run "
         f"from a log of the calibrated rig `{Path(args.rig).name}` (identical training data to the shipped file: "
         f"{same}, same tables: {same_tables}); `real_fitted`: the same variant fitted on the real training folds.",
         "",
