@@ -1,12 +1,13 @@
 """Fidelity of the shipped learned lidar to the REAL Neato data, before and after the rig calibration (issue 12).
 
     python benchmarks/real_lidar_fidelity.py --data ../shared/data/real --out /tmp/real_lidar_fidelity
-        [--rig models/neato_rig.json] [--before-rev f327671] [--folds 5] [--seed 0]
+        [--rig models/neato_rig.json] [--before-rev f327671] [--folds 5] [--seed 0] [--train-poses 120]
 
 The whole chain, from a fresh clone:
 
 1. record the training log of the shipped model from the calibrated rig file (``--rig``; the shipped
-   model's card gives the same command: 30 poses x 200 repeats, seed 1, ``seed_room``);
+   model's card gives the same command: 120 poses x 200 repeats, seed 1, ``seed_room``; ``--train-poses``
+   changes the poses, e.g. 30 for the recipe shipped before 2026-11-24);
 2. fit the shipped model's variant (extended, 10 CV folds, seed 0) to it: the AFTER model
    (``OUT/neato_lidar_after.npz``; it equals ``models/neato_lidar.npz`` when the code is unchanged);
 3. the BEFORE model is ``models/neato_lidar.npz`` at git revision ``--before-rev`` (the model shipped
@@ -48,7 +49,7 @@ from sensor_envs.outputs import write_json
 from sensor_envs.rng import fold_ids
 
 ROOT = Path(__file__).resolve().parents[1]
-TRAIN_POSES, TRAIN_REPEATS, TRAIN_SEED = 30, 200, 1
+TRAIN_POSES, TRAIN_REPEATS, TRAIN_SEED = 120, 200, 1
 """The shipped model's training log (models/neato_lidar.md): poses, repeats, seed of ``record lidar``."""
 MAE = [
     ("all", "mae_mu"),
@@ -99,6 +100,12 @@ def main() -> None:
     ap.add_argument("--before-rev", default="f327671", help="git revision of the model shipped before calibration")
     ap.add_argument("--folds", type=int, default=5, help="leave-poses-out folds of the real log (default: 5)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the fold assignment (default: 0)")
+    ap.add_argument(
+        "--train-poses",
+        type=int,
+        default=TRAIN_POSES,
+        help=f"poses of the rig training logs (default: {TRAIN_POSES}, the shipped model's recipe)",
+    )
     args = ap.parse_args()
     t0 = time.perf_counter()
     out = Path(args.out)
@@ -111,7 +118,7 @@ def main() -> None:
     # 1-2. the chain: calibrated rig -> training log -> the shipped model's fit
     rig = NeatoRig.from_file(args.rig)
     room = load_map("seed_room").segments
-    train, _ = rig.record(room, np.random.default_rng(TRAIN_SEED), n_poses=TRAIN_POSES, repeats=TRAIN_REPEATS)
+    train, _ = rig.record(room, np.random.default_rng(TRAIN_SEED), n_poses=args.train_poses, repeats=TRAIN_REPEATS)
     train = load_log(save_log(train, out / "neato_rig_train.npz"))  # as `record lidar` writes it (float32 ranges)
     print(f"recorded the calibrated rig's training log ({args.rig}): {train.ranges.shape}", flush=True)
     after = _model().fit(train)
@@ -141,7 +148,9 @@ def main() -> None:
         _put(pred["real_fitted"], te, m.params_from_features(r[te], a[te]))
         spur["real_fitted"][0][te], spur["real_fitted"][1][te] = m.spur_mu_, m.spur_sigma_
         rig_f = bearing_profile(rig, real.subset(tr))
-        log_f, _ = rig_f.record(room, np.random.default_rng(TRAIN_SEED), n_poses=TRAIN_POSES, repeats=TRAIN_REPEATS)
+        log_f, _ = rig_f.record(
+            room, np.random.default_rng(TRAIN_SEED), n_poses=args.train_poses, repeats=TRAIN_REPEATS
+        )
         log_f = load_log(save_log(log_f, out / "fold_train.npz"))
         m = _model().fit(log_f)
         _put(pred["calibrated_per_fold"], te, m.params_from_features(r[te], a[te]))
@@ -172,7 +181,7 @@ def main() -> None:
         "",
         f"Real log `{Path(real.source).name}` (sha256 of ranges `{ranges_sha256(real)[:16]}...`), "
         f"{real.n_poses} poses, {args.folds} leave-poses-out folds (seed {args.seed}). `shipped_before`: "
-        f"`models/neato_lidar.npz` at `{args.before_rev}` (rig defaults); `shipped_after`: refitted in this run "
+        f"`models/neato_lidar.npz` at `{args.before_rev}` (shipped then); `shipped_after`: refitted in this run "
         f"from a log of the calibrated rig `{Path(args.rig).name}` (identical training data to the shipped file: "
         f"{same}, same tables: {same_tables}); `real_fitted`: the same variant fitted on the real training folds.",
         "",

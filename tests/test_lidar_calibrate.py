@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -77,6 +79,7 @@ def test_shipped_rig_loads_and_says_what_it_was_calibrated_against():
     after, before = card["after"]["per_statistic"], card["before"]["per_statistic"]
     assert after["total"] < before["total"]
     assert len(rig.null_bearing_logit) == rig.n_bearings and rig.null_cell_corr > 0
+    assert rig.null_range_knots and rig.null_incidence_knots and rig.bias_range_knots  # the flexible laws (issue 12)
 
 
 def test_copula_nulls_keep_the_mean_rate_and_persist():
@@ -189,3 +192,165 @@ def test_calibrate_on_real_data_statistics(real_data):
     from sensor_envs.lidar.calibrate import ranges_sha256
 
     assert card["calibrated_against"]["sha256_of_ranges"] == ranges_sha256(real)
+
+
+# ------------------------------------------------------------- flexible laws (issue 12: lidar fidelity)
+OLD_RIG = Path(__file__).parent / "data" / "neato_rig_ab26d34.json"
+"""The rig file shipped at commit ab26d34 (linear null law, no tables): it must load and behave as before."""
+
+
+def _old_style_rig(tmp_path):
+    params = {
+        "unit_seed": 3,
+        "null_logit": [-3.0, 2.0, 0.5],
+        "null_bearing_logit": list(np.round(np.linspace(-1, 1, 360), 3)),
+        "null_cell_corr": 0.9,
+        "null_arc": 2.5,
+        "spur_prone": 0.2,
+        "spur_bearing_weight": list(np.round(np.linspace(0.5, 1.5, 360), 3)),
+        "pose_sd": [0.01, 0.02],
+        "blocked": [5, 6, 7],
+    }
+    return NeatoRig.from_file(_rig_json(tmp_path, **params))
+
+
+def test_old_rig_files_record_as_before(tmp_path):
+    """A rig file without the new parameters records bit-identical readings to the code of commit ab26d34.
+
+    The digests were computed with that commit's ``sensor_envs`` on the same inputs.
+    """
+    rig = _old_style_rig(tmp_path)
+    log, _ = rig.record(ROOM, np.random.default_rng(4), n_poses=3, repeats=5)
+    blob = np.ascontiguousarray(log.ranges).tobytes() + np.ascontiguousarray(log.poses).tobytes()
+    assert hashlib.sha256(blob).hexdigest() == "aed0cdd96644ccc0cceaa924f22d432c1ff40ca2e5677170515ac3293c55ea3c"
+    x = rig.measure(np.linspace(0.3, 4.5, 360), np.linspace(0, 1.4, 360), np.random.default_rng(5))
+    digest = hashlib.sha256(np.ascontiguousarray(x).tobytes()).hexdigest()
+    assert digest == "5ace832277082f9c826147e3847e2fb08beb2ff88cc66128d89802c538428e58"
+
+
+def test_previously_shipped_rig_file_loads_with_its_linear_law():
+    old = NeatoRig.from_file(OLD_RIG)
+    assert old.null_range_knots == () and old.out_cell_rate == 0.0 and old.pose_sd_spread == 0.0
+    r = np.linspace(0.3, 4.0, old.n_bearings)[None]
+    a = np.linspace(0.0, 1.5, old.n_bearings)[None]
+    c0, c1, c2 = old.null_logit
+    np.testing.assert_allclose(old.null_linear(r, a), c0 + c1 * r + c2 * a + np.asarray(old.null_bearing_logit))
+    assert np.all(old.bias_shape(r, a) == 0) and np.all(old.spur_range_factor(r) == 1)
+
+
+@pytest.mark.parametrize(
+    ("params", "field"),
+    [
+        ({"null_range_knots": [0.0, 1.0], "null_range_logit": [0.0]}, "params.null_range_logit"),
+        ({"null_range_knots": [1.0, 0.5], "null_range_logit": [0.0, 1.0]}, "params.null_range_knots"),
+        ({"null_incidence_knots": [0.0, 1.0], "null_incidence_logit": [0.0, 99.0]}, "params.null_incidence_logit"),
+        ({"spur_range_knots": [0.5, 1.0], "spur_range_weight": [1.0, -0.5]}, "params.spur_range_weight"),
+        ({"spur_range_knots": [0.5], "spur_range_weight": [1.0]}, "params.spur_range_weight"),
+        ({"bias_range_knots": [0.0, 4.0], "bias_range": [0.0, 2.0]}, "params.bias_range"),
+        ({"bias_incidence_knots": [-0.1, 1.0], "bias_incidence": [0.0, 0.0]}, "params.bias_incidence_knots"),
+        ({"pose_sd_spread": 7.0}, "params.pose_sd_spread"),
+        ({"pose_sd_spread": float("nan")}, "params.pose_sd_spread"),
+        ({"out_cell_rate": 1.0}, "params.out_cell_rate"),
+        ({"out_cell_arc": -1.0}, "params.out_cell_arc"),
+    ],
+)
+def test_bad_new_rig_values_name_file_and_field(tmp_path, params, field):
+    with pytest.raises(ModelFileError, match=f"rig.json: field '{field}'"):
+        NeatoRig.from_file(_rig_json(tmp_path, **params))
+
+
+def test_null_tables_add_to_the_linear_law():
+    rig = NeatoRig(
+        null_logit=(0.0, 0.0, 0.0),
+        null_range_knots=(0.0, 2.0),
+        null_range_logit=(-4.0, 4.0),
+        null_incidence_knots=(0.0, 1.0, 1.5),
+        null_incidence_logit=(0.0, 0.0, 3.0),
+    )
+    k = np.flatnonzero(~rig.blocked_mask())[:3]
+    r = np.zeros((1, rig.n_bearings))
+    a = np.zeros_like(r)
+    r[0, k], a[0, k] = (1.0, 3.0, 1.0), (0.0, 0.0, 1.25)
+    p = rig.p_null(r, a)[0, k]
+    np.testing.assert_allclose(p, 1 / (1 + np.exp(-np.array([0.0, 4.0, 1.5]))))  # constant beyond the end knot
+
+
+def test_spurious_returns_follow_the_range_factor():
+    rig = NeatoRig(
+        spur_prone=0.5,
+        spur_range_knots=(0.9, 1.0),
+        spur_range_weight=(1.0, 0.0),
+        pose_sd=(0.0, 0.0),
+        map_sd=0.0,
+    )
+    log, truth = rig.record(ROOM, np.random.default_rng(3), n_poses=6, repeats=2)
+    from sensor_envs.lidar.lwlr import lidar_features
+
+    r, _ = lidar_features(truth["true_poses"], rig.bearings, ROOM, rig.max_range)
+    prone = truth["p_spur"] > 0
+    assert prone[r < 0.9].mean() > 0.1 and not prone[r > 1.0].any()
+
+
+def test_bias_tables_and_outlying_cells():
+    quiet = {"pose_sd": (0.0, 0.0), "map_sd": 0.0, "spur_prone": 0.0, "bias_sd": 0.0, "bias_mean": 0.0}
+    rig = NeatoRig(bias_range_knots=(1.0, 3.0), bias_range=(0.0, -0.1), null_logit=(-30.0, 0.0, 0.0), **quiet)
+    poses = np.array([[1.0, 0.8, 0.0], [2.5, 1.0, 1.0]])
+    log, _ = rig.record(ROOM, np.random.default_rng(0), poses=poses, repeats=20)
+    from sensor_envs.lidar.lwlr import cell_statistics, lidar_features
+
+    r, _ = lidar_features(poses, rig.bearings, ROOM, rig.max_range)
+    st = cell_statistics(log, 6.0, split_spurious=True)
+    ok = np.isfinite(r) & (st["n_ok"] > 10) & (r < 3.5)
+    want = np.interp(r[ok], (1.0, 3.0), (0.0, -0.1))
+    assert np.median(np.abs(st["mean"][ok] - r[ok] - want)) < 0.003
+    out = NeatoRig(out_cell_rate=0.2, out_cell_arc=2.0, null_logit=(-30.0, 0.0, 0.0), **quiet)
+    log, _ = out.record(ROOM, np.random.default_rng(0), poses=poses, repeats=5)
+    st = cell_statistics(log, 6.0, split_spurious=True)
+    far = np.abs(st["mean"] - r) > 0.2
+    assert 0.08 < far[ok].mean() < 0.35
+
+
+def test_pose_error_spread_scales_the_pose_errors_per_pose():
+    rig = NeatoRig(pose_sd=(0.01, 0.0), pose_sd_spread=1.5, map_sd=0.0)
+    poses = np.tile([[1.5, 1.0, 0.0]], (400, 1))
+    log, truth = rig.record(ROOM, np.random.default_rng(1), poses=poses, repeats=1)
+    e = np.linalg.norm(log.poses[:, :2] - truth["true_poses"][:, :2], axis=1)
+    # a log-normal scale mixture: heavier tails than the Rayleigh of a fixed sd (90 % / 50 % ratio 1.83)
+    assert np.quantile(e, 0.9) / np.median(e) > 3.0
+
+
+def test_fit_null_law_recovers_tables_and_bearing_offsets():
+    from sensor_envs.lidar.calibrate import NULL_INCIDENCE_KNOTS, NULL_RANGE_KNOTS, fit_null_law
+
+    rng = np.random.default_rng(0)
+    p_, k = 200, 40
+    r, a = rng.uniform(0.2, 3.8, (p_, k)), rng.uniform(0.0, 1.5, (p_, k))
+    off = rng.normal(0, 1, k)
+    f = lambda v: np.interp(v, (0.0, 2.0, 4.0), (0.0, 3.0, 3.0))  # noqa: E731 - rises, then flat
+    g = lambda v: np.interp(v, (0.0, 1.0, 1.5), (0.0, 0.0, 4.0))  # noqa: E731 - flat, then steep
+    z = -3.0 + off[None] + f(r) + g(a)
+    law = fit_null_law(r, a, np.ones((p_, k), bool), 1 / (1 + np.exp(-z)))
+    fr = np.asarray(law["null_range_logit"])
+    gi = np.asarray(law["null_incidence_logit"])
+    np.testing.assert_allclose(fr - fr[0], f(np.asarray(NULL_RANGE_KNOTS)), atol=0.35)
+    seen = np.asarray(NULL_INCIDENCE_KNOTS) <= 1.5  # a knot beyond the data follows the smoothing
+    np.testing.assert_allclose((gi - gi[0])[seen], g(np.asarray(NULL_INCIDENCE_KNOTS))[seen], atol=0.35)
+    b = law["c0"] + np.asarray(law["offsets"])
+    assert np.corrcoef(b, off)[0, 1] > 0.98
+
+
+def test_fit_bias_law_recovers_a_range_bias():
+    from sensor_envs.lidar.calibrate import BIAS_RANGE_KNOTS, fit_bias_law
+
+    rng = np.random.default_rng(1)
+    r, a = rng.uniform(0.2, 3.9, (60, 100)), rng.uniform(0.0, 1.2, (60, 100))
+    want = np.interp(r, (0.0, 2.0, 4.0), (0.0, 0.0, -0.15))
+    dev = want + rng.normal(0, 0.005, r.shape)
+    dev[:, :5] = 1.0  # outlying cells are left out
+    law = fit_bias_law(r, a, dev)
+    got = np.interp(r, law["bias_range_knots"], law["bias_range"]) + np.interp(
+        a, law["bias_incidence_knots"], law["bias_incidence"]
+    )
+    shift = np.median(got - want)
+    assert np.abs(got - want - shift)[:, 5:].max() < 0.01
+    assert len(law["bias_range"]) == len(BIAS_RANGE_KNOTS)

@@ -16,11 +16,16 @@ weights ``w_s`` are 1, so ``D`` counts squared errors in units of each statistic
 
 Parameters set directly from the real log (statistics, not fitted by simulation): the blocked
 bearings (never returning: mean null fraction > 0.99 over the poses), the spurious value's median and
-spread, the shape of sigma versus range (median cell standard deviation per 0.5 m bin). The per-bearing
-null offsets (``null_bearing_logit``) are profiled inside each evaluation: for the current range and
-incidence slopes, each bearing's intercept is solved (bisection) so that its expected null rate at the
-real poses equals the real one (the per-cell copula of persistent nulls keeps the mean rate).
-The Nelder-Mead search then runs over the remaining parameters (:data:`SEARCH`).
+spread, the shape of sigma versus range (median cell standard deviation per 0.5 m bin), the per-bearing
+spurious weights and the spurious factor per range (the real spurious cells are all within 1 m), the
+null law (:func:`fit_null_law`: a logistic regression of the cells' null fractions on per-bearing
+intercepts and piecewise-linear tables of range and incidence; the real null rate is flat up to 0.9 rad
+of incidence, then steep, and levels off beyond 2.5 m, which the former linear logit could not follow),
+and the range bias shared by the bearings (:func:`fit_bias_law`: tables of the median cell deviation
+versus range and incidence; the real readings fall short by 0.03-0.17 m beyond 2.5 m). The
+Nelder-Mead search then runs over the remaining parameters (:data:`SEARCH`), per block of coordinates
+on the terms of ``D`` they act on (:data:`BLOCKS`), and after it each sigma knot is rescaled until the
+simulated sigma statistic meets the real one (:func:`refine_sigma`).
 
 Units: metres, radians (bearings and post distances in the statistics: degrees).
 """
@@ -52,6 +57,7 @@ __all__ = [
     "calibrate_rig",
     "load_real_log",
     "bearing_profile",
+    "fit_null_law",
 ]
 
 REAL_LOG_NAME = "neato_mar27_train.npz"
@@ -80,12 +86,21 @@ STATISTICS: dict[str, tuple[float, str]] = {
     "bias_mean": (0.002, "mean over bearings of the per-bearing median of cell mean - nominal range [m]"),
     "bias_sd": (0.002, "standard deviation over bearings of that per-bearing median [m]"),
     "mu_error": (0.002, "mean |cell mean - nominal range| [m] (pose and map error, bias)"),
+    "mu_error_quantiles": (
+        0.1,
+        "log of the 25, 50, 75 and 90 % quantiles of |cell mean - nominal range| [m] of clean cells (its shape)",
+    ),
+    "pose_error_spread": (
+        0.15,
+        "log of the 10, 50 and 90 % quantiles over the poses of a pose's median |cell mean - nominal range| [m]",
+    ),
+    "mu_error_far": (0.005, "share of clean cells with |cell mean - nominal range| > 0.2 m (outlying cells)"),
+    "mu_error_far_arc": (1.0, "mean length [bearings] of the runs of such outlying cells of a pose"),
+    "spur_range": (0.01, "share of unblocked hit cells with spurious readings per 0.5 m bin of nominal range (0-4 m)"),
 }
 """Statistic -> (scale, definition). Weight 1 each; a statistic's term is its mean squared error / scale**2."""
 
 SEARCH: tuple[str, ...] = (
-    "null_slope_range",
-    "null_slope_incidence",
     "logit_null_cell_corr",
     "log_null_arc",
     "bias_mean_mm",
@@ -94,16 +109,41 @@ SEARCH: tuple[str, ...] = (
     "logit_spur_frac_low",
     "log_pose_sd_xy_cm",
     "log_pose_sd_theta_deg",
+    "log_map_sd_cm",
     "log_sigma_scale",
+    "logit_out_cell_rate",
+    "log_out_cell_arc",
 )
 """The coordinates of the Nelder-Mead search (transformed rig parameters)."""
-BLOCKS: tuple[tuple[tuple[int, ...], float], ...] = (
-    ((0, 1, 2, 3), 0.3),  # nulls: range and incidence slopes, persistence, arcs
-    ((6, 7), 0.1),  # spurious returns: prone share, fraction
-    ((4, 5, 8, 9, 10), 0.3),  # bias, pose error, sigma scale
-    (tuple(range(11)), 0.3),  # all together
+NULL_GRID_CORR = tuple(float(np.log(c / (1 - c))) for c in (0.85, 0.9, 0.94, 0.97, 0.985))
+"""Grid of ``logit_null_cell_corr`` the null block starts from (its best point)."""
+NULL_GRID_ARC = tuple(float(np.log(a)) for a in (1.0, 3.0))
+"""Grid of ``log_null_arc`` the null block starts from."""
+_NULL_TERMS = ("p_null_range", "p_null_incidence", "p_null_bearing", "blocked", "mixed_null", "null_arc")
+_MU_TERMS = (
+    "bias_mean",
+    "bias_sd",
+    "mu_error",
+    "mu_error_quantiles",
+    "pose_error_spread",
+    "mu_error_far",
+    "mu_error_far_arc",
+    "sigma_range",
 )
-"""Blocks of :data:`SEARCH` coordinates searched in turn, with their shares of the evaluations."""
+_SPUR_TERMS = ("spur_rate", "spur_cells", "spur_post_distance", "spur_bearing", "spur_cell_frac", "spur_range")
+BLOCKS: tuple[tuple[tuple[int, ...], float, tuple[str, ...] | None], ...] = (
+    ((10, 11), 0.1, _MU_TERMS),  # outlying cells
+    ((2, 3, 6, 7, 8, 9), 0.25, _MU_TERMS),  # bias, pose and map error, sigma scale
+    ((0, 1), 0.3, _NULL_TERMS),  # nulls: persistence, arcs
+    ((4, 5), 0.1, _SPUR_TERMS),  # spurious returns: prone share, fraction
+    (tuple(range(2, 12)), 0.25, None),  # all but the null persistence together (the total D)
+)
+"""Blocks of :data:`SEARCH` coordinates searched in turn, with their shares of the evaluations and the terms of
+``D`` each block minimises (``None``: the total). A block's terms are those its coordinates act on: the other
+terms hardly change but add noise (which cells are clean moves with the nulls), which stalls the search. Each
+block starts where the previous one ended; the result is the point of least total ``D`` seen. The null
+persistence (``null_cell_corr``, ``null_arc``) is left out of the last block: against the total its moves
+mostly trade the noise of the pose-error terms."""
 
 
 # ----------------------------------------------------------------------------------------------- data
@@ -148,6 +188,13 @@ def _binned_mean(values: NDArray[np.float64], x: NDArray[np.float64], edges: NDA
     return out
 
 
+def _log_quantiles(values: NDArray[np.float64], q: tuple[float, ...], least: int) -> list[float]:
+    """Logs of the quantiles ``q`` of positive ``values`` (NaN each when fewer than ``least`` values)."""
+    if values.size < least:
+        return [float("nan")] * len(q)
+    return [float(v) for v in np.log(np.maximum(np.quantile(values, q), 1e-6))]
+
+
 def _mean_run(mask: NDArray[np.bool_]) -> float:
     """Mean length of the runs of True along the last axis (runs stop at the ends)."""
     m = np.pad(mask.astype(np.int8), [(0, 0)] * (mask.ndim - 1) + [(1, 1)])
@@ -185,6 +232,9 @@ def log_summary(log: LidarLog, max_range: float = 5.0, spur_above: float = 6.0) 
         s = clean & (r >= lo) & (r < hi)
         sig.append(float(np.log(np.median(st["std"][s]))) if s.sum() >= MIN_CELLS else float("nan"))
     sv = x[spur]
+    cdev = np.abs(np.where(clean, st["mean"] - r, np.nan))
+    pose_dev = np.array([np.median(c[np.isfinite(c)]) for c in cdev if np.isfinite(c).any()])
+    far = np.nan_to_num(cdev) > 0.2
     return {
         "p_null_range": _binned_mean(pn[hit], r[hit], RANGE_BINS),
         "p_null_incidence": _binned_mean(pn[hit], a[hit], INCIDENCE_BINS),
@@ -202,6 +252,11 @@ def log_summary(log: LidarLog, max_range: float = 5.0, spur_above: float = 6.0) 
         "bias_mean": float(b.mean()) if b.size else None,
         "bias_sd": float(b.std()) if b.size else None,
         "mu_error": float(np.nanmean(np.abs(dev))) if okb.any() else None,
+        "mu_error_quantiles": _log_quantiles(cdev[np.isfinite(cdev)], (0.25, 0.5, 0.75, 0.9), MIN_CELLS),
+        "pose_error_spread": _log_quantiles(pose_dev, (0.1, 0.5, 0.9), 3),
+        "mu_error_far": float(far.sum() / max(int(np.isfinite(cdev).sum()), 1)),
+        "mu_error_far_arc": _mean_run(far),
+        "spur_range": _binned_mean((st["p_spur"][hit] > 0).astype(np.float64), r[hit], RANGE_BINS),
         "n_poses": log.n_poses,
     }
 
@@ -228,28 +283,172 @@ def _logistic(z: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def profile_bearing_intercepts(
-    r: NDArray[np.float64],
-    a: NDArray[np.float64],
+    lin: NDArray[np.float64],
     hit: NDArray[np.bool_],
     target: NDArray[np.float64],
-    slopes: tuple[float, float],
 ) -> NDArray[np.float64]:
-    """Per-bearing intercepts ``(K,)`` of logit ``p_null`` matching the target null rates at given features.
+    """Per-bearing intercepts ``(K,)`` of logit ``p_null`` matching the target null rates.
 
-    Solves ``mean_p logistic(b_k + c1 r_pk + c2 alpha_pk) = target_k`` over the hit cells ``hit (P, K)`` of
-    each bearing by bisection on ``[-20, 20]``; bearings without hit cells or target get 0.
+    Solves ``mean_p logistic(b_k + lin_pk) = target_k`` over the hit cells ``hit (P, K)`` of each bearing by
+    bisection on ``[-20, 20]``, ``lin (P, K)`` the range and incidence part of the logit
+    (:meth:`NeatoRig.null_shape`); bearings without hit cells or target get 0.
     """
-    lin = slopes[0] * np.where(hit, r, 0.0) + slopes[1] * np.where(hit, np.nan_to_num(a), 0.0)
+    lin = np.where(hit, lin, 0.0)
     cnt = hit.sum(0)
     use = (cnt > 0) & np.isfinite(target)
     y = np.clip(np.nan_to_num(target), 1e-3, 1 - 1e-3)
-    lo, hi = np.full(r.shape[1], -20.0), np.full(r.shape[1], 20.0)
+    lo, hi = np.full(hit.shape[1], -20.0), np.full(hit.shape[1], 20.0)
     for _ in range(30):
         mid = 0.5 * (lo + hi)
         rate = np.where(hit, _logistic(mid[None] + lin), 0.0).sum(0) / np.maximum(cnt, 1)
         up = rate < y
         lo, hi = np.where(up, mid, lo), np.where(up, hi, mid)
     return np.where(use, 0.5 * (lo + hi), 0.0)
+
+
+NULL_RANGE_KNOTS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0, 3.5, 4.0)
+"""Knots [m] of the rig's table of logit ``p_null`` versus nominal range."""
+NULL_INCIDENCE_KNOTS = (0.0, 0.3, 0.6, 0.9, 1.05, 1.2, 1.35, 1.5, 1.6)
+"""Knots [rad] of the rig's table of logit ``p_null`` versus incidence."""
+NULL_SMOOTHING = 2.0
+"""Penalty on the squared second differences of the two tables [logit^2], against the cells' cross-entropy."""
+
+
+def _hat_basis(v: NDArray[np.float64], knots: tuple[float, ...]) -> NDArray[np.float64]:
+    """``(N, len(knots))`` piecewise-linear interpolation weights of ``v`` (constant beyond the end knots)."""
+    eye = np.eye(len(knots))
+    return np.column_stack([np.interp(v, knots, eye[j]) for j in range(len(knots))])
+
+
+def fit_null_law(
+    r: NDArray[np.float64], a: NDArray[np.float64], hit: NDArray[np.bool_], p_null: NDArray[np.float64]
+) -> dict[str, Any]:
+    """Fit logit ``p_null = c0 + b_k + f(r) + g(alpha)`` to the null fractions of a log's cells.
+
+    A logistic regression (each hit cell weight 1, its null fraction the response) with per-bearing
+    intercepts and piecewise-linear tables ``f`` (:data:`NULL_RANGE_KNOTS`) and ``g``
+    (fractions clipped to [0.001, 0.999], so that a bearing never or always null in few cells is not certain)
+    (:data:`NULL_INCIDENCE_KNOTS`), ``f`` and ``g`` 0 at their first knot, smoothed by
+    :data:`NULL_SMOOTHING`; solved by L-BFGS-B (values within +-20). Statistics of the log, set directly.
+
+    Args:
+        r: ``(P, K)`` nominal range [m] at the log's poses.
+        a: ``(P, K)`` incidence [rad] there.
+        hit: ``(P, K)`` the cells used (unblocked, ray hits the map, readings present).
+        p_null: ``(P, K)`` the cells' null fractions.
+
+    Returns:
+        ``c0`` (median intercept), ``offsets (K,)`` (``b_k - c0``, rounded to 0.01; 0 at unused bearings),
+        the tables as rig parameters (``null_range_knots``, ``null_range_logit``, ``null_incidence_knots``,
+        ``null_incidence_logit``; rounded to 0.001).
+    """
+    k_idx = np.broadcast_to(np.arange(hit.shape[1]), hit.shape)[hit]
+    y = np.clip(p_null[hit], 1e-3, 1 - 1e-3)  # as the per-bearing profile: no bearing is made certain
+    br, ba = _hat_basis(r[hit], NULL_RANGE_KNOTS)[:, 1:], _hat_basis(a[hit], NULL_INCIDENCE_KNOTS)[:, 1:]
+    nk, nr, na = hit.shape[1], br.shape[1], ba.shape[1]
+    used = np.bincount(k_idx, minlength=nk) > 0
+    d2r, d2a = np.diff(np.eye(nr + 1), 2, axis=0), np.diff(np.eye(na + 1), 2, axis=0)
+
+    def loss(theta: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
+        b, f, g = theta[:nk], theta[nk : nk + nr], theta[nk + nr :]
+        z = b[k_idx] + br @ f + ba @ g
+        ll = np.logaddexp(0.0, z) - y * z  # cross-entropy of logistic(z) against y
+        e = _logistic(z) - y
+        fr, ga = d2r @ np.r_[0.0, f], d2a @ np.r_[0.0, g]
+        pen = NULL_SMOOTHING * (fr @ fr + ga @ ga)
+        grad = np.r_[
+            np.bincount(k_idx, e, minlength=nk),
+            br.T @ e + 2 * NULL_SMOOTHING * (d2r.T @ fr)[1:],
+            ba.T @ e + 2 * NULL_SMOOTHING * (d2a.T @ ga)[1:],
+        ]
+        return float(ll.sum() + pen), grad
+
+    rate = np.bincount(k_idx, y, minlength=nk) / np.maximum(np.bincount(k_idx, minlength=nk), 1)
+    q = np.clip(rate, 1e-3, 1 - 1e-3)
+    theta0 = np.r_[np.log(q / (1 - q)), np.zeros(nr + na)]
+    res = minimize(loss, theta0, jac=True, method="L-BFGS-B", bounds=[(-20.0, 20.0)] * theta0.size)
+    b = res.x[:nk]
+    c0 = float(np.median(b[used])) if used.any() else -4.0
+    return {
+        "c0": round(c0, 4),
+        "offsets": tuple(float(v) for v in np.where(used, np.round(b - c0, 2), 0.0)),
+        "null_range_knots": NULL_RANGE_KNOTS,
+        "null_range_logit": tuple(float(v) for v in np.asarray(np.round(np.r_[0.0, res.x[nk : nk + nr]], 3))),
+        "null_incidence_knots": NULL_INCIDENCE_KNOTS,
+        "null_incidence_logit": tuple(float(v) for v in np.asarray(np.round(np.r_[0.0, res.x[nk + nr :]], 3))),
+    }
+
+
+def _null_law_params(
+    r: NDArray[np.float64], a: NDArray[np.float64], hit: NDArray[np.bool_], stats_pn: Any
+) -> dict[str, Any]:
+    """Rig parameters of the null law fitted by :func:`fit_null_law` (linear slopes 0: the tables carry the shape)."""
+    law = fit_null_law(r, a, hit, stats_pn)
+    return {
+        "null_logit": (law["c0"], 0.0, 0.0),
+        "null_bearing_logit": law["offsets"],
+        **{k: law[k] for k in ("null_range_knots", "null_range_logit", "null_incidence_knots", "null_incidence_logit")},
+    }
+
+
+BIAS_RANGE_KNOTS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
+"""Knots [m] of the rig's range bias table."""
+BIAS_INCIDENCE_KNOTS = (0.0, 0.5, 0.9, 1.1, 1.3)
+"""Knots [rad] of the rig's incidence bias table."""
+BIAS_OUTLYING = 0.2
+"""Cells whose mean is farther than this [m] from the nominal range are left out of the bias tables."""
+
+
+def fit_bias_law(r: NDArray[np.float64], a: NDArray[np.float64], dev: NDArray[np.float64]) -> dict[str, Any]:
+    """Range and incidence bias tables [m] shared by all bearings, from cell deviations ``dev = mean - nominal``.
+
+    Least absolute deviations (iteratively reweighted least squares, 30 steps) of the finite cells with
+    ``|dev| <= BIAS_OUTLYING`` on piecewise-linear bases at :data:`BIAS_RANGE_KNOTS` and
+    :data:`BIAS_INCIDENCE_KNOTS` (the incidence table 0 at its first knot), with a small ridge on the
+    second differences; the range table is then shifted so the tables' sum has median 0 over the cells
+    (the level is the rig's ``bias_mean``). Values rounded to 0.1 mm.
+    """
+    ok = np.isfinite(dev) & np.isfinite(r) & (np.abs(np.nan_to_num(dev)) <= BIAS_OUTLYING)
+    if ok.sum() < 2 * (len(BIAS_RANGE_KNOTS) + len(BIAS_INCIDENCE_KNOTS)):
+        return {"bias_range_knots": (), "bias_range": (), "bias_incidence_knots": (), "bias_incidence": ()}
+    x = np.column_stack(
+        [_hat_basis(r[ok], BIAS_RANGE_KNOTS), _hat_basis(np.nan_to_num(a[ok]), BIAS_INCIDENCE_KNOTS)[:, 1:]]
+    )
+    y = dev[ok]
+    nr = len(BIAS_RANGE_KNOTS)
+    pen = np.zeros((0, x.shape[1]))
+    for lo, n in ((0, nr), (nr, x.shape[1] - nr)):
+        d2 = np.zeros((max(n - 2, 0), x.shape[1]))
+        d2[:, lo : lo + n] = np.diff(np.eye(n), 2, axis=0)
+        pen = np.vstack([pen, d2])
+    w = np.ones(y.size)
+    for _ in range(30):
+        sw = np.sqrt(w)
+        beta = np.linalg.lstsq(np.vstack([x * sw[:, None], 0.1 * pen]), np.r_[y * sw, np.zeros(len(pen))], rcond=None)[
+            0
+        ]
+        w = 1.0 / np.maximum(np.abs(y - x @ beta), 1e-4)
+    beta[:nr] -= np.median(x @ beta)
+    return {
+        "bias_range_knots": BIAS_RANGE_KNOTS,
+        "bias_range": tuple(float(v) for v in np.round(beta[:nr], 4)),
+        "bias_incidence_knots": BIAS_INCIDENCE_KNOTS,
+        "bias_incidence": tuple(float(v) for v in np.asarray(np.round(np.r_[0.0, beta[nr:]], 4))),
+    }
+
+
+def _spur_range(stats: dict[str, Any]) -> dict[str, Any]:
+    """Spurious-prone factor per range (mean 1 over the hit cells) from a log's ``spur_range`` and ``spur_cells``."""
+    share = np.asarray(stats["spur_range"], dtype=np.float64)
+    overall = stats["spur_cells"]
+    ok = np.isfinite(share)
+    if not ok.any() or not overall:
+        return {"spur_range_knots": (), "spur_range_weight": ()}
+    centres = 0.5 * (RANGE_BINS[:-1] + RANGE_BINS[1:])
+    return {
+        "spur_range_knots": tuple(float(v) for v in centres[ok]),
+        "spur_range_weight": tuple(float(f"{v:.3g}") for v in share[ok] / overall),
+    }
 
 
 def _sigma_knots(real: dict[str, Any]) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -265,14 +464,10 @@ def _sigma_knots(real: dict[str, Any]) -> tuple[tuple[float, ...], tuple[float, 
 
 
 def _null_offsets(
-    r: NDArray[np.float64],
-    a: NDArray[np.float64],
-    hit: NDArray[np.bool_],
-    target: NDArray[np.float64],
-    slopes: tuple[float, float],
+    lin: NDArray[np.float64], hit: NDArray[np.bool_], target: NDArray[np.float64]
 ) -> tuple[float, tuple[float, ...]]:
     """Intercept and per-bearing offsets (rounded to 0.01) of logit ``p_null`` matching per-bearing null rates."""
-    b = profile_bearing_intercepts(r, a, hit, target, slopes)
+    b = profile_bearing_intercepts(lin, hit, target)
     used = hit.any(0) & np.isfinite(target)
     c0 = float(np.median(b[used])) if used.any() else -4.0
     return c0, tuple(float(v) for v in np.where(used, np.round(b - c0, 2), 0.0))
@@ -294,25 +489,29 @@ def _spur_weights(stats: dict[str, Any]) -> tuple[float, ...]:
 
 
 def bearing_profile(rig: NeatoRig, log: LidarLog) -> NeatoRig:
-    """``rig`` with its per-bearing effects (null offsets, spurious weights) re-derived from ``log``.
+    """``rig`` with its effects that are statistics of a log re-derived from ``log``.
 
-    Keeps every other parameter (slopes, persistence, noise, pose error...). Used to measure the
-    calibration honestly by leave-poses-out folds: the per-bearing effects are statistics of the
-    poses they were computed on.
+    Those are the per-bearing null offsets and spurious weights, and, for a rig with null tables (the
+    calibration's law), the whole null law (:func:`fit_null_law`) and the spurious factor per range. Keeps
+    every other parameter (persistence, noise, pose error...). Used to measure the calibration honestly by
+    leave-poses-out folds: these effects are statistics of the poses they were computed on.
     """
     stats = log_summary(log, rig.max_range)
     r, a = lidar_features(log.poses, log.bearings, log.require_map(), rig.max_range)
     blocked = np.zeros(log.n_bearings, dtype=bool)
     blocked[stats["blocked"]] = True
     hit = np.isfinite(r) & ~blocked[None]
-    target = np.asarray(stats["p_null_bearing"], dtype=np.float64)
-    c0, off = _null_offsets(r, a, hit, target, (rig.null_logit[1], rig.null_logit[2]))
-    return dataclasses.replace(
-        rig,
-        null_logit=(round(c0, 4), rig.null_logit[1], rig.null_logit[2]),
-        null_bearing_logit=off,
-        spur_bearing_weight=_spur_weights(stats),
-    )
+    extra: dict[str, Any] = {}
+    if rig.null_range_knots or rig.null_incidence_knots:
+        st = cell_statistics(log, 6.0, split_spurious=True)
+        extra = _null_law_params(r, a, hit & (st["n"] > 0), st["p_null"])
+        if rig.spur_range_knots:
+            extra.update(_spur_range(stats))
+    else:
+        target = np.asarray(stats["p_null_bearing"], dtype=np.float64)
+        c0, off = _null_offsets(rig.null_shape(r, a), hit, target)
+        extra = {"null_logit": (round(c0, 4), rig.null_logit[1], rig.null_logit[2]), "null_bearing_logit": off}
+    return dataclasses.replace(rig, spur_bearing_weight=_spur_weights(stats), **extra)
 
 
 class _Problem:
@@ -320,11 +519,10 @@ class _Problem:
 
     def __init__(self, real_log: LidarLog, real: dict[str, Any], seed: int, base: NeatoRig) -> None:
         self.log, self.real, self.seed = real_log, real, seed
-        self.r, self.a = lidar_features(real_log.poses, real_log.bearings, real_log.require_map(), base.max_range)
+        r, a = lidar_features(real_log.poses, real_log.bearings, real_log.require_map(), base.max_range)
         blocked = np.zeros(real_log.n_bearings, dtype=bool)
         blocked[real["blocked"]] = True
-        self.hit = np.isfinite(self.r) & ~blocked[None]
-        self.target = np.asarray(real["p_null_bearing"], dtype=np.float64)
+        st = cell_statistics(real_log, 6.0, split_spurious=True)
         self.knots_r, self.knots = _sigma_knots(real)
         sv = real["spur_value"]
         self.base = dataclasses.replace(
@@ -335,14 +533,15 @@ class _Problem:
             sigma_knots=self.knots,
             spur_value=(float(sv[0]), float(sv[1])) if sv[0] is not None else base.spur_value,
             spur_bearing_weight=_spur_weights(real),
+            **_null_law_params(r, a, np.isfinite(r) & ~blocked[None] & (st["n"] > 0), st["p_null"]),
+            **_spur_range(real),
+            **fit_bias_law(r, a, np.where((st["n_ok"] >= 2) & (st["p_spur"] == 0), st["mean"] - r, np.nan)),
         )
 
     def x0(self, rig: NeatoRig) -> NDArray[np.float64]:
         """Search coordinates of a rig (the start of the search)."""
         return np.array(
             [
-                rig.null_logit[1],
-                rig.null_logit[2],
                 np.log(max(rig.null_cell_corr, 0.9) / (1 - min(rig.null_cell_corr, 0.999))),
                 np.log(max(rig.null_arc, 2.0)),
                 rig.bias_mean * 1e3,
@@ -351,28 +550,33 @@ class _Problem:
                 np.log(max(rig.spur_frac[0], 1e-3) / (1 - min(rig.spur_frac[0], 1 - 1e-3))),
                 np.log(max(rig.pose_sd[0] * 100, 0.01)),
                 np.log(max(np.rad2deg(rig.pose_sd[1]), 0.01)),
+                np.log(max(rig.map_sd * 100, 0.01)),
                 0.0,
+                np.log(max(rig.out_cell_rate, 0.03) / (1 - min(rig.out_cell_rate, 0.99))),
+                np.log(max(rig.out_cell_arc, 2.0)),
             ]
         )
 
     def rig(self, x: NDArray[np.float64]) -> NeatoRig:
-        """The rig at search coordinates ``x`` (per-bearing null offsets profiled, rounded to 0.01)."""
-        c1, c2 = float(x[0]), float(x[1])
-        corr, arc = float(np.clip(_logistic(np.array(x[2])), 0.0, 0.9999)), float(min(np.exp(x[3]), 60.0))
-        c0, off = _null_offsets(self.r, self.a, self.hit, self.target, (c1, c2))
-        scale = float(np.exp(x[10]))
+        """The rig at search coordinates ``x`` (the null law and per-bearing effects are fixed statistics)."""
+        corr, arc = float(np.clip(_logistic(np.array(x[0])), 0.0, 0.9999)), float(min(np.exp(x[1]), 60.0))
+        scale = float(np.exp(x[9]))
         return dataclasses.replace(
             self.base,
-            null_logit=(round(c0, 4), round(c1, 4), round(c2, 4)),
-            null_bearing_logit=off,
             null_cell_corr=round(corr, 5),
             null_arc=round(arc, 3),
-            bias_mean=round(float(np.clip(x[4], -100, 100)) * 1e-3, 6),
-            bias_sd=round(float(min(np.exp(x[5]), 100.0)) * 1e-3, 6),
-            spur_prone=round(float(_logistic(np.array(x[6]))), 5),
-            spur_frac=(round(float(_logistic(np.array(x[7]))), 4), 1.0),
-            pose_sd=(round(float(np.exp(x[8])) / 100, 5), round(float(np.deg2rad(np.exp(x[9]))), 5)),
+            bias_mean=round(float(np.clip(x[2], -100, 100)) * 1e-3, 6),
+            bias_sd=round(float(min(np.exp(x[3]), 100.0)) * 1e-3, 6),
+            spur_prone=round(float(_logistic(np.array(x[4]))), 5),
+            spur_frac=(round(float(_logistic(np.array(x[5]))), 4), 1.0),
+            pose_sd=(
+                round(float(min(np.exp(x[6]), 100.0)) / 100, 5),
+                round(float(np.deg2rad(min(np.exp(x[7]), 90))), 5),
+            ),
+            map_sd=round(float(min(np.exp(x[8]), 100.0)) / 100, 5),
             sigma_knots=tuple(float(f"{v * scale:.3g}") for v in self.knots),
+            out_cell_rate=round(float(np.clip(_logistic(np.array(x[10])), 0.0, 0.5)), 5),
+            out_cell_arc=round(float(min(np.exp(x[11]), 60.0)), 3),
         )
 
     def evaluate(self, rig: NeatoRig, seed: int | None = None) -> tuple[dict[str, float], dict[str, Any]]:
@@ -385,6 +589,39 @@ class _Problem:
         )
         stats = log_summary(log, rig.max_range)
         return discrepancy(stats, self.real), stats
+
+
+SIGMA_REFINE_STEPS = 4
+"""Fixed-point steps of :func:`refine_sigma`."""
+
+
+def refine_sigma(prob: _Problem, rig: NeatoRig, steps: int = SIGMA_REFINE_STEPS) -> NeatoRig:
+    """``rig`` with each knot of sigma versus range rescaled until the simulated statistic meets the real one.
+
+    Per 0.5 m bin the knot is multiplied by ``exp(real - simulated)`` of ``sigma_range`` (the log median cell
+    standard deviation; factor clipped to [1/3, 3]), ``steps`` times; the knots outside the bins follow their
+    neighbours. The median of quantised readings (1 mm) is not the noise's sigma: at short range the real
+    cells mostly read one value, which a single scale over all knots cannot match. Keeps the step that
+    lowers the whole discrepancy most (possibly none).
+    """
+    real = np.asarray(prob.real["sigma_range"], dtype=np.float64)
+    d, stats = prob.evaluate(rig)
+    best = (d["total"], rig)
+    for _ in range(steps):
+        sim = np.asarray(stats["sigma_range"], dtype=np.float64)
+        kv = np.asarray(rig.sigma_knots, dtype=np.float64).copy()
+        kr = np.asarray(rig.sigma_knots_r, dtype=np.float64)
+        centres = 0.5 * (RANGE_BINS[:-1] + RANGE_BINS[1:])
+        ok = np.isfinite(real) & np.isfinite(sim)
+        if not ok.any():
+            break
+        f = np.exp(np.clip(real[ok] - sim[ok], -np.log(3), np.log(3)))
+        kv = kv * np.interp(kr, centres[ok], f)  # knots at bin centres take their bin's factor; the others the nearest
+        rig = dataclasses.replace(rig, sigma_knots=tuple(float(f"{v:.3g}") for v in np.maximum(kv, 1e-6)))
+        d, stats = prob.evaluate(rig)
+        if d["total"] < best[0]:
+            best = (d["total"], rig)
+    return best[1]
 
 
 def calibrate_rig(
@@ -418,39 +655,49 @@ def calibrate_rig(
     before, before_stats = prob.evaluate(before_rig)
     x0 = prob.x0(before_rig)
     if real["bias_mean"] is not None:  # start the bias at the real per-bearing statistics (the search refines it)
-        x0[4], x0[5] = real["bias_mean"] * 1e3, np.log(max(real["bias_sd"] * 1e3, 0.1))
-    steps = np.array([0.3, 0.3, 0.5, 0.5, 2.0, 0.5, 0.7, 0.7, 0.5, 0.5, 0.2])
+        x0[2], x0[3] = real["bias_mean"] * 1e3, np.log(max(real["bias_sd"] * 1e3, 0.1))
+    steps = np.array([0.5, 0.5, 2.0, 0.5, 0.7, 0.7, 0.5, 0.5, 0.7, 0.2, 0.7, 0.5])
     n_eval = 0
     best = (np.inf, x0)
     bar = tqdm(total=max_evals, desc="calibrate lidar rig", disable=not progress)
 
-    def objective(x: NDArray[np.float64]) -> float:
+    def objective(x: NDArray[np.float64], terms: tuple[str, ...] | None = None) -> float:
         nonlocal n_eval, best
-        d = prob.evaluate(prob.rig(x))[0]["total"]
+        dd = prob.evaluate(prob.rig(x))[0]
         n_eval += 1
-        if d < best[0]:
-            best = (d, np.array(x))
+        if dd["total"] < best[0]:
+            best = (dd["total"], np.array(x))
         bar.update(1)
         bar.set_postfix(D=f"{best[0]:.3g}")
         if callback is not None:
-            callback(n_eval, d)
-        return d
+            callback(n_eval, dd["total"])
+        return dd["total"] if terms is None else float(sum(dd[t] for t in terms))
 
     converged = []
-    for block, share in BLOCKS:  # nearly separable: Nelder-Mead per block of coordinates, then all together
+    x_cur = x0.copy()
+    for block, share, terms in BLOCKS:  # nearly separable: Nelder-Mead per block of coordinates, then all together
         idx = np.asarray(block, dtype=int)
         budget = max(int(share * max_evals), len(idx) + 2)
         budget = min(budget, max_evals - n_eval)
         if budget < len(idx) + 2:
             break
-        x_best = best[1].copy()
+        x_start = (best[1] if terms is None else x_cur).copy()
 
-        def sub(y: NDArray[np.float64], idx: NDArray[np.int64] = idx, x_best: NDArray[np.float64] = x_best) -> float:
-            x = x_best.copy()
+        def sub(
+            y: NDArray[np.float64],
+            idx: NDArray[np.int64] = idx,
+            x_start: NDArray[np.float64] = x_start,
+            terms: tuple[str, ...] | None = terms,
+        ) -> float:
+            x = x_start.copy()
             x[idx] = y
-            return objective(x)
+            return objective(x, terms)
 
-        y0 = x_best[idx]
+        y0 = x_start[idx]
+        if terms == _NULL_TERMS:  # rugged in the persistence: start from the best of a coarse grid
+            grid = [np.array([c, a]) for c in NULL_GRID_CORR for a in NULL_GRID_ARC]
+            y0 = min(grid, key=sub)
+            budget = max(budget - len(grid), len(idx) + 2)
         simplex = np.vstack([y0, y0 + np.diag(steps[idx])])
         res = minimize(
             sub,
@@ -458,9 +705,11 @@ def calibrate_rig(
             method="Nelder-Mead",
             options={"maxfev": budget, "initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-3},
         )
+        x_cur = x_start.copy()
+        x_cur[idx] = res.x
         converged.append(bool(res.success))
     bar.close()
-    rig = prob.rig(best[1])
+    rig = refine_sigma(prob, prob.rig(best[1]))
     after, after_stats = prob.evaluate(rig)
     fresh, _ = prob.evaluate(rig, seed=seed + 1)
     fresh_before, _ = prob.evaluate(before_rig, seed=seed + 1)
@@ -490,7 +739,8 @@ def calibrate_rig(
             "method": "scipy.optimize.minimize Nelder-Mead, common random numbers",
             "coordinates": list(SEARCH),
             "evaluations": n_eval,
-            "blocks": [[SEARCH[i] for i in blk] for blk, _ in BLOCKS],
+            "blocks": [[SEARCH[i] for i in blk] for blk, _, _ in BLOCKS],
+            "block_terms": [list(t) if t is not None else "total" for _, _, t in BLOCKS],
             "block_converged": converged,
             "seed": seed,
             "seconds": round(time.perf_counter() - t0, 1),

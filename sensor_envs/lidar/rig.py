@@ -41,7 +41,28 @@ Effects off by default, set by a calibrated rig file (``sensor-envs calibrate li
   smoothly with the parameters (simulation-based calibration);
 * ``spur_bearing_weight`` ``(K,)``: relative proneness of each bearing to spurious far returns (the
   real spurious cells recur at some bearings); a cell is prone with probability
-  ``min(spur_prone * weight, 1)`` instead of ``spur_prone`` within ``spur_window`` of a post.
+  ``min(spur_prone * weight, 1)`` instead of ``spur_prone`` within ``spur_window`` of a post;
+* ``null_range_knots`` / ``null_range_logit`` and ``null_incidence_knots`` / ``null_incidence_logit``:
+  piecewise-linear tables [m -> logit] and [rad -> logit] ADDED to the linear law of logit ``p_null``
+  (constant beyond the end knots). The real null rate is not logistic-linear: it is flat up to
+  0.9 rad of incidence and then rises steeply (0.15 -> 0.9 at 1.45 rad), and it levels off at about
+  0.6 beyond 2.5 m (a linear logit keeps rising to 0.8);
+* ``spur_range_knots`` / ``spur_range_weight``: a piecewise-linear factor [m -> 1] on the probability
+  that a cell is spurious-prone, by its true range (the real spurious cells are all within 1 m; range
+  ``inf``, no hit, takes the last weight);
+* ``pose_sd_spread``: the pose error's standard deviations ``pose_sd`` are multiplied per pose by
+  ``exp(pose_sd_spread * z)``, ``z`` a standard normal per pose (a log-normal scale mixture: the real
+  poses are either precise or clearly off; median per-pose mean |cell mean - nominal| 0.03 m, 10 %
+  of the poses above 0.11 m);
+* ``bias_range_knots`` / ``bias_range`` and ``bias_incidence_knots`` / ``bias_incidence``: piecewise-linear
+  tables [m -> m] and [rad -> m] of a range bias shared by all bearings, added to the per-bearing bias
+  (constant beyond the end knots): the real readings fall short of the nominal range far away (median
+  cell mean - nominal -0.03 m at 2.5-3 m, -0.17 m at 3.5-4 m) and at grazing incidence;
+* ``out_cell_rate``, ``out_cell_arc``: outlying cells, whose ray meets a surface the map lacks or
+  passes a gap the map closes (the real log's cells with |cell mean - nominal| > 0.2 m: 4.4 %, in runs of
+  about 3 bearings, nearly 3 in 4 longer than nominal): a share ``out_cell_rate`` of a pose's hit cells,
+  chosen by a unit normal field smoothed over ``out_cell_arc`` bearings (as the persistent nulls), read
+  around a true range drawn uniformly on ``[0, max_range]`` instead of the map's.
 
 Frames and units: metres and radians; bearings counter-clockwise from the sensor's x axis.
 """
@@ -110,6 +131,19 @@ RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
     "spur_window": [Interval(0, 180)],
     "spur_prone": [Interval(0, 1)],
     "spur_bearing_weight": [Numbers(Interval(0, 1e4), min_length=0)],
+    "null_range_knots": [Numbers(_NONNEG, min_length=0, increasing=True)],
+    "null_range_logit": [Numbers(Interval(-50, 50), min_length=0)],
+    "null_incidence_knots": [Numbers(_NONNEG, min_length=0, increasing=True)],
+    "null_incidence_logit": [Numbers(Interval(-50, 50), min_length=0)],
+    "spur_range_knots": [Numbers(_NONNEG, min_length=0, increasing=True)],
+    "spur_range_weight": [Numbers(Interval(0, 1e4), min_length=0)],
+    "pose_sd_spread": [Interval(0, 5)],
+    "bias_range_knots": [Numbers(_NONNEG, min_length=0, increasing=True)],
+    "bias_range": [Numbers(Interval(-1, 1), min_length=0)],
+    "bias_incidence_knots": [Numbers(_NONNEG, min_length=0, increasing=True)],
+    "bias_incidence": [Numbers(Interval(-1, 1), min_length=0)],
+    "out_cell_rate": [Interval(0, 1, open_high=True)],
+    "out_cell_arc": [Interval(0, 180)],
     "spur_frac": [Numbers(Interval(0, 1), length=2)],
     "spur_value": [Numbers(_NONNEG, length=2)],
     "quantum": [Interval(0, 1, open_low=True)],
@@ -179,6 +213,19 @@ class NeatoRig:
     quantum: float = 0.001
     pose_sd: tuple[float, float] = (0.0177, float(np.deg2rad(2.0)))
     map_sd: float = 0.01
+    null_range_knots: tuple[float, ...] = ()
+    null_range_logit: tuple[float, ...] = ()
+    null_incidence_knots: tuple[float, ...] = ()
+    null_incidence_logit: tuple[float, ...] = ()
+    spur_range_knots: tuple[float, ...] = ()
+    spur_range_weight: tuple[float, ...] = ()
+    pose_sd_spread: float = 0.0
+    out_cell_rate: float = 0.0
+    out_cell_arc: float = 0.0
+    bias_range_knots: tuple[float, ...] = ()
+    bias_range: tuple[float, ...] = ()
+    bias_incidence_knots: tuple[float, ...] = ()
+    bias_incidence: tuple[float, ...] = ()
     bearings: NDArray[np.float64] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -196,6 +243,16 @@ class NeatoRig:
             bad.append(("spur_bearing_weight", f"has {len(self.spur_bearing_weight)} values, expected 0 or n_bearings"))
         if len(self.sigma_knots) != len(self.sigma_knots_r):
             bad.append(("sigma_knots", f"has {len(self.sigma_knots)} values, sigma_knots_r {len(self.sigma_knots_r)}"))
+        for knots, values in (
+            ("null_range_knots", "null_range_logit"),
+            ("null_incidence_knots", "null_incidence_logit"),
+            ("spur_range_knots", "spur_range_weight"),
+            ("bias_range_knots", "bias_range"),
+            ("bias_incidence_knots", "bias_incidence"),
+        ):
+            nk, nv = len(getattr(self, knots)), len(getattr(self, values))
+            if nk != nv or nk == 1:
+                bad.append((values, f"has {nv} values, {knots} {nk} (equal, and 0 or >= 2)"))
         if any(b >= self.n_bearings for b in self.blocked):
             bad.append(("blocked", f"holds an index >= n_bearings ({self.n_bearings})"))
         if self.spur_frac[0] > self.spur_frac[1]:
@@ -262,6 +319,22 @@ class NeatoRig:
             return np.where(self.blocked_mask(), 0.0, np.minimum(self.spur_prone * w, 1.0))
         return np.asarray(self.near_posts() * self.spur_prone, dtype=np.float64)
 
+    def spur_range_factor(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Factor [1] on the spurious-prone probability of a cell at true range ``r`` [m] (1 without a table)."""
+        if not self.spur_range_knots:
+            return np.ones(np.shape(r))
+        rr = np.where(np.isnan(r), np.inf, r)
+        return np.interp(np.minimum(rr, 1e9), self.spur_range_knots, self.spur_range_weight)
+
+    def bias_shape(self, r: NDArray[np.float64], alpha: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Range bias [m] shared by all bearings at true range ``r`` [m] and incidence ``alpha`` [rad] (tables)."""
+        out = np.zeros(np.broadcast_shapes(np.shape(r), np.shape(alpha)))
+        if self.bias_range_knots:
+            out = out + np.interp(np.where(np.isfinite(r), r, 0.0), self.bias_range_knots, self.bias_range)
+        if self.bias_incidence_knots:
+            out = out + np.interp(np.nan_to_num(alpha), self.bias_incidence_knots, self.bias_incidence)
+        return out
+
     def sigma(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
         """Noise standard deviation [m] at true range ``r`` [m]."""
         return np.interp(r, self.sigma_knots_r, self.sigma_knots) + self.k_far * np.maximum(r - 4.0, 0.0) ** 2
@@ -272,10 +345,23 @@ class NeatoRig:
 
     def null_linear(self, r: NDArray[np.float64], alpha: NDArray[np.float64]) -> NDArray[np.float64]:
         """Logit of the dropout probability ``(..., K)`` before the per-cell effect (any value where no hit)."""
-        c0, c1, c2 = self.null_logit
-        z = c0 + c1 * np.where(np.isfinite(r), r, 0.0) + c2 * np.nan_to_num(alpha)
+        z = self.null_logit[0] + self.null_shape(r, alpha)
         if self.null_bearing_logit:
             z = z + np.asarray(self.null_bearing_logit, dtype=np.float64)
+        return np.asarray(z, dtype=np.float64)
+
+    def null_shape(self, r: NDArray[np.float64], alpha: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The range and incidence part of logit ``p_null`` (no intercept, no bearing offsets; 0-filled where no hit).
+
+        ``c1 r + c2 alpha`` plus the piecewise-linear tables ``null_range_*`` and ``null_incidence_*`` when set.
+        """
+        _, c1, c2 = self.null_logit
+        rr, aa = np.where(np.isfinite(r), r, 0.0), np.nan_to_num(alpha)
+        z = c1 * rr + c2 * aa
+        if self.null_range_knots:
+            z = z + np.interp(rr, self.null_range_knots, self.null_range_logit)
+        if self.null_incidence_knots:
+            z = z + np.interp(aa, self.null_incidence_knots, self.null_incidence_logit)
         return np.asarray(z, dtype=np.float64)
 
     # ------------------------------------------------------------------------------------ readings
@@ -319,6 +405,8 @@ class NeatoRig:
         u = rng.random(shape)
         rr = np.where(np.isfinite(r), r, 0.0)
         x = rr + self.bias()[:, None] + self.sigma(rr) * rng.standard_normal(shape)
+        if self.bias_range_knots or self.bias_incidence_knots:
+            x = x + self.bias_shape(rr, alpha)
         spur = rng.normal(*self.spur_value, size=shape)
         pn = (self.p_null(r[..., 0], alpha[..., 0]) if p_null is None else p_null)[..., None]
         x = np.where(u < pn, 0.0, np.where(u < pn + (1 - pn) * p_spur, spur, x))
@@ -333,8 +421,10 @@ class NeatoRig:
         A scan has no pose identity, so each near-post bearing is spurious with the average rate; with
         ``null_cell_corr > 0`` each scan draws its own per-cell null effects (the marginal null rate).
         """
-        p_spur = self.spur_prone_per_bearing() * float(np.mean(self.spur_frac))
         r = np.asarray(nominal_range, float)
+        p_spur = self.spur_prone_per_bearing() * float(np.mean(self.spur_frac))
+        if self.spur_range_knots:
+            p_spur = np.minimum(p_spur * self.spur_range_factor(r), 1.0)
         a = np.asarray(incidence, float)
         pn = self.cell_p_null(r, a, rng) if self.null_cell_corr > 0 else None
         x = self._readings(r[:, None], a[:, None], p_spur[:, None], rng, pn)[:, 0]
@@ -370,8 +460,17 @@ class NeatoRig:
             else np.atleast_2d(np.asarray(poses, dtype=np.float64))
         )
         r, a, _ = raycast_pose(true_poses, self.bearings, true_map, self.max_range)
+        if self.out_cell_rate > 0:  # drawn only then: rigs without outlying cells keep their random stream
+            from scipy.special import ndtri
+
+            z = smooth_along_bearings(rng.standard_normal(r.shape), self.out_cell_arc)
+            far = rng.uniform(0.0, self.max_range, r.shape)
+            r = np.where(np.isfinite(r) & (z < ndtri(self.out_cell_rate)), far, r)
         unit = np.random.default_rng([self.unit_seed, 2])  # prone cells belong to the unit and the place
-        prone = rng.random(r.shape) < self.spur_prone_per_bearing()[None]
+        prone_p = self.spur_prone_per_bearing()[None]
+        if self.spur_range_knots:
+            prone_p = np.minimum(prone_p * self.spur_range_factor(r), 1.0)
+        prone = rng.random(r.shape) < prone_p
         p_spur = np.where(prone, unit.uniform(*self.spur_frac, r.shape), 0.0)
         pn = self.cell_p_null(r, a, rng)
         x = self._readings(
@@ -380,6 +479,8 @@ class NeatoRig:
         err = np.column_stack(
             [rng.normal(0, self.pose_sd[0], (len(true_poses), 2)), rng.normal(0, self.pose_sd[1], len(true_poses))]
         )
+        if self.pose_sd_spread > 0:  # drawn last: rigs without the spread keep their random stream
+            err = err * np.exp(self.pose_sd_spread * rng.standard_normal(len(true_poses)))[:, None]
         approx = true_poses + err
         approx[:, 2] = (approx[:, 2] + np.pi) % (2 * np.pi) - np.pi
         log = log_from_arrays(x, self.bearings, approx, nominal, source=f"NeatoRig(unit_seed={self.unit_seed})")
