@@ -284,8 +284,12 @@ def unicycle_step(pose: ArrayLike, v: ArrayLike, omega: ArrayLike, dt: float) ->
 def apply_null(raw: NDArray[np.float64], max_range: float, null_value: str) -> NDArray[np.float64]:
     """Readings [m] with nulls (NaN, ``<= 0`` or beyond ``max_range``) set to the ``null_value`` fill."""
     null = ~np.isfinite(raw) | (raw > max_range) | (raw <= 0.0)
-    fill = {"zero": 0.0, "nan": np.nan, "max": max_range}[null_value]
-    return np.where(null, fill, raw)
+    return np.where(null, null_fill(null_value, max_range), raw)
+
+
+def null_fill(null_value: str, max_range: float) -> float:
+    """The reading [m] a null stands as in the observation: 0, NaN or ``max_range`` (see :data:`NULL_VALUES`)."""
+    return {"zero": 0.0, "nan": np.nan, "max": max_range}[null_value]
 
 
 def finish_observation(
@@ -315,7 +319,6 @@ def finish_observation(
         clipped to the bounds; ``raw`` and ``incidence`` with NaN as 0 (``np.nan_to_num``). With numba one
         compiled pass computes the same bits as those numpy calls.
     """
-    fill = {"zero": 0.0, "nan": np.nan, "max": max_range}[null_value]
     kernel = compiled(_finish_loops)
     if kernel is not None:
         return kernel(
@@ -326,7 +329,7 @@ def finish_observation(
             np.ascontiguousarray(low, dtype=np.float32),
             np.ascontiguousarray(high, dtype=np.float32),
             float(max_range),
-            float(fill),
+            float(null_fill(null_value, max_range)),
         )
     ranges = apply_null(raw, max_range, null_value)
     obs = np.concatenate([ranges, goal_rel, dth[:, None]], axis=1).astype(np.float32)
@@ -420,11 +423,7 @@ def measure_rows(
     """
     lwlr = sys.modules.get("sensor_envs.lidar.lwlr")  # a LearnedLidar exists only once its module is loaded
     if isinstance(lidar, _BATCHED_LIDARS + ((lwlr.LearnedLidar,) if lwlr is not None else ())):
-        rng: np.random.Generator | RowGenerators
-        if isinstance(rngs, RowGenerators):
-            rng = rngs
-        else:
-            rng = rngs[0] if len(rngs) == 1 else RowGenerators(rngs)
+        rng = rngs if isinstance(rngs, RowGenerators) else rngs[0] if len(rngs) == 1 else RowGenerators(rngs)
         if extra is not None:  # only a LearnedLidar has extra state
             return np.asarray(lidar.measure(nominal, incidence, rng, extra=extra), dtype=np.float64)
         return np.asarray(lidar.measure(nominal, incidence, rng), dtype=np.float64)
