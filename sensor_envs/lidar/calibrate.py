@@ -64,6 +64,8 @@ REAL_LOG_NAME = "neato_mar27_train.npz"
 """File looked for when ``calibrate lidar`` is given a folder."""
 RANGE_BINS = np.arange(0.0, 4.01, 0.5)
 """Nominal-range bins [m] of the null and sigma statistics."""
+RANGE_CENTRES = 0.5 * (RANGE_BINS[:-1] + RANGE_BINS[1:])
+"""Centres [m] of :data:`RANGE_BINS` (the knots of the tables fitted per range bin)."""
 INCIDENCE_BINS = np.arange(0.0, 1.51, 0.25)
 """Incidence bins [rad] of the null statistic."""
 MIN_CELLS = 20
@@ -367,11 +369,10 @@ def fit_null_law(
     q = np.clip(rate, 1e-3, 1 - 1e-3)
     theta0 = np.r_[np.log(q / (1 - q)), np.zeros(nr + na)]
     res = minimize(loss, theta0, jac=True, method="L-BFGS-B", bounds=[(-20.0, 20.0)] * theta0.size)
-    b = res.x[:nk]
-    c0 = float(np.median(b[used])) if used.any() else -4.0
+    c0, offsets = _intercept_and_offsets(res.x[:nk], used)
     return {
         "c0": round(c0, 4),
-        "offsets": tuple(float(v) for v in np.where(used, np.round(b - c0, 2), 0.0)),
+        "offsets": offsets,
         "null_range_knots": NULL_RANGE_KNOTS,
         "null_range_logit": tuple(float(v) for v in np.asarray(np.round(np.r_[0.0, res.x[nk : nk + nr]], 3))),
         "null_incidence_knots": NULL_INCIDENCE_KNOTS,
@@ -444,21 +445,19 @@ def _spur_range(stats: dict[str, Any]) -> dict[str, Any]:
     ok = np.isfinite(share)
     if not ok.any() or not overall:
         return {"spur_range_knots": (), "spur_range_weight": ()}
-    centres = 0.5 * (RANGE_BINS[:-1] + RANGE_BINS[1:])
     return {
-        "spur_range_knots": tuple(float(v) for v in centres[ok]),
+        "spur_range_knots": tuple(float(v) for v in RANGE_CENTRES[ok]),
         "spur_range_weight": tuple(float(f"{v:.3g}") for v in share[ok] / overall),
     }
 
 
 def _sigma_knots(real: dict[str, Any]) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """Knots of sigma versus range [m] from the real median cell standard deviation per range bin."""
-    centres = 0.5 * (RANGE_BINS[:-1] + RANGE_BINS[1:])
     s = np.exp(np.asarray(real["sigma_range"], dtype=np.float64))
     ok = np.isfinite(s)
     if not ok.any():
         return NeatoRig.sigma_knots_r, NeatoRig.sigma_knots
-    kr = np.r_[0.0, centres[ok], max(4.0, centres[ok][-1] + 0.25)]
+    kr = np.r_[0.0, RANGE_CENTRES[ok], max(4.0, RANGE_CENTRES[ok][-1] + 0.25)]
     kv = np.r_[s[ok][0], s[ok], s[ok][-1]]
     return tuple(float(v) for v in kr), tuple(float(f"{v:.3g}") for v in kv)
 
@@ -468,7 +467,15 @@ def _null_offsets(
 ) -> tuple[float, tuple[float, ...]]:
     """Intercept and per-bearing offsets (rounded to 0.01) of logit ``p_null`` matching per-bearing null rates."""
     b = profile_bearing_intercepts(lin, hit, target)
-    used = hit.any(0) & np.isfinite(target)
+    return _intercept_and_offsets(b, hit.any(0) & np.isfinite(target))
+
+
+def _intercept_and_offsets(b: NDArray[np.float64], used: NDArray[np.bool_]) -> tuple[float, tuple[float, ...]]:
+    """Per-bearing logit intercepts ``b (K,)`` as one intercept and offsets from it.
+
+    The intercept is their median over the ``used`` bearings (-4 when none); the offsets are rounded to 0.01,
+    0 at unused bearings.
+    """
     c0 = float(np.median(b[used])) if used.any() else -4.0
     return c0, tuple(float(v) for v in np.where(used, np.round(b - c0, 2), 0.0))
 
@@ -611,12 +618,12 @@ def refine_sigma(prob: _Problem, rig: NeatoRig, steps: int = SIGMA_REFINE_STEPS)
         sim = np.asarray(stats["sigma_range"], dtype=np.float64)
         kv = np.asarray(rig.sigma_knots, dtype=np.float64).copy()
         kr = np.asarray(rig.sigma_knots_r, dtype=np.float64)
-        centres = 0.5 * (RANGE_BINS[:-1] + RANGE_BINS[1:])
         ok = np.isfinite(real) & np.isfinite(sim)
         if not ok.any():
             break
         f = np.exp(np.clip(real[ok] - sim[ok], -np.log(3), np.log(3)))
-        kv = kv * np.interp(kr, centres[ok], f)  # knots at bin centres take their bin's factor; the others the nearest
+        # knots at bin centres take their bin's factor; the others the nearest one's
+        kv = kv * np.interp(kr, RANGE_CENTRES[ok], f)
         rig = dataclasses.replace(rig, sigma_knots=tuple(float(f"{v:.3g}") for v in np.maximum(kv, 1e-6)))
         d, stats = prob.evaluate(rig)
         if d["total"] < best[0]:
