@@ -14,6 +14,7 @@ in-range readings, over cells whose ray hits the map and that have at least 2 in
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -32,11 +33,12 @@ def main() -> None:
     ap.add_argument("--folds", type=int, default=5, help="leave-poses-out folds (default: 5, as the fidelity report)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the fold assignment (default: 0)")
     args = ap.parse_args()
-    try:
+    try:  # bad input: one line naming the file, exit 2
         real = load_real_log(args.data)
-    except FileNotFoundError as exc:
-        raise SystemExit(f"{exc}: nothing to report") from None
-    model = LidarLWLR.load(args.model)
+        model = LidarLWLR.load(args.model)
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"{exc}: nothing to report", file=sys.stderr)
+        raise SystemExit(2) from None
     r, a = lidar_features(real.poses, real.bearings, real.require_map(), 5.0)
     mu = model.params_from_features(r, a)["mu"]
     st = cell_statistics(real, 6.0, split_spurious=True)

@@ -18,6 +18,7 @@ over folds) as a markdown table. Models and data stay in memory (~2 min for 4 ri
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -63,8 +64,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     t0 = time.perf_counter()
-    frames = cal.load_real(args.data)
-    base, _ = load_rig(args.rig)
+    try:  # bad input: one line naming the file, exit 2
+        frames = cal.load_real(args.data)
+        base, _ = load_rig(args.rig)
+    except (FileNotFoundError, ValueError) as exc:
+        print(exc, file=sys.stderr)
+        raise SystemExit(2) from None
     generic = RigConfig()
     base = replace(  # the calibration's start: the generic rig's detection law, --rig's reflection and offsets
         base,

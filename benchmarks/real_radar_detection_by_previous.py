@@ -16,6 +16,7 @@ where the stationary law of ``benchmarks/real_radar_fidelity.py`` loses detectio
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +34,12 @@ def main() -> None:
     ap.add_argument("--model", nargs="+", default=[str(ROOT / "models" / "radar_kde.npz")], help="KDE model files")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
-    frames = load_real(args.data)
+    try:  # bad input: one line naming the file, exit 2
+        frames = load_real(args.data)
+        models = [(path, KDERadarModel.load(path)) for path in args.model]
+    except (FileNotFoundError, ValueError) as exc:
+        print(exc, file=sys.stderr)
+        raise SystemExit(2) from None
     c = frames.corner
     n = c.shape[0]
     r = np.hypot(c[:, 0], c[:, 1])
@@ -45,8 +51,7 @@ def main() -> None:
         bins[f"az {lo:g}..{hi:g} deg"] = (az >= a) & (az < b)
     bins["all"] = np.ones(n, dtype=bool)
     nan = np.full((n, 2), np.nan)
-    for path in args.model:  # one iteration per model file
-        model = KDERadarModel.load(path)
+    for path, model in models:  # one iteration per model file
         rng = np.random.default_rng(args.seed)
 
         def p_detect(prev: np.ndarray, new: bool, m: KDERadarModel = model) -> np.ndarray:
