@@ -1,6 +1,7 @@
 """Steps/s of N Neato robots: gymnasium's SyncVectorEnv over N single envs vs the vector entry point.
 
 Run: python benchmarks/bench_neato_vector.py [--lidars ideal gaussian learned] [--sizes 1 8 64] [--steps 20000]
+     python benchmarks/bench_neato_vector.py --breakdown [--lidars learned]   # us per part of one N = 64 step
 
 A "step" is one robot-step (a vector step of N robots counts N). Random actions (seeded), autoreset on;
 both modes in one process, alternating run by run; rates by wall clock and by CPU time (steadier when other
@@ -51,13 +52,88 @@ def robot_steps_per_second(lidar: str, n: int, robot_steps: int, repeats: int) -
     return rates
 
 
+def step_breakdown(lidar: str, n: int = 64, calls: int = 1000) -> dict[str, float]:
+    """Microseconds per call of each part of one vector step of ``n`` robots (median of 5 blocks of ``calls``).
+
+    The parts are called on the robots' poses after a seeded reset, as :func:`~sensor_envs.envs.neato.observe_batch`
+    calls them: the raycast (and, alone, the ``acos`` of its incidences), the lidar's readings (for the learned
+    lidar also its uniform and normal draws and the compiled lookup-and-draw kernel alone), the observation pass,
+    the whole ``observe_batch`` and the whole ``step``.
+    """
+    import math
+
+    from sensor_envs.envs.neato import finish_observation, measure_rows, observe_batch
+    from sensor_envs.geometry import raycast_pose, to_frame, wrap_angle
+    from sensor_envs.rng import compiled
+
+    venv = gym.make_vec("sensor_envs/Neato-v0", num_envs=n, vectorization_mode="vector_entry_point", lidar=lidar)
+    u = venv.unwrapped
+    u.reset(seed=0)
+    env, pose, goal, rngs = u.envs[0], u._pose.copy(), u._goal.copy(), u._rngs
+    segs, box = env.world_map.segments, env.observation_space
+    hit = np.zeros(n, dtype=bool)
+    nom, inc, _ = raycast_pose(pose, env.bearings, segs, env.max_range)
+    raw = measure_rows(env.lidar, nom, inc, rngs)
+    goal_rel, dth = to_frame(goal[:, :2], pose.T), wrap_angle(goal[:, 2] - pose[:, 2])
+    cosines = np.cos(np.nan_to_num(inc))  # values in [0, 1], as the raycast's arguments of acos
+    parts = {
+        "raycast": lambda: raycast_pose(pose, env.bearings, segs, env.max_range),
+        "  of it: acos of the incidences (numpy)": lambda: np.arccos(cosines),
+        "lidar readings": lambda: measure_rows(env.lidar, nom, inc, rngs),
+        "observation pass": lambda: finish_observation(
+            raw, inc, goal_rel, dth, box.low, box.high, env.max_range, env.null_value
+        ),
+        "observe_batch (all of the above)": lambda: observe_batch(env, pose, goal, rngs, hit),
+        "step": lambda: u.step(np.zeros((n, 2), dtype=np.float32)),
+    }
+    model = getattr(env.lidar, "model", None)
+    if model is not None:
+        from sensor_envs.lidar import lwlr
+
+        kernel = compiled(lwlr._scan_loops)
+        shrink = float(getattr(model, "bias_shrinkage_", 0.0))
+        cells, idx = model._scan_tables(with_bias=shrink != 1.0)
+        rg, ag = model.range_grid_, model.alpha_grid_
+        uu, zz = rngs.random(nom.shape), rngs.standard_normal(nom.shape)
+        ext = model.variant == "extended"
+        spur = (float(model.spur_mu_), float(model.spur_sigma_), True) if ext else (0.0, 0.0, False)
+        parts["  of it: uniform draws"] = lambda: rngs.random(nom.shape)
+        parts["  of it: normal draws"] = lambda: rngs.standard_normal(nom.shape)
+        if kernel is not None:
+            grid = (float(rg[0]), float(rg[1]), float(rg[-1]), float(ag[0]), float(ag[1]))
+            args = (cells, *grid, nom, inc, uu, zz, idx, shrink, *spur)
+            parts["  of it: lookup-and-draw kernel"] = lambda: kernel(*args)
+    out = {}
+    for name, f in parts.items():
+        f()
+        blocks = []
+        for _ in range(5):
+            t = time.perf_counter()
+            for _ in range(calls):
+                f()
+            blocks.append((time.perf_counter() - t) / calls * 1e6)
+        out[name] = float(np.median(blocks))
+    venv.close()
+    assert math.isfinite(sum(out.values()))
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--lidars", nargs="+", default=["ideal", "gaussian", "learned"])
     parser.add_argument("--sizes", nargs="+", type=int, default=[1, 8, 64])
     parser.add_argument("--steps", type=int, default=20000, help="robot-steps per timed run")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--breakdown", action="store_true", help="us per part of one N = 64 vector step instead")
     args = parser.parse_args()
+    if args.breakdown:
+        for lidar in args.lidars:
+            parts = step_breakdown(lidar)
+            print(f"\n{lidar} lidar, one vector step of 64 robots (23,040 rays), us per call, median of 5 x 1000:")
+            print("| part | us |\n|---|---:|")
+            for name, us in parts.items():
+                print(f"| {name} | {us:,.0f} |")
+        return
     print(f"Neato-v0 robot-steps/s, {args.steps} robot-steps per run, median of {args.repeats}")
     print(f"load average before: {' '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores")
     print(

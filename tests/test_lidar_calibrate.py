@@ -254,6 +254,7 @@ def test_previously_shipped_rig_file_loads_with_its_linear_law():
         ({"pose_sd_spread": float("nan")}, "params.pose_sd_spread"),
         ({"out_cell_rate": 1.0}, "params.out_cell_rate"),
         ({"out_cell_arc": -1.0}, "params.out_cell_arc"),
+        ({"null_bearing_range_slope": [0.0] * 359 + [99.0]}, "params.null_bearing_range_slope"),
     ],
 )
 def test_bad_new_rig_values_name_file_and_field(tmp_path, params, field):
@@ -275,6 +276,54 @@ def test_null_tables_add_to_the_linear_law():
     r[0, k], a[0, k] = (1.0, 3.0, 1.0), (0.0, 0.0, 1.25)
     p = rig.p_null(r, a)[0, k]
     np.testing.assert_allclose(p, 1 / (1 + np.exp(-np.array([0.0, 4.0, 1.5]))))  # constant beyond the end knot
+
+
+def test_per_bearing_range_slopes_add_to_the_null_logit():
+    from sensor_envs.lidar.rig import NULL_SLOPE_CENTRE
+
+    slopes = np.zeros(360)
+    slopes[[10, 20]] = (1.0, -2.0)
+    rig = NeatoRig(null_logit=(0.0, 0.0, 0.0), null_bearing_range_slope=tuple(slopes))
+    r = np.full((1, 360), 3.0)
+    z = rig.null_linear(r, np.zeros_like(r))[0]
+    np.testing.assert_allclose(z[[10, 20, 30]], np.array([1.0, -2.0, 0.0]) * (3.0 - NULL_SLOPE_CENTRE))
+    with pytest.raises(ValueError, match="null_bearing_range_slope"):
+        NeatoRig(null_bearing_range_slope=(0.0, 1.0))
+
+
+def test_fit_null_law_recovers_per_bearing_range_slopes():
+    from sensor_envs.lidar.calibrate import fit_null_law
+    from sensor_envs.lidar.rig import NULL_SLOPE_CENTRE
+
+    rng = np.random.default_rng(1)
+    p_, k = 200, 40
+    r, a = rng.uniform(0.2, 3.8, (p_, k)), rng.uniform(0.0, 1.5, (p_, k))
+    off, slope = rng.normal(0, 1, k), rng.normal(0, 1, k)
+    slope -= slope.mean()  # the slopes sum to 0: a common trend belongs to the shared range table
+    z = -1.0 + off[None] + slope[None] * (r - NULL_SLOPE_CENTRE)
+    law = fit_null_law(r, a, np.ones((p_, k), bool), 1 / (1 + np.exp(-z)), slope_ridge=0.01)
+    s = np.asarray(law["range_slopes"])
+    assert s.shape == (k,) and np.corrcoef(s, slope)[0, 1] > 0.98 and abs(s.sum()) < 0.05
+    none = fit_null_law(r, a, np.ones((p_, k), bool), 1 / (1 + np.exp(-z)), slope_ridge=np.inf)
+    assert none["range_slopes"] == ()
+
+
+def test_slope_ridge_is_chosen_by_leave_poses_out_cv():
+    from sensor_envs.lidar.calibrate import NULL_SLOPE_RIDGES, choose_slope_ridge
+    from sensor_envs.lidar.rig import NULL_SLOPE_CENTRE
+
+    rng = np.random.default_rng(2)
+    p_, k = 25, 6
+    r, a = rng.uniform(0.2, 3.8, (p_, k)), rng.uniform(0.0, 1.5, (p_, k))
+    off = rng.normal(0, 1, k)
+    hit = np.ones((p_, k), bool)
+    flat = np.broadcast_to(1 / (1 + np.exp(-(-1.0 + off[None]))), (p_, k))
+    sloped = 1 / (1 + np.exp(-(-1.0 + off[None] + 3.0 * np.sign(off)[None] * (r - NULL_SLOPE_CENTRE))))
+    noisy = lambda p: rng.binomial(20, p) / 20  # noqa: E731 - 20 readings per cell
+    ridge_flat, cv = choose_slope_ridge(r, a, hit, noisy(flat))
+    assert ridge_flat == np.inf and set(cv) == {f"{v:g}" for v in NULL_SLOPE_RIDGES}  # slopes only add noise
+    ridge_sloped, cv = choose_slope_ridge(r, a, hit, noisy(sloped))
+    assert np.isfinite(ridge_sloped) and cv[f"{ridge_sloped:g}"] < cv["inf"]
 
 
 def test_spurious_returns_follow_the_range_factor():

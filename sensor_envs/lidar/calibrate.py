@@ -19,8 +19,9 @@ bearings (never returning: mean null fraction > 0.99 over the poses), the spurio
 spread, the shape of sigma versus range (median cell standard deviation per 0.5 m bin), the per-bearing
 spurious weights and the spurious factor per range (the real spurious cells are all within 1 m), the
 null law (:func:`fit_null_law`: a logistic regression of the cells' null fractions on per-bearing
-intercepts and piecewise-linear tables of range and incidence; the real null rate is flat up to 0.9 rad
-of incidence, then steep, and levels off beyond 2.5 m, which the former linear logit could not follow),
+intercepts, per-bearing range slopes (their ridge chosen by leave-poses-out CV, :func:`choose_slope_ridge`) and
+piecewise-linear tables of range and incidence; the real null rate is flat up to 0.9 rad of incidence,
+then steep, and levels off beyond 2.5 m, which the former linear logit could not follow),
 and the range bias shared by the bearings (:func:`fit_bias_law`: tables of the median cell deviation
 versus range and incidence; the real readings fall short by 0.03-0.17 m beyond 2.5 m). The
 Nelder-Mead search then runs over the remaining parameters (:data:`SEARCH`), per block of coordinates
@@ -42,11 +43,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import minimize
+from threadpoolctl import threadpool_limits
 from tqdm.auto import tqdm
 
 from sensor_envs.lidar.log import LidarLog, load_log
 from sensor_envs.lidar.lwlr import cell_statistics, lidar_features
-from sensor_envs.lidar.rig import NeatoRig
+from sensor_envs.lidar.rig import NULL_SLOPE_CENTRE, NeatoRig
+from sensor_envs.rng import fold_ids
 
 __all__ = [
     "STATISTICS",
@@ -314,6 +317,15 @@ NULL_INCIDENCE_KNOTS = (0.0, 0.3, 0.6, 0.9, 1.05, 1.2, 1.35, 1.5, 1.6)
 """Knots [rad] of the rig's table of logit ``p_null`` versus incidence."""
 NULL_SMOOTHING = 2.0
 """Penalty on the squared second differences of the two tables [logit^2], against the cells' cross-entropy."""
+NULL_SLOPE_RIDGES = (float("inf"), 0.1, 0.01, 0.003)
+"""Candidate ridges on the per-bearing range slopes of logit ``p_null`` (``inf`` = no slopes), one chosen per log
+by leave-poses-out CV (:func:`choose_slope_ridge`). On the real Neato log: held-out MAE p_null 0.117 without
+slopes, 0.105 at 0.1, 0.099 at 0.01, 0.098 at 0.003 (0.097 at 0.001, slower to fit and not kept;
+``benchmarks/real_lidar_null_law_cv.py``)."""
+NULL_SLOPE_CV_FOLDS = 5
+"""Leave-poses-out folds of the ridge choice."""
+NULL_SLOPE_CV_TOLERANCE = 0.01
+"""The strongest ridge whose held-out MAE is within this fraction of the best one is chosen."""
 
 
 def _hat_basis(v: NDArray[np.float64], knots: tuple[float, ...]) -> NDArray[np.float64]:
@@ -323,13 +335,19 @@ def _hat_basis(v: NDArray[np.float64], knots: tuple[float, ...]) -> NDArray[np.f
 
 
 def fit_null_law(
-    r: NDArray[np.float64], a: NDArray[np.float64], hit: NDArray[np.bool_], p_null: NDArray[np.float64]
+    r: NDArray[np.float64],
+    a: NDArray[np.float64],
+    hit: NDArray[np.bool_],
+    p_null: NDArray[np.float64],
+    slope_ridge: float | None = None,
 ) -> dict[str, Any]:
-    """Fit logit ``p_null = c0 + b_k + f(r) + g(alpha)`` to the null fractions of a log's cells.
+    """Fit logit ``p_null = c0 + b_k + s_k (r - NULL_SLOPE_CENTRE) + f(r) + g(alpha)`` to a log's cell null fractions.
 
-    A logistic regression (each hit cell weight 1, its null fraction the response) with per-bearing
-    intercepts and piecewise-linear tables ``f`` (:data:`NULL_RANGE_KNOTS`) and ``g``
-    (fractions clipped to [0.001, 0.999], so that a bearing never or always null in few cells is not certain)
+    A logistic regression (each hit cell weight 1, its null fraction the response, clipped to [0.001, 0.999]
+    so that a bearing never or always null in few cells is not certain) with per-bearing intercepts ``b_k``,
+    per-bearing range slopes ``s_k`` (ridge ``slope_ridge`` on them; ``None`` = chosen among
+    :data:`NULL_SLOPE_RIDGES` by :func:`choose_slope_ridge`, ``inf`` = no slopes) and piecewise-linear tables
+    ``f`` (:data:`NULL_RANGE_KNOTS`) and ``g``
     (:data:`NULL_INCIDENCE_KNOTS`), ``f`` and ``g`` 0 at their first knot, smoothed by
     :data:`NULL_SMOOTHING`; solved by L-BFGS-B (values within +-20). Statistics of the log, set directly.
 
@@ -338,28 +356,47 @@ def fit_null_law(
         a: ``(P, K)`` incidence [rad] there.
         hit: ``(P, K)`` the cells used (unblocked, ray hits the map, readings present).
         p_null: ``(P, K)`` the cells' null fractions.
+        slope_ridge: penalty on the squared per-bearing slopes [logit^2 m^2 per unit cross-entropy].
 
     Returns:
         ``c0`` (median intercept), ``offsets (K,)`` (``b_k - c0``, rounded to 0.01; 0 at unused bearings),
-        the tables as rig parameters (``null_range_knots``, ``null_range_logit``, ``null_incidence_knots``,
+        ``range_slopes (K,)`` (rounded to 0.001; 0 at unused bearings; empty without slopes), ``slope_ridge``
+        (the ridge used) and ``slope_cv`` (the held-out MAE per candidate ridge when it was chosen), the tables as
+        rig parameters (``null_range_knots``, ``null_range_logit``, ``null_incidence_knots``,
         ``null_incidence_logit``; rounded to 0.001).
     """
+    cv: dict[str, float] = {}
+    if slope_ridge is None:
+        slope_ridge, cv = choose_slope_ridge(r, a, hit, p_null)
+    ridge = float(slope_ridge)
     k_idx = np.broadcast_to(np.arange(hit.shape[1]), hit.shape)[hit]
     y = np.clip(p_null[hit], 1e-3, 1 - 1e-3)  # as the per-bearing profile: no bearing is made certain
     br, ba = _hat_basis(r[hit], NULL_RANGE_KNOTS)[:, 1:], _hat_basis(a[hit], NULL_INCIDENCE_KNOTS)[:, 1:]
+    rc = r[hit] - NULL_SLOPE_CENTRE
     nk, nr, na = hit.shape[1], br.shape[1], ba.shape[1]
+    ns = nk if np.isfinite(ridge) else 0
     used = np.bincount(k_idx, minlength=nk) > 0
     d2r, d2a = np.diff(np.eye(nr + 1), 2, axis=0), np.diff(np.eye(na + 1), 2, axis=0)
 
+    n_used = max(int(used.sum()), 1)
+
+    def zero_sum(v: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``v`` minus its mean over the used bearings there (the slopes' free part; the range table has the trend)."""
+        return v - float(v @ used) / n_used * used if ns else v
+
     def loss(theta: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
-        b, f, g = theta[:nk], theta[nk : nk + nr], theta[nk + nr :]
+        b, s = theta[:nk], zero_sum(theta[nk : nk + ns])
+        f, g = theta[nk + ns : nk + ns + nr], theta[nk + ns + nr :]
         z = b[k_idx] + br @ f + ba @ g
+        if ns:
+            z = z + s[k_idx] * rc
         ll = np.logaddexp(0.0, z) - y * z  # cross-entropy of logistic(z) against y
         e = _logistic(z) - y
         fr, ga = d2r @ np.r_[0.0, f], d2a @ np.r_[0.0, g]
-        pen = NULL_SMOOTHING * (fr @ fr + ga @ ga)
+        pen = NULL_SMOOTHING * (fr @ fr + ga @ ga) + (ridge * (s @ s) if ns else 0.0)
         grad = np.r_[
             np.bincount(k_idx, e, minlength=nk),
+            zero_sum(np.bincount(k_idx, e * rc, minlength=nk) + 2 * ridge * s) if ns else np.zeros(0),
             br.T @ e + 2 * NULL_SMOOTHING * (d2r.T @ fr)[1:],
             ba.T @ e + 2 * NULL_SMOOTHING * (d2a.T @ ga)[1:],
         ]
@@ -367,17 +404,64 @@ def fit_null_law(
 
     rate = np.bincount(k_idx, y, minlength=nk) / np.maximum(np.bincount(k_idx, minlength=nk), 1)
     q = np.clip(rate, 1e-3, 1 - 1e-3)
-    theta0 = np.r_[np.log(q / (1 - q)), np.zeros(nr + na)]
-    res = minimize(loss, theta0, jac=True, method="L-BFGS-B", bounds=[(-20.0, 20.0)] * theta0.size)
+    theta0 = np.r_[np.log(q / (1 - q)), np.zeros(ns + nr + na)]
+    with threadpool_limits(1):  # small dense steps: BLAS threads only add overhead (25x on the shared 2 cores)
+        res = minimize(loss, theta0, jac=True, method="L-BFGS-B", bounds=[(-20.0, 20.0)] * theta0.size)
     c0, offsets = _intercept_and_offsets(res.x[:nk], used)
+    slopes = np.where(used, np.round(zero_sum(res.x[nk : nk + ns]), 3), 0.0) if ns else np.zeros(0)
+    t = res.x[nk + ns :]
     return {
         "c0": round(c0, 4),
         "offsets": offsets,
+        "range_slopes": tuple(float(v) for v in slopes),
+        "slope_ridge": ridge,
+        "slope_cv": cv,
         "null_range_knots": NULL_RANGE_KNOTS,
-        "null_range_logit": tuple(float(v) for v in np.asarray(np.round(np.r_[0.0, res.x[nk : nk + nr]], 3))),
+        "null_range_logit": tuple(float(v) for v in np.asarray(np.round(np.r_[0.0, t[:nr]], 3))),
         "null_incidence_knots": NULL_INCIDENCE_KNOTS,
-        "null_incidence_logit": tuple(float(v) for v in np.asarray(np.round(np.r_[0.0, res.x[nk + nr :]], 3))),
+        "null_incidence_logit": tuple(float(v) for v in np.asarray(np.round(np.r_[0.0, t[nr:]], 3))),
     }
+
+
+def null_law_rig(law: dict[str, Any], n_bearings: int) -> NeatoRig:
+    """A rig holding only a :func:`fit_null_law` law (no blocked bearings): its ``p_null`` is the law's probability."""
+    return NeatoRig(
+        n_bearings=n_bearings,
+        blocked=(),
+        null_logit=(law["c0"], 0.0, 0.0),
+        null_bearing_logit=law["offsets"],
+        null_bearing_range_slope=law["range_slopes"],
+        **{k: law[k] for k in ("null_range_knots", "null_range_logit", "null_incidence_knots", "null_incidence_logit")},
+    )
+
+
+def choose_slope_ridge(
+    r: NDArray[np.float64], a: NDArray[np.float64], hit: NDArray[np.bool_], p_null: NDArray[np.float64]
+) -> tuple[float, dict[str, float]]:
+    """The ridge of the per-bearing range slopes, by leave-poses-out CV of :func:`fit_null_law` on a log's cells.
+
+    For each candidate of :data:`NULL_SLOPE_RIDGES` (``inf``: no slopes), the law is fitted on the cells of
+    all but one of :data:`NULL_SLOPE_CV_FOLDS` folds of poses (:func:`~sensor_envs.rng.fold_ids`, seed 0) and its
+    ``p_null`` compared with the held-out cells' null fractions (mean absolute error over the folds' hit
+    cells). Returns the strongest ridge within :data:`NULL_SLOPE_CV_TOLERANCE` (relative) of the lowest MAE, and
+    the MAE per candidate (``"inf"``, ``"0.1"``, ...). With fewer than 2 poses with hit cells: ``inf``.
+    """
+    poses = np.flatnonzero(hit.any(1))
+    if poses.size < 2:
+        return float("inf"), {}
+    fold = np.full(hit.shape[0], -1)
+    fold[poses] = fold_ids(poses.size, min(NULL_SLOPE_CV_FOLDS, poses.size), random_state=0)
+    mae: dict[float, float] = {}
+    for ridge in NULL_SLOPE_RIDGES:
+        err = []
+        for f in range(int(fold.max()) + 1):
+            te = fold == f
+            law = fit_null_law(r, a, hit & ~te[:, None], p_null, slope_ridge=ridge)
+            err.append(np.abs(null_law_rig(law, hit.shape[1]).p_null(r[te], a[te]) - p_null[te])[hit[te]])
+        mae[ridge] = float(np.concatenate(err).mean())
+    best = min(mae.values())
+    pick = max(k for k, v in mae.items() if v <= best * (1 + NULL_SLOPE_CV_TOLERANCE))
+    return pick, {f"{k:g}": v for k, v in mae.items()}
 
 
 def _null_law_params(
@@ -388,6 +472,7 @@ def _null_law_params(
     return {
         "null_logit": (law["c0"], 0.0, 0.0),
         "null_bearing_logit": law["offsets"],
+        "null_bearing_range_slope": law["range_slopes"],
         **{k: law[k] for k in ("null_range_knots", "null_range_logit", "null_incidence_knots", "null_incidence_logit")},
     }
 
