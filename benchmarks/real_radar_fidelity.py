@@ -75,13 +75,18 @@ def cli(*args: str) -> None:
     subprocess.run([sys.executable, "-m", "sensor_envs.cli.main", *args], check=True, cwd=ROOT, env=env)
 
 
-def chain(work: Path, rig: str, seed: int) -> tuple[Path, Path]:
-    """Record the calibrated rig and fit the KDE and Gaussian as the model card says; returns their paths."""
+def chain(work: Path, rig: str, seed: int, in_view_only: bool = True) -> tuple[Path, Path]:
+    """Record the calibrated rig and fit the KDE and Gaussian as the model card says; returns their paths.
+
+    ``in_view_only`` (the card's command since 2026-11-24) leaves boxes wholly outside the rig's field of
+    view out of the log (``record radar --in-view-only``); ``False`` is the chain of the models before.
+    """
     work.mkdir(parents=True, exist_ok=True)
     log = work / "rig_train.csv"
     kde, gauss = work / "radar_kde.npz", work / "radar_gaussian.npz"
+    view = ["--in-view-only"] if in_view_only else []
     cli("record", "radar", "--rig", rig, "--out", str(log), "--seed", str(seed), "--sequences", "50",
-        "--cycles", "40", "--targets", "8", "--cycle-time", "1.0", "--force")  # fmt: skip
+        "--cycles", "40", "--targets", "8", "--cycle-time", "1.0", *view, "--force")  # fmt: skip
     cli("fit", "radar", str(log), "--out", str(kde), "--baseline-out", str(gauss), "--cycle-time", "1.0",
         "--seed", str(seed), "--relevance", "cv", "--force")  # fmt: skip
     return kde, gauss
@@ -239,6 +244,12 @@ def main() -> None:
     )
     ap.add_argument("--rig", default=str(ROOT / "models" / "radar_rig.json"), help="calibrated rig file of the chain")
     ap.add_argument("--models-from", default=None, help="folder with radar_kde.npz/radar_gaussian.npz: skip the chain")
+    ap.add_argument(
+        "--all-targets",
+        action="store_true",
+        help="chain: record every target of the rig scenario, also those wholly outside the field of view "
+        "(the chain before 2026-11-24; default: record radar --in-view-only, as the model card)",
+    )
     ap.add_argument("--before-rev", default=BEFORE_REV, help="git revision of the BEFORE models")
     ap.add_argument("--block", type=int, default=10)
     ap.add_argument("--folds", type=int, default=5)
@@ -252,7 +263,7 @@ def main() -> None:
     if args.models_from:
         kde_after, gauss_after = Path(args.models_from) / "radar_kde.npz", Path(args.models_from) / "radar_gaussian.npz"
     else:
-        kde_after, gauss_after = chain(out / "chain", args.rig, args.seed)
+        kde_after, gauss_after = chain(out / "chain", args.rig, args.seed, in_view_only=not args.all_targets)
     kde_before, gauss_before = before_models(out / "before", args.before_rev)
     fixed = {
         "kde_before_start": (KDERadarModel.load(kde_before), 1),
@@ -306,7 +317,10 @@ def main() -> None:
         "cycles": args.cycles,
         "seed": args.seed,
         "before_rev": args.before_rev,
-        "after_from": str(args.models_from or f"chain: {args.rig} -> record -> fit --relevance cv"),
+        "after_from": str(
+            args.models_from
+            or f"chain: {args.rig} -> record{'' if args.all_targets else ' --in-view-only'} -> fit --relevance cv"
+        ),
         "range_bins_m": list(RANGE_BINS),
         "azimuth_bins_deg": AZ_DEG.tolist(),
         "real": real,

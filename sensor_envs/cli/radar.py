@@ -30,6 +30,12 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         default=None,
         help="rig parameter file (.json; default: the shipped calibrated rig models/radar_rig.json)",
     )
+    rec.add_argument(
+        "--in-view-only",
+        action="store_true",
+        help="leave out target rows of boxes wholly outside the rig's field of view (never detectable, e.g. "
+        "behind the sensor), as real reference annotations would; the shipped radar_kde.npz is fitted on such a log",
+    )
     add_force(rec)
     rec.set_defaults(func=_record)
     fit = verbs["fit"].add_parser("radar", help="fit the KDE radar model and its Gaussian baseline to a log")
@@ -97,6 +103,8 @@ def _record(args: argparse.Namespace) -> int:
 
     if args.astyx and args.rig:
         raise ValueError("--rig: a rig file configures the simulated rig; it cannot be used with --astyx")
+    if args.astyx and args.in_view_only:
+        raise ValueError("--in-view-only: filters the simulated rig's targets; it cannot be used with --astyx")
     check_inputs(args.astyx, args.rig)
     out = check_output(args.out, inputs=[args.astyx, args.rig], force=args.force, suffix=".csv")
     if args.astyx:
@@ -116,6 +124,7 @@ def _record(args: argparse.Namespace) -> int:
             np.random.default_rng(args.seed),
             replace(config, cycle_time=args.cycle_time),
             progress=sys.stderr.isatty(),
+            in_view_only=args.in_view_only,
         )
     with OutputTransaction() as tx:
         write_log(log, tx.file(out))

@@ -26,7 +26,13 @@ from sensor_envs.radar.features import state_matrix
 from sensor_envs.radar.log import RadarLog, target_tuples
 from sensor_envs.rng import fold_ids
 
-__all__ = ["inner_folds", "select_corner_variance", "select_extra_variances", "heldout_scores"]
+__all__ = [
+    "inner_folds",
+    "select_corner_variance",
+    "select_extra_variances",
+    "select_polar_variances",
+    "heldout_scores",
+]
 
 
 FRAME_BLOCK = 50
@@ -73,6 +79,43 @@ def select_corner_variance(
     overrides = [{**base, "rel_variance": (v, v, rv[2], rv[3])} for v in candidates]
     scores = heldout_scores(log, estimator, overrides, n_folds, progress, "relevance cv")
     return float(candidates[int(np.argmax(scores))]), scores
+
+
+def select_polar_variances(
+    log: RadarLog,
+    estimator: Any,
+    range_candidates: tuple[float, ...],
+    azimuth_candidates: tuple[float, ...],
+    n_folds: int,
+    progress: bool = False,
+) -> tuple[tuple[float, float], NDArray[np.float64]]:
+    """Range [m^2] and azimuth [rad^2] variances of a polar corner kernel by the same held-out CV.
+
+    Coordinate-wise (``(len(range_candidates) + len(azimuth_candidates)) * n_folds`` inner fits): the
+    range variance first, with the azimuth variance at the middle azimuth candidate; then the azimuth
+    variance at the chosen range variance.
+
+    Args:
+        log: the training log.
+        estimator: the unfitted model (``state_transform="polar"``; its ``rel_variance`` gives the
+            ``z_{t-1}`` variances).
+        range_candidates: range variances [m^2] to try.
+        azimuth_candidates: azimuth variances [rad^2] to try.
+        n_folds: inner folds.
+        progress: show a tqdm bar.
+
+    Returns:
+        ``(range variance, azimuth variance)`` and the scores (mean held-out log-likelihood per target
+        row [nats]) of the range candidates followed by those of the azimuth candidates.
+    """
+    rv = estimator.get_params().get("rel_variance", (3.0, 3.0, 0.03, 0.03))
+    va = float(sorted(azimuth_candidates)[(len(azimuth_candidates) - 1) // 2])
+    over = [{"rel_variance": (v, va, rv[2], rv[3])} for v in range_candidates]
+    s_range = heldout_scores(log, estimator, over, n_folds, progress, "relevance cv (range)")
+    vr = float(range_candidates[int(np.argmax(s_range))])
+    over = [{"rel_variance": (vr, v, rv[2], rv[3])} for v in azimuth_candidates]
+    s_az = heldout_scores(log, estimator, over, n_folds, progress, "relevance cv (azimuth)")
+    return (vr, float(azimuth_candidates[int(np.argmax(s_az))])), np.concatenate([s_range, s_az])
 
 
 def _extra_std(log: RadarLog, names: tuple[str, ...]) -> NDArray[np.float64]:
