@@ -103,11 +103,20 @@ def before_models(work: Path, rev: str) -> tuple[Path, Path]:
     return out[0], out[1]
 
 
-def marginal(model: Any, corner: NDArray, z: NDArray, rng: np.random.Generator, chains: int, cycles: int) -> dict:
+def marginal(
+    model: Any,
+    corner: NDArray,
+    z: NDArray,
+    rng: np.random.Generator,
+    chains: int,
+    cycles: int,
+    all_samples: bool = False,
+) -> dict:
     """Stationary law of ``model`` at static corners: detection probability, one sample, log p(z), log P(det).
 
     Returns ``p_det (n,)``, ``sample (n, 2)`` (NaN: miss), ``logp (n,)`` (of the observed ``z``,
-    NaN rows = misses) and ``logp_det (n,)``.
+    NaN rows = misses) and ``logp_det (n,)``; with ``all_samples`` also ``samples (n, m, 2)``, the last
+    output of every chain (``m = chains`` for a model with ``z_{t-1}``, else 1).
     """
     n = corner.shape[0]
     if isinstance(model, IdealRadar):
@@ -130,7 +139,10 @@ def marginal(model: Any, corner: NDArray, z: NDArray, rng: np.random.Generator, 
     lp_miss = model.log_prob(np.full((n * m, 2), np.nan), state, **kw).reshape(n, m)
     logp = logsumexp(lp, axis=1) - np.log(m)
     p_miss = np.exp(logsumexp(lp_miss, axis=1) - np.log(m))
-    return {"p_det": 1.0 - p_miss, "sample": last.reshape(n, m, 2)[:, 0], "logp": logp}
+    out = {"p_det": 1.0 - p_miss, "sample": last.reshape(n, m, 2)[:, 0], "logp": logp}
+    if all_samples:
+        out["samples"] = last.reshape(n, m, 2)
+    return out
 
 
 def scores(res: dict, corner: NDArray, z: NDArray, rng: np.random.Generator) -> dict[str, Any]:

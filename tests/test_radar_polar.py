@@ -8,7 +8,7 @@ import pytest
 
 from sensor_envs.modelio import ModelFileError, save_model_file
 from sensor_envs.radar.kde import KIND, KDERadarModel, corner_features
-from sensor_envs.radar.relevance import select_polar_variances
+from sensor_envs.radar.relevance import select_corner_variances
 from sensor_envs.radar.rig import record_rig_log
 from sensor_envs.radar.validate import chi_square
 
@@ -87,6 +87,6 @@ def test_polar_samples_follow_the_analytic_pdf(polar, sampler):
 def test_polar_relevance_cv_picks_from_the_candidates():
     log = record_rig_log(8, 15, 6, np.random.default_rng(2))
     est = KDERadarModel(state_transform="polar", cv_min_tuples=10, random_state=0)
-    (vr, va), scores = select_polar_variances(log, est, (6.0, 48.0), (0.005, 0.08), 2)
+    (vr, va), scores = select_corner_variances(log, est, (6.0, 48.0), (0.005, 0.08), 2)
     assert vr in (6.0, 48.0) and va in (0.005, 0.08) and scores.shape == (4,) and np.isfinite(scores).all()
     assert scores[2 + (0.005, 0.08).index(va)] == scores[2:].max()

@@ -18,7 +18,9 @@ previous output, or the start tuples) or the log's overall rate (``"global"``, f
 
 **Relevance bandwidth**: ``relevance="paper"`` uses ``rel_variance`` as given; ``relevance="cv"``
 chooses the corner variance from ``relevance_candidates`` by cross-validation on the training log
-(:mod:`sensor_envs.radar.relevance`).
+(:mod:`sensor_envs.radar.relevance`); ``relevance="cv_axes"`` chooses the two corner variances
+separately (x then y; coordinate-wise). With polar corner features (``state_transform="polar"``:
+range, azimuth) both CV modes choose the range variance, then the azimuth variance.
 
 **Reading of "covariance diag(3, 3, 0.03, 0.03) in metres":** the numbers are variances [m^2] of
 the Gaussian relevance kernel, so ``S = diag(sqrt 3, sqrt 3, sqrt 0.03, sqrt 0.03)`` =
@@ -107,7 +109,7 @@ from sensor_envs.modelio import (
 from sensor_envs.radar.buckets import build_buckets, sample_proportional
 from sensor_envs.radar.features import state_matrix
 from sensor_envs.radar.log import RadarLog, TargetTuples, clutter_counts, target_tuples
-from sensor_envs.radar.relevance import select_corner_variance, select_extra_variances, select_polar_variances
+from sensor_envs.radar.relevance import select_corner_variance, select_corner_variances, select_extra_variances
 
 __all__ = ["KDERadarModel", "corner_features", "cv_bandwidth_table"]
 
@@ -322,12 +324,15 @@ class KDERadarModel(BaseEstimator):
             from a median of :data:`AUTO_BUCKET_MIN_NEIGHBOURS` tuples per ball on). All sample the
             same distribution; ``k_max`` forces ``"ball"``.
         bucket_cell: side of the bucket grid cells in relevance sigmas.
-        relevance: ``"paper"`` (use ``rel_variance`` as given) or ``"cv"`` (choose the corner variance
+        relevance: ``"paper"`` (use ``rel_variance`` as given), ``"cv"`` (choose the corner variance
             of the relevance kernel from ``relevance_candidates`` by ``relevance_folds``-fold CV on the
-            training log, :mod:`sensor_envs.radar.relevance`; the ``z_{t-1}`` variances stay as given).
-        relevance_candidates: corner variances [m^2] tried by ``relevance="cv"`` (polar: range variances).
-        relevance_candidates_azimuth: azimuth variances [rad^2] tried by ``relevance="cv"`` with
-            ``state_transform="polar"`` (coordinate-wise after the range variance; unused otherwise).
+            training log, :mod:`sensor_envs.radar.relevance`; the ``z_{t-1}`` variances stay as given)
+            or ``"cv_axes"`` (the same CV for the x and the y variance apart, coordinate-wise:
+            :func:`~sensor_envs.radar.relevance.select_corner_variances`). Polar corner features: both
+            CV modes choose the range and then the azimuth variance.
+        relevance_candidates: corner variances [m^2] tried by the CV (polar: range variances).
+        relevance_candidates_azimuth: azimuth variances [rad^2] tried by the CV with
+            ``state_transform="polar"`` (after the range variance; unused otherwise).
         state_transform: corner features of the relevance kernel: ``"cartesian"`` (``(c_x, c_y)``, the
             paper's; what files before format 5 hold) or ``"polar"`` (``(range, azimuth)``: a kernel
             narrow in azimuth at every range, so near targets left and right are not mixed).
@@ -354,7 +359,7 @@ class KDERadarModel(BaseEstimator):
         "clutter_jitter": [Interval(0, MAX_POSITION)],
         "sampler": [Options("auto", "bucket", "ball")],
         "bucket_cell": [_POSITIVE],
-        "relevance": [Options("paper", "cv")],
+        "relevance": [Options("paper", "cv", "cv_axes")],
         "relevance_candidates": [Numbers(_POSITIVE)],
         "relevance_candidates_azimuth": [Numbers(Interval(0, np.pi**2, open_low=True))],
         "state_transform": [Options(*STATE_TRANSFORMS)],
@@ -450,16 +455,17 @@ class KDERadarModel(BaseEstimator):
         self.new_track_: NDArray[np.bool_] | None = ~tt.has_prev_row  # first row of its target in the log
         self.rel_variance_ = tuple(float(v) for v in self.rel_variance)
         self.relevance_scores_ = np.zeros(0)
-        if self.relevance == "cv" and self.state_transform == "polar":
-            (vr, va), self.relevance_scores_ = select_polar_variances(
+        polar = self.state_transform == "polar"
+        if self.relevance == "cv_axes" or (self.relevance == "cv" and polar):
+            (v1, v2), self.relevance_scores_ = select_corner_variances(
                 log,
                 self,
                 tuple(self.relevance_candidates),
-                tuple(self.relevance_candidates_azimuth),
+                tuple(self.relevance_candidates_azimuth if polar else self.relevance_candidates),
                 int(self.relevance_folds),
                 progress,
             )
-            self.rel_variance_ = (vr, va, *self.rel_variance_[2:])
+            self.rel_variance_ = (v1, v2, *self.rel_variance_[2:])
         elif self.relevance == "cv":
             v, self.relevance_scores_ = select_corner_variance(
                 log, self, tuple(self.relevance_candidates), int(self.relevance_folds), progress

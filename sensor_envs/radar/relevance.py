@@ -30,7 +30,7 @@ __all__ = [
     "inner_folds",
     "select_corner_variance",
     "select_extra_variances",
-    "select_polar_variances",
+    "select_corner_variances",
     "heldout_scores",
 ]
 
@@ -81,41 +81,40 @@ def select_corner_variance(
     return float(candidates[int(np.argmax(scores))]), scores
 
 
-def select_polar_variances(
+def select_corner_variances(
     log: RadarLog,
     estimator: Any,
-    range_candidates: tuple[float, ...],
-    azimuth_candidates: tuple[float, ...],
+    first_candidates: tuple[float, ...],
+    second_candidates: tuple[float, ...],
     n_folds: int,
     progress: bool = False,
 ) -> tuple[tuple[float, float], NDArray[np.float64]]:
-    """Range [m^2] and azimuth [rad^2] variances of a polar corner kernel by the same held-out CV.
+    """The two corner variances of the relevance kernel apart, by the same held-out CV.
 
-    Coordinate-wise (``(len(range_candidates) + len(azimuth_candidates)) * n_folds`` inner fits): the
-    range variance first, with the azimuth variance at the middle azimuth candidate; then the azimuth
-    variance at the chosen range variance.
+    Cartesian corner features: x and y variances [m^2]; polar (``state_transform="polar"``): range
+    [m^2] and azimuth [rad^2]. Coordinate-wise (``(len(first) + len(second)) * n_folds`` inner fits):
+    the first variance with the second at its middle candidate, then the second at the chosen first.
 
     Args:
         log: the training log.
-        estimator: the unfitted model (``state_transform="polar"``; its ``rel_variance`` gives the
-            ``z_{t-1}`` variances).
-        range_candidates: range variances [m^2] to try.
-        azimuth_candidates: azimuth variances [rad^2] to try.
+        estimator: the unfitted model (its ``rel_variance`` gives the ``z_{t-1}`` variances).
+        first_candidates: variances of the first corner feature to try.
+        second_candidates: variances of the second corner feature to try.
         n_folds: inner folds.
         progress: show a tqdm bar.
 
     Returns:
-        ``(range variance, azimuth variance)`` and the scores (mean held-out log-likelihood per target
-        row [nats]) of the range candidates followed by those of the azimuth candidates.
+        ``(first, second)`` variances and the scores (mean held-out log-likelihood per target row
+        [nats]) of the first candidates followed by those of the second.
     """
     rv = estimator.get_params().get("rel_variance", (3.0, 3.0, 0.03, 0.03))
-    va = float(sorted(azimuth_candidates)[(len(azimuth_candidates) - 1) // 2])
-    over = [{"rel_variance": (v, va, rv[2], rv[3])} for v in range_candidates]
-    s_range = heldout_scores(log, estimator, over, n_folds, progress, "relevance cv (range)")
-    vr = float(range_candidates[int(np.argmax(s_range))])
-    over = [{"rel_variance": (vr, v, rv[2], rv[3])} for v in azimuth_candidates]
-    s_az = heldout_scores(log, estimator, over, n_folds, progress, "relevance cv (azimuth)")
-    return (vr, float(azimuth_candidates[int(np.argmax(s_az))])), np.concatenate([s_range, s_az])
+    v2 = float(sorted(second_candidates)[(len(second_candidates) - 1) // 2])
+    over = [{"rel_variance": (v, v2, rv[2], rv[3])} for v in first_candidates]
+    s1 = heldout_scores(log, estimator, over, n_folds, progress, "relevance cv (first corner feature)")
+    v1 = float(first_candidates[int(np.argmax(s1))])
+    over = [{"rel_variance": (v1, v, rv[2], rv[3])} for v in second_candidates]
+    s2 = heldout_scores(log, estimator, over, n_folds, progress, "relevance cv (second corner feature)")
+    return (v1, float(second_candidates[int(np.argmax(s2))])), np.concatenate([s1, s2])
 
 
 def _extra_std(log: RadarLog, names: tuple[str, ...]) -> NDArray[np.float64]:

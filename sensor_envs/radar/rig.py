@@ -342,7 +342,7 @@ class RadarRig:
         """
         corners = rectangle_corners(box[:, 0], box[:, 1], box[:, 2], box[:, 3], box[:, 4])  # (n, 4, 2)
         az = np.arctan2(corners[..., 1], corners[..., 0])
-        return (self.azimuth_factor(az.ravel()).reshape(az.shape) > 0).any(axis=1)
+        return np.asarray((self.azimuth_factor(az.ravel()).reshape(az.shape) > 0).any(axis=1), dtype=bool)
 
     def _noise_std(self, rng_m: NDArray, az: NDArray) -> tuple[NDArray, NDArray]:
         """Radial and cross-range noise std [m] at range [m] and azimuth [rad]."""
