@@ -75,11 +75,11 @@ def cli(*args: str) -> None:
     subprocess.run([sys.executable, "-m", "sensor_envs.cli.main", *args], check=True, cwd=ROOT, env=env)
 
 
-def chain(work: Path, rig: str, seed: int, in_view_only: bool = True) -> tuple[Path, Path]:
+def chain(work: Path, rig: str, seed: int, in_view_only: bool = False) -> tuple[Path, Path]:
     """Record the calibrated rig and fit the KDE and Gaussian as the model card says; returns their paths.
 
-    ``in_view_only`` (the card's command since 2026-11-24) leaves boxes wholly outside the rig's field of
-    view out of the log (``record radar --in-view-only``); ``False`` is the chain of the models before.
+    ``in_view_only`` leaves boxes wholly outside the rig's field of view out of the log (``record radar
+    --in-view-only``: the not-shipped candidate of 2026-11-24 in the card); ``False`` is the shipped chain.
     """
     work.mkdir(parents=True, exist_ok=True)
     log = work / "rig_train.csv"
@@ -257,10 +257,10 @@ def main() -> None:
     ap.add_argument("--rig", default=str(ROOT / "models" / "radar_rig.json"), help="calibrated rig file of the chain")
     ap.add_argument("--models-from", default=None, help="folder with radar_kde.npz/radar_gaussian.npz: skip the chain")
     ap.add_argument(
-        "--all-targets",
+        "--in-view-only",
         action="store_true",
-        help="chain: record every target of the rig scenario, also those wholly outside the field of view "
-        "(the chain before 2026-11-24; default: record radar --in-view-only, as the model card)",
+        help="chain: record radar --in-view-only (leave boxes wholly outside the rig's field of view out of "
+        "the log; the candidate of 2026-11-24 in the model card; default: every target, as the shipped model)",
     )
     ap.add_argument("--before-rev", default=BEFORE_REV, help="git revision of the BEFORE models")
     ap.add_argument("--block", type=int, default=10)
@@ -275,7 +275,7 @@ def main() -> None:
     if args.models_from:
         kde_after, gauss_after = Path(args.models_from) / "radar_kde.npz", Path(args.models_from) / "radar_gaussian.npz"
     else:
-        kde_after, gauss_after = chain(out / "chain", args.rig, args.seed, in_view_only=not args.all_targets)
+        kde_after, gauss_after = chain(out / "chain", args.rig, args.seed, in_view_only=args.in_view_only)
     kde_before, gauss_before = before_models(out / "before", args.before_rev)
     fixed = {
         "kde_before_start": (KDERadarModel.load(kde_before), 1),
@@ -331,7 +331,7 @@ def main() -> None:
         "before_rev": args.before_rev,
         "after_from": str(
             args.models_from
-            or f"chain: {args.rig} -> record{'' if args.all_targets else ' --in-view-only'} -> fit --relevance cv"
+            or f"chain: {args.rig} -> record{' --in-view-only' if args.in_view_only else ''} -> fit --relevance cv"
         ),
         "range_bins_m": list(RANGE_BINS),
         "azimuth_bins_deg": AZ_DEG.tolist(),

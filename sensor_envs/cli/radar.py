@@ -35,7 +35,7 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         "--in-view-only",
         action="store_true",
         help="leave out target rows of boxes wholly outside the rig's field of view (never detectable, e.g. "
-        "behind the sensor), as real reference annotations would; the shipped radar_kde.npz is fitted on such a log",
+        "behind the sensor), as real reference annotations would (see models/radar_kde.md)",
     )
     add_force(rec)
     rec.set_defaults(func=_record)
