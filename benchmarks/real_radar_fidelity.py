@@ -75,13 +75,18 @@ def cli(*args: str) -> None:
     subprocess.run([sys.executable, "-m", "sensor_envs.cli.main", *args], check=True, cwd=ROOT, env=env)
 
 
-def chain(work: Path, rig: str, seed: int) -> tuple[Path, Path]:
-    """Record the calibrated rig and fit the KDE and Gaussian as the model card says; returns their paths."""
+def chain(work: Path, rig: str, seed: int, in_view_only: bool = False) -> tuple[Path, Path]:
+    """Record the calibrated rig and fit the KDE and Gaussian as the model card says; returns their paths.
+
+    ``in_view_only`` leaves boxes wholly outside the rig's field of view out of the log (``record radar
+    --in-view-only``: the not-shipped candidate of 2026-11-24 in the card); ``False`` is the shipped chain.
+    """
     work.mkdir(parents=True, exist_ok=True)
     log = work / "rig_train.csv"
     kde, gauss = work / "radar_kde.npz", work / "radar_gaussian.npz"
+    view = ["--in-view-only"] if in_view_only else []
     cli("record", "radar", "--rig", rig, "--out", str(log), "--seed", str(seed), "--sequences", "50",
-        "--cycles", "40", "--targets", "8", "--cycle-time", "1.0", "--force")  # fmt: skip
+        "--cycles", "40", "--targets", "8", "--cycle-time", "1.0", *view, "--force")  # fmt: skip
     cli("fit", "radar", str(log), "--out", str(kde), "--baseline-out", str(gauss), "--cycle-time", "1.0",
         "--seed", str(seed), "--relevance", "cv", "--force")  # fmt: skip
     return kde, gauss
@@ -98,11 +103,20 @@ def before_models(work: Path, rev: str) -> tuple[Path, Path]:
     return out[0], out[1]
 
 
-def marginal(model: Any, corner: NDArray, z: NDArray, rng: np.random.Generator, chains: int, cycles: int) -> dict:
+def marginal(
+    model: Any,
+    corner: NDArray,
+    z: NDArray,
+    rng: np.random.Generator,
+    chains: int,
+    cycles: int,
+    all_samples: bool = False,
+) -> dict:
     """Stationary law of ``model`` at static corners: detection probability, one sample, log p(z), log P(det).
 
     Returns ``p_det (n,)``, ``sample (n, 2)`` (NaN: miss), ``logp (n,)`` (of the observed ``z``,
-    NaN rows = misses) and ``logp_det (n,)``.
+    NaN rows = misses) and ``logp_det (n,)``; with ``all_samples`` also ``samples (n, m, 2)``, the last
+    output of every chain (``m = chains`` for a model with ``z_{t-1}``, else 1).
     """
     n = corner.shape[0]
     if isinstance(model, IdealRadar):
@@ -125,7 +139,10 @@ def marginal(model: Any, corner: NDArray, z: NDArray, rng: np.random.Generator, 
     lp_miss = model.log_prob(np.full((n * m, 2), np.nan), state, **kw).reshape(n, m)
     logp = logsumexp(lp, axis=1) - np.log(m)
     p_miss = np.exp(logsumexp(lp_miss, axis=1) - np.log(m))
-    return {"p_det": 1.0 - p_miss, "sample": last.reshape(n, m, 2)[:, 0], "logp": logp}
+    out = {"p_det": 1.0 - p_miss, "sample": last.reshape(n, m, 2)[:, 0], "logp": logp}
+    if all_samples:
+        out["samples"] = last.reshape(n, m, 2)
+    return out
 
 
 def scores(res: dict, corner: NDArray, z: NDArray, rng: np.random.Generator) -> dict[str, Any]:
@@ -239,6 +256,12 @@ def main() -> None:
     )
     ap.add_argument("--rig", default=str(ROOT / "models" / "radar_rig.json"), help="calibrated rig file of the chain")
     ap.add_argument("--models-from", default=None, help="folder with radar_kde.npz/radar_gaussian.npz: skip the chain")
+    ap.add_argument(
+        "--in-view-only",
+        action="store_true",
+        help="chain: record radar --in-view-only (leave boxes wholly outside the rig's field of view out of "
+        "the log; the candidate of 2026-11-24 in the model card; default: every target, as the shipped model)",
+    )
     ap.add_argument("--before-rev", default=BEFORE_REV, help="git revision of the BEFORE models")
     ap.add_argument("--block", type=int, default=10)
     ap.add_argument("--folds", type=int, default=5)
@@ -252,7 +275,7 @@ def main() -> None:
     if args.models_from:
         kde_after, gauss_after = Path(args.models_from) / "radar_kde.npz", Path(args.models_from) / "radar_gaussian.npz"
     else:
-        kde_after, gauss_after = chain(out / "chain", args.rig, args.seed)
+        kde_after, gauss_after = chain(out / "chain", args.rig, args.seed, in_view_only=args.in_view_only)
     kde_before, gauss_before = before_models(out / "before", args.before_rev)
     fixed = {
         "kde_before_start": (KDERadarModel.load(kde_before), 1),
@@ -306,7 +329,10 @@ def main() -> None:
         "cycles": args.cycles,
         "seed": args.seed,
         "before_rev": args.before_rev,
-        "after_from": str(args.models_from or f"chain: {args.rig} -> record -> fit --relevance cv"),
+        "after_from": str(
+            args.models_from
+            or f"chain: {args.rig} -> record{' --in-view-only' if args.in_view_only else ''} -> fit --relevance cv"
+        ),
         "range_bins_m": list(RANGE_BINS),
         "azimuth_bins_deg": AZ_DEG.tolist(),
         "real": real,

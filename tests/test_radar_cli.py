@@ -33,3 +33,24 @@ def test_validate_the_shipped_model_finds_its_shipped_baseline(tmp_path):
     assert main(["validate", "radar", str(kde), str(test), "--out", str(tmp_path / "r")]) == 0
     rep = json.loads((tmp_path / "r" / "report.json").read_text())
     assert rep["baseline_file"] == str(default_model_path(DEFAULT_MODEL_FILES["gaussian"]))
+
+
+def test_record_in_view_only_and_fit_polar(tmp_path):
+    """``record radar --in-view-only`` and ``fit radar --state-transform polar`` end to end."""
+    from sensor_envs.radar.kde import KDERadarModel
+    from sensor_envs.radar.log import read_log
+
+    full, view, model = tmp_path / "full.csv", tmp_path / "view.csv", tmp_path / "kde.npz"
+    rec = ["record", "radar", "--sequences", "6", "--cycles", "15", "--seed", "5"]
+    assert main([*rec, "--out", str(full)]) == 0
+    assert main([*rec, "--out", str(view), "--in-view-only"]) == 0
+    a, b = read_log(full), read_log(view)
+    assert (
+        len(b) < len(a) and (~b.is_clutter).sum() < (~a.is_clutter).sum() and b.is_clutter.sum() == a.is_clutter.sum()
+    )
+    fit = ["fit", "radar", str(view), "--out", str(model), "--state-transform", "polar", "--cycle-time", "1.0"]
+    assert main(fit) == 0
+    m = KDERadarModel.load(model)
+    assert m.state_transform == "polar" and m.relevance == "paper"  # the CV modes: tests/test_radar_polar.py
+    bad = ["record", "radar", "--astyx", str(tmp_path), "--in-view-only", "--out", str(tmp_path / "x.csv")]
+    assert main(bad) == 2

@@ -103,3 +103,24 @@ def test_symmetric_rig_file_loads_and_behaves_as_before():
     assert int(np.isfinite(log["meas_x"][tgt]).sum()) == 284 and int(tgt.sum()) == 320
     np.testing.assert_allclose(np.nansum(log["meas_x"][tgt]), 14520.110058203449, rtol=1e-10)
     np.testing.assert_allclose(np.nansum(log["meas_y"][tgt]), -34.07249180078684, rtol=1e-10)
+
+
+def test_in_view_only_drops_just_the_boxes_outside_the_field_of_view():
+    """``in_view_only`` leaves out never-detectable boxes (e.g. behind the sensor) and keeps every other row as is."""
+    rig = RadarRig(load_rig(Path(__file__).resolve().parents[1] / "models" / "radar_rig.json")[0])
+    boxes = np.array([[20.0, 0.0, 0.0, 4.5, 1.8], [-20.0, 3.0, 0.0, 4.5, 1.8], [0.5, 4.0, 0.0, 4.5, 1.8]])
+    np.testing.assert_array_equal(rig.in_view(boxes), [True, False, True])  # ahead, behind, beside (front corners)
+    sc = generate_scenario(8, 40, 1.0, np.random.default_rng(5))  # 35 rows of boxes that pass behind the sensor
+    full = rig.record(sc, np.random.default_rng(7))
+    view = rig.record(sc, np.random.default_rng(7), in_view_only=True)
+    key = ("frame", "target")
+    ids_full = {tuple(r) for r in np.stack([full[k] for k in key], axis=1)[~full.is_clutter]}
+    ids_view = {tuple(r) for r in np.stack([view[k] for k in key], axis=1)[~view.is_clutter]}
+    gone = ids_full - ids_view
+    assert ids_view <= ids_full and len(gone) > 0
+    tgt = ~full.is_clutter
+    dropped = np.array([tuple(r) in gone for r in np.stack([full[k] for k in key], axis=1)]) & tgt
+    assert np.isnan(full["meas_x"][dropped]).all()  # only never-detected rows go
+    assert (full["ref_x"][dropped] < 1.0).all()
+    for k in full.columns:  # the same draws: the kept rows are the rows of the full log
+        np.testing.assert_array_equal(view[k], full[k][~dropped])

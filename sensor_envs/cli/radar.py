@@ -7,6 +7,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -30,6 +31,12 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         default=None,
         help="rig parameter file (.json; default: the shipped calibrated rig models/radar_rig.json)",
     )
+    rec.add_argument(
+        "--in-view-only",
+        action="store_true",
+        help="leave out target rows of boxes wholly outside the rig's field of view (never detectable, e.g. "
+        "behind the sensor), as real reference annotations would (see models/radar_kde.md)",
+    )
     add_force(rec)
     rec.set_defaults(func=_record)
     fit = verbs["fit"].add_parser("radar", help="fit the KDE radar model and its Gaussian baseline to a log")
@@ -42,8 +49,22 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     fit.add_argument(
         "--relevance",
         default="paper",
-        choices=("paper", "cv"),
-        help="relevance kernel: the seed's (paper) or corner variance chosen by CV on this log",
+        choices=("paper", "cv", "cv_axes"),
+        help="relevance kernel: the seed's (paper), the corner variance chosen by CV on this log (cv), or the x "
+        "and y variances chosen apart (cv_axes); with --state-transform polar both CV modes choose range and azimuth",
+    )
+    fit.add_argument(
+        "--relevance-candidates",
+        type=positive_float,
+        nargs="+",
+        default=None,
+        help="corner variances [m^2] the CV tries (default 3 6 12 24 48)",
+    )
+    fit.add_argument(
+        "--state-transform",
+        default="cartesian",
+        choices=("cartesian", "polar"),
+        help="corner features of the relevance kernel: corner x, y (the paper's) or range, azimuth",
     )
     fit.add_argument("--seed", type=nonneg_int, default=0)
     add_force(fit)
@@ -97,6 +118,8 @@ def _record(args: argparse.Namespace) -> int:
 
     if args.astyx and args.rig:
         raise ValueError("--rig: a rig file configures the simulated rig; it cannot be used with --astyx")
+    if args.astyx and args.in_view_only:
+        raise ValueError("--in-view-only: filters the simulated rig's targets; it cannot be used with --astyx")
     check_inputs(args.astyx, args.rig)
     out = check_output(args.out, inputs=[args.astyx, args.rig], force=args.force, suffix=".csv")
     if args.astyx:
@@ -116,6 +139,7 @@ def _record(args: argparse.Namespace) -> int:
             np.random.default_rng(args.seed),
             replace(config, cycle_time=args.cycle_time),
             progress=sys.stderr.isatty(),
+            in_view_only=args.in_view_only,
         )
     with OutputTransaction() as tx:
         write_log(log, tx.file(out))
@@ -166,11 +190,19 @@ def _fit(args: argparse.Namespace) -> int:
     )
     log = read_log(args.log)
     t0 = time.perf_counter()
+    extra: dict[str, Any] = {}
+    if args.relevance_candidates is not None:
+        extra["relevance_candidates"] = tuple(args.relevance_candidates)
     model = KDERadarModel(
-        use_prev=not args.no_prev, cv_group=args.cv_group, relevance=args.relevance, random_state=args.seed
+        use_prev=not args.no_prev,
+        cv_group=args.cv_group,
+        relevance=args.relevance,
+        random_state=args.seed,
+        state_transform=args.state_transform,
+        **extra,
     )
     with about(args.log):
-        model.fit(log, cycle_time=args.cycle_time, progress=args.relevance == "cv")
+        model.fit(log, cycle_time=args.cycle_time, progress=args.relevance != "paper")
     fit_s = time.perf_counter() - t0
     card = {
         "log": str(args.log),
@@ -180,6 +212,7 @@ def _fit(args: argparse.Namespace) -> int:
         "use_prev": not args.no_prev,
         "seed": args.seed,
         "relevance": args.relevance,
+        "state_transform": args.state_transform,
         "rel_variance_fitted": list(model.rel_variance_),
     }
     with about(args.log):

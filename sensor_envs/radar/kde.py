@@ -18,7 +18,9 @@ previous output, or the start tuples) or the log's overall rate (``"global"``, f
 
 **Relevance bandwidth**: ``relevance="paper"`` uses ``rel_variance`` as given; ``relevance="cv"``
 chooses the corner variance from ``relevance_candidates`` by cross-validation on the training log
-(:mod:`sensor_envs.radar.relevance`).
+(:mod:`sensor_envs.radar.relevance`); ``relevance="cv_axes"`` chooses the two corner variances
+separately (x then y; coordinate-wise). With polar corner features (``state_transform="polar"``:
+range, azimuth) both CV modes choose the range variance, then the azimuth variance.
 
 **Reading of "covariance diag(3, 3, 0.03, 0.03) in metres":** the numbers are variances [m^2] of
 the Gaussian relevance kernel, so ``S = diag(sqrt 3, sqrt 3, sqrt 0.03, sqrt 0.03)`` =
@@ -107,17 +109,21 @@ from sensor_envs.modelio import (
 from sensor_envs.radar.buckets import build_buckets, sample_proportional
 from sensor_envs.radar.features import state_matrix
 from sensor_envs.radar.log import RadarLog, TargetTuples, clutter_counts, target_tuples
-from sensor_envs.radar.relevance import select_corner_variance, select_extra_variances
+from sensor_envs.radar.relevance import select_corner_variance, select_corner_variances, select_extra_variances
 
-__all__ = ["KDERadarModel", "cv_bandwidth_table"]
+__all__ = ["KDERadarModel", "corner_features", "cv_bandwidth_table"]
 
 KIND = "radar_kde"
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5
 """Model file format: 1 = up to the ball sampler; 2 adds ``sampler``/``bucket_cell``, the relevance
 selection (``relevance*`` params, the fitted ``rel_variance_``) and ``start_split``; 3 adds the extra
 state (``extra_*`` params, the ``extra`` array, ``state_variables`` in the header); 4 adds the
-per-tuple ``new_track`` flags (uint8 0/1; new-track vs after-miss start trees). Older files load
-with the defaults of the new parameters (no extra state; one combined start tree)."""
+per-tuple ``new_track`` flags (uint8 0/1; new-track vs after-miss start trees); 5 adds the
+``state_transform`` parameter (cartesian or polar corner features of the relevance kernel) and
+``relevance_candidates_azimuth``. Older files load with the defaults of the new parameters (no extra
+state; one combined start tree; cartesian corner features), so they behave exactly as before."""
+STATE_TRANSFORMS = ("cartesian", "polar")
+"""Corner features of the relevance kernel: ``(c_x, c_y)`` [m] or ``(range [m], azimuth [rad])``."""
 GROUP_MAIN, GROUP_START, GROUP_NEW, GROUP_LOST = 0, 1, 2, 3
 """Tree of a query: with ``z_{t-1}``; start (flag unknown); new track; after a miss."""
 AUTO_BUCKET_MIN_NEIGHBOURS = 100
@@ -217,6 +223,7 @@ def cv_bandwidth_table(
     min_tuples: int,
     max_tuples: int,
     rng: np.random.Generator,
+    state_transform: str = "cartesian",
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Leave-one-out CV of the output bandwidths on a grid of corner positions.
 
@@ -240,15 +247,17 @@ def cv_bandwidth_table(
         min_tuples: nodes with fewer tuples in reach take the median bandwidth of the others.
         max_tuples: larger neighbourhoods are subsampled to this size.
         rng: generator for subsampling.
+        state_transform: corner features of the relevance kernel (:func:`corner_features`; ``scale``
+            applies to the features, the grid stays in corner x/y).
 
     Returns:
         ``log_h (nx, ny, 2)`` log bandwidths [log m] and ``counts (nx, ny)`` tuples used per node.
     """
-    s = xs / scale
+    s = np.concatenate([corner_features(xs[:, :2], state_transform), xs[:, 2:]], axis=1) / scale
     tree = cKDTree(s[:, :2])
     gx, gy = np.meshgrid(grid_x, grid_y, indexing="ij")
-    nodes = np.stack([gx.ravel(), gy.ravel()], axis=1)
-    lists = tree.query_ball_point(nodes / scale[:2], radius)
+    nodes = corner_features(np.stack([gx.ravel(), gy.ravel()], axis=1), state_transform) / scale[:2]
+    lists = tree.query_ball_point(nodes, radius)
     log_h = np.full((nodes.shape[0], 2), np.nan)
     counts = np.zeros(nodes.shape[0], dtype=np.int64)
     for n, idx in enumerate(lists):  # one iteration per grid node (tens), not per tuple
@@ -258,7 +267,7 @@ def cv_bandwidth_table(
         counts[n] = idx.size
         if idx.size < min_tuples:
             continue
-        v = np.exp(-0.5 * np.sum((s[idx, :2] - nodes[n] / scale[:2]) ** 2, axis=1))
+        v = np.exp(-0.5 * np.sum((s[idx, :2] - nodes[n]) ** 2, axis=1))
         score = _loo_score(s[idx], zs[idx], v, groups[idx], cand)
         a, b = np.unravel_index(np.argmax(score), score.shape)
         log_h[n] = np.log([cand[a], cand[b]])
@@ -270,11 +279,25 @@ def cv_bandwidth_table(
     return log_h.reshape(grid_x.size, grid_y.size, 2), counts.reshape(grid_x.size, grid_y.size)
 
 
+def corner_features(corners: NDArray, state_transform: str) -> NDArray[np.float64]:
+    """Corner features ``(n, 2)`` of the relevance kernel from sensor-frame corners ``(n, 2)`` [m].
+
+    ``"cartesian"``: the corners themselves (returned as given); ``"polar"``: ``(range [m], azimuth
+    [rad], left > 0)``. The azimuth does not wrap at +-pi (a forward radar's field of view does not
+    reach behind the sensor), so two corners just either side of the sensor's back axis are far apart.
+    """
+    if state_transform == "cartesian":
+        return corners
+    c = np.asarray(corners, dtype=np.float64)
+    return np.stack([np.hypot(c[:, 0], c[:, 1]), np.arctan2(c[:, 1], c[:, 0])], axis=1)
+
+
 class KDERadarModel(BaseEstimator):
     """Joint-KDE radar model with two-stage sampling (implements ``RadarSensor``; a scikit-learn estimator).
 
     Args:
-        rel_variance: variances [m^2] of the relevance kernel on ``(c_x, c_y, z_{t-1,x}, z_{t-1,y})``.
+        rel_variance: variances of the relevance kernel on ``(c_x, c_y, z_{t-1,x}, z_{t-1,y})`` [m^2]; with
+            ``state_transform="polar"`` the first two are of (corner range [m^2], corner azimuth [rad^2]).
         use_prev: condition on the previous output ``z_{t-1}``.
         radius: fixed search radius in relevance sigmas.
         k_max: keep only the ``k_max`` nearest tuples in the ball (``None`` = exact).
@@ -301,10 +324,18 @@ class KDERadarModel(BaseEstimator):
             from a median of :data:`AUTO_BUCKET_MIN_NEIGHBOURS` tuples per ball on). All sample the
             same distribution; ``k_max`` forces ``"ball"``.
         bucket_cell: side of the bucket grid cells in relevance sigmas.
-        relevance: ``"paper"`` (use ``rel_variance`` as given) or ``"cv"`` (choose the corner variance
+        relevance: ``"paper"`` (use ``rel_variance`` as given), ``"cv"`` (choose the corner variance
             of the relevance kernel from ``relevance_candidates`` by ``relevance_folds``-fold CV on the
-            training log, :mod:`sensor_envs.radar.relevance`; the ``z_{t-1}`` variances stay as given).
-        relevance_candidates: corner variances [m^2] tried by ``relevance="cv"``.
+            training log, :mod:`sensor_envs.radar.relevance`; the ``z_{t-1}`` variances stay as given)
+            or ``"cv_axes"`` (the same CV for the x and the y variance apart, coordinate-wise:
+            :func:`~sensor_envs.radar.relevance.select_corner_variances`). Polar corner features: both
+            CV modes choose the range and then the azimuth variance.
+        relevance_candidates: corner variances [m^2] tried by the CV (polar: range variances).
+        relevance_candidates_azimuth: azimuth variances [rad^2] tried by the CV with
+            ``state_transform="polar"`` (after the range variance; unused otherwise).
+        state_transform: corner features of the relevance kernel: ``"cartesian"`` (``(c_x, c_y)``, the
+            paper's; what files before format 5 hold) or ``"polar"`` (``(range, azimuth)``: a kernel
+            narrow in azimuth at every range, so near targets left and right are not mixed).
         relevance_folds: folds of ``relevance="cv"`` (sequences dealt round-robin).
         random_state: seed or generator for the CV subsampling.
         extra_state: names of extra numeric log columns appended to the state (see the module docstring).
@@ -328,8 +359,10 @@ class KDERadarModel(BaseEstimator):
         "clutter_jitter": [Interval(0, MAX_POSITION)],
         "sampler": [Options("auto", "bucket", "ball")],
         "bucket_cell": [_POSITIVE],
-        "relevance": [Options("paper", "cv")],
+        "relevance": [Options("paper", "cv", "cv_axes")],
         "relevance_candidates": [Numbers(_POSITIVE)],
+        "relevance_candidates_azimuth": [Numbers(Interval(0, np.pi**2, open_low=True))],
+        "state_transform": [Options(*STATE_TRANSFORMS)],
         "relevance_folds": [Interval(2, None, integer=True)],
         "prior_rate": [Options("tree", "global")],
         "random_state": RANDOM_STATE,
@@ -364,6 +397,8 @@ class KDERadarModel(BaseEstimator):
         extra_state: tuple[str, ...] = (),
         extra_variance: tuple[float, ...] | None = None,
         extra_candidates: tuple[float, ...] = (0.25, 0.5, 1.0, 2.0),
+        state_transform: str = "cartesian",
+        relevance_candidates_azimuth: tuple[float, ...] = (0.0025, 0.01, 0.04, 0.16),
     ) -> None:
         self.rel_variance = rel_variance
         self.use_prev = use_prev
@@ -387,6 +422,8 @@ class KDERadarModel(BaseEstimator):
         self.extra_state = extra_state
         self.extra_variance = extra_variance
         self.extra_candidates = extra_candidates
+        self.state_transform = state_transform
+        self.relevance_candidates_azimuth = relevance_candidates_azimuth
 
     # ------------------------------------------------------------------ fit
     def _check_params(self) -> None:
@@ -418,7 +455,18 @@ class KDERadarModel(BaseEstimator):
         self.new_track_: NDArray[np.bool_] | None = ~tt.has_prev_row  # first row of its target in the log
         self.rel_variance_ = tuple(float(v) for v in self.rel_variance)
         self.relevance_scores_ = np.zeros(0)
-        if self.relevance == "cv":
+        polar = self.state_transform == "polar"
+        if self.relevance == "cv_axes" or (self.relevance == "cv" and polar):
+            (v1, v2), self.relevance_scores_ = select_corner_variances(
+                log,
+                self,
+                tuple(self.relevance_candidates),
+                tuple(self.relevance_candidates_azimuth if polar else self.relevance_candidates),
+                int(self.relevance_folds),
+                progress,
+            )
+            self.rel_variance_ = (v1, v2, *self.rel_variance_[2:])
+        elif self.relevance == "cv":
             v, self.relevance_scores_ = select_corner_variance(
                 log, self, tuple(self.relevance_candidates), int(self.relevance_folds), progress
             )
@@ -451,6 +499,7 @@ class KDERadarModel(BaseEstimator):
             self.cv_min_tuples,
             self.cv_max_tuples,
             rng,
+            self.state_transform,
         )
         counts, xy = clutter_counts(log)
         if xy.shape[0] > MAX_CLUTTER_POSITIONS:  # drawn last: smaller logs keep every earlier draw
@@ -483,6 +532,12 @@ class KDERadarModel(BaseEstimator):
         else:
             self.extra_variance_ = ()
         self.extra_scale_ = np.sqrt(np.asarray(self.extra_variance_, dtype=np.float64)).reshape(-1)
+
+    def _features(self, states: NDArray) -> NDArray[np.float64]:
+        """States ``(n, d)`` with the corner columns as relevance features (:func:`corner_features`)."""
+        if self.state_transform == "cartesian":
+            return states
+        return np.concatenate([corner_features(states[:, :2], self.state_transform), states[:, 2:]], axis=1)
 
     def _scaled(self, base: NDArray, extra: NDArray) -> NDArray[np.float64]:
         """Scaled query/tuple states: ``base (n, d)`` by the first ``d`` relevance scales, then the extras."""
@@ -551,7 +606,7 @@ class KDERadarModel(BaseEstimator):
                 self._groups.append(None)
                 continue
             dims = 4 if g == GROUP_MAIN else 2
-            tree = cKDTree(self._scaled(self.states_[idx, :dims], self.extra_[idx]))
+            tree = cKDTree(self._scaled(self._features(self.states_[idx, :dims]), self.extra_[idx]))
             buckets = (
                 None
                 if self.extra_.shape[1]
@@ -569,7 +624,7 @@ class KDERadarModel(BaseEstimator):
         self.prior_rate_new_ = start.rate if new is None else new.rate
         self.prior_rate_lost_ = start.rate if lost is None else lost.rate
         self.det_idx_ = np.flatnonzero(~self.miss_)
-        self._det_tree = cKDTree(self.states_[self.det_idx_, :2] / self.scale_[:2])
+        self._det_tree = cKDTree(self._features(self.states_[self.det_idx_, :2]) / self.scale_[:2])
         tree = self._main_tree if self._main_tree is not None else self._start_tree
         probe = tree.data[:: max(1, tree.n // 256)]  # a deterministic sample of stored states
         self.median_neighbours_ = float(np.median(tree.query_ball_point(probe, self.radius, return_length=True)))
@@ -640,7 +695,7 @@ class KDERadarModel(BaseEstimator):
                 f"corners: row {int(np.flatnonzero(~np.isfinite(corners).all(axis=1))[0])} is NaN or infinite"
             )
         grp = self._route(prev, None) if grp is None else grp
-        full = np.concatenate([corners, prev], axis=1)
+        full = np.concatenate([self._features(corners), prev], axis=1)
         parts = []
         for g, node in enumerate(self._groups):
             qi = np.flatnonzero(grp == g)
@@ -727,7 +782,7 @@ class KDERadarModel(BaseEstimator):
 
     def _nearest_detected(self, corners: NDArray) -> NDArray[np.int64]:
         """Global index of the detected tuple with the nearest corner (fallback of empty groups)."""
-        _, j = self._det_tree.query(corners / self.scale_[:2], k=1)
+        _, j = self._det_tree.query(self._features(corners) / self.scale_[:2], k=1)
         return self.det_idx_[j]
 
     def sample_cycle(
@@ -818,7 +873,7 @@ class KDERadarModel(BaseEstimator):
         n = corners.shape[0]
         miss, src = np.zeros(n, dtype=bool), np.full(n, -1, dtype=np.int64)
         todo, need_det = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
-        full = np.concatenate([corners, prev], axis=1)
+        full = np.concatenate([self._features(corners), prev], axis=1)
         for g, node in enumerate(self._groups):
             qi = np.flatnonzero(grp == g)
             if qi.size == 0 or node is None or node.buckets is None:  # no queries, or a grid too large for memory
@@ -948,6 +1003,7 @@ class KDERadarModel(BaseEstimator):
         params["extra_state"] = [str(v) for v in self.extra_state_]
         params["extra_variance"] = None if self.extra_variance is None else [float(v) for v in self.extra_variance]
         params["extra_candidates"] = [float(v) for v in self.extra_candidates]
+        params["relevance_candidates_azimuth"] = [float(v) for v in self.relevance_candidates_azimuth]
         header = {
             "params": params,
             "cycle_time": self.cycle_time_,
@@ -991,13 +1047,15 @@ class KDERadarModel(BaseEstimator):
             "clutter_counts": ("iu", 1, True),
             "clutter_xy": ("f", 2, True),
         }
-        header, a = load_model_file(path, KIND, (1, 2, 3, FORMAT_VERSION), schema)
+        header, a = load_model_file(path, KIND, (1, 2, 3, 4, FORMAT_VERSION), schema)
         defaults = {  # parameters older formats lack: 1 has no prior_rate, 1 and 2 no extra state
             "prior_rate": "global",
             "extra_state": (),
             "extra_variance": None,
             "extra_candidates": (0.25, 0.5, 1.0, 2.0),
         }
+        if int(header.get("format_version", 0)) < 5:  # format 5 must state its corner features
+            defaults.update(state_transform="cartesian", relevance_candidates_azimuth=(0.0025, 0.01, 0.04, 0.16))
         not_saved = ("random_state", "cv_candidates")  # the candidates are stored as an array
         model = cls(**params_from_header(path, header, cls._hyperparameter_constraints, defaults, not_saved))
         _check_arrays(path, a)

@@ -26,7 +26,13 @@ from sensor_envs.radar.features import state_matrix
 from sensor_envs.radar.log import RadarLog, target_tuples
 from sensor_envs.rng import fold_ids
 
-__all__ = ["inner_folds", "select_corner_variance", "select_extra_variances", "heldout_scores"]
+__all__ = [
+    "inner_folds",
+    "select_corner_variance",
+    "select_extra_variances",
+    "select_corner_variances",
+    "heldout_scores",
+]
 
 
 FRAME_BLOCK = 50
@@ -73,6 +79,42 @@ def select_corner_variance(
     overrides = [{**base, "rel_variance": (v, v, rv[2], rv[3])} for v in candidates]
     scores = heldout_scores(log, estimator, overrides, n_folds, progress, "relevance cv")
     return float(candidates[int(np.argmax(scores))]), scores
+
+
+def select_corner_variances(
+    log: RadarLog,
+    estimator: Any,
+    first_candidates: tuple[float, ...],
+    second_candidates: tuple[float, ...],
+    n_folds: int,
+    progress: bool = False,
+) -> tuple[tuple[float, float], NDArray[np.float64]]:
+    """The two corner variances of the relevance kernel apart, by the same held-out CV.
+
+    Cartesian corner features: x and y variances [m^2]; polar (``state_transform="polar"``): range
+    [m^2] and azimuth [rad^2]. Coordinate-wise (``(len(first) + len(second)) * n_folds`` inner fits):
+    the first variance with the second at its middle candidate, then the second at the chosen first.
+
+    Args:
+        log: the training log.
+        estimator: the unfitted model (its ``rel_variance`` gives the ``z_{t-1}`` variances).
+        first_candidates: variances of the first corner feature to try.
+        second_candidates: variances of the second corner feature to try.
+        n_folds: inner folds.
+        progress: show a tqdm bar.
+
+    Returns:
+        ``(first, second)`` variances and the scores (mean held-out log-likelihood per target row
+        [nats]) of the first candidates followed by those of the second.
+    """
+    rv = estimator.get_params().get("rel_variance", (3.0, 3.0, 0.03, 0.03))
+    v2 = float(sorted(second_candidates)[(len(second_candidates) - 1) // 2])
+    over = [{"rel_variance": (v, v2, rv[2], rv[3])} for v in first_candidates]
+    s1 = heldout_scores(log, estimator, over, n_folds, progress, "relevance cv (first corner feature)")
+    v1 = float(first_candidates[int(np.argmax(s1))])
+    over = [{"rel_variance": (v1, v, rv[2], rv[3])} for v in second_candidates]
+    s2 = heldout_scores(log, estimator, over, n_folds, progress, "relevance cv (second corner feature)")
+    return (v1, float(second_candidates[int(np.argmax(s2))])), np.concatenate([s1, s2])
 
 
 def _extra_std(log: RadarLog, names: tuple[str, ...]) -> NDArray[np.float64]:

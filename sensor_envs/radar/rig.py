@@ -317,16 +317,32 @@ class RadarRig:
             p_range = p_range * np.interp(rng_m, np.asarray(c.detect_range_knots), np.asarray(c.detect_range_table))
         else:
             p_range = c.p_detect * p_range
+        return p_range * self.azimuth_factor(az) * (1.0 - c.occlusion_loss * occluded)
+
+    def azimuth_factor(self, az: NDArray) -> NDArray[np.float64]:
+        """Azimuth factor ``(n,)`` in [0, 1] of the detection probability at azimuth [rad] (left > 0).
+
+        0 outside the field of view (beyond the azimuth table's knots, or ``fov`` for the generic rig).
+        """
+        c = self.config
         if c.detect_azimuth_table is not None and c.detect_azimuth_knots is not None:
             knots, table = np.asarray(c.detect_azimuth_knots), np.asarray(c.detect_azimuth_table)
             if c.detect_azimuth_signed:  # signed azimuth (left > 0): 0 outside the knots on either side
-                p_az = np.interp(az, knots, table, left=0.0, right=0.0)
-            else:
-                p_az = np.interp(np.abs(az), knots, table, right=0.0)
-        else:
-            edge = np.clip(np.abs(az) / c.fov, 0.0, None)
-            p_az = np.where(edge <= 1.0, 1.0 - 0.4 * edge**4, 0.0)
-        return p_range * p_az * (1.0 - c.occlusion_loss * occluded)
+                return np.interp(az, knots, table, left=0.0, right=0.0)
+            return np.interp(np.abs(az), knots, table, right=0.0)
+        edge = np.clip(np.abs(az) / c.fov, 0.0, None)
+        return np.where(edge <= 1.0, 1.0 - 0.4 * edge**4, 0.0)
+
+    def in_view(self, box: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Which boxes ``(n, 5)`` (``x, y, heading, length, width`` [m, rad]) the rig could ever detect.
+
+        A box is in view when at least one of its corners lies at an azimuth whose detection factor
+        (:meth:`azimuth_factor`) is positive; a box wholly outside the field of view (e.g. behind the
+        sensor) never yields a detection, whatever its range or occlusion.
+        """
+        corners = rectangle_corners(box[:, 0], box[:, 1], box[:, 2], box[:, 3], box[:, 4])  # (n, 4, 2)
+        az = np.arctan2(corners[..., 1], corners[..., 0])
+        return np.asarray((self.azimuth_factor(az.ravel()).reshape(az.shape) > 0).any(axis=1), dtype=bool)
 
     def _noise_std(self, rng_m: NDArray, az: NDArray) -> tuple[NDArray, NDArray]:
         """Radial and cross-range noise std [m] at range [m] and azimuth [rad]."""
@@ -354,8 +370,15 @@ class RadarRig:
         v = np.stack([-np.sin(az), np.cos(az)], axis=1)
         return point + (err[:, :1] + bias) * u + err[:, 1:] * v
 
-    def record(self, scenario: Scenario, rng: np.random.Generator, sequence: int = 0) -> RadarLog:
-        """Simulate every cycle of ``scenario``; returns the log (targets within ``log_range``)."""
+    def record(
+        self, scenario: Scenario, rng: np.random.Generator, sequence: int = 0, in_view_only: bool = False
+    ) -> RadarLog:
+        """Simulate every cycle of ``scenario``; returns the log (targets within ``log_range``).
+
+        With ``in_view_only``, target rows of boxes wholly outside the field of view (:meth:`in_view`:
+        never detectable, e.g. behind the sensor) are left out of the log, as a real radar's reference
+        annotations would be; the random draws (and so every logged row) are the same either way.
+        """
         c = self.config
         n_cyc, n_tgt, _ = scenario.boxes.shape
         rho = np.exp(-c.cycle_time / c.tracker_tau)
@@ -386,6 +409,8 @@ class RadarRig:
             meas = self._to_xy(refl, err, c.range_bias)
             meas[~det] = np.nan
             keep = np.hypot(box[:, 0], box[:, 1]) <= c.log_range
+            if in_view_only:
+                keep &= self.in_view(box)
             rows.append(self._target_rows(sequence, k, scenario.t[k], box, meas)[keep])
             rows.append(self._clutter_rows(sequence, k, scenario.t[k], rng))
         return _rows_to_log(np.concatenate(rows), f"rig sequence {sequence}")
@@ -480,6 +505,7 @@ def record_rig_log(
     config: RigConfig | None = None,
     progress: bool = False,
     velocity_columns: bool = False,
+    in_view_only: bool = False,
 ) -> RadarLog:
     """Record ``n_sequences`` independent rig sequences into one log (sequence ids 0..n-1).
 
@@ -492,12 +518,14 @@ def record_rig_log(
         progress: show a tqdm bar.
         velocity_columns: add covariate columns ``rel_vx``, ``rel_vy``: the target's velocity relative to
             the (static) sensor, sensor frame [m/s] (empty on clutter rows).
+        in_view_only: leave out target rows of boxes wholly outside the field of view
+            (:meth:`RadarRig.in_view`); same random draws, so the other rows are unchanged.
     """
     rig = RadarRig(config)
     logs, vel = [], []
     for s in tqdm(range(n_sequences), disable=not progress, desc="rig"):
         sc = generate_scenario(n_targets, n_cycles, rig.config.cycle_time, rng)
-        logs.append(rig.record(sc, rng, sequence=s))
+        logs.append(rig.record(sc, rng, sequence=s, in_view_only=in_view_only))
         tgt = logs[-1]["target"]
         vel.append(np.where((tgt >= 0)[:, None], sc.velocity[np.maximum(tgt, 0)], np.nan))
     cols = {k: np.concatenate([lg.columns[k] for lg in logs]) for k in REQUIRED_COLUMNS}

@@ -1,0 +1,92 @@
+"""The KDE radar's corner features (format 5): cartesian as before, or polar (range, azimuth)."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sensor_envs.modelio import ModelFileError, save_model_file
+from sensor_envs.radar.kde import KIND, KDERadarModel, corner_features
+from sensor_envs.radar.relevance import select_corner_variances
+from sensor_envs.radar.rig import record_rig_log
+from sensor_envs.radar.validate import chi_square
+
+SHIPPED = Path(__file__).resolve().parents[1] / "models" / "radar_kde.npz"
+POLAR_VAR = (12.0, 0.01, 0.03, 0.03)  # range 3.5 m, azimuth 5.7 deg, z_{t-1} 0.17 m
+
+
+def _rewrite(model, path, version, drop=("state_transform", "relevance_candidates_azimuth")):
+    """Write ``model`` as a file of format ``version`` whose params lack ``drop`` (as older files)."""
+    model.save(path)
+    with np.load(path, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    header = json.loads(data.pop("__header__").tobytes().decode("utf-8"))
+    for k in drop:
+        header["params"].pop(k)
+    for k in ("kind", "format_version"):
+        header.pop(k)
+    save_model_file(path, KIND, version, header, data)
+    return path
+
+
+@pytest.fixture(scope="module")
+def polar():
+    log = record_rig_log(20, 30, 8, np.random.default_rng(11))
+    return KDERadarModel(
+        rel_variance=POLAR_VAR,
+        state_transform="polar",
+        cv_candidates=(0.1, 0.3, 1.0),
+        cv_max_tuples=150,
+        random_state=0,
+    ).fit(log)
+
+
+def test_format4_files_load_cartesian_and_behave_as_saved(model, tmp_path):
+    old = KDERadarModel.load(_rewrite(model, tmp_path / "f4.npz", 4))
+    assert old.state_transform == "cartesian" and KDERadarModel.load(SHIPPED).state_transform == "cartesian"
+    states = model.states_[::97]
+    z = np.where(np.isnan(model.z_[::97]), 0.3, model.z_[::97])
+    np.testing.assert_array_equal(old.log_prob(z, states), model.log_prob(z, states))
+    a, b = old.sample(states, np.random.default_rng(1)), model.sample(states, np.random.default_rng(1))
+    np.testing.assert_array_equal(a[1], b[1])
+
+
+def test_format5_file_must_name_its_corner_features(model, tmp_path):
+    with pytest.raises(ModelFileError, match="params.state_transform"):
+        KDERadarModel.load(_rewrite(model, tmp_path / "f5.npz", 5, drop=("state_transform",)))
+
+
+def test_polar_kernel_weights_range_and_azimuth(polar, tmp_path):
+    """Weights are exp(-((dr / s_r)^2 + (daz / s_az)^2) / 2): near left and right corners are not mixed."""
+    q = np.array([[8.0, 3.0]])
+    gi, w, _ = polar._neighbours(q, None, grp=np.array([1]))  # start tree: corner features only
+    f, fq = corner_features(polar.states_[gi, :2], "polar"), corner_features(q, "polar")
+    expect = np.exp(-0.5 * (((f - fq) / np.sqrt(POLAR_VAR[:2])) ** 2).sum(axis=1))
+    np.testing.assert_allclose(w, expect, rtol=1e-12)
+    assert (f[:, 1] > 0).all()  # nothing right of the boresight for a corner 20 deg left
+    loaded = KDERadarModel.load(polar.save(tmp_path / "polar.npz"))
+    assert loaded.state_transform == "polar"
+    states = polar.states_[::89]
+    z = np.where(np.isnan(polar.z_[::89]), 0.3, polar.z_[::89])
+    np.testing.assert_array_equal(loaded.log_prob(z, states), polar.log_prob(z, states))
+
+
+@pytest.mark.parametrize("sampler", ["bucket", "ball"])
+def test_polar_samples_follow_the_analytic_pdf(polar, sampler):
+    polar.sampler = sampler
+    try:
+        det = np.flatnonzero(~np.isnan(polar.states_[:, 2]) & ~np.isnan(polar.z_[:, 0]))
+        state = polar.states_[det[len(det) // 3]]
+        res = chi_square(polar, state, np.random.default_rng(7), n=60_000)
+        assert res["p_value"] > 1e-3, (res["statistic"], res["dof"])
+    finally:
+        polar.sampler = "auto"
+
+
+def test_polar_relevance_cv_picks_from_the_candidates():
+    log = record_rig_log(8, 15, 6, np.random.default_rng(2))
+    est = KDERadarModel(state_transform="polar", cv_min_tuples=10, random_state=0)
+    (vr, va), scores = select_corner_variances(log, est, (6.0, 48.0), (0.005, 0.08), 2)
+    assert vr in (6.0, 48.0) and va in (0.005, 0.08) and scores.shape == (4,) and np.isfinite(scores).all()
+    assert scores[2 + (0.005, 0.08).index(va)] == scores[2:].max()
