@@ -425,14 +425,17 @@ def fit_null_law(
 
 def null_law_rig(law: dict[str, Any], n_bearings: int) -> NeatoRig:
     """A rig holding only a :func:`fit_null_law` law (no blocked bearings): its ``p_null`` is the law's probability."""
-    return NeatoRig(
-        n_bearings=n_bearings,
-        blocked=(),
-        null_logit=(law["c0"], 0.0, 0.0),
-        null_bearing_logit=law["offsets"],
-        null_bearing_range_slope=law["range_slopes"],
+    return NeatoRig(n_bearings=n_bearings, blocked=(), **_law_as_rig_params(law))
+
+
+def _law_as_rig_params(law: dict[str, Any]) -> dict[str, Any]:
+    """The rig parameters of a :func:`fit_null_law` law (linear slopes 0: the tables carry the shape)."""
+    return {
+        "null_logit": (law["c0"], 0.0, 0.0),
+        "null_bearing_logit": law["offsets"],
+        "null_bearing_range_slope": law["range_slopes"],
         **{k: law[k] for k in ("null_range_knots", "null_range_logit", "null_incidence_knots", "null_incidence_logit")},
-    )
+    }
 
 
 def choose_slope_ridge(
@@ -467,14 +470,8 @@ def choose_slope_ridge(
 def _null_law_params(
     r: NDArray[np.float64], a: NDArray[np.float64], hit: NDArray[np.bool_], stats_pn: Any
 ) -> dict[str, Any]:
-    """Rig parameters of the null law fitted by :func:`fit_null_law` (linear slopes 0: the tables carry the shape)."""
-    law = fit_null_law(r, a, hit, stats_pn)
-    return {
-        "null_logit": (law["c0"], 0.0, 0.0),
-        "null_bearing_logit": law["offsets"],
-        "null_bearing_range_slope": law["range_slopes"],
-        **{k: law[k] for k in ("null_range_knots", "null_range_logit", "null_incidence_knots", "null_incidence_logit")},
-    }
+    """Rig parameters of the null law fitted by :func:`fit_null_law` to the cells ``hit``."""
+    return _law_as_rig_params(fit_null_law(r, a, hit, stats_pn))
 
 
 BIAS_RANGE_KNOTS = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)

@@ -124,6 +124,8 @@ per-tuple ``new_track`` flags (uint8 0/1; new-track vs after-miss start trees); 
 state; one combined start tree; cartesian corner features), so they behave exactly as before."""
 STATE_TRANSFORMS = ("cartesian", "polar")
 """Corner features of the relevance kernel: ``(c_x, c_y)`` [m] or ``(range [m], azimuth [rad])``."""
+AZIMUTH_CANDIDATES = (0.0025, 0.01, 0.04, 0.16)
+"""Default azimuth variances [rad^2] the CV tries with polar corner features (``relevance_candidates_azimuth``)."""
 GROUP_MAIN, GROUP_START, GROUP_NEW, GROUP_LOST = 0, 1, 2, 3
 """Tree of a query: with ``z_{t-1}``; start (flag unknown); new track; after a miss."""
 AUTO_BUCKET_MIN_NEIGHBOURS = 100
@@ -253,7 +255,7 @@ def cv_bandwidth_table(
     Returns:
         ``log_h (nx, ny, 2)`` log bandwidths [log m] and ``counts (nx, ny)`` tuples used per node.
     """
-    s = np.concatenate([corner_features(xs[:, :2], state_transform), xs[:, 2:]], axis=1) / scale
+    s = relevance_features(xs, state_transform) / scale
     tree = cKDTree(s[:, :2])
     gx, gy = np.meshgrid(grid_x, grid_y, indexing="ij")
     nodes = corner_features(np.stack([gx.ravel(), gy.ravel()], axis=1), state_transform) / scale[:2]
@@ -290,6 +292,13 @@ def corner_features(corners: NDArray, state_transform: str) -> NDArray[np.float6
         return corners
     c = np.asarray(corners, dtype=np.float64)
     return np.stack([np.hypot(c[:, 0], c[:, 1]), np.arctan2(c[:, 1], c[:, 0])], axis=1)
+
+
+def relevance_features(states: NDArray, state_transform: str) -> NDArray[np.float64]:
+    """States ``(n, d)`` (corner x, y first [m]) with the corner columns as :func:`corner_features`."""
+    if state_transform == "cartesian":
+        return states
+    return np.concatenate([corner_features(states[:, :2], state_transform), states[:, 2:]], axis=1)
 
 
 class KDERadarModel(BaseEstimator):
@@ -398,7 +407,7 @@ class KDERadarModel(BaseEstimator):
         extra_variance: tuple[float, ...] | None = None,
         extra_candidates: tuple[float, ...] = (0.25, 0.5, 1.0, 2.0),
         state_transform: str = "cartesian",
-        relevance_candidates_azimuth: tuple[float, ...] = (0.0025, 0.01, 0.04, 0.16),
+        relevance_candidates_azimuth: tuple[float, ...] = AZIMUTH_CANDIDATES,
     ) -> None:
         self.rel_variance = rel_variance
         self.use_prev = use_prev
@@ -534,10 +543,8 @@ class KDERadarModel(BaseEstimator):
         self.extra_scale_ = np.sqrt(np.asarray(self.extra_variance_, dtype=np.float64)).reshape(-1)
 
     def _features(self, states: NDArray) -> NDArray[np.float64]:
-        """States ``(n, d)`` with the corner columns as relevance features (:func:`corner_features`)."""
-        if self.state_transform == "cartesian":
-            return states
-        return np.concatenate([corner_features(states[:, :2], self.state_transform), states[:, 2:]], axis=1)
+        """States ``(n, d)`` with the corner columns as relevance features (:func:`relevance_features`)."""
+        return relevance_features(states, self.state_transform)
 
     def _scaled(self, base: NDArray, extra: NDArray) -> NDArray[np.float64]:
         """Scaled query/tuple states: ``base (n, d)`` by the first ``d`` relevance scales, then the extras."""
@@ -1055,7 +1062,7 @@ class KDERadarModel(BaseEstimator):
             "extra_candidates": (0.25, 0.5, 1.0, 2.0),
         }
         if int(header.get("format_version", 0)) < 5:  # format 5 must state its corner features
-            defaults.update(state_transform="cartesian", relevance_candidates_azimuth=(0.0025, 0.01, 0.04, 0.16))
+            defaults.update(state_transform="cartesian", relevance_candidates_azimuth=AZIMUTH_CANDIDATES)
         not_saved = ("random_state", "cv_candidates")  # the candidates are stored as an array
         model = cls(**params_from_header(path, header, cls._hyperparameter_constraints, defaults, not_saved))
         _check_arrays(path, a)
