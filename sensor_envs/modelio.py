@@ -280,10 +280,27 @@ def validate_params(
         forms = [_NoneConstraint() if c is None else c for c in constraints[name]]
         if any(c.accepts(value) for c in forms):
             continue
-        msg = f"expected {' or '.join(str(c) for c in forms)}, got {value!r}"
+        msg = f"expected {' or '.join(str(c) for c in forms)}, got {_shown(value, forms)}"
         if source is not None:
             raise ModelFileError(f"{source}: field 'params.{name}' is invalid: {msg}")
         raise ValueError(f"{name}: {msg}")
+
+
+SHOWN_ITEMS = 8
+"""Longer sequences are not echoed whole in an error (a per-bearing table has 360 values)."""
+
+
+def _shown(value: Any, forms: list[Any]) -> str:
+    """``value`` as a hyperparameter error shows it.
+
+    Whole when short; a long sequence by its length and the first entry that no :class:`Numbers` form's item
+    accepts.
+    """
+    if not isinstance(value, (tuple, list, np.ndarray)) or len(value) <= SHOWN_ITEMS:
+        return repr(value)
+    items = [c.item for c in forms if isinstance(c, Numbers)]
+    bad = next((i for i, v in enumerate(value) if items and not any(it.accepts(v) for it in items)), None)
+    return f"{len(value)} values" + (f", first rejected entry [{bad}] = {value[bad]!r}" if bad is not None else "")
 
 
 # ----------------------------------------------------------------------------------- value checks

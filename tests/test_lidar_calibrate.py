@@ -278,6 +278,16 @@ def test_null_tables_add_to_the_linear_law():
     np.testing.assert_allclose(p, 1 / (1 + np.exp(-np.array([0.0, 4.0, 1.5]))))  # constant beyond the end knot
 
 
+def test_a_bad_entry_of_a_long_table_is_named_not_the_whole_table(tmp_path):
+    slopes = [0.0] * 360
+    slopes[5] = 99.0
+    with pytest.raises(ModelFileError) as err:
+        NeatoRig.from_file(_rig_json(tmp_path, null_bearing_range_slope=slopes))
+    msg = str(err.value)
+    assert "field 'params.null_bearing_range_slope'" in msg
+    assert msg.endswith("got 360 values, first rejected entry [5] = 99.0") and len(msg) < 300
+
+
 def test_per_bearing_range_slopes_add_to_the_null_logit():
     from sensor_envs.lidar.rig import NULL_SLOPE_CENTRE
 
