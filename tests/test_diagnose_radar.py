@@ -233,3 +233,16 @@ def test_cli_diagnose_with_a_given_model(latency_log, tmp_path):
     assert {"rel_vx", "rel_vy"} & set(rep["added"]), rep["details"]["steps"]
     assert isinstance(rep["details"]["given_model_error_held_out"], float)
     assert rep["error_after"] < rep["error_before"] - MARGIN
+
+
+def test_held_out_scores_route_new_tracks_to_their_own_start_tree(latency_log):
+    held = block_split(radar_blocks(latency_log))
+    adapter = RadarAdapter(latency_log, held, params=FAST)
+    model = KDERadarModel(relevance="paper", random_state=0).fit(adapter.fit_log)
+    tt = target_tuples(adapter.held_log)
+    state = np.concatenate([tt.corner, tt.z_prev], axis=1)
+    new = ~tt.has_prev_row
+    assert new.any() and (~new & np.isnan(tt.z_prev[:, 0])).any()  # both kinds of start rows are held out
+    routed = model.log_prob(tt.z, state, new_track=new)
+    assert not np.allclose(routed[new], model.log_prob(tt.z, state)[new])  # the flag matters for this model
+    np.testing.assert_allclose(adapter.evaluate(model).nll, -routed)

@@ -139,9 +139,9 @@ class RadarAdapter:
         """Residuals, candidates and NLL of ``model`` on the held-out target rows."""
         names = tuple(getattr(model, "extra_state_", ()))
         ex = state_matrix(self.held_log, names, self._tt.row) if names else None
-        z = self._tt.z
-        lp = model.log_prob(z, self._state, extra=ex) if names else model.log_prob(z, self._state)
-        mu, p_miss = model.mean_output(self._state, extra=ex)
+        z, new = self._tt.z, self._new_track()
+        lp = model.log_prob(z, self._state, extra=ex, new_track=new)
+        mu, p_miss = model.mean_output(self._state, extra=ex, new_track=new)
         det = ~np.isnan(z[:, 0])
         off = np.where(det[:, None], z - mu, np.nan)
         resid = {
@@ -160,11 +160,15 @@ class RadarAdapter:
         """Model-expected NLL of each held-out state, by ``n_mc`` samples from the model itself (seeded)."""
         rng = np.random.default_rng(12345)
         total = np.zeros(self._state.shape[0])
+        new = self._new_track()
         for _ in range(self.n_mc):  # a few Monte Carlo draws per reading
-            zs, _ = model.sample(self._state, rng, extra=ex) if ex is not None else model.sample(self._state, rng)
-            lp = model.log_prob(zs, self._state, extra=ex) if ex is not None else model.log_prob(zs, self._state)
-            total += np.minimum(-lp, 50.0)
+            zs, _ = model.sample(self._state, rng, extra=ex, new_track=new)
+            total += np.minimum(-model.log_prob(zs, self._state, extra=ex, new_track=new), 50.0)
         return total / self.n_mc
+
+    def _new_track(self) -> NDArray[np.bool_]:
+        """``(n,)`` True at held-out readings whose target has no earlier row (first seen: the new-track tree)."""
+        return ~self._tt.has_prev_row
 
     def _previous_index(self) -> NDArray[np.int64]:
         """Index of the same target's previous-frame reading among the held-out readings (-1: none)."""

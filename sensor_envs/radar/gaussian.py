@@ -164,8 +164,10 @@ class GaussianRadar(BaseEstimator):
         """Names of the state: the corner, then the extra state variables."""
         return ("corner_x", "corner_y", *getattr(self, "extra_state_", ()))
 
-    def mean_output(self, state: NDArray, extra: NDArray | None = None) -> tuple[NDArray, NDArray]:
-        """Mean output ``(n, 2)`` [m] given a detection and ``P(miss)`` ``(n,)`` at ``state``."""
+    def mean_output(
+        self, state: NDArray, extra: NDArray | None = None, new_track: NDArray | None = None
+    ) -> tuple[NDArray, NDArray]:
+        """Mean output ``(n, 2)`` [m] given a detection and ``P(miss)`` ``(n,)`` at ``state`` (``new_track`` unused)."""
         self._check_fitted()
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         _, mu, pd = self._mean_pd(st[:, :2], extra)
