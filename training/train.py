@@ -168,6 +168,10 @@ def train(
         tensorboard_log=tb_log,
         **(cfg.get("hyperparams") or {}),
     )
+    if tb_log is None:  # else SB3 makes an empty folder in the system's temp dir per run
+        from stable_baselines3.common.logger import configure
+
+        model.set_logger(configure(str(out / "log"), ["csv"]))
     every = max(1, int(cfg.get("eval_freq", 10_000)) // n_envs)
     callbacks = [
         CheckpointCallback(save_freq=every, save_path=str(out / "checkpoints"), name_prefix="model"),
