@@ -352,17 +352,6 @@ def test_spurious_returns_follow_the_range_factor():
     assert prone[r < 0.9].mean() > 0.1 and not prone[r > 1.0].any()
 
 
-def test_calibrated_spur_range_factor_is_a_step_per_range_bin():
-    from sensor_envs.lidar.calibrate import RANGE_BINS, _spur_range
-
-    share = np.full(RANGE_BINS.size - 1, np.nan)
-    share[:4] = (0.10, 0.05, 0.0, 0.002)  # per 0.5 m bin; the real unit's spurious cells are within 1 m
-    rig = NeatoRig(**_spur_range({"spur_range": share, "spur_cells": 0.04}))
-    r = np.array([0.0, 0.3, 0.49, 0.5, 0.9, 0.989, 1.0, 1.2, 1.49, 1.6, 1.98, 5.0, np.nan])
-    want = np.array([2.5, 2.5, 2.5, 1.25, 1.25, 1.25, 0.0, 0.0, 0.0, 0.05, 0.05, 0.05, 0.05])
-    np.testing.assert_allclose(rig.spur_range_factor(r), want, atol=1e-12)  # no spurious cells beyond 1 m
-
-
 def test_bias_tables_and_outlying_cells():
     quiet = {"pose_sd": (0.0, 0.0), "map_sd": 0.0, "spur_prone": 0.0, "bias_sd": 0.0, "bias_mean": 0.0}
     rig = NeatoRig(bias_range_knots=(1.0, 3.0), bias_range=(0.0, -0.1), null_logit=(-30.0, 0.0, 0.0), **quiet)

@@ -520,27 +520,16 @@ def fit_bias_law(r: NDArray[np.float64], a: NDArray[np.float64], dev: NDArray[np
     }
 
 
-SPUR_STEP_RAMP = 0.01
-"""Width [m] of the ramp between two range bins of the spurious-prone factor (a step function of the range)."""
-
-
 def _spur_range(stats: dict[str, Any]) -> dict[str, Any]:
-    """Spurious-prone factor per range (mean 1 over the hit cells) from a log's ``spur_range`` and ``spur_cells``.
-
-    The factor is constant over each 0.5 m bin of :data:`RANGE_BINS` (two knots per bin, a
-    :data:`SPUR_STEP_RAMP` ramp to the next bin): the statistic is a share per bin, and knots at the bin
-    centres would spread the real unit's spurious cells, all within 1 m, to 1.25 m.
-    """
+    """Spurious-prone factor per range (mean 1 over the hit cells) from a log's ``spur_range`` and ``spur_cells``."""
     share = np.asarray(stats["spur_range"], dtype=np.float64)
     overall = stats["spur_cells"]
     ok = np.isfinite(share)
     if not ok.any() or not overall:
         return {"spur_range_knots": (), "spur_range_weight": ()}
-    lo, hi = RANGE_BINS[:-1][ok], RANGE_BINS[1:][ok] - SPUR_STEP_RAMP
-    weight = [float(f"{v:.3g}") for v in share[ok] / overall]
     return {
-        "spur_range_knots": tuple(float(round(v, 4)) for v in np.column_stack([lo, hi]).ravel()),
-        "spur_range_weight": tuple(w for w in weight for _ in range(2)),
+        "spur_range_knots": tuple(float(v) for v in RANGE_CENTRES[ok]),
+        "spur_range_weight": tuple(float(f"{v:.3g}") for v in share[ok] / overall),
     }
 
 

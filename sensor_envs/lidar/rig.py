@@ -53,8 +53,7 @@ Effects off by default, set by a calibrated rig file (``sensor-envs calibrate li
   cells 0.117 without them, 0.098 with them at the default ridge; ``benchmarks/real_lidar_null_law_cv.py``);
 * ``spur_range_knots`` / ``spur_range_weight``: a piecewise-linear factor [m -> 1] on the probability
   that a cell is spurious-prone, by its true range (the real spurious cells are all within 1 m; range
-  ``inf``, no hit, takes the last weight); ``calibrate lidar`` writes a step per 0.5 m bin (two knots
-  per bin);
+  ``inf``, no hit, takes the last weight);
 * ``pose_sd_spread``: the pose error's standard deviations ``pose_sd`` are multiplied per pose by
   ``exp(pose_sd_spread * z)``, ``z`` a standard normal per pose (a log-normal scale mixture: the real
   poses are either precise or clearly off; median per-pose mean |cell mean - nominal| 0.03 m, 10 %
