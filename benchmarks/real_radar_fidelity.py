@@ -1,6 +1,7 @@
 """Fidelity of the shipped radar models on real Astyx frames, before and after the rig calibration.
 
-The whole chain runs from a fresh clone (~10-15 min on 2 shared cores):
+The whole chain runs from a fresh clone (~25-35 min on 2 shared cores, most of it the `cv_axes` fit: 1,175-1,651 s
+measured; `--models-from` skips it, ~3 min):
 
 1. AFTER models: record the calibrated rig (``--rig``, default ``models/radar_rig.json``) with the
    command of the model card (``record radar ... --in-view-only``; ``--all-targets`` records every
