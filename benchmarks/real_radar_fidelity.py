@@ -1,10 +1,13 @@
 """Fidelity of the shipped radar models on real Astyx frames, before and after the rig calibration.
 
-The whole chain runs from a fresh clone (~10-15 min on 2 shared cores):
+The whole chain runs from a fresh clone (~25-35 min on 2 shared cores, most of it the `cv_axes` fit: 1,175-1,651 s
+measured; `--models-from` skips it, ~3 min):
 
 1. AFTER models: record the calibrated rig (``--rig``, default ``models/radar_rig.json``) with the
-   command of the model card and fit the KDE (``--relevance cv``) and the Gaussian baseline on it,
-   both through the ``sensor-envs`` CLI (``--models-from DIR`` skips this and uses
+   command of the model card (``record radar ... --in-view-only``; ``--all-targets`` records every
+   box, the chain of the models shipped until 2026-11-24) and fit the KDE (``--relevance cv_axes
+   --relevance-candidates 6 12 24 48 96 192``, both options of this script) and the Gaussian baseline
+   on it, both through the ``sensor-envs`` CLI (``--models-from DIR`` skips this and uses
    ``DIR/radar_kde.npz`` and ``DIR/radar_gaussian.npz``, e.g. ``models``);
 2. BEFORE models: ``git show <--before-rev>:models/radar_kde.npz`` (and the Gaussian): the models
    shipped before the calibration (fitted on the generic rig);
@@ -75,20 +78,36 @@ def cli(*args: str) -> None:
     subprocess.run([sys.executable, "-m", "sensor_envs.cli.main", *args], check=True, cwd=ROOT, env=env)
 
 
-def chain(work: Path, rig: str, seed: int, in_view_only: bool = False) -> tuple[Path, Path]:
+RELEVANCE = "cv_axes"
+"""Relevance mode of the shipped model's fit (``fit radar --relevance``): x and y corner variances by CV."""
+RELEVANCE_CANDIDATES = (6.0, 12.0, 24.0, 48.0, 96.0, 192.0)
+"""Corner variances [m^2] the shipped model's CV tried (``fit radar --relevance-candidates``)."""
+
+
+def chain(
+    work: Path,
+    rig: str,
+    seed: int,
+    in_view_only: bool = True,
+    relevance: str = RELEVANCE,
+    candidates: tuple[float, ...] | None = RELEVANCE_CANDIDATES,
+) -> tuple[Path, Path]:
     """Record the calibrated rig and fit the KDE and Gaussian as the model card says; returns their paths.
 
-    ``in_view_only`` leaves boxes wholly outside the rig's field of view out of the log (``record radar
-    --in-view-only``: the not-shipped candidate of 2026-11-24 in the card); ``False`` is the shipped chain.
+    The defaults are the card's commands of the shipped model (2026-11-24): ``record radar
+    --in-view-only`` (boxes wholly outside the rig's field of view left out of the log) and ``fit radar
+    --relevance cv_axes --relevance-candidates 6 12 24 48 96 192``. ``in_view_only=False,
+    relevance="cv", candidates=None`` is the chain of the models shipped before (commit 156053f).
     """
     work.mkdir(parents=True, exist_ok=True)
     log = work / "rig_train.csv"
     kde, gauss = work / "radar_kde.npz", work / "radar_gaussian.npz"
     view = ["--in-view-only"] if in_view_only else []
+    cand = ["--relevance-candidates", *(f"{c:g}" for c in candidates)] if candidates else []
     cli("record", "radar", "--rig", rig, "--out", str(log), "--seed", str(seed), "--sequences", "50",
         "--cycles", "40", "--targets", "8", "--cycle-time", "1.0", *view, "--force")  # fmt: skip
     cli("fit", "radar", str(log), "--out", str(kde), "--baseline-out", str(gauss), "--cycle-time", "1.0",
-        "--seed", str(seed), "--relevance", "cv", "--force")  # fmt: skip
+        "--seed", str(seed), "--relevance", relevance, *cand, "--force")  # fmt: skip
     return kde, gauss
 
 
@@ -256,11 +275,35 @@ def main() -> None:
     )
     ap.add_argument("--rig", default=str(ROOT / "models" / "radar_rig.json"), help="calibrated rig file of the chain")
     ap.add_argument("--models-from", default=None, help="folder with radar_kde.npz/radar_gaussian.npz: skip the chain")
-    ap.add_argument(
+    view = ap.add_mutually_exclusive_group()
+    view.add_argument(
         "--in-view-only",
+        dest="in_view_only",
         action="store_true",
+        default=True,
         help="chain: record radar --in-view-only (leave boxes wholly outside the rig's field of view out of "
-        "the log; the candidate of 2026-11-24 in the model card; default: every target, as the shipped model)",
+        "the log), as the shipped model of the card (the default; kept for older command lines)",
+    )
+    view.add_argument(
+        "--all-targets",
+        dest="in_view_only",
+        action="store_false",
+        help="chain: record every target box (the log of the models shipped until 2026-11-24, commit 156053f)",
+    )
+    ap.add_argument(
+        "--relevance",
+        choices=["paper", "cv", "cv_axes"],
+        default=RELEVANCE,
+        help=f"chain: fit radar --relevance (default {RELEVANCE}, the shipped model; cv: the models before)",
+    )
+    ap.add_argument(
+        "--relevance-candidates",
+        type=float,
+        nargs="+",
+        default=list(RELEVANCE_CANDIDATES),
+        help="chain: fit radar --relevance-candidates [m^2] (default "
+        + " ".join(f"{c:g}" for c in RELEVANCE_CANDIDATES)
+        + "; the models before used the CLI's default 3 6 12 24 48)",
     )
     ap.add_argument("--before-rev", default=BEFORE_REV, help="git revision of the BEFORE models")
     ap.add_argument("--block", type=int, default=10)
@@ -275,7 +318,14 @@ def main() -> None:
     if args.models_from:
         kde_after, gauss_after = Path(args.models_from) / "radar_kde.npz", Path(args.models_from) / "radar_gaussian.npz"
     else:
-        kde_after, gauss_after = chain(out / "chain", args.rig, args.seed, in_view_only=args.in_view_only)
+        kde_after, gauss_after = chain(
+            out / "chain",
+            args.rig,
+            args.seed,
+            in_view_only=args.in_view_only,
+            relevance=args.relevance,
+            candidates=tuple(args.relevance_candidates),
+        )
     kde_before, gauss_before = before_models(out / "before", args.before_rev)
     fixed = {
         "kde_before_start": (KDERadarModel.load(kde_before), 1),
@@ -331,7 +381,8 @@ def main() -> None:
         "before_rev": args.before_rev,
         "after_from": str(
             args.models_from
-            or f"chain: {args.rig} -> record{' --in-view-only' if args.in_view_only else ''} -> fit --relevance cv"
+            or f"chain: {args.rig} -> record{' --in-view-only' if args.in_view_only else ''} -> fit --relevance "
+            f"{args.relevance} --relevance-candidates {' '.join(f'{c:g}' for c in args.relevance_candidates)}"
         ),
         "range_bins_m": list(RANGE_BINS),
         "azimuth_bins_deg": AZ_DEG.tolist(),
