@@ -235,14 +235,18 @@ def test_cli_diagnose_with_a_given_model(latency_log, tmp_path):
     assert rep["error_after"] < rep["error_before"] - MARGIN
 
 
-def test_held_out_scores_route_new_tracks_to_their_own_start_tree(latency_log):
+def test_held_out_scores_take_previous_outputs_from_the_whole_log_and_route_new_tracks(latency_log):
     held = block_split(radar_blocks(latency_log))
     adapter = RadarAdapter(latency_log, held, params=FAST)
     model = KDERadarModel(relevance="paper", random_state=0).fit(adapter.fit_log)
-    tt = target_tuples(adapter.held_log)
-    state = np.concatenate([tt.corner, tt.z_prev], axis=1)
-    new = ~tt.has_prev_row
-    assert new.any() and (~new & np.isnan(tt.z_prev[:, 0])).any()  # both kinds of start rows are held out
-    routed = model.log_prob(tt.z, state, new_track=new)
-    assert not np.allclose(routed[new], model.log_prob(tt.z, state)[new])  # the flag matters for this model
+    full = target_tuples(adapter.log)
+    keep = held[full.row]
+    local = target_tuples(adapter.held_log)  # the held-out log alone: blocks start without z_{t-1}
+    np.testing.assert_array_equal(local.z, full.z[keep])
+    block_start = ~local.has_prev_row & full.has_prev_row[keep]
+    assert block_start.any() and (~full.has_prev_row[keep]).any()  # mid-track block starts and true new tracks
+    state = np.concatenate([full.corner[keep], full.z_prev[keep]], axis=1)
+    new = ~full.has_prev_row[keep]
+    routed = model.log_prob(full.z[keep], state, new_track=new)
+    assert not np.allclose(routed[new], model.log_prob(full.z[keep], state)[new])  # the flag matters here
     np.testing.assert_allclose(adapter.evaluate(model).nll, -routed)

@@ -32,7 +32,7 @@ from sensor_envs.diagnose.core import Evaluation
 from sensor_envs.radar.features import state_matrix, with_derived_columns
 from sensor_envs.radar.gaussian import GaussianRadar
 from sensor_envs.radar.kde import KDERadarModel
-from sensor_envs.radar.log import INT_COLUMNS, REQUIRED_COLUMNS, RadarLog, target_tuples
+from sensor_envs.radar.log import INT_COLUMNS, REQUIRED_COLUMNS, RadarLog, TargetTuples, target_tuples
 
 __all__ = ["RadarAdapter", "radar_blocks", "DIAGNOSE_KDE_PARAMS"]
 
@@ -90,7 +90,7 @@ class RadarAdapter:
         self.progress = progress
         self.n_mc = 4
         self._variances: dict[str, float] = {}
-        self._tt = target_tuples(self.held_log)
+        self._tt = _held_out_tuples(self.log, held_out)
         self._state = np.concatenate([self._tt.corner, self._tt.z_prev], axis=1)
         self._candidates = self._static_candidates()
 
@@ -167,7 +167,7 @@ class RadarAdapter:
         return total / self.n_mc
 
     def _new_track(self) -> NDArray[np.bool_]:
-        """``(n,)`` True at held-out readings whose target has no earlier row (first seen: the new-track tree)."""
+        """``(n,)`` True where a held-out reading's target has no previous cycle in the whole log (new track)."""
         return ~self._tt.has_prev_row
 
     def _previous_index(self) -> NDArray[np.int64]:
@@ -197,3 +197,25 @@ class RadarAdapter:
         ex = state_matrix(self.held_log, tuple(extra_state), self._tt.row) if extra_state else None
         lp = g.log_prob(self._tt.z, self._state, extra=ex)
         return float(np.mean(np.minimum(-lp, 50.0)))
+
+
+def _held_out_tuples(log: RadarLog, held_out: NDArray[np.bool_]) -> TargetTuples:
+    """Tuples of the held-out target rows, their previous outputs taken from the WHOLE log.
+
+    A held-out block starts mid-track: its first cycle's previous output lies in the fit part. It is an
+    input of the model (``z_{t-1}``), not a held-out outcome, so it is taken from there, and only a target
+    without a previous cycle anywhere in the log is a new track. ``row`` indexes the held-out log.
+    """
+    full = target_tuples(log)
+    keep = held_out[full.row]
+    held_row = np.cumsum(held_out) - 1  # a log row's index in log.select(held_out)
+    return TargetTuples(
+        full.corner[keep],
+        full.z[keep],
+        full.z_prev[keep],
+        full.has_prev_row[keep],
+        held_row[full.row[keep]].astype(np.int64),
+        full.sequence[keep],
+        full.frame[keep],
+        full.target[keep],
+    )
