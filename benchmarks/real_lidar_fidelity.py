@@ -1,13 +1,13 @@
 """Fidelity of the shipped learned lidar to the REAL Neato data, before and after the rig calibration (issue 12).
 
     python benchmarks/real_lidar_fidelity.py --data ../shared/data/real --out /tmp/real_lidar_fidelity
-        [--rig models/neato_rig.json] [--before-rev f327671] [--folds 5] [--seed 0] [--train-poses 120]
+        [--rig models/neato_rig.json] [--before-rev f327671] [--folds 5] [--seed 0] [--train-poses 240]
 
 The whole chain, from a fresh clone:
 
 1. record the training log of the shipped model from the calibrated rig file (``--rig``; the shipped
-   model's card gives the same command: 120 poses x 200 repeats, seed 1, ``seed_room``; ``--train-poses``
-   changes the poses, e.g. 30 for the recipe shipped before 2026-11-24);
+   model's card gives the same command: 240 poses x 200 repeats, seed 1, ``seed_room``; ``--train-poses``
+   changes the poses, e.g. 120 for the recipe shipped on 2026-11-24, 30 for the one before);
 2. fit the shipped model's variant (extended, 10 CV folds, seed 0) to it: the AFTER model
    (``OUT/neato_lidar_after.npz``; it equals ``models/neato_lidar.npz`` when the code is unchanged);
 3. the BEFORE model is ``models/neato_lidar.npz`` at git revision ``--before-rev`` (the model shipped
@@ -49,7 +49,7 @@ from sensor_envs.outputs import write_json
 from sensor_envs.rng import fold_ids
 
 ROOT = Path(__file__).resolve().parents[1]
-TRAIN_POSES, TRAIN_REPEATS, TRAIN_SEED = 120, 200, 1
+TRAIN_POSES, TRAIN_REPEATS, TRAIN_SEED = 240, 200, 1
 """The shipped model's training log (models/neato_lidar.md): poses, repeats, seed of ``record lidar``."""
 MAE = [
     ("all", "mae_mu"),
