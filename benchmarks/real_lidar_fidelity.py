@@ -109,11 +109,12 @@ def main() -> None:
     args = ap.parse_args()
     t0 = time.perf_counter()
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    try:
+    try:  # bad input: one line naming the file, exit 2, before anything is written
         real = load_real_log(args.data)
-    except FileNotFoundError as exc:
-        raise SystemExit(f"{exc}: nothing to report") from None
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"{exc}: nothing to report", file=sys.stderr)
+        raise SystemExit(2) from None
+    out.mkdir(parents=True, exist_ok=True)
 
     # 1-2. the chain: calibrated rig -> training log -> the shipped model's fit
     rig = NeatoRig.from_file(args.rig)

@@ -314,6 +314,11 @@ def main() -> None:
     args = ap.parse_args()
     t0 = time.perf_counter()
     out = Path(args.out)
+    try:  # bad input: one line naming the file, exit 2, before the chain's long fit and before any output
+        log = load_astyx(args.data, block=args.block, progress=True)
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"{exc}: nothing to report", file=sys.stderr)
+        raise SystemExit(2) from None
     out.mkdir(parents=True, exist_ok=True)
     if args.models_from:
         kde_after, gauss_after = Path(args.models_from) / "radar_kde.npz", Path(args.models_from) / "radar_gaussian.npz"
@@ -336,7 +341,6 @@ def main() -> None:
         "gaussian_after": (GaussianRadar.load(gauss_after), 1),
         "ideal": (IdealRadar(), 1),
     }
-    log = load_astyx(args.data, block=args.block, progress=True)
     parts: dict[str, list[dict]] = {k: [] for k in ["kde_real_fitted", *fixed]}
     corners, zs, per_fold = [], [], []
     for k in range(args.folds):  # one iteration per fold
