@@ -23,6 +23,7 @@ position, up to its size): they are tested as ``state_misfit`` (see :mod:`sensor
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -207,15 +208,6 @@ def _held_out_tuples(log: RadarLog, held_out: NDArray[np.bool_]) -> TargetTuples
     without a previous cycle anywhere in the log is a new track. ``row`` indexes the held-out log.
     """
     full = target_tuples(log)
-    keep = held_out[full.row]
+    held = full.take(held_out[full.row])
     held_row = np.cumsum(held_out) - 1  # a log row's index in log.select(held_out)
-    return TargetTuples(
-        full.corner[keep],
-        full.z[keep],
-        full.z_prev[keep],
-        full.has_prev_row[keep],
-        held_row[full.row[keep]].astype(np.int64),
-        full.sequence[keep],
-        full.frame[keep],
-        full.target[keep],
-    )
+    return replace(held, row=held_row[held.row])

@@ -36,7 +36,7 @@ from __future__ import annotations
 import csv
 import io
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -302,6 +302,10 @@ class TargetTuples:
     sequence: NDArray[np.int64]
     frame: NDArray[np.int64]
     target: NDArray[np.int64]
+
+    def take(self, mask: NDArray[np.bool_]) -> TargetTuples:
+        """The tuples where ``mask`` ``(n,)`` is true, every field alike."""
+        return TargetTuples(**{f.name: getattr(self, f.name)[mask] for f in fields(self)})
 
 
 def target_tuples(log: RadarLog) -> TargetTuples:
