@@ -95,10 +95,8 @@ def main() -> None:
                 sim = cal._sim_setup(train, args.replicates, np.random.default_rng([args.seed, 7]))
                 cfg = cal._fit_detection(base, sim, real_tr, ridge, _NoBar(), signed=kind == "signed")
                 st = cal.rig_statistics(cfg, test, args.replicates, args.seed + 1, expected=True)
-                d = cal.discrepancy(
-                    {**st, **{c: real_te[c] for c in ("offset", "clutter_count", "clutter_range", "clutter_azimuth")}},
-                    real_te,
-                )
+                kept = ("offset", "offset_z", "offset_bin", "clutter_count", "clutter_range", "clutter_azimuth")
+                d = cal.discrepancy({**st, **{c: real_te[c] for c in kept}}, real_te)
                 for t in TERMS:
                     terms[t].append(d[t])
                 ok = np.isfinite(st["det_azimuth"])

@@ -1,12 +1,13 @@
 """Fidelity of the shipped radar models on real Astyx frames, before and after the rig calibration.
 
-The whole chain runs from a fresh clone (~25-35 min on 2 shared cores, most of it the `cv_axes` fit: 1,175-1,651 s
-measured; `--models-from` skips it, ~3 min):
+The whole chain runs from a fresh clone (~30-45 min on 2 shared cores, most of it the `cv_state` fit;
+`--models-from` skips it, ~3 min):
 
 1. AFTER models: record the calibrated rig (``--rig``, default ``models/radar_rig.json``) with the
    command of the model card (``record radar ... --in-view-only``; ``--all-targets`` records every
-   box, the chain of the models shipped until 2026-11-24) and fit the KDE (``--relevance cv_axes
-   --relevance-candidates 6 12 24 48 96 192``, both options of this script) and the Gaussian baseline
+   box, the chain of the models shipped until 2026-11-24) and fit the KDE (``--relevance cv_state
+   --relevance-candidates 6 12 24 48 96 192``, both options of this script; ``--relevance cv_axes``
+   with ``--rig`` = the rig file of commit 8e72122 is the chain of the models shipped there) and the Gaussian baseline
    on it, both through the ``sensor-envs`` CLI (``--models-from DIR`` skips this and uses
    ``DIR/radar_kde.npz`` and ``DIR/radar_gaussian.npz``, e.g. ``models``);
 2. BEFORE models: ``git show <--before-rev>:models/radar_kde.npz`` (and the Gaussian): the models
@@ -78,8 +79,9 @@ def cli(*args: str) -> None:
     subprocess.run([sys.executable, "-m", "sensor_envs.cli.main", *args], check=True, cwd=ROOT, env=env)
 
 
-RELEVANCE = "cv_axes"
-"""Relevance mode of the shipped model's fit (``fit radar --relevance``): x and y corner variances by CV."""
+RELEVANCE = "cv_state"
+"""Relevance mode of the shipped model's fit (``fit radar --relevance``): x and y corner variances, then the
+``z_{t-1}`` variance, by CV on the rig log (``cv_axes``: the model shipped at 8e72122, with that commit's rig)."""
 RELEVANCE_CANDIDATES = (6.0, 12.0, 24.0, 48.0, 96.0, 192.0)
 """Corner variances [m^2] the shipped model's CV tried (``fit radar --relevance-candidates``)."""
 
@@ -94,10 +96,11 @@ def chain(
 ) -> tuple[Path, Path]:
     """Record the calibrated rig and fit the KDE and Gaussian as the model card says; returns their paths.
 
-    The defaults are the card's commands of the shipped model (2026-11-24): ``record radar
+    The defaults are the card's commands of the shipped model (2026-11-24, second refit): ``record radar
     --in-view-only`` (boxes wholly outside the rig's field of view left out of the log) and ``fit radar
-    --relevance cv_axes --relevance-candidates 6 12 24 48 96 192``. ``in_view_only=False,
-    relevance="cv", candidates=None`` is the chain of the models shipped before (commit 156053f).
+    --relevance cv_state --relevance-candidates 6 12 24 48 96 192``. ``relevance="cv_axes"`` (with the
+    rig of commit 8e72122) is the chain of the models shipped at 8e72122; ``in_view_only=False,
+    relevance="cv", candidates=None`` that of the models shipped before (commit 156053f).
     """
     work.mkdir(parents=True, exist_ok=True)
     log = work / "rig_train.csv"
@@ -292,7 +295,7 @@ def main() -> None:
     )
     ap.add_argument(
         "--relevance",
-        choices=["paper", "cv", "cv_axes"],
+        choices=["paper", "cv", "cv_axes", "cv_state"],
         default=RELEVANCE,
         help=f"chain: fit radar --relevance (default {RELEVANCE}, the shipped model; cv: the models before)",
     )

@@ -8,7 +8,7 @@ import pytest
 
 from sensor_envs.modelio import ModelFileError, save_model_file
 from sensor_envs.radar.kde import KIND, KDERadarModel, corner_features
-from sensor_envs.radar.relevance import select_corner_variances
+from sensor_envs.radar.relevance import select_corner_variances, select_prev_variance
 from sensor_envs.radar.rig import record_rig_log
 from sensor_envs.radar.validate import chi_square
 
@@ -90,3 +90,46 @@ def test_polar_relevance_cv_picks_from_the_candidates():
     (vr, va), scores = select_corner_variances(log, est, (6.0, 48.0), (0.005, 0.08), 2)
     assert vr in (6.0, 48.0) and va in (0.005, 0.08) and scores.shape == (4,) and np.isfinite(scores).all()
     assert scores[2 + (0.005, 0.08).index(va)] == scores[2:].max()
+
+
+def test_cv_state_chooses_the_previous_output_variance_on_the_training_log(tmp_path):
+    """``relevance="cv_state"``: corner x and y variances, then the z_{t-1} variance, all from their candidates."""
+    log = record_rig_log(8, 15, 6, np.random.default_rng(3))
+    prev = (0.01, 0.3, 3.0)
+    model = KDERadarModel(
+        relevance="cv_state",
+        relevance_candidates=(6.0, 48.0),
+        relevance_candidates_prev=prev,
+        relevance_folds=2,
+        cv_min_tuples=10,
+        random_state=0,
+    ).fit(log)
+    vx, vy, px, py = model.rel_variance_
+    assert vx in (6.0, 48.0) and vy in (6.0, 48.0) and px == py and px in prev
+    scores = model.relevance_scores_
+    assert scores.shape == (2 + 2 + 3,) and np.isfinite(scores).all()
+    assert scores[4 + prev.index(px)] == scores[4:].max()
+    # the same score as a plain fit with the chosen variances, held out by the same folds
+    ref = select_prev_variance(log, KDERadarModel(rel_variance=(vx, vy, 0.03, 0.03), cv_min_tuples=10), prev, 2)[1]
+    np.testing.assert_allclose(ref, scores[4:])
+    path = model.save(tmp_path / "m.npz")
+    again = KDERadarModel.load(path)
+    assert again.rel_variance_ == model.rel_variance_ and tuple(again.relevance_candidates_prev) == prev
+    # files written before the parameter existed load with its default
+    old = KDERadarModel.load(_rewrite(model, tmp_path / "old.npz", 5, drop=("relevance_candidates_prev",)))
+    assert old.rel_variance_ == model.rel_variance_
+
+
+def test_log_prob_in_chunks_equals_all_rows_at_once(monkeypatch):
+    """``log_prob`` splits long inputs into chunks of rows (bounded memory); the figures do not change."""
+    import sensor_envs.radar.kde as kde_module
+
+    log = record_rig_log(6, 15, 6, np.random.default_rng(5))
+    model = KDERadarModel(rel_variance=(12.0, 12.0, 0.5, 0.5), cv_min_tuples=10, random_state=0).fit(log)
+    rows = model.states_[:300]
+    z = model.z_[:300] + 0.1
+    flags = np.isnan(rows[:, 2]) & (np.arange(300) % 2 == 0)  # new tracks among the rows without z_{t-1}
+    whole = model.log_prob(z, rows, new_track=flags)
+    monkeypatch.setattr(kde_module, "LOG_PROB_CHUNK", 37)
+    np.testing.assert_array_equal(model.log_prob(z, rows, new_track=flags), whole)
+    assert np.isfinite(whole).all()

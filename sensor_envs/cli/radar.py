@@ -49,9 +49,10 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     fit.add_argument(
         "--relevance",
         default="paper",
-        choices=("paper", "cv", "cv_axes"),
-        help="relevance kernel: the seed's (paper), the corner variance chosen by CV on this log (cv), or the x "
-        "and y variances chosen apart (cv_axes); with --state-transform polar both CV modes choose range and azimuth",
+        choices=("paper", "cv", "cv_axes", "cv_state"),
+        help="relevance kernel: the seed's (paper), the corner variance chosen by CV on this log (cv), the x "
+        "and y variances chosen apart (cv_axes), or those and then the z_{t-1} variance (cv_state); with "
+        "--state-transform polar the CV modes choose range and azimuth",
     )
     fit.add_argument(
         "--relevance-candidates",
@@ -59,6 +60,13 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         nargs="+",
         default=None,
         help="corner variances [m^2] the CV tries (default 3 6 12 24 48)",
+    )
+    fit.add_argument(
+        "--relevance-candidates-prev",
+        type=positive_float,
+        nargs="+",
+        default=None,
+        help="z_{t-1} variances [m^2] the CV of --relevance cv_state tries (default 0.03 0.06 0.12 0.24 0.48 0.96)",
     )
     fit.add_argument(
         "--state-transform",
@@ -83,6 +91,12 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         action="store_true",
         help="fit a signed (left/right) azimuth detection table instead of the symmetric |azimuth| one "
         "(generalises worse across Astyx frames held out: benchmarks/real_radar_calibration_cv.py)",
+    )
+    cal.add_argument(
+        "--base",
+        metavar="RIG.json",
+        help="rig file to start from (its parameters are the starting point, and the source of those single "
+        "frames cannot show; default: the generic rig)",
     )
     add_force(cal)
     cal.set_defaults(func=_calibrate)
@@ -149,26 +163,30 @@ def _record(args: argparse.Namespace) -> int:
 
 def _calibrate(args: argparse.Namespace) -> int:
     from sensor_envs.radar.calibrate import calibrate_rig, load_real
-    from sensor_envs.radar.rig import save_rig
+    from sensor_envs.radar.rig import load_rig, save_rig
 
-    check_inputs(args.real_data)
-    out = check_output(args.out, inputs=[args.real_data], force=args.force, suffix=".json")
+    check_inputs(args.real_data, args.base)
+    out = check_output(args.out, inputs=[args.real_data, args.base], force=args.force, suffix=".json")
+    base = load_rig(args.base)[0] if args.base else None
     t0 = time.perf_counter()
     with about(args.real_data):
         frames = load_real(args.real_data, progress=sys.stderr.isatty())
         config, card = calibrate_rig(
             frames,
+            base,
             seed=args.seed,
             max_evals=args.max_evals,
             signed_azimuth=args.signed_azimuth,
             progress=sys.stderr.isatty(),
         )
     card["seconds"] = round(time.perf_counter() - t0, 1)
+    card["base"] = Path(args.base).name if args.base else "generic rig (RigConfig defaults)"
     with OutputTransaction() as tx:
         save_rig(tx.file(out), config, card)
     before, after = card["discrepancy_before"], card["discrepancy_after"]
     print(
-        f"calibrated on {frames.n_frames} frames in {card['seconds']} s -> {out}; discrepancy (generic rig -> "
+        f"calibrated on {frames.n_frames} frames in {card['seconds']} s -> {out}; discrepancy "
+        f"({'base rig' if args.base else 'generic rig'} -> "
         f"calibrated): " + ", ".join(f"{k} {before[k]:.4g} -> {after[k]:.4g}" for k in before)
     )
     return 0
@@ -193,6 +211,8 @@ def _fit(args: argparse.Namespace) -> int:
     extra: dict[str, Any] = {}
     if args.relevance_candidates is not None:
         extra["relevance_candidates"] = tuple(args.relevance_candidates)
+    if args.relevance_candidates_prev is not None:
+        extra["relevance_candidates_prev"] = tuple(args.relevance_candidates_prev)
     model = KDERadarModel(
         use_prev=not args.no_prev,
         cv_group=args.cv_group,

@@ -109,7 +109,12 @@ from sensor_envs.modelio import (
 from sensor_envs.radar.buckets import build_buckets, sample_proportional
 from sensor_envs.radar.features import state_matrix
 from sensor_envs.radar.log import RadarLog, TargetTuples, clutter_counts, target_tuples
-from sensor_envs.radar.relevance import select_corner_variance, select_corner_variances, select_extra_variances
+from sensor_envs.radar.relevance import (
+    select_corner_variance,
+    select_corner_variances,
+    select_extra_variances,
+    select_prev_variance,
+)
 
 __all__ = ["KDERadarModel", "corner_features", "cv_bandwidth_table"]
 
@@ -126,6 +131,12 @@ STATE_TRANSFORMS = ("cartesian", "polar")
 """Corner features of the relevance kernel: ``(c_x, c_y)`` [m] or ``(range [m], azimuth [rad])``."""
 AZIMUTH_CANDIDATES = (0.0025, 0.01, 0.04, 0.16)
 """Default azimuth variances [rad^2] the CV tries with polar corner features (``relevance_candidates_azimuth``)."""
+LOG_PROB_CHUNK = 1024
+"""Rows per chunk of :meth:`KDERadarModel.log_prob` (wide kernels on long logs hold thousands of
+tuples per query: all rows at once ran a 1/15 s rig log's CV out of 24 GB of memory)."""
+PREV_CANDIDATES = (0.03, 0.06, 0.12, 0.24, 0.48, 0.96)
+"""Default ``z_{t-1}`` variances [m^2] the CV of ``relevance="cv_state"`` tries (``relevance_candidates_prev``;
+0.03 is the seed's)."""
 GROUP_MAIN, GROUP_START, GROUP_NEW, GROUP_LOST = 0, 1, 2, 3
 """Tree of a query: with ``z_{t-1}``; start (flag unknown); new track; after a miss."""
 AUTO_BUCKET_MIN_NEIGHBOURS = 100
@@ -337,11 +348,15 @@ class KDERadarModel(BaseEstimator):
             of the relevance kernel from ``relevance_candidates`` by ``relevance_folds``-fold CV on the
             training log, :mod:`sensor_envs.radar.relevance`; the ``z_{t-1}`` variances stay as given)
             or ``"cv_axes"`` (the same CV for the x and the y variance apart, coordinate-wise:
-            :func:`~sensor_envs.radar.relevance.select_corner_variances`). Polar corner features: both
-            CV modes choose the range and then the azimuth variance.
+            :func:`~sensor_envs.radar.relevance.select_corner_variances`) or ``"cv_state"`` (``"cv_axes"``,
+            then the ``z_{t-1}`` variance - one value for both components - from
+            ``relevance_candidates_prev`` by the same CV with the corner variances chosen:
+            :func:`~sensor_envs.radar.relevance.select_prev_variance`). Polar corner features: the CV
+            modes choose the range and then the azimuth variance.
         relevance_candidates: corner variances [m^2] tried by the CV (polar: range variances).
         relevance_candidates_azimuth: azimuth variances [rad^2] tried by the CV with
             ``state_transform="polar"`` (after the range variance; unused otherwise).
+        relevance_candidates_prev: ``z_{t-1}`` variances [m^2] tried by ``relevance="cv_state"``.
         state_transform: corner features of the relevance kernel: ``"cartesian"`` (``(c_x, c_y)``, the
             paper's; what files before format 5 hold) or ``"polar"`` (``(range, azimuth)``: a kernel
             narrow in azimuth at every range, so near targets left and right are not mixed).
@@ -368,9 +383,10 @@ class KDERadarModel(BaseEstimator):
         "clutter_jitter": [Interval(0, MAX_POSITION)],
         "sampler": [Options("auto", "bucket", "ball")],
         "bucket_cell": [_POSITIVE],
-        "relevance": [Options("paper", "cv", "cv_axes")],
+        "relevance": [Options("paper", "cv", "cv_axes", "cv_state")],
         "relevance_candidates": [Numbers(_POSITIVE)],
         "relevance_candidates_azimuth": [Numbers(Interval(0, np.pi**2, open_low=True))],
+        "relevance_candidates_prev": [Numbers(Interval(0, MAX_POSITION**2, open_low=True))],
         "state_transform": [Options(*STATE_TRANSFORMS)],
         "relevance_folds": [Interval(2, None, integer=True)],
         "prior_rate": [Options("tree", "global")],
@@ -408,6 +424,7 @@ class KDERadarModel(BaseEstimator):
         extra_candidates: tuple[float, ...] = (0.25, 0.5, 1.0, 2.0),
         state_transform: str = "cartesian",
         relevance_candidates_azimuth: tuple[float, ...] = AZIMUTH_CANDIDATES,
+        relevance_candidates_prev: tuple[float, ...] = PREV_CANDIDATES,
     ) -> None:
         self.rel_variance = rel_variance
         self.use_prev = use_prev
@@ -433,6 +450,7 @@ class KDERadarModel(BaseEstimator):
         self.extra_candidates = extra_candidates
         self.state_transform = state_transform
         self.relevance_candidates_azimuth = relevance_candidates_azimuth
+        self.relevance_candidates_prev = relevance_candidates_prev
 
     # ------------------------------------------------------------------ fit
     def _check_params(self) -> None:
@@ -465,7 +483,7 @@ class KDERadarModel(BaseEstimator):
         self.rel_variance_ = tuple(float(v) for v in self.rel_variance)
         self.relevance_scores_ = np.zeros(0)
         polar = self.state_transform == "polar"
-        if self.relevance == "cv_axes" or (self.relevance == "cv" and polar):
+        if self.relevance in ("cv_axes", "cv_state") or (self.relevance == "cv" and polar):
             (v1, v2), self.relevance_scores_ = select_corner_variances(
                 log,
                 self,
@@ -475,6 +493,16 @@ class KDERadarModel(BaseEstimator):
                 progress,
             )
             self.rel_variance_ = (v1, v2, *self.rel_variance_[2:])
+            if self.relevance == "cv_state" and self.use_prev:
+                vp, sp = select_prev_variance(
+                    log,
+                    type(self)(**{**self.get_params(), "rel_variance": self.rel_variance_}),
+                    tuple(self.relevance_candidates_prev),
+                    int(self.relevance_folds),
+                    progress,
+                )
+                self.rel_variance_ = (v1, v2, vp, vp)
+                self.relevance_scores_ = np.concatenate([self.relevance_scores_, sp])
         elif self.relevance == "cv":
             v, self.relevance_scores_ = select_corner_variance(
                 log, self, tuple(self.relevance_candidates), int(self.relevance_folds), progress
@@ -936,6 +964,20 @@ class KDERadarModel(BaseEstimator):
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))
         n = st.shape[0]
+        if n > LOG_PROB_CHUNK:  # bounded memory: every (query, tuple) pair of a chunk is held at once
+            ex = None if extra is None else np.atleast_2d(np.asarray(extra, dtype=np.float64))
+            nt = None if new_track is None else np.asarray(new_track)
+            return np.concatenate(
+                [
+                    self.log_prob(
+                        z[a : a + LOG_PROB_CHUNK],
+                        st[a : a + LOG_PROB_CHUNK],
+                        None if ex is None else ex[a : a + LOG_PROB_CHUNK],
+                        None if nt is None else nt[a : a + LOG_PROB_CHUNK],
+                    )
+                    for a in range(0, n, LOG_PROB_CHUNK)  # one iteration per chunk of rows
+                ]
+            )
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
         grp = self._route(_as_prev(prev, n), new_track)
         gi, w, q, p_miss = self._outcome(st[:, :2], prev, self._extra_query(extra, n), grp)
@@ -1011,6 +1053,7 @@ class KDERadarModel(BaseEstimator):
         params["extra_variance"] = None if self.extra_variance is None else [float(v) for v in self.extra_variance]
         params["extra_candidates"] = [float(v) for v in self.extra_candidates]
         params["relevance_candidates_azimuth"] = [float(v) for v in self.relevance_candidates_azimuth]
+        params["relevance_candidates_prev"] = [float(v) for v in self.relevance_candidates_prev]
         header = {
             "params": params,
             "cycle_time": self.cycle_time_,
@@ -1060,6 +1103,7 @@ class KDERadarModel(BaseEstimator):
             "extra_state": (),
             "extra_variance": None,
             "extra_candidates": (0.25, 0.5, 1.0, 2.0),
+            "relevance_candidates_prev": PREV_CANDIDATES,  # files written before relevance="cv_state"
         }
         if int(header.get("format_version", 0)) < 5:  # format 5 must state its corner features
             defaults.update(state_transform="cartesian", relevance_candidates_azimuth=AZIMUTH_CANDIDATES)

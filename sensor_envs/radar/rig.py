@@ -3,8 +3,10 @@
 Used when no recording is at hand and for time series (Astyx has none). Per radar cycle and target:
 
 * **reflection point** on the visible contour, depending on aspect: the face most turned towards
-  the sensor dominates; the point is that face's midpoint moved along the face by a persistent,
-  slowly varying fraction (so it wanders as the aspect changes) - never simply the closest corner;
+  the sensor dominates; the point is that face's midpoint (or, with ``reflection_center`` < 0.5, a
+  point nearer the face's end closer to the sensor) moved along the face by a persistent, slowly
+  varying fraction (so it wanders as the aspect changes); a share ``corner_share`` of cycles
+  reflects at the closest corner;
 * **latency**: the measurement describes the target ``latency`` seconds ago;
 * **polar noise**: range std ``sigma_range``, azimuth std ``sigma_azimuth`` growing quadratically
   towards the field-of-view edge (``edge_gain``);
@@ -91,6 +93,9 @@ class RigConfig:
         corner_share: probability that a cycle's reflection point is the closest corner instead of
             a point on the face most turned to the sensor.
         reflection_spread: half-width of the fraction along that face where the point lies (<= 0.5).
+        reflection_center: mean position of that point along the face, as a fraction of the face's
+            length from its end nearer the sensor (0.5: the face's midpoint; smaller: nearer the
+            closest corner, where a real radar's strongest return tends to be).
         clutter_dispersion: clutter count over-dispersion ``k``: variance = mean + k mean^2
             (negative binomial; 0 = Poisson).
         clutter_range_edges, clutter_range_weights: clutter range bins [m] and their shares
@@ -126,6 +131,7 @@ class RigConfig:
     outlier_scale: float = 1.0
     corner_share: float = 0.0
     reflection_spread: float = 0.4
+    reflection_center: float = 0.5
     clutter_dispersion: float = 0.0
     clutter_range_edges: Table = None
     clutter_range_weights: Table = None
@@ -199,6 +205,7 @@ RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
     "outlier_scale": [Interval(1, 100)],
     "corner_share": [_PROB],
     "reflection_spread": [Interval(0, 0.5)],
+    "reflection_center": [_PROB],
     "clutter_dispersion": [Interval(0, 100)],
     "clutter_range_edges": [None, Numbers(_NONNEG, min_length=2, increasing=True)],
     "clutter_range_weights": [None, Numbers(_NONNEG, min_length=1)],
@@ -288,14 +295,25 @@ def _reflection_geometry(box: NDArray[np.float64]) -> tuple[NDArray, NDArray, ND
 
 
 def _reflection_point(
-    box: NDArray[np.float64], frac: NDArray[np.float64], at_corner: NDArray[np.bool_] | None = None
+    box: NDArray[np.float64],
+    frac: NDArray[np.float64],
+    at_corner: NDArray[np.bool_] | None = None,
+    center: float = 0.5,
 ) -> NDArray[np.float64]:
-    """Reflection point ``(n, 2)`` on the face most turned to the sensor; ``frac`` in [-0.5, 0.5] along it.
+    """Reflection point ``(n, 2)`` [m] on the face most turned to the sensor.
 
-    Rows where ``at_corner`` is true reflect at the box's closest corner instead.
+    The point is ``frac`` (in [-0.5, 0.5], along the face's edge vector) of the face's length from
+    the face's reference point: its midpoint for ``center = 0.5``, else the point ``center`` of the
+    length from the face's end nearer the sensor. Rows where ``at_corner`` is true reflect at the
+    box's closest corner instead.
     """
     corner, mid, edge = _reflection_geometry(box)
     pt = mid + frac[:, None] * edge
+    if center != 0.5:  # move the reference point along the face towards its near end (0.5 - center) lengths
+        a, b = mid - 0.5 * edge, mid + 0.5 * edge
+        near_first = np.hypot(a[:, 0], a[:, 1]) <= np.hypot(b[:, 0], b[:, 1])
+        towards_near = np.where(near_first[:, None], -edge, edge)
+        pt = pt + (0.5 - center) * towards_near
     return pt if at_corner is None else np.where(at_corner[:, None], corner, pt)
 
 
@@ -396,7 +414,7 @@ class RadarRig:
             at_corner: NDArray[np.bool_] | None = None
             if c.corner_share > 0:
                 at_corner = np.asarray(rng.random(n_tgt)) < c.corner_share
-            refl = _reflection_point(lag, frac, at_corner)
+            refl = _reflection_point(lag, frac, at_corner, c.reflection_center)
             r, az = np.hypot(refl[:, 0], refl[:, 1]), np.arctan2(refl[:, 1], refl[:, 0])
             corners = rectangle_corners(box[:, 0], box[:, 1], box[:, 2], box[:, 3], box[:, 4])
             occ = occluded_fraction(corners)
@@ -433,7 +451,9 @@ class RadarRig:
         """
         c = self.config
         spread = c.reflection_spread
-        refl = _reflection_point(boxes, spread * (2 * draws.u_frac - 1), draws.u_corner < c.corner_share)
+        refl = _reflection_point(
+            boxes, spread * (2 * draws.u_frac - 1), draws.u_corner < c.corner_share, c.reflection_center
+        )
         r, az = np.hypot(refl[:, 0], refl[:, 1]), np.arctan2(refl[:, 1], refl[:, 0])
         p = self.detection_probability(r, az, occluded)
         meas = self._to_xy(refl, self.innovation(r, az, draws.normal, draws.u_outlier), c.range_bias)
