@@ -250,3 +250,15 @@ def test_held_out_scores_take_previous_outputs_from_the_whole_log_and_route_new_
     routed = model.log_prob(full.z[keep], state, new_track=new)
     assert not np.allclose(routed[new], model.log_prob(full.z[keep], state)[new])  # the flag matters here
     np.testing.assert_allclose(adapter.evaluate(model).nll, -routed)
+
+
+def test_state_variances_chosen_by_cv_once_then_reused(latency_log):
+    """A model whose relevance variances come from CV (e.g. the shipped one) is not re-cross-validated per refit."""
+    held = block_split(radar_blocks(latency_log))
+    cands = {"relevance_candidates": (6.0, 48.0), "relevance_candidates_prev": (0.03, 0.3)}
+    params = {**FAST, "relevance": "cv_state", **cands}
+    adapter = RadarAdapter(latency_log, held, params=params)
+    first = adapter.fit(())
+    assert adapter.params["relevance"] == "paper"
+    assert tuple(adapter.params["rel_variance"]) == first.rel_variance_
+    assert adapter.fit(()).rel_variance_ == first.rel_variance_

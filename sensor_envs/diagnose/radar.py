@@ -123,8 +123,9 @@ class RadarAdapter:
     def fit(self, extra_state: tuple[str, ...]) -> Any:
         """Fit the diagnosed model with ``extra_state`` on the fit part.
 
-        Relevance variances chosen by CV in an earlier fit (the corner's with ``relevance="cv"``, those of
-        earlier extra dimensions) are reused; only a new dimension's variance is chosen by CV.
+        Relevance variances chosen by CV in an earlier fit (the state's with ``relevance="cv"``,
+        ``"cv_axes"`` or ``"cv_state"``, those of earlier extra dimensions) are reused; only a new
+        dimension's variance is chosen by CV.
         """
         if self.model_kind == "gaussian":
             return GaussianRadar(**self.params, extra_state=tuple(extra_state)).fit(self.fit_log)
@@ -132,7 +133,7 @@ class RadarAdapter:
         model = KDERadarModel(**self.params, extra_state=tuple(extra_state), extra_variance=var)
         model.fit(self.fit_log, progress=self.progress)
         self._variances.update(zip(model.extra_state_, model.extra_variance_, strict=True))
-        if self.params.get("relevance") == "cv":  # the corner variance is chosen once, by the first fit
+        if self.params.get("relevance") in ("cv", "cv_axes", "cv_state"):  # variances chosen once, by the first fit
             self.params.update(relevance="paper", rel_variance=tuple(model.rel_variance_))
         return model
 
