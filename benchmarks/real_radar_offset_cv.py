@@ -54,7 +54,7 @@ def held_out_energy(cfg: RigConfig, test: cal.RealFrames, replicates: int, seed:
     out = np.full(len(cal.DET_RANGE_EDGES) - 1, np.nan)
     for b, (lo, hi) in enumerate(zip(cal.DET_RANGE_EDGES[:-1], cal.DET_RANGE_EDGES[1:], strict=True)):
         s = (r >= lo) & (r < hi)
-        a, c = z_sim[np.repeat(s[None], replicates, 0).ravel()], z_real[s]
+        a, c = z_sim[np.tile(s, replicates)], z_real[s]
         a, c = a[np.isfinite(a[:, 0])], c[np.isfinite(c[:, 0])]
         if c.shape[0] >= 5:
             out[b] = energy_distance_2d(a, c, rng, max_n=1500)

@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from sensor_envs.diagnose.core import Evaluation
 from sensor_envs.radar.features import state_matrix, with_derived_columns
 from sensor_envs.radar.gaussian import GaussianRadar
-from sensor_envs.radar.kde import KDERadarModel
+from sensor_envs.radar.kde import CV_RELEVANCE, KDERadarModel
 from sensor_envs.radar.log import INT_COLUMNS, REQUIRED_COLUMNS, RadarLog, TargetTuples, target_tuples
 
 __all__ = ["RadarAdapter", "radar_blocks", "DIAGNOSE_KDE_PARAMS"]
@@ -133,7 +133,7 @@ class RadarAdapter:
         model = KDERadarModel(**self.params, extra_state=tuple(extra_state), extra_variance=var)
         model.fit(self.fit_log, progress=self.progress)
         self._variances.update(zip(model.extra_state_, model.extra_variance_, strict=True))
-        if self.params.get("relevance") in ("cv", "cv_axes", "cv_state"):  # variances chosen once, by the first fit
+        if self.params.get("relevance") in CV_RELEVANCE:  # the state variances are chosen once, by the first fit
             self.params.update(relevance="paper", rel_variance=tuple(model.rel_variance_))
         return model
 

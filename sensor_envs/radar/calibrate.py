@@ -72,6 +72,7 @@ from tqdm import tqdm
 from sensor_envs.geometry import closest_corner, occluded_fraction, rectangle_corners
 from sensor_envs.radar.log import REF_COLUMNS, RadarLog, clutter_counts
 from sensor_envs.radar.rig import RadarRig, RigConfig, SnapshotDraws
+from sensor_envs.radar.validate import energy_distance_2d
 
 __all__ = [
     "DET_RANGE_EDGES",
@@ -251,13 +252,6 @@ def _offset_samples(corner: NDArray, meas: NDArray, range_bin: NDArray) -> tuple
     return _polar(corner[det], meas[det] - corner[det]), range_bin[det]
 
 
-def _mean_dist(a: NDArray, b: NDArray) -> float:
-    """Mean Euclidean distance between the rows of ``a`` and of ``b`` [m] (all pairs)."""
-    from scipy.spatial.distance import cdist
-
-    return float(cdist(a, b).mean())
-
-
 def _offset_energy(
     z_sim: NDArray, b_sim: NDArray, z_real: NDArray, b_real: NDArray, max_sim: int = 1500
 ) -> NDArray[np.float64]:
@@ -277,19 +271,23 @@ def _offset_energy(
         if s.shape[0] == 0:
             out[b] = 2.0
             continue
-        out[b] = 2 * _mean_dist(s, r) - _mean_dist(s, s) - _mean_dist(r, r)
+        out[b] = energy_distance_2d(s, r)  # no rng: every row, deterministic
     return out
 
 
-def _offset_stats(corner: NDArray, meas: NDArray, range_bin: NDArray) -> NDArray[np.float64]:
-    """``(n_range_bins, n_quantiles, 2)`` quantiles of (radial, outward cross-range) ``z`` of detected rows."""
-    out = np.full((len(DET_RANGE_EDGES) - 1, len(QUANTILES), 2), np.nan)
+def _offset_stats(corner: NDArray, meas: NDArray, range_bin: NDArray) -> dict[str, NDArray]:
+    """The offset statistics of the detected rows.
+
+    ``offset_z`` / ``offset_bin``: polar samples [m] and their range bins (:func:`_offset_samples`);
+    ``offset``: their quantiles ``(n_range_bins, n_quantiles, 2)`` (reports).
+    """
     pz, rb = _offset_samples(corner, meas, range_bin)
+    out = np.full((len(DET_RANGE_EDGES) - 1, len(QUANTILES), 2), np.nan)
     for b in range(out.shape[0]):  # one iteration per range bin
         sel = rb == b
         if sel.sum() >= 5:
             out[b] = np.quantile(pz[sel], QUANTILES, axis=0)
-    return out
+    return {"offset": out, "offset_z": pz, "offset_bin": rb}
 
 
 def _clutter_stats(counts: NDArray, xy: NDArray) -> dict[str, NDArray[np.float64]]:
@@ -313,8 +311,7 @@ def real_statistics(frames: RealFrames) -> dict[str, NDArray[np.float64]]:
     det = np.isfinite(frames.meas[:, 0])
     return {
         **_detection_stats(det, bins),
-        "offset": _offset_stats(frames.corner, frames.meas, bins.range),
-        **dict(zip(("offset_z", "offset_bin"), _offset_samples(frames.corner, frames.meas, bins.range), strict=True)),
+        **_offset_stats(frames.corner, frames.meas, bins.range),
         **_clutter_stats(frames.clutter_counts, frames.clutter_xy),
         "n_range": np.bincount(bins.range[bins.range >= 0], minlength=len(DET_RANGE_EDGES) - 1).astype(float),
         "n_azimuth": np.bincount(bins.azimuth[bins.azimuth >= 0], minlength=len(DET_AZIMUTH_EDGES) - 1).astype(float),
@@ -371,8 +368,7 @@ def rig_statistics(
     xy = np.concatenate(xys) if xys else np.zeros((0, 2))
     return {
         **_detection_stats(det, sim.bins),
-        "offset": _offset_stats(sim.corner, meas, sim.bins.range),
-        **dict(zip(("offset_z", "offset_bin"), _offset_samples(sim.corner, meas, sim.bins.range), strict=True)),
+        **_offset_stats(sim.corner, meas, sim.bins.range),
         **_clutter_stats(np.asarray(counts, dtype=np.float64), xy),
     }
 
@@ -539,14 +535,11 @@ def _fit_offsets(
 
     w = real["n_offset"] / max(real["n_offset"].sum(), 1.0)
     x0 = _off_x0(base)
-    fixed = x0[-1:] if not fit_center else x0[:0]
-    if not fit_center:
-        x0 = x0[:-1]
+    n = x0.size if fit_center else x0.size - 1  # the centre is the last parameter
 
     def config(x: NDArray) -> RigConfig:
-        if fit_center:
-            return _off_config(x, base)
-        return replace(_off_config(np.concatenate([x, fixed]), base), reflection_center=base.reflection_center)
+        cfg = _off_config(np.concatenate([x, x0[n:]]), base)
+        return cfg if fit_center else replace(cfg, reflection_center=base.reflection_center)
 
     def objective(x: NDArray) -> float:
         bar.update(1)
@@ -555,7 +548,7 @@ def _fit_offsets(
         z, b = _offset_samples(sim.corner, meas, sim.bins.range)
         return float(np.sum(w * np.nan_to_num(_offset_energy(z, b, real["offset_z"], real["offset_bin"]))))
 
-    fit = minimize(objective, x0, method="Powell", options={"maxfev": max_evals, "xtol": 1e-3, "ftol": 1e-6})
+    fit = minimize(objective, x0[:n], method="Powell", options={"maxfev": max_evals, "xtol": 1e-3, "ftol": 1e-6})
     return config(fit.x)
 
 

@@ -134,6 +134,8 @@ AZIMUTH_CANDIDATES = (0.0025, 0.01, 0.04, 0.16)
 LOG_PROB_CHUNK = 1024
 """Rows per chunk of :meth:`KDERadarModel.log_prob` (wide kernels on long logs hold thousands of
 tuples per query: all rows at once ran a 1/15 s rig log's CV out of 24 GB of memory)."""
+CV_RELEVANCE = ("cv", "cv_axes", "cv_state")
+"""Relevance modes whose state variances are chosen by CV on the training log (``"paper"``: given)."""
 PREV_CANDIDATES = (0.03, 0.06, 0.12, 0.24, 0.48, 0.96)
 """Default ``z_{t-1}`` variances [m^2] the CV of ``relevance="cv_state"`` tries (``relevance_candidates_prev``;
 0.03 is the seed's)."""
@@ -383,7 +385,7 @@ class KDERadarModel(BaseEstimator):
         "clutter_jitter": [Interval(0, MAX_POSITION)],
         "sampler": [Options("auto", "bucket", "ball")],
         "bucket_cell": [_POSITIVE],
-        "relevance": [Options("paper", "cv", "cv_axes", "cv_state")],
+        "relevance": [Options("paper", *CV_RELEVANCE)],
         "relevance_candidates": [Numbers(_POSITIVE)],
         "relevance_candidates_azimuth": [Numbers(Interval(0, np.pi**2, open_low=True))],
         "relevance_candidates_prev": [Numbers(Interval(0, MAX_POSITION**2, open_low=True))],

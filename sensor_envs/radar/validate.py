@@ -63,21 +63,25 @@ def split_by_blocks(log: RadarLog, block: int, n_folds: int, fold: int) -> tuple
     return log.select(~test), log.select(test)
 
 
-def energy_distance_2d(a: NDArray, b: NDArray, rng: np.random.Generator, max_n: int = 800) -> float:
+def energy_distance_2d(a: NDArray, b: NDArray, rng: np.random.Generator | None = None, max_n: int = 800) -> float:
     """Energy distance ``2E|A-B| - E|A-A'| - E|B-B'|`` between 2-D samples [m] (V-statistic).
 
-    Each sample is subsampled to at most ``max_n`` rows to bound the cost; ``NaN`` if either is empty.
+    With ``rng``, each sample is subsampled to at most ``max_n`` rows to bound the cost; without,
+    every row is used (deterministic, e.g. for calibration under common random numbers). ``NaN`` if
+    either sample is empty.
     """
+    from scipy.spatial.distance import cdist
+
     a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
     if a.shape[0] == 0 or b.shape[0] == 0:
         return float("nan")
-    if a.shape[0] > max_n:
+    if rng is not None and a.shape[0] > max_n:
         a = a[rng.choice(a.shape[0], max_n, replace=False)]
-    if b.shape[0] > max_n:
+    if rng is not None and b.shape[0] > max_n:
         b = b[rng.choice(b.shape[0], max_n, replace=False)]
 
     def mean_dist(p: NDArray, q: NDArray) -> float:
-        return float(np.linalg.norm(p[:, None] - q[None], axis=-1).mean())
+        return float(cdist(p, q).mean())
 
     return 2 * mean_dist(a, b) - mean_dist(a, a) - mean_dist(b, b)
 
