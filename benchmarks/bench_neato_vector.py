@@ -99,7 +99,7 @@ def step_breakdown(lidar: str, n: int = 64, calls: int = 1000) -> dict[str, floa
         parts["  of it: normal draws"] = lambda: rngs.standard_normal(nom.shape)
         if kernel is not None:
             grid = (float(rg[0]), float(rg[1]), float(rg[-1]), float(ag[0]), float(ag[1]))
-            args = (cells, *grid, nom, inc, uu, zz, idx, shrink, *spur)
+            args = (cells, *grid, nom, inc, uu, zz, idx, shrink, *spur, np.nan)
             parts["  of it: lookup-and-draw kernel"] = lambda: kernel(*args)
     out = {}
     for name, f in parts.items():

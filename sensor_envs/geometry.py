@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.jit import compiled
+from sensor_envs.trig import acos_unit
 
 __all__ = [
     "RAY_EPS",
@@ -137,7 +138,7 @@ def _raycast_dirs(
     e = segments[:, 1] - a
     ex, ey = np.ascontiguousarray(e[:, 0]), np.ascontiguousarray(e[:, 1])
     seg_len = np.hypot(ex, ey)
-    return kernel(
+    rng, cosine, idx = kernel(
         np.ascontiguousarray(o[:, 0]),
         np.ascontiguousarray(o[:, 1]),
         np.ascontiguousarray(ct),
@@ -154,6 +155,7 @@ def _raycast_dirs(
         RAY_EPS,
         float(max_range),
     )
+    return rng, acos_unit(cosine), idx
 
 
 def _finish(
@@ -172,7 +174,7 @@ def _finish(
     seg_len = np.hypot(ex, ey)
     cx, cy = (ex / seg_len)[idx], (ey / seg_len)[idx]
     sin_ = np.abs(dx * cy - dy * cx)
-    incidence = np.where(hit, np.arccos(np.clip(sin_, 0.0, 1.0)), np.nan)
+    incidence = np.where(hit, acos_unit(np.clip(sin_, 0.0, 1.0)), np.nan)
     return rng, incidence, np.where(hit, idx, -1).astype(np.int64)
 
 
@@ -255,7 +257,8 @@ def _raycast_loops(
 
     Segments are tried in order and a later one wins only when strictly nearer (``argmin``'s first-minimum
     rule); the rays' directions are ``(cb, sb)`` rotated by ``(ct, st)`` as in :func:`_raycast_dirs`, ``cx, cy``
-    are the segments' unit directions and ``col_tol`` the collinearity tolerances.
+    are the segments' unit directions and ``col_tol`` the collinearity tolerances. Returns ranges, the
+    incidences' cosines (their :func:`acos_unit` is the incidence) and segment indices.
     """
     n_p, n_k = ct.shape[0], cb.shape[1]
     shared = cb.shape[0] == 1
@@ -263,38 +266,38 @@ def _raycast_loops(
     rng = np.empty((n_p, n_k))
     inc = np.empty((n_p, n_k))
     idx = np.empty((n_p, n_k), dtype=np.int64)
-    wxs, wys, tns = np.empty(n_m), np.empty(n_m), np.empty(n_m)  # per pose: segment start - origin, cross(w, e)
+    dxs, dys, best = np.empty(n_k), np.empty(n_k), np.empty(n_k)  # per pose: ray directions, nearest hit
+    best_m = np.empty(n_k, dtype=np.int64)
     for p in range(n_p):
-        for m in range(n_m):
-            wxs[m] = ax[m] - ox[p]
-            wys[m] = ay[m] - oy[p]
-            tns[m] = wxs[m] * ey[m] - wys[m] * ex[m]
+        b = 0 if shared else p
         for k in range(n_k):
-            b = 0 if shared else p
-            dxk = ct[p] * cb[b, k] - st[p] * sb[b, k]
-            dyk = st[p] * cb[b, k] + ct[p] * sb[b, k]
-            best, best_m = np.inf, 0
-            for m in range(n_m):
-                wx, wy, t_num = wxs[m], wys[m], tns[m]
+            dxs[k] = ct[p] * cb[b, k] - st[p] * sb[b, k]
+            dys[k] = st[p] * cb[b, k] + ct[p] * sb[b, k]
+            best[k], best_m[k] = np.inf, 0
+        for m in range(n_m):  # segment-major: the inner loop over rays has no branch and vectorises
+            wx, wy = ax[m] - ox[p], ay[m] - oy[p]
+            t_num = wx * ey[m] - wy * ex[m]
+            on_line = abs(t_num) <= col_tol[m]
+            for k in range(n_k):
+                dxk, dyk = dxs[k], dys[k]
                 den = dxk * ey[m] - dyk * ex[m]
-                t = np.inf
-                if abs(den) > 1e-12:
-                    u = (wx * dyk - wy * dxk) / den
-                    tt = t_num / den
-                    if u >= 0.0 and u <= 1.0 and tt > eps:
-                        t = tt
-                elif abs(t_num) <= col_tol[m]:  # collinear: the nearer end, if the segment lies ahead
-                    ta = wx * dxk + wy * dyk
-                    tb = (wx + ex[m]) * dxk + (wy + ey[m]) * dyk
-                    if ta > eps and tb > eps:
-                        t = min(ta, tb)
-                if t < best:
-                    best, best_m = t, m
-            if best < np.inf and best <= max_range:  # a hit
-                rng[p, k] = best
-                sin_ = abs(dxk * cy[best_m] - dyk * cx[best_m])
-                inc[p, k] = math.acos(min(max(sin_, 0.0), 1.0))
-                idx[p, k] = best_m
+                regular = abs(den) > 1e-12
+                u = (wx * dyk - wy * dxk) / den
+                tt = t_num / den
+                ok = regular & (u >= 0.0) & (u <= 1.0) & (tt > eps)
+                ta = wx * dxk + wy * dyk  # collinear: the nearer end, if the segment lies ahead
+                tb = (wx + ex[m]) * dxk + (wy + ey[m]) * dyk
+                ahead = (not regular) & on_line & (ta > eps) & (tb > eps)
+                t = tt if ok else (min(ta, tb) if ahead else np.inf)
+                nearer = t < best[k]
+                best[k] = t if nearer else best[k]
+                best_m[k] = m if nearer else best_m[k]
+        for k in range(n_k):
+            if best[k] < np.inf and best[k] <= max_range:  # a hit
+                m = best_m[k]
+                rng[p, k] = best[k]
+                inc[p, k] = min(max(abs(dxs[k] * cy[m] - dys[k] * cx[m]), 0.0), 1.0)  # the cosine; arccos after
+                idx[p, k] = m
             else:
                 rng[p, k], inc[p, k], idx[p, k] = np.inf, np.nan, -1
     return rng, inc, idx

@@ -18,7 +18,11 @@ _COMPILED: dict[Callable[..., Any], Callable[..., Any] | None] = {}
 
 
 def compiled(loops: Callable[..., Any]) -> Callable[..., Any] | None:
-    """``numba.njit(cache=True, nogil=True)(loops)``, built once per function; None without numba."""
+    """``numba.njit(cache=True, nogil=True, error_model="numpy")(loops)``, built once per function; None without numba.
+
+    ``error_model="numpy"``: a division by zero gives inf or NaN as in numpy, the path a kernel replaces,
+    instead of raising; without the check per division, loops of divisions run ~3x faster.
+    """
     if loops not in _COMPILED:
         kernel = None
         if os.environ.get("SENSOR_ENVS_NO_NUMBA", "") in ("", "0"):
@@ -27,6 +31,6 @@ def compiled(loops: Callable[..., Any]) -> Callable[..., Any] | None:
             except ImportError:
                 pass
             else:
-                kernel = numba.njit(cache=True, nogil=True)(loops)
+                kernel = numba.njit(cache=True, nogil=True, error_model="numpy")(loops)
         _COMPILED[loops] = kernel
     return _COMPILED[loops]

@@ -19,6 +19,8 @@ LAYERS = {
     "modelio": 0,
     "rng": 0,
     "jit": 0,
+    "trig": 0,
+    "heap": 0,
     "outputs": 0,
     "lidar": 1,
     "radar": 1,

@@ -129,6 +129,11 @@ def test_compiled_scan_gives_the_numpy_numbers(rig_fit, which, compiled_kernels)
             fast = model.sample_scan(rows, a[: len(rows)] if rows.ndim == 2 else a[0], draw[1])
             assert fast.shape == ref.shape and np.array_equal(fast, ref)
             assert 0 < (ref == 0).mean() < 1
+            again = [np.random.default_rng(s) for s in range(6)]  # the sensor interface's nulls: NaN, same draws
+            rows_a = a[: len(rows)] if rows.ndim == 2 else a[0]
+            again_rng = RowGenerators(again) if rows.ndim == 2 else again[0]
+            nan_null = model.sample_scan(rows, rows_a, again_rng, null=np.nan)
+            assert np.array_equal(nan_null, np.where(ref == 0, np.nan, ref), equal_nan=True)
     aq = np.nan_to_num(a)
     rq = np.where(np.isfinite(r), r, model.range_grid_[-1])
     args = (model.tables_, model.range_grid_, model.alpha_grid_, rq, aq)

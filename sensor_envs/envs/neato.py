@@ -358,23 +358,19 @@ def _finish_loops(
     inc = np.empty((n, k))
     big = np.finfo(np.float64).max
     for p in range(n):
-        for j in range(k + 3):
-            if j < k:
-                x = raw[p, j]
-                v = fill if (not math.isfinite(x) or x > max_range or x <= 0.0) else x
-                scan[p, j] = 0.0 if math.isnan(x) else (big if x == math.inf else (-big if x == -math.inf else x))
-                a = incidence[p, j]
-                inc[p, j] = 0.0 if math.isnan(a) else (big if a == math.inf else (-big if a == -math.inf else a))
-            elif j < k + 2:
-                v = goal_rel[p, j - k]
-            else:
-                v = dth[p]
-            f = np.float32(v)
-            if f < low[j]:
-                f = low[j]
-            if f > high[j]:
-                f = high[j]
-            obs[p, j] = f
+        for j in range(k):  # selects, no branch: the loop vectorises (nulls are frequent and unpredictable)
+            x = raw[p, j]
+            null = (not math.isfinite(x)) | (x > max_range) | (x <= 0.0)
+            f = np.float32(fill if null else x)
+            f = low[j] if f < low[j] else f
+            obs[p, j] = high[j] if f > high[j] else f
+            scan[p, j] = 0.0 if math.isnan(x) else (big if x == math.inf else (-big if x == -math.inf else x))
+            a = incidence[p, j]
+            inc[p, j] = 0.0 if math.isnan(a) else (big if a == math.inf else (-big if a == -math.inf else a))
+        for j in range(k, k + 3):
+            f = np.float32(goal_rel[p, j - k] if j < k + 2 else dth[p])
+            f = low[j] if f < low[j] else f
+            obs[p, j] = high[j] if f > high[j] else f
     return obs, scan, inc
 
 

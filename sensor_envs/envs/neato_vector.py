@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from sensor_envs.envs.neato import NeatoEnv, collides, observe_batch, step_reward, unicycle_step
 from sensor_envs.envs.neato_render import render_world
+from sensor_envs.heap import keep_freed_heap
 from sensor_envs.rng import RowGenerators
 
 __all__ = ["NeatoVectorEnv"]
@@ -39,6 +40,9 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
         max_episode_steps: episodes are truncated after this many steps (the registration's 500).
         render_mode: ``"rgb_array"`` renders one image per robot, or None.
         **kwargs: :class:`~sensor_envs.envs.neato.NeatoEnv` keyword arguments (``lidar``, ``map``, ...).
+
+    Construction calls :func:`~sensor_envs.heap.keep_freed_heap` (glibc keeps freed memory for reuse, so the
+    step's batch arrays do not page-fault; ``SENSOR_ENVS_NO_HEAP_TUNING=1`` turns it off).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 5, "autoreset_mode": AutoresetMode.NEXT_STEP}
@@ -51,6 +55,7 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
         if int(max_episode_steps) < 1:
             raise ValueError(f"max_episode_steps: must be >= 1, got {max_episode_steps!r}")
         first = NeatoEnv(render_mode=render_mode, **kwargs)
+        keep_freed_heap()
         if first._extra_names:
             raise ValueError(
                 f"lidar: the vector Neato entry does not supply extra lidar state yet; the model's state names "

@@ -181,8 +181,8 @@ def _bilinear_numpy(
 ) -> NDArray[np.float64]:
     """:func:`_bilinear` in numpy (the path without numba)."""
     n, k, nr, na = tables.shape
-    fr = np.clip((r - rg[0]) / (rg[1] - rg[0]), 0.0, nr - 1 - 1e-9)
-    fa = np.clip((a - ag[0]) / (ag[1] - ag[0]), 0.0, na - 1 - 1e-9)
+    fr = np.clip((r - rg[0]) * (1.0 / (rg[1] - rg[0])), 0.0, nr - 1 - 1e-9)  # a reciprocal: no division per cell
+    fa = np.clip((a - ag[0]) * (1.0 / (ag[1] - ag[0])), 0.0, na - 1 - 1e-9)
     i, j = fr.astype(np.int64), fa.astype(np.int64)
     wr, wa = fr - i, fa - j
     base = (np.arange(k) * nr + i) * na + j
@@ -209,11 +209,11 @@ def _bilinear_loops(
     n_p = r.shape[0]
     out = np.empty((n, n_p, k))
     hi_r, hi_a = nr - 1 - 1e-9, na - 1 - 1e-9
-    dr, da = r1 - r0, a1 - a0
+    inv_dr, inv_da = 1.0 / (r1 - r0), 1.0 / (a1 - a0)
     for p in range(n_p):
         for kk in range(k):
-            fr = min(max((r[p, kk] - r0) / dr, 0.0), hi_r)
-            fa = min(max((a[p, kk] - a0) / da, 0.0), hi_a)
+            fr = min(max((r[p, kk] - r0) * inv_dr, 0.0), hi_r)
+            fa = min(max((a[p, kk] - a0) * inv_da, 0.0), hi_a)
             i, j = int(fr), int(fa)
             wr, wa = fr - i, fa - j
             for q in range(n):

@@ -701,7 +701,7 @@ class LidarLWLR(BaseEstimator):
         return np.where(u < p_null, 0.0, x)
 
     def sample_scan(
-        self, r: NDArray[np.float64], alpha: NDArray[np.float64], rng: np.random.Generator
+        self, r: NDArray[np.float64], alpha: NDArray[np.float64], rng: np.random.Generator, null: float = 0.0
     ) -> NDArray[np.float64]:
         """Readings [m] (``0`` = null), one per cell: ``sample_from_params(params_from_features(r, alpha), rng)``.
 
@@ -713,10 +713,12 @@ class LidarLWLR(BaseEstimator):
             r: ``(..., K)`` nominal ranges [m] (``inf``/NaN = no hit).
             alpha: ``(..., K)`` incidence [rad] (NaN where no hit).
             rng: a ``Generator`` (or :class:`~sensor_envs.rng.RowGenerators`) for the uniform and normal draws.
+            null: the value of a null reading (``0``, the model's convention; the sensor interface's NaN).
         """
         kernel = compiled(_scan_loops)
         if kernel is None or len(getattr(self, "extra_state_", ())) > 0:
-            return self.sample_from_params(self.params_from_features(r, alpha), rng)
+            x = self.sample_from_params(self.params_from_features(r, alpha), rng)
+            return x if null == 0 else np.where(x == 0, null, x)
         r = self._nominal_ranges(r)
         shape, k = r.shape, r.shape[-1]
         u = rng.random(shape)
@@ -740,6 +742,7 @@ class LidarLWLR(BaseEstimator):
             float(self.spur_mu_) if self.variant == "extended" else 0.0,
             float(self.spur_sigma_) if self.variant == "extended" else 0.0,
             self.variant == "extended",
+            float(null),
         )
         return np.asarray(out).reshape(shape)
 
@@ -1076,13 +1079,14 @@ def _scan_loops(
     spur_mu: float,
     spur_sigma: float,
     extended: bool,
+    null: float,
 ) -> NDArray[np.float64]:
     """:meth:`LidarLWLR.sample_scan` in loops over cells ``(P, K)``: lookup, then the draw, in the numpy order.
 
     ``cells`` are :meth:`LidarLWLR._scan_tables` ``(K, n_r, n_alpha, n)`` (float32 or float64, read as float64),
     ``p_null`` in slot 0 and ``idx`` the slots of bias, scale and ``p_spur`` (-1 where absent: no bias adds 0)
     and whether the scale is ``log_sigma``; ``r0, r1, r_last`` and ``a0, a1`` are grid nodes; ``u, z`` the
-    uniform and normal draws. Returns readings [m], ``0`` = null. The loop is bearing-major (one bearing's
+    uniform and normal draws. Returns readings [m], ``null`` where null. The loop is bearing-major (one bearing's
     tables stay in cache for all poses) over a flat view of the tables; each parameter is
     :func:`~sensor_envs.lidar.kernel._bilinear`'s expression.
     """
@@ -1091,7 +1095,7 @@ def _scan_loops(
     n_p = r.shape[0]
     out = np.empty((n_p, n_k))
     hi_r, hi_a = nr - 1 - 1e-9, na - 1 - 1e-9
-    dr, da = r1 - r0, a1 - a0
+    inv_dr, inv_da = 1.0 / (r1 - r0), 1.0 / (a1 - a0)
     i_bias, i_scale, i_spur, log_scale = idx[0], idx[1], idx[2], idx[3] == 1
     row = na * nq  # offset of the next range node
     for k in range(n_k):
@@ -1101,8 +1105,8 @@ def _scan_loops(
             rq = rk if hit else r_last
             ak = alpha[p, k]
             aq = 0.0 if math.isnan(ak) else ak
-            fr = min(max((rq - r0) / dr, 0.0), hi_r)
-            fa = min(max((aq - a0) / da, 0.0), hi_a)
+            fr = min(max((rq - r0) * inv_dr, 0.0), hi_r)
+            fa = min(max((aq - a0) * inv_da, 0.0), hi_a)
             i, j = int(fr), int(fa)
             wr, wa = fr - i, fa - j
             c = ((k * nr + i) * na + j) * nq
@@ -1119,8 +1123,8 @@ def _scan_loops(
             if i_spur >= 0:
                 p_null = min(p_null, 1 - P_EPS - P_SPUR_EPS)
             uk = u[p, k]
-            if uk < p_null:  # a null: the reading is 0 whatever the other parameters
-                out[p, k] = 0.0
+            if uk < p_null:  # a null whatever the other parameters
+                out[p, k] = null
                 continue
             if extended and i_spur >= 0:
                 p_spur = min(max(lookup(i_spur), P_SPUR_EPS), 1 - P_EPS - p_null)
@@ -1153,9 +1157,8 @@ class LearnedLidar:
         :meth:`LidarLWLR.params_from_features`), needed when the model has extra state.
         """
         if extra is None and not getattr(self.model, "extra_state_", ()):
-            x = self.model.sample_scan(nominal_range, incidence, rng)
-        else:
-            x = self.model.sample_from_params(self.model.params_from_features(nominal_range, incidence, extra), rng)
+            return self.model.sample_scan(nominal_range, incidence, rng, null=np.nan)
+        x = self.model.sample_from_params(self.model.params_from_features(nominal_range, incidence, extra), rng)
         return np.where(x == 0, np.nan, x)
 
 

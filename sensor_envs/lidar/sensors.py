@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from sensor_envs.jit import compiled
 from sensor_envs.modelio import default_model_path, model_file_key
+from sensor_envs.trig import tan_half_pi
 
 __all__ = ["LidarSensor", "IdealLidar", "GaussianLidar", "make_lidar", "LIDAR_NAMES"]
 
@@ -102,9 +103,14 @@ class GaussianLidar:
         r = np.asarray(nominal_range, dtype=np.float64)
         hit = np.isfinite(r)
         rh = np.where(hit, r, 0.0)
-        a = np.minimum(np.nan_to_num(np.asarray(incidence, dtype=np.float64), nan=0.0), self.alpha_max)
-        s = self.sigma0 + self.k_range * rh**2 + self.k_incidence * rh * np.tan(a)
+        s = self.sigma0 + self.k_range * rh**2 + self.k_incidence * rh * self.tan_incidence(incidence)
         return np.where(hit, s, np.nan)
+
+    def tan_incidence(self, incidence: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``tan(min(alpha, alpha_max))`` per bearing, NaN incidence as 0 (:func:`~sensor_envs.trig.tan_half_pi`)."""
+        a = np.minimum(np.asarray(incidence, dtype=np.float64), self.alpha_max)
+        a[np.isnan(a)] = 0.0
+        return tan_half_pi(a)
 
     def measure(
         self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64], rng: np.random.Generator
@@ -122,13 +128,12 @@ class GaussianLidar:
             shape = np.broadcast_shapes(r.shape, np.shape(incidence))
             out = kernel(
                 np.ascontiguousarray(np.broadcast_to(r, shape)).ravel(),
-                np.ascontiguousarray(np.broadcast_to(np.asarray(incidence, dtype=np.float64), shape)).ravel(),
+                np.ascontiguousarray(np.broadcast_to(self.tan_incidence(incidence), shape)).ravel(),
                 noise.ravel(),
                 np.zeros(1) if drop is None else drop.ravel(),
                 float(self.sigma0),
                 float(self.k_range),
                 float(self.k_incidence),
-                float(self.alpha_max),
                 float(self.p_null_floor),
             )
             return np.asarray(out).reshape(shape)
@@ -141,19 +146,19 @@ class GaussianLidar:
 
 def _gaussian_loops(
     r: NDArray[np.float64],
-    incidence: NDArray[np.float64],
+    tan_incidence: NDArray[np.float64],
     noise: NDArray[np.float64],
     drop: NDArray[np.float64],
     sigma0: float,
     k_range: float,
     k_incidence: float,
-    alpha_max: float,
     p_null_floor: float,
 ) -> NDArray[np.float64]:
     """:meth:`GaussianLidar.measure` per cell (flat arrays): the numpy path's operations in its order.
 
-    ``drop`` holds the dropout draws when ``p_null_floor > 0`` (else it is not read); NaN = null.
-    ``np.nan_to_num`` is spelled out: NaN -> 0, +-inf -> +-``big``.
+    ``tan_incidence`` is :meth:`GaussianLidar.tan_incidence`; ``drop`` holds the dropout draws when
+    ``p_null_floor > 0`` (else it is not read); NaN = null. ``np.nan_to_num`` is spelled out: NaN -> 0,
+    +-inf -> +-``big``.
     """
     big = np.finfo(np.float64).max
     out = np.empty(r.shape[0])
@@ -162,9 +167,7 @@ def _gaussian_loops(
         if not math.isfinite(x):
             out[i] = np.nan
             continue
-        a = incidence[i]
-        a = min(0.0 if math.isnan(a) else (big if a == math.inf else (-big if a == -math.inf else a)), alpha_max)
-        s = sigma0 + k_range * (x * x) + k_incidence * x * math.tan(a)
+        s = sigma0 + k_range * (x * x) + k_incidence * x * tan_incidence[i]
         s = 0.0 if math.isnan(s) else (big if s == math.inf else (-big if s == -math.inf else s))
         y = x + noise[i] * s
         if p_null_floor > 0 and drop[i] < p_null_floor:

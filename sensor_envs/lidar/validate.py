@@ -76,8 +76,8 @@ def fit_gaussian_lidar(log: LidarLog, spur_above: float = 6.0, max_range: float 
     base = GaussianLidar()
     hit = np.isfinite(r)
     m = hit & (st["n_ok"] >= 2)
-    rm, am = r[m], np.minimum(np.nan_to_num(a[m]), base.alpha_max)
-    coef, _ = nnls(np.column_stack([np.ones(m.sum()), rm**2, rm * np.tan(am)]), st["std"][m])
+    rm = r[m]
+    coef, _ = nnls(np.column_stack([np.ones(m.sum()), rm**2, rm * base.tan_incidence(a[m])]), st["std"][m])
     n = st["n"][hit]
     p_null = float((st["p_null"][hit] * n).sum() / max(n.sum(), 1))
     return GaussianLidar(

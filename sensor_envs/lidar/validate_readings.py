@@ -77,8 +77,9 @@ def fit_gaussian_readings(
     e = np.abs(x - np.where(hit, r, 0.0))
     m = hit & (x > 0) & (x <= spur_above) & (e < GAUSS_RESIDUAL_CUT)
     base = GaussianLidar()
-    rm, am = r[m], np.minimum(np.nan_to_num(a[m]), base.alpha_max)
-    coef, _ = nnls(np.column_stack([np.ones(m.sum()), rm**2, rm * np.tan(am)]), np.sqrt(np.pi / 2) * e[m])
+    rm = r[m]
+    design = np.column_stack([np.ones(m.sum()), rm**2, rm * base.tan_incidence(a[m])])
+    coef, _ = nnls(design, np.sqrt(np.pi / 2) * e[m])
     return GaussianLidar(
         sigma0=float(max(coef[0], SIGMA_FLOOR)),
         k_range=float(coef[1]),
