@@ -10,6 +10,7 @@ and a numpy path doing the same float64 operations in the same order, so both re
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -56,14 +57,24 @@ _PIO4_HI, _PIO4_LO = 7.85398163397448278999e-01, 3.06161699786838301793e-17
 _PIO2_1, _PIO2_1T = 1.57079632673412561417e00, 6.07710050650619224932e-11  # pi/2 in two parts (e_rem_pio2.c)
 
 
+def _elementwise(
+    loops: Callable[[NDArray[np.float64], NDArray[np.float64]], None], x: NDArray[np.float64]
+) -> NDArray[np.float64] | None:
+    """``loops(x, out)`` compiled over the flat contiguous ``x``, shaped like ``x``; None without numba."""
+    kernel = compiled(loops)
+    if kernel is None:
+        return None
+    out = np.empty_like(x)
+    kernel(x.reshape(-1), out.reshape(-1))
+    return out
+
+
 # ---------------------------------------------------------------------------------------------- arccos on [0, 1]
 def acos_unit(x: ArrayLike) -> NDArray[np.float64]:
     """``arccos(x)`` [rad] of ``x`` in ``[0, 1]`` (NaN stays NaN) within 0.8 ulp; other values are not supported."""
     x = np.ascontiguousarray(x, dtype=np.float64)
-    kernel = compiled(_acos_unit_loops)
-    if kernel is not None:
-        out = np.empty_like(x)
-        kernel(x.reshape(-1), out.reshape(-1))
+    out = _elementwise(_acos_unit_loops, x)
+    if out is not None:
         return out
     big = x > 0.5
     z = np.where(big, (1.0 - x) * 0.5, x * x)
@@ -117,17 +128,15 @@ def _acos_unit_loops(x: NDArray[np.float64], out: NDArray[np.float64]) -> None:
 
 # ---------------------------------------------------------------------------------------------- tan on [0, pi/2)
 def tan_half_pi(x: ArrayLike) -> NDArray[np.float64]:
-    """``tan(x)`` of angles ``x`` [rad] in ``[0, pi/2)`` within ~2 ulp (NaN stays NaN).
+    """``tan(x)`` of angles ``x`` [rad] in ``[0, pi/2)`` within 3 ulp (NaN stays NaN; up to pi/2 - 1e-7).
 
     Other values take libm's ``tan`` (``np.tan``; ``math.tan`` in the compiled loop: the same function).
     Three regimes: below 0.6744 fdlibm's polynomial; up to ``pi/2 - 0.6744`` the polynomial of
     ``d = x - pi/4`` and ``(1 + tan d) / (1 - tan d)``; above, ``1 / tan(pi/2 - x)`` with ``pi/2`` in two parts.
     """
     x = np.ascontiguousarray(x, dtype=np.float64)
-    kernel = compiled(_tan_half_pi_loops)
-    if kernel is not None:
-        out = np.empty_like(x)
-        kernel(x.reshape(-1), out.reshape(-1))
+    out = _elementwise(_tan_half_pi_loops, x)
+    if out is not None:
         return out
     mid = (x >= _TAN_DIRECT) & (x <= _PIO2_1 - _TAN_DIRECT)
     high = x > _PIO2_1 - _TAN_DIRECT
