@@ -56,13 +56,14 @@ def step_breakdown(lidar: str, n: int = 64, calls: int = 1000) -> dict[str, floa
     """Microseconds per call of each part of one vector step of ``n`` robots (median of 5 blocks of ``calls``).
 
     The parts are called on the robots' poses after a seeded reset, as :func:`~sensor_envs.envs.neato.observe_batch`
-    calls them: the raycast (and, alone, the ``acos`` of its incidences), the lidar's readings (for the learned
+    calls them: the raycast (and, alone, the arccos of its incidences), the lidar's readings (for the learned
     lidar also its uniform and normal draws and the compiled lookup-and-draw kernel alone), the observation pass,
     the whole ``observe_batch`` and the whole ``step``.
     """
     from sensor_envs.envs.neato import finish_observation, measure_rows, observe_batch
     from sensor_envs.geometry import raycast_pose, to_frame, wrap_angle
     from sensor_envs.rng import compiled
+    from sensor_envs.trig import acos_unit
 
     venv = gym.make_vec("sensor_envs/Neato-v0", num_envs=n, vectorization_mode="vector_entry_point", lidar=lidar)
     u = venv.unwrapped
@@ -76,7 +77,7 @@ def step_breakdown(lidar: str, n: int = 64, calls: int = 1000) -> dict[str, floa
     cosines = np.cos(np.nan_to_num(inc))  # values in [0, 1], as the raycast's arguments of acos
     parts = {
         "raycast": lambda: raycast_pose(pose, env.bearings, segs, env.max_range),
-        "  of it: acos of the incidences (numpy)": lambda: np.arccos(cosines),
+        "  of it: arccos of the incidences (trig.acos_unit)": lambda: acos_unit(cosines),
         "lidar readings": lambda: measure_rows(env.lidar, nom, inc, rngs),
         "observation pass": lambda: finish_observation(
             raw, inc, goal_rel, dth, box.low, box.high, env.max_range, env.null_value

@@ -60,19 +60,19 @@ _PIO2_1, _PIO2_1T = 1.57079632673412561417e00, 6.07710050650619224932e-11  # pi/
 def _elementwise(
     loops: Callable[[NDArray[np.float64], NDArray[np.float64]], None], x: NDArray[np.float64]
 ) -> NDArray[np.float64] | None:
-    """``loops(x, out)`` compiled over the flat contiguous ``x``, shaped like ``x``; None without numba."""
+    """``loops(x, out)`` compiled over ``x`` flattened, shaped like ``x`` (0-d too); None without numba."""
     kernel = compiled(loops)
     if kernel is None:
         return None
-    out = np.empty_like(x)
-    kernel(x.reshape(-1), out.reshape(-1))
+    out = np.empty(x.shape)
+    kernel(np.ascontiguousarray(x).reshape(-1), out.reshape(-1))
     return out
 
 
 # ---------------------------------------------------------------------------------------------- arccos on [0, 1]
 def acos_unit(x: ArrayLike) -> NDArray[np.float64]:
     """``arccos(x)`` [rad] of ``x`` in ``[0, 1]`` (NaN stays NaN) within 0.8 ulp; other values are not supported."""
-    x = np.ascontiguousarray(x, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
     out = _elementwise(_acos_unit_loops, x)
     if out is not None:
         return out
@@ -134,15 +134,15 @@ def tan_half_pi(x: ArrayLike) -> NDArray[np.float64]:
     Three regimes: below 0.6744 fdlibm's polynomial; up to ``pi/2 - 0.6744`` the polynomial of
     ``d = x - pi/4`` and ``(1 + tan d) / (1 - tan d)``; above, ``1 / tan(pi/2 - x)`` with ``pi/2`` in two parts.
     """
-    x = np.ascontiguousarray(x, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
     out = _elementwise(_tan_half_pi_loops, x)
     if out is not None:
         return out
     mid = (x >= _TAN_DIRECT) & (x <= _PIO2_1 - _TAN_DIRECT)
     high = x > _PIO2_1 - _TAN_DIRECT
     y = np.where(mid, (x - _PIO4_HI) - _PIO4_LO, np.where(high, (_PIO2_1 - x) + _PIO2_1T, x))
-    t = _tan_poly(y)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # values outside [0, pi/2) are replaced
+        t = _tan_poly(y)
         fast = np.where(mid, (1.0 + t) / (1.0 - t), np.where(high, 1.0 / t, t))
     outside = ~((x >= 0.0) & (x < _PIO2_HI))
     return np.where(outside & ~np.isnan(x), np.tan(np.where(outside, x, 0.0)), fast)

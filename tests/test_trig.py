@@ -54,6 +54,20 @@ def test_tan_half_pi_is_within_three_ulps_and_falls_back_outside():
         assert np.array_equal(trig.tan_half_pi(outside), np.tan(outside), equal_nan=True)
 
 
+def test_shapes_are_kept_and_the_gaussian_lidar_takes_scalars():
+    """0-d in, 0-d out (a scalar call of GaussianLidar.sigma worked before the fast tangent; so must it now)."""
+    from sensor_envs.lidar.sensors import GaussianLidar
+
+    assert trig.acos_unit(0.5).shape == () and trig.tan_half_pi(0.3).shape == ()
+    assert trig.tan_half_pi(np.full((4, 6), 0.3)[:, ::2]).shape == (4, 3)  # not contiguous
+    lidar = GaussianLidar()
+    sigma = lidar.sigma(2.0, 0.3)
+    assert np.shape(sigma) == () and np.isclose(sigma, 0.005 + 0.0028 + 0.01 * np.tan(0.3))
+    # np.nan_to_num's rules: NaN incidence as 0, +inf capped at alpha_max, -inf as the lowest float64
+    got = lidar.tan_incidence(np.array([np.nan, np.inf, -np.inf, 0.2]))
+    assert np.array_equal(got, [0.0, trig.tan_half_pi(lidar.alpha_max), np.tan(np.finfo(np.float64).min), got[3]])
+
+
 def test_compiled_and_numpy_paths_give_the_same_bits(compiled_kernels):
     """The numba loops (this process) and the numpy path (a process with SENSOR_ENVS_NO_NUMBA=1): equal bits."""
     code = (
