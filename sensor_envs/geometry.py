@@ -427,14 +427,15 @@ def sample_free_poses(
         ValueError: when fewer than ``n`` free positions are found.
     """
     lo, hi = segments.reshape(-1, 2).min(0), segments.reshape(-1, 2).max(0)
+    span = hi - lo
     rays = np.arange(enclosure_rays) * (2 * np.pi / enclosure_rays)
     out: list[NDArray[np.float64]] = []
     for _ in range(max_tries):
-        xy = rng.uniform(lo, hi, (4 * n, 2))
+        xy = lo + span * rng.random((4 * n, 2))  # rng.uniform(lo, hi, ...)'s numbers, without its broadcasting cost
         ok = nearest_wall_distance(xy, segments) >= clearance
         if away_from is not None:
             ok &= np.hypot(*(xy - np.asarray(away_from, dtype=np.float64)).T) >= min_distance
-        r, _, _ = raycast_pose(np.column_stack([xy, np.zeros(len(xy))]), rays, segments)
+        r, _, _ = raycast(xy, rays, segments)  # the enclosure test: rays in the map frame
         ok &= np.isfinite(r).all(axis=1)
         out.extend(xy[ok])
         if len(out) >= n:

@@ -12,6 +12,7 @@ from sensor_envs.geometry import (
     raycast_pose,
     rectangle_corners,
     rectangle_segments,
+    sample_free_poses,
     to_frame,
 )
 
@@ -234,3 +235,24 @@ def test_compiled_nearest_wall_distance_gives_the_numpy_numbers(monkeypatch, com
         ref = geometry.nearest_wall_distance(pts, segs)
     assert np.array_equal(fast, ref) and np.array_equal(poses, ref)
     assert np.array_equal(ref, geometry.point_segment_distance(pts, segs).min(axis=1)) and (ref == 0).sum() >= 9
+
+
+def test_sample_free_poses_draws_uniform_candidates_and_keeps_the_free_enclosed_ones():
+    """Candidates are ``rng.uniform(lo, hi, (4 n, 2))``'s numbers; kept: clear of walls, far from ``away_from``,
+    enclosed; the headings are drawn after. Checked against that rule written plainly."""
+    room = as_segments([[[0, 0], [4, 0]], [[4, 0], [4, 3]], [[4, 3], [0, 3]], [[0, 3], [0, 0]], [[1, 1], [2, 1]]])
+    room = np.concatenate([room, as_segments([[[6, 0], [7, 0]]])])  # a wall outside the room: unenclosed space
+    for seed in range(5):
+        got = sample_free_poses(room, 3, np.random.default_rng(seed), 0.3, away_from=(1.0, 2.0), min_distance=1.0)
+        rng = np.random.default_rng(seed)
+        lo, hi = room.reshape(-1, 2).min(0), room.reshape(-1, 2).max(0)
+        kept: list = []
+        while len(kept) < 3:
+            xy = rng.uniform(lo, hi, (12, 2))
+            ok = point_segment_distance(xy, room).min(axis=1) >= 0.3
+            ok &= np.hypot(*(xy - [1.0, 2.0]).T) >= 1.0
+            ok &= np.isfinite(raycast(xy, np.arange(4) * (np.pi / 2), room)[0]).all(axis=1)
+            kept.extend(xy[ok])
+        want = np.column_stack([np.asarray(kept[:3]), rng.uniform(-np.pi, np.pi, 3)])
+        assert np.array_equal(got, want)
+        assert (got[:, 0] < 4).all()  # never in the open space beside the room

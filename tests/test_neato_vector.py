@@ -63,6 +63,22 @@ def test_vector_step_before_reset_and_bad_sizes():
         NeatoVectorEnv(num_envs=0)
 
 
+def test_what_a_call_returned_stays_as_returned():
+    """Later steps and (partial) resets write new arrays: an observation or info a caller keeps does not change."""
+    import copy
+
+    env = NeatoVectorEnv(num_envs=3, lidar="gaussian", max_episode_steps=2)
+    first = env.reset(seed=0)
+    kept = [(first, copy.deepcopy(first))]
+    for _ in range(3):  # the second step truncates every robot; the third restarts them
+        out = env.step(np.full((3, 2), 0.3, dtype=np.float32))
+        kept.append((out, copy.deepcopy(out)))
+        part = env.reset(options={"reset_mask": np.array([True, False, True])})
+        kept.append((part, copy.deepcopy(part)))
+    for returned, snapshot in kept:
+        assert data_equivalence(returned, snapshot, exact=True)
+
+
 def test_vector_render_gives_one_frame_per_robot():
     env = NeatoVectorEnv(num_envs=2, render_mode="rgb_array")
     env.reset(seed=0)

@@ -131,6 +131,16 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         """Start a new episode; ``options`` may fix ``start`` and/or ``goal`` poses ``(x, y, theta)``."""
+        self.start_episode(seed=seed, options=options)
+        obs, info = self._observe(collision=False)
+        self._prev_dist = info["distance_to_goal"]
+        return obs, info
+
+    def start_episode(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> None:
+        """:meth:`reset` without the first observation: seed the streams, then draw (or take) start and goal.
+
+        The vector entry point starts its robots' episodes with this and observes them all in one batch.
+        """
         super().reset(seed=seed)
         self._sensor_rng = sensor_rng(seed, _LIDAR_TAG, self._sensor_rng)
         self._motion, self._prev_res = np.zeros(3), np.zeros(self.bearings.size)
@@ -143,9 +153,6 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             self.goal = self._pose_option(options, "goal")
         else:
             self.goal = self._sample_free_pose(away_from=self.pose[:2])
-        obs, info = self._observe(collision=False)
-        self._prev_dist = info["distance_to_goal"]
-        return obs, info
 
     def step(self, action: NDArray[np.float32]) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
         """Drive with normalised ``(v, omega)`` (clipped to ``[-1, 1]``) for ``dt`` seconds.

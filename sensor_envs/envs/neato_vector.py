@@ -3,9 +3,10 @@
 ``gym.make_vec("sensor_envs/Neato-v0", num_envs=N, vectorization_mode="vector_entry_point", **kwargs)``
 builds a :class:`NeatoVectorEnv`: one batched raycast (``N`` poses x ``K`` bearings) and one batched lidar
 call per step serve all robots, instead of N Python-level env steps. The world, dynamics, reward and
-observation are :class:`~sensor_envs.envs.neato.NeatoEnv`'s own functions; resets are done by N
-``NeatoEnv`` instances (sharing one map and one lidar), so start/goal sampling, seeding and ``options``
-are exactly the single env's.
+observation are :class:`~sensor_envs.envs.neato.NeatoEnv`'s own functions; episodes are started by N
+``NeatoEnv`` instances (sharing one map and one lidar; :meth:`~sensor_envs.envs.neato.NeatoEnv.start_episode`),
+so start/goal sampling, seeding and ``options`` are exactly the single env's, and the first observations
+of the robots that start are made in the step's (or the reset's) one batched raycast and lidar call.
 
 Seeding and autoreset follow gymnasium 1.x's :class:`~gymnasium.vector.SyncVectorEnv`: ``reset(seed=s)``
 seeds robot ``i`` with ``s + i`` (or takes a list of seeds); autoreset is ``NEXT_STEP`` (the step after an
@@ -99,15 +100,22 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed: expected {self.num_envs} seeds, got {len(seeds)}")
         rows = np.flatnonzero(mask)
-        infos = self._reset_rows(rows, self._obs, seeds=[seeds[i] for i in rows], options=options or None)
-        if self._rngs is None:
-            self._rngs = RowGenerators([e._sensor_rng for e in self.envs])  # type: ignore[misc]
-        for i in rows:  # a seeded reset gives a robot a new stream
-            self._rngs.replace(int(i), self.envs[i]._sensor_rng)  # type: ignore[arg-type]
+        self._start_rows(rows, [seeds[i] for i in rows], options or None)
+        rngs = self._row_generators()
+        obs, info = observe_batch(
+            self.envs[0],
+            self._pose[rows],
+            self._goal[rows],
+            rngs if rows.size == self.num_envs else rngs.select(rows),
+            np.zeros(rows.size, dtype=bool),
+        )
+        # new arrays, not writes into the old: a step's info holds the old ones (a caller may keep that info)
+        self._prev_dist, self._scan = self._prev_dist.copy(), self._scan.copy()
+        self._obs[rows], self._prev_dist[rows], self._scan[rows] = obs, info["distance_to_goal"], info["scan"]
         self._steps[rows] = 0
         self._autoreset[rows] = False
         self._started = True
-        return self._obs.copy(), _with_masks(infos, mask)
+        return self._obs.copy(), _with_masks({k: _scatter(v, rows, self.num_envs) for k, v in info.items()}, mask)
 
     def step(
         self, actions: NDArray[np.float32]
@@ -117,35 +125,22 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
             raise RuntimeError("NeatoVectorEnv: call reset() before step()")
         a = np.clip(np.asarray(actions, dtype=np.float64).reshape(self.num_envs, 2), -1.0, 1.0)
         env = self.envs[0]
-        done_before = self._autoreset.copy()
-        live = np.flatnonzero(~done_before)
-        obs = np.zeros(self._obs_shape, dtype=np.float32)
-        reward = np.zeros(self.num_envs)
-        terminated = np.zeros(self.num_envs, dtype=bool)
-        truncated = np.zeros(self.num_envs, dtype=bool)
-        info: dict[str, NDArray[Any]] = {}
-        if live.size:
-            pose = unicycle_step(self._pose[live], a[live, 0] * env.v_max, a[live, 1] * env.omega_max, env.dt)
-            hit = collides(pose, env.world_map.segments, env.robot_radius)
-            assert self._rngs is not None
-            rngs = self._rngs if live.size == self.num_envs else self._rngs.select(live)
-            live_obs, info = observe_batch(env, pose, self._goal[live], rngs, hit)
-            dist, success = info["distance_to_goal"], info["is_success"]
-            reward[live] = step_reward(env.rewards, self._prev_dist[live], dist, success, hit)
-            self._pose[live], self._prev_dist[live], self._scan[live] = pose, dist, info["scan"]
-            self._steps[live] += 1
-            obs[live] = live_obs
-            terminated[live] = success | hit
-            truncated[live] = self._steps[live] >= self.max_episode_steps
-            info = {k: _scatter(v, live, self.num_envs) for k, v in info.items()}
-        rows = np.flatnonzero(done_before)
+        restart = self._autoreset  # these robots start a new episode this step (NEXT_STEP autoreset)
+        # every robot moves (numpy's elementwise arithmetic: a row's result does not depend on the others);
+        # the restarting robots' new poses are then replaced by their episodes' starts
+        pose = unicycle_step(self._pose, a[:, 0] * env.v_max, a[:, 1] * env.omega_max, env.dt)
+        hit = collides(pose, env.world_map.segments, env.robot_radius) & ~restart
+        self._pose = pose
+        rows = np.flatnonzero(restart)
         if rows.size:
-            resets = self._reset_rows(rows, obs, seeds=[None] * rows.size, options=None)
-            for k, v in resets.items():
-                if k not in info:
-                    info[k] = np.zeros_like(v)
-                info[k][rows] = v[rows]
-            self._steps[rows] = 0
+            self._start_rows(rows, [None] * rows.size, None)
+        obs, info = observe_batch(env, self._pose, self._goal, self._row_generators(), hit)
+        dist, success = info["distance_to_goal"], info["is_success"]
+        reward = np.where(restart, 0.0, step_reward(env.rewards, self._prev_dist, dist, success, hit))
+        terminated = (success | hit) & ~restart
+        self._steps = np.where(restart, 0, self._steps + 1)
+        truncated = (self._steps >= self.max_episode_steps) & ~restart
+        self._prev_dist, self._scan = dist, info["scan"]
         self._autoreset = terminated | truncated
         self._obs = obs
         return obs.copy(), reward, terminated, truncated, _with_masks(info, np.ones(self.num_envs, dtype=bool))
@@ -162,22 +157,24 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
         )
 
     # ----------------------------------------------------------------------------------- internals
-    def _reset_rows(
-        self, rows: NDArray[np.int64], obs: NDArray[np.float32], seeds: list[int | None], options: dict[str, Any] | None
-    ) -> dict[str, NDArray[Any]]:
-        """Reset robots ``rows`` through their single envs; fill ``obs`` rows; return the infos stacked (N, ...)."""
-        infos: dict[str, NDArray[Any]] = {}
+    def _start_rows(self, rows: NDArray[np.int64], seeds: list[int | None], options: dict[str, Any] | None) -> None:
+        """Start new episodes of robots ``rows`` through their single envs (seeds, start and goal poses).
+
+        Their first observations are then made in one batch with the others, as each single env's
+        ``reset`` would make it (the same draws of its own sensor stream).
+        """
         for i, s in zip(rows, seeds, strict=True):
             e = self.envs[i]
-            o, inf = e.reset(seed=s, options=options)
-            obs[i] = o
-            self._pose[i], self._goal[i], self._prev_dist[i] = e.pose, e.goal, inf["distance_to_goal"]
-            self._scan[i] = inf["scan"]
-            for k, v in inf.items():
-                if k not in infos:
-                    infos[k] = np.zeros((self.num_envs, *np.shape(v)), dtype=np.asarray(v).dtype)
-                infos[k][i] = v
-        return infos
+            e.start_episode(seed=s, options=options)
+            self._pose[i], self._goal[i] = e.pose, e.goal
+            if self._rngs is not None:  # a seeded start gives the robot a new stream
+                self._rngs.replace(int(i), e._sensor_rng)
+
+    def _row_generators(self) -> RowGenerators:
+        """The robots' lidar generators, row ``i`` robot ``i``'s (built once, kept across steps)."""
+        if self._rngs is None:
+            self._rngs = RowGenerators([e._sensor_rng for e in self.envs])  # type: ignore[misc]
+        return self._rngs
 
 
 def _scatter(values: NDArray[Any], rows: NDArray[np.int64], n: int) -> NDArray[Any]:

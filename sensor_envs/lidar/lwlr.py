@@ -756,31 +756,32 @@ class LidarLWLR(BaseEstimator):
         return r
 
     def _scan_tables(self, with_bias: bool = True) -> tuple[NDArray[np.floating[Any]], NDArray[np.int64]]:
-        """What :func:`_scan_loops` reads: the looked-up tables laid out ``(K, n_r, n_alpha, n)``, and their slots.
+        """What :func:`_scan_loops` reads: the looked-up tables laid out ``(K, n_r, n_alpha, 4)``, and their slots.
 
-        The ``n`` parameters are ``p_null``, the bias (unless ``with_bias`` is False: a bias shrunk fully to
-        zero adds nothing), the scale (``log_sigma`` of the extended variant, ``sigma`` of the seed's) and
-        ``p_spur`` (when the model has it); the slots are ``(bias, scale, p_spur, scale is log_sigma)``, -1 where
-        absent. The layout reads one cell's parameters together and holds no table the scan does not read; it
-        is float32 when that is exact (tables are rounded to float32 at fit and in the file), so the lookup's
+        The 4 slots of a cell are ``p_null``, the bias, the scale (``log_sigma`` of the extended variant, ``sigma``
+        of the seed's) and ``p_spur``; a parameter the model lacks (or the bias when ``with_bias`` is False: a
+        bias shrunk fully to zero adds nothing) holds zeros and is marked absent in the index
+        ``(bias slot, scale slot, p_spur slot, scale is log_sigma)`` by a slot of -1. The layout reads one cell's
+        parameters together (one group of 4 per grid node) and holds no table the scan does not read; it is
+        float32 when that is exact (tables are rounded to float32 at fit and in the file), so the lookup's
         float64 arithmetic gives the same bits from half the memory (a 64-robot step walks most of it, so its
-        size sets the step's cache misses). Cached beside the array it was made from and rebuilt when
-        ``tables_`` is replaced (fit, load), so the hot path pays for neither.
+        size sets the step's cache misses). Cached beside the array it was made from and rebuilt when ``tables_``
+        is replaced (fit, load), so the hot path pays for neither.
         """
         cache = self.__dict__.setdefault("_scan_cache", {})
         hit = cache.get(with_bias)
         if hit is None or hit[0] is not self.tables_:
             names = list(self.param_names_)
             scale = "log_sigma" if "log_sigma" in names else "sigma"
-            wanted = ["p_null"] + (["bias"] if with_bias else []) + [scale] + (["p_spur"] if "p_spur" in names else [])
-            cells = np.moveaxis(self.tables_[[names.index(n) for n in wanted]], 0, -1)
+            slots = ("p_null", "bias" if with_bias else "", scale, "p_spur")
+            cells = np.zeros(self.tables_.shape[1:] + (len(slots),))
+            for slot, name in enumerate(slots):
+                if name in names:
+                    cells[..., slot] = self.tables_[names.index(name)]
             if np.array_equal(cells.astype(np.float32), cells):  # fitted/loaded tables are float32 values
                 cells = cells.astype(np.float32)  # exact, and half the memory a lookup walks
-            slot = {n: i for i, n in enumerate(wanted)}
-            idx = np.array(
-                [slot.get("bias", -1), slot[scale], slot.get("p_spur", -1), int(scale == "log_sigma")], dtype=np.int64
-            )
-            hit = (self.tables_, np.ascontiguousarray(cells), idx)
+            idx = np.array([i if n in names else -1 for i, n in enumerate(slots)][1:] + [scale == "log_sigma"])
+            hit = (self.tables_, np.ascontiguousarray(cells), idx.astype(np.int64))
             cache[with_bias] = hit
         return hit[1], hit[2]
 
@@ -1090,14 +1091,14 @@ def _scan_loops(
     tables stay in cache for all poses) over a flat view of the tables; each parameter is
     :func:`~sensor_envs.lidar.kernel._bilinear`'s expression.
     """
-    n_k, nr, na, nq = cells.shape
+    n_k, nr, na, _ = cells.shape  # 4 slots: p_null, bias, scale, p_spur
     flat = cells.ravel()
     n_p = r.shape[0]
     out = np.empty((n_p, n_k))
     hi_r, hi_a = nr - 1 - 1e-9, na - 1 - 1e-9
     inv_dr, inv_da = 1.0 / (r1 - r0), 1.0 / (a1 - a0)
-    i_bias, i_scale, i_spur, log_scale = idx[0], idx[1], idx[2], idx[3] == 1
-    row = na * nq  # offset of the next range node
+    has_bias, has_spur, log_scale = idx[0] >= 0, idx[2] >= 0, idx[3] == 1
+    row = na * 4  # offset of the next range node
     for k in range(n_k):
         for p in range(n_p):
             rk = r[p, k]
@@ -1109,30 +1110,33 @@ def _scan_loops(
             fa = min(max((aq - a0) * inv_da, 0.0), hi_a)
             i, j = int(fr), int(fa)
             wr, wa = fr - i, fa - j
-            c = ((k * nr + i) * na + j) * nq
-
-            # The cell's bilinear value of the parameter in ``slot``; numba inlines it, and it is only called
-            # within this iteration, so reading the loop's c, wa, wr is what is meant (B023).
-            def lookup(slot: int) -> float:
-                q = c + slot  # noqa: B023
-                a, b = np.float64(flat[q]), np.float64(flat[q + nq])
-                a2, b2 = np.float64(flat[q + row]), np.float64(flat[q + row + nq])
-                return float((a * (1 - wa) + b * wa) * (1 - wr) + (a2 * (1 - wa) + b2 * wa) * wr)  # noqa: B023
-
-            p_null = lookup(0) if hit else 1 - P_EPS
-            if i_spur >= 0:
+            ur, ua = 1 - wr, 1 - wa
+            c = ((k * nr + i) * na + j) * 4
+            d = c + row
+            # the four parameters' bilinear values, written out: straight-line code that reads each node's 4
+            # slots together (~8 % faster than a lookup per parameter where needed)
+            v0 = (np.float64(flat[c]) * ua + np.float64(flat[c + 4]) * wa) * ur
+            v0 += (np.float64(flat[d]) * ua + np.float64(flat[d + 4]) * wa) * wr
+            v1 = (np.float64(flat[c + 1]) * ua + np.float64(flat[c + 5]) * wa) * ur
+            v1 += (np.float64(flat[d + 1]) * ua + np.float64(flat[d + 5]) * wa) * wr
+            v2 = (np.float64(flat[c + 2]) * ua + np.float64(flat[c + 6]) * wa) * ur
+            v2 += (np.float64(flat[d + 2]) * ua + np.float64(flat[d + 6]) * wa) * wr
+            v3 = (np.float64(flat[c + 3]) * ua + np.float64(flat[c + 7]) * wa) * ur
+            v3 += (np.float64(flat[d + 3]) * ua + np.float64(flat[d + 7]) * wa) * wr
+            p_null = v0 if hit else 1 - P_EPS
+            if has_spur:
                 p_null = min(p_null, 1 - P_EPS - P_SPUR_EPS)
             uk = u[p, k]
             if uk < p_null:  # a null whatever the other parameters
                 out[p, k] = null
                 continue
-            if extended and i_spur >= 0:
-                p_spur = min(max(lookup(i_spur), P_SPUR_EPS), 1 - P_EPS - p_null)
+            if extended and has_spur:
+                p_spur = min(max(v3, P_SPUR_EPS), 1 - P_EPS - p_null)
                 if uk < p_null + p_spur:  # a spurious return
                     out[p, k] = spur_mu + spur_sigma * z[p, k]
                     continue
-            mu = rq + (1.0 - shrink) * lookup(i_bias) if i_bias >= 0 else rq
-            sigma = math.exp(lookup(i_scale)) if log_scale else lookup(i_scale)
+            mu = rq + (1.0 - shrink) * v1 if has_bias else rq
+            sigma = math.exp(v2) if log_scale else v2
             out[p, k] = max(mu + sigma * z[p, k], 1e-4)
     return out
 
