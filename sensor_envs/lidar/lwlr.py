@@ -1084,12 +1084,12 @@ def _scan_loops(
 ) -> NDArray[np.float64]:
     """:meth:`LidarLWLR.sample_scan` in loops over cells ``(P, K)``: lookup, then the draw, in the numpy order.
 
-    ``cells`` are :meth:`LidarLWLR._scan_tables` ``(K, n_r, n_alpha, n)`` (float32 or float64, read as float64),
-    ``p_null`` in slot 0 and ``idx`` the slots of bias, scale and ``p_spur`` (-1 where absent: no bias adds 0)
-    and whether the scale is ``log_sigma``; ``r0, r1, r_last`` and ``a0, a1`` are grid nodes; ``u, z`` the
-    uniform and normal draws. Returns readings [m], ``null`` where null. The loop is bearing-major (one bearing's
-    tables stay in cache for all poses) over a flat view of the tables; each parameter is
-    :func:`~sensor_envs.lidar.kernel._bilinear`'s expression.
+    ``cells`` are :meth:`LidarLWLR._scan_tables` ``(K, n_r, n_alpha, 4)`` (float32 or float64, read as float64):
+    ``p_null``, bias, scale, ``p_spur`` in slots 0-3; ``idx`` marks an absent bias or ``p_spur`` by -1 (no bias
+    adds 0; no ``p_spur``, no spurious returns) and says whether the scale is ``log_sigma``; ``r0, r1, r_last``
+    and ``a0, a1`` are grid nodes; ``u, z`` the uniform and normal draws. Returns readings [m], ``null`` where
+    null. The loop is bearing-major (one bearing's tables stay in cache for all poses) over a flat view of the
+    tables; each parameter is :func:`~sensor_envs.lidar.kernel._bilinear`'s expression.
     """
     n_k, nr, na, _ = cells.shape  # 4 slots: p_null, bias, scale, p_spur
     flat = cells.ravel()
