@@ -73,13 +73,12 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         n = self.num_envs
-        self._obs_shape = (n, int(first.observation_space.shape[0]))  # type: ignore[index]
         self._pose, self._goal = np.zeros((n, 3)), np.zeros((n, 3))
         self._prev_dist = np.zeros(n)
         self._steps = np.zeros(n, dtype=np.int64)
         self._autoreset = np.zeros(n, dtype=bool)
         self._scan = np.zeros((n, first.bearings.size))
-        self._obs = np.zeros(self._obs_shape, dtype=np.float32)
+        self._obs = np.zeros((n, int(first.observation_space.shape[0])), dtype=np.float32)  # type: ignore[index]
         self._rngs: RowGenerators | None = None  # the robots' lidar generators, kept across steps
         self._started = False
 

@@ -780,8 +780,11 @@ class LidarLWLR(BaseEstimator):
                     cells[..., slot] = self.tables_[names.index(name)]
             if np.array_equal(cells.astype(np.float32), cells):  # fitted/loaded tables are float32 values
                 cells = cells.astype(np.float32)  # exact, and half the memory a lookup walks
-            idx = np.array([i if n in names else -1 for i, n in enumerate(slots)][1:] + [scale == "log_sigma"])
-            hit = (self.tables_, np.ascontiguousarray(cells), idx.astype(np.int64))
+            idx = np.array(
+                [1 if slots[1] in names else -1, 2, 3 if "p_spur" in names else -1, int(scale == "log_sigma")],
+                dtype=np.int64,
+            )
+            hit = (self.tables_, np.ascontiguousarray(cells), idx)
             cache[with_bias] = hit
         return hit[1], hit[2]
 
