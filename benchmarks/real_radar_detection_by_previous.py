@@ -39,6 +39,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--bootstrap", type=int, default=0, help="resamples of the real rates' cluster bootstrap")
     args = ap.parse_args()
+    if args.bootstrap < 0:
+        ap.error(f"--bootstrap: must be >= 0, got {args.bootstrap}")
     try:  # bad input: one line naming the file, exit 2
         frames = load_real(args.data)
         models = [(path, KDERadarModel.load(path)) for path in args.model]
