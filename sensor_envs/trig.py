@@ -130,7 +130,8 @@ def _acos_unit_loops(x: NDArray[np.float64], out: NDArray[np.float64]) -> None:
 def tan_half_pi(x: ArrayLike) -> NDArray[np.float64]:
     """``tan(x)`` of angles ``x`` [rad] in ``[0, pi/2)`` within 3 ulp (NaN stays NaN; up to pi/2 - 1e-7).
 
-    Other values take libm's ``tan`` (``np.tan``; ``math.tan`` in the compiled loop: the same function).
+    Other values take libm's ``tan`` (``math.tan``, element by element, in both paths: numpy's ``np.tan`` has its
+    own SIMD code on AVX-512 machines, which differs from libm's by an ulp; ``inf`` gives NaN).
     Three regimes: below 0.6744 fdlibm's polynomial; up to ``pi/2 - 0.6744`` the polynomial of
     ``d = x - pi/4`` and ``(1 + tan d) / (1 - tan d)``; above, ``1 / tan(pi/2 - x)`` with ``pi/2`` in two parts.
     """
@@ -144,8 +145,10 @@ def tan_half_pi(x: ArrayLike) -> NDArray[np.float64]:
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # values outside [0, pi/2) are replaced
         t = _tan_poly(y)
         fast = np.where(mid, (1.0 + t) / (1.0 - t), np.where(high, 1.0 / t, t))
-    outside = ~((x >= 0.0) & (x < _PIO2_HI))
-    return np.where(outside & ~np.isnan(x), np.tan(np.where(outside, x, 0.0)), fast)
+    outside = ~((x >= 0.0) & (x < _PIO2_HI)) & ~np.isnan(x)
+    if outside.any():  # libm's tan, as the compiled loop's: numpy's own np.tan differs by an ulp on AVX-512 machines
+        fast[outside] = [math.tan(v) if math.isfinite(v) else math.nan for v in x[outside].tolist()]
+    return fast
 
 
 def _tan_poly(y: NDArray[np.float64]) -> NDArray[np.float64]:
