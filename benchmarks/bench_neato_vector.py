@@ -57,8 +57,9 @@ def step_breakdown(lidar: str, n: int = 64, calls: int = 1000) -> dict[str, floa
 
     The parts are called on the robots' poses after a seeded reset, as :func:`~sensor_envs.envs.neato.observe_batch`
     calls them: the raycast (and, alone, the arccos of its incidences), the lidar's readings (for the learned
-    lidar also its uniform and normal draws and the compiled lookup-and-draw kernel alone), the observation pass,
-    the whole ``observe_batch`` and the whole ``step``.
+    lidar also its uniform and normal draws and, alone, the three compiled passes and numpy's exp of
+    :meth:`~sensor_envs.lidar.lwlr.LidarLWLR.sample_scan`), the observation pass, the whole ``observe_batch`` and
+    the whole ``step``.
     """
     from sensor_envs.envs.neato import finish_observation, measure_rows, observe_batch
     from sensor_envs.geometry import raycast_pose, to_frame, wrap_angle
@@ -89,19 +90,32 @@ def step_breakdown(lidar: str, n: int = 64, calls: int = 1000) -> dict[str, floa
     if model is not None:
         from sensor_envs.lidar import lwlr
 
-        kernel = compiled(lwlr._scan_loops)
+        passes = compiled(lwlr._scan_nodes), compiled(lwlr._scan_gather), compiled(lwlr._scan_readings)
         shrink = float(getattr(model, "bias_shrinkage_", 0.0))
         cells, idx = model._scan_tables(with_bias=shrink != 1.0)
         rg, ag = model.range_grid_, model.alpha_grid_
         uu, zz = rngs.random(nom.shape), rngs.standard_normal(nom.shape)
         ext = model.variant == "extended"
-        spur = (float(model.spur_mu_), float(model.spur_sigma_), True) if ext else (0.0, 0.0, False)
+        spur = (float(model.spur_mu_), float(model.spur_sigma_)) if ext else (0.0, 0.0)
         parts["  of it: uniform draws"] = lambda: rngs.random(nom.shape)
         parts["  of it: normal draws"] = lambda: rngs.standard_normal(nom.shape)
-        if kernel is not None:
+        if None not in passes:
+            nodes, gather, readings = passes
+            nr, na = cells.shape[1], cells.shape[2]
             grid = (float(rg[0]), float(rg[1]), float(rg[-1]), float(ag[0]), float(ag[1]))
-            args = (cells, *grid, nom, inc, uu, zz, idx, shrink, *spur, np.nan)
-            parts["  of it: lookup-and-draw kernel"] = lambda: kernel(*args)
+            node = np.empty(nom.shape, dtype=np.int64)
+            wr, wa, rq, v0, v1, v2, v3 = (np.empty(nom.shape) for _ in range(7))
+            flags = (1.0 - shrink if idx[0] >= 0 else 0.0, bool(idx[2] >= 0), bool(ext and idx[2] >= 0))
+            parts["  of it: pass 1, nodes and weights (compiled)"] = lambda: nodes(
+                nr, na, *grid, nom, inc, node, wr, wa, rq
+            )
+            parts["  of it: pass 2, table reads (compiled)"] = lambda: gather(
+                cells.ravel(), 4 * na, node, wr, wa, v0, v1, v2, v3
+            )
+            parts["  of it: exp of the log-scales (numpy)"] = lambda: np.exp(v2)
+            parts["  of it: pass 3, the draw (compiled)"] = lambda: readings(
+                v0, v1, v2, v3, rq, grid[2], uu, zz, *flags, *spur, np.nan, np.empty_like(rq)
+            )
     out = {}
     for name, f in parts.items():
         f()

@@ -101,7 +101,7 @@ def test_samples_match_params(rig_fit):
 
 @pytest.mark.parametrize("which", [2, 3])
 def test_compiled_scan_gives_the_numpy_numbers(rig_fit, which, compiled_kernels):
-    """The simulator's fused lookup-and-draw (numba) and the two numpy methods: same readings, bit for bit.
+    """The simulator's compiled lookup-and-draw passes (numba) and the two numpy methods: same readings, bit for bit.
 
     Both variants, shrunk bias, hits and misses (``inf`` range, NaN incidence), ranges and incidences beyond
     the grids, one and several leading axes; the draws come from the same generator states.
@@ -110,7 +110,8 @@ def test_compiled_scan_gives_the_numpy_numbers(rig_fit, which, compiled_kernels)
     from sensor_envs.lidar import kernel, lwlr
     from sensor_envs.rng import RowGenerators
 
-    assert compiled(lwlr._scan_loops) is not None and compiled(kernel._bilinear_loops) is not None
+    passes = (lwlr._scan_nodes, lwlr._scan_gather, lwlr._scan_readings, kernel._bilinear_loops)
+    assert all(compiled(f) is not None for f in passes)
     model = rig_fit[which]
     k = model.tables_.shape[1]
     rng = np.random.default_rng(7)

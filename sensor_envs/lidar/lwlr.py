@@ -705,9 +705,12 @@ class LidarLWLR(BaseEstimator):
     ) -> NDArray[np.float64]:
         """Readings [m] (``0`` = null), one per cell: ``sample_from_params(params_from_features(r, alpha), rng)``.
 
-        The simulator's hot path (no extra state, no pose uncertainty): with numba (the ``fast`` extra) one
-        compiled loop does the lookup and the draw per cell, with the same float64 operations in the same
-        order as the two numpy methods and the same draws of ``rng``, so it returns the same bits.
+        The simulator's hot path (no extra state, no pose uncertainty): with numba (the ``fast`` extra) three
+        compiled passes over the cells, split where vectorisation stops: :func:`_scan_nodes` (where each cell
+        reads; vectorised), :func:`_scan_gather` (the table reads), numpy's ``exp`` of the log-scales (an
+        exponential per cell inside a loop cost ~6 ns a value), then :func:`_scan_readings` (the draw;
+        vectorised). The same float64 operations in the same order as the two numpy methods and the same draws
+        of ``rng``, so it returns the same bits.
 
         Args:
             r: ``(..., K)`` nominal ranges [m] (``inf``/NaN = no hit).
@@ -715,8 +718,8 @@ class LidarLWLR(BaseEstimator):
             rng: a ``Generator`` (or :class:`~sensor_envs.rng.RowGenerators`) for the uniform and normal draws.
             null: the value of a null reading (``0``, the model's convention; the sensor interface's NaN).
         """
-        kernel = compiled(_scan_loops)
-        if kernel is None or len(getattr(self, "extra_state_", ())) > 0:
+        nodes, gather, readings = compiled(_scan_nodes), compiled(_scan_gather), compiled(_scan_readings)
+        if nodes is None or gather is None or readings is None or len(getattr(self, "extra_state_", ())) > 0:
             x = self.sample_from_params(self.params_from_features(r, alpha), rng)
             return x if null == 0 else np.where(x == 0, null, x)
         r = self._nominal_ranges(r)
@@ -726,25 +729,37 @@ class LidarLWLR(BaseEstimator):
         shrink = float(getattr(self, "bias_shrinkage_", 0.0))
         cells, idx = self._scan_tables(with_bias=shrink != 1.0)
         rg, ag = self.range_grid_, self.alpha_grid_
-        out = kernel(
-            cells,
-            float(rg[0]),
-            float(rg[1]),
-            float(rg[-1]),
-            float(ag[0]),
-            float(ag[1]),
-            np.ascontiguousarray(r.reshape(-1, k)),
-            np.ascontiguousarray(np.asarray(alpha, dtype=np.float64).reshape(-1, k)),
+        rows = np.ascontiguousarray(r.reshape(-1, k))
+        node = np.empty(rows.shape, dtype=np.int64)
+        wr, wa, rq = np.empty(rows.shape), np.empty(rows.shape), np.empty(rows.shape)
+        nr, na = cells.shape[1], cells.shape[2]
+        r_last = float(rg[-1])
+        alpha_rows = np.ascontiguousarray(np.asarray(alpha, dtype=np.float64).reshape(-1, k))
+        nodes(
+            nr, na, float(rg[0]), float(rg[1]), r_last, float(ag[0]), float(ag[1]), rows, alpha_rows, node, wr, wa, rq
+        )
+        p_null, bias, scale, p_spur = (np.empty(rows.shape) for _ in range(4))
+        gather(cells.ravel(), 4 * na, node, wr, wa, p_null, bias, scale, p_spur)
+        sigma = np.exp(scale, out=scale) if idx[3] == 1 else scale  # numpy's exp, as params_from_features'
+        extended = self.variant == "extended"
+        readings(
+            p_null,
+            bias,
+            sigma,
+            p_spur,
+            rq,
+            r_last,
             np.ascontiguousarray(u.reshape(-1, k)),
             np.ascontiguousarray(z.reshape(-1, k)),
-            idx,
-            shrink,
-            float(self.spur_mu_) if self.variant == "extended" else 0.0,
-            float(self.spur_sigma_) if self.variant == "extended" else 0.0,
-            self.variant == "extended",
+            1.0 - shrink if idx[0] >= 0 else 0.0,
+            bool(idx[2] >= 0),
+            bool(extended and idx[2] >= 0),
+            float(self.spur_mu_) if extended else 0.0,
+            float(self.spur_sigma_) if extended else 0.0,
             float(null),
+            rq,
         )
-        return np.asarray(out).reshape(shape)
+        return rq.reshape(shape)
 
     def _nominal_ranges(self, r: ArrayLike) -> NDArray[np.float64]:
         """``r`` [m] as float64 ``(..., K)``, checked against the fitted model's ``K`` bearings."""
@@ -756,7 +771,7 @@ class LidarLWLR(BaseEstimator):
         return r
 
     def _scan_tables(self, with_bias: bool = True) -> tuple[NDArray[np.floating[Any]], NDArray[np.int64]]:
-        """What :func:`_scan_loops` reads: the looked-up tables laid out ``(K, n_r, n_alpha, 4)``, and their slots.
+        """What :func:`_scan_gather` reads: the looked-up tables laid out ``(K, n_r, n_alpha, 4)``, and their slots.
 
         The 4 slots of a cell are ``p_null``, the bias, the scale (``log_sigma`` of the extended variant, ``sigma``
         of the seed's) and ``p_spur``; a parameter the model lacks (or the bias when ``with_bias`` is False: a
@@ -1067,8 +1082,9 @@ def mixture_log_prob(
     return np.where(np.isnan(x), np.nan, out)
 
 
-def _scan_loops(
-    cells: NDArray[np.floating[Any]],
+def _scan_nodes(
+    nr: int,
+    na: int,
     r0: float,
     r1: float,
     r_last: float,
@@ -1076,72 +1092,123 @@ def _scan_loops(
     a1: float,
     r: NDArray[np.float64],
     alpha: NDArray[np.float64],
-    u: NDArray[np.float64],
-    z: NDArray[np.float64],
-    idx: NDArray[np.int64],
-    shrink: float,
-    spur_mu: float,
-    spur_sigma: float,
-    extended: bool,
-    null: float,
-) -> NDArray[np.float64]:
-    """:meth:`LidarLWLR.sample_scan` in loops over cells ``(P, K)``: lookup, then the draw, in the numpy order.
+    node: NDArray[np.int64],
+    wr: NDArray[np.float64],
+    wa: NDArray[np.float64],
+    rq: NDArray[np.float64],
+) -> None:
+    """Pass 1 of :meth:`LidarLWLR.sample_scan` over cells ``(P, K)``: where each cell's bilinear lookup reads.
 
-    ``cells`` are :meth:`LidarLWLR._scan_tables` ``(K, n_r, n_alpha, 4)`` (float32 or float64, read as float64):
-    ``p_null``, bias, scale, ``p_spur`` in slots 0-3; ``idx`` marks an absent bias or ``p_spur`` by -1 (no bias
-    adds 0; no ``p_spur``, no spurious returns) and says whether the scale is ``log_sigma``; ``r0, r1, r_last``
-    and ``a0, a1`` are grid nodes; ``u, z`` the uniform and normal draws. Returns readings [m], ``null`` where
-    null. The loop is bearing-major (one bearing's tables stay in cache for all poses) over a flat view of the
-    tables; each parameter is :func:`~sensor_envs.lidar.kernel._bilinear`'s expression.
+    ``nr, na`` are the sizes of the range and incidence grids, ``r0, r1, r_last`` and ``a0, a1`` grid nodes
+    [m, rad]; ``r, alpha`` the nominal ranges [m] (``inf``/NaN = no hit) and incidences [rad] (NaN = 0).
+    Writes per cell the flat offset ``node`` of its lower node in :meth:`LidarLWLR._scan_tables`' layout
+    ``(K, nr, na, 4)``, the weights ``wr, wa`` of the upper range and incidence nodes, and the queried range
+    ``rq`` [m] (NaN for no hit, which is looked up at ``r_last``), in :func:`_bilinear_numpy`'s operations.
+    Arithmetic only, no table read: the loop vectorises.
     """
-    n_k, nr, na, _ = cells.shape  # 4 slots: p_null, bias, scale, p_spur
-    flat = cells.ravel()
-    n_p = r.shape[0]
-    out = np.empty((n_p, n_k))
+    n_p, n_k = r.shape
     hi_r, hi_a = nr - 1 - 1e-9, na - 1 - 1e-9
     inv_dr, inv_da = 1.0 / (r1 - r0), 1.0 / (a1 - a0)
-    has_bias, has_spur, log_scale = idx[0] >= 0, idx[2] >= 0, idx[3] == 1
-    row = na * 4  # offset of the next range node
-    for k in range(n_k):
-        for p in range(n_p):
+    for p in range(n_p):
+        for k in range(n_k):
             rk = r[p, k]
             hit = math.isfinite(rk)
-            rq = rk if hit else r_last
+            rk = rk if hit else r_last
             ak = alpha[p, k]
-            aq = 0.0 if math.isnan(ak) else ak
-            fr = min(max((rq - r0) * inv_dr, 0.0), hi_r)
-            fa = min(max((aq - a0) * inv_da, 0.0), hi_a)
+            ak = 0.0 if math.isnan(ak) else ak
+            fr = min(max((rk - r0) * inv_dr, 0.0), hi_r)
+            fa = min(max((ak - a0) * inv_da, 0.0), hi_a)
             i, j = int(fr), int(fa)
-            wr, wa = fr - i, fa - j
-            ur, ua = 1 - wr, 1 - wa
-            c = ((k * nr + i) * na + j) * 4
-            d = c + row
-            # the four parameters' bilinear values, written out: straight-line code that reads each node's 4
-            # slots together (~8 % faster than a lookup per parameter where needed)
-            v0 = (np.float64(flat[c]) * ua + np.float64(flat[c + 4]) * wa) * ur
-            v0 += (np.float64(flat[d]) * ua + np.float64(flat[d + 4]) * wa) * wr
-            v1 = (np.float64(flat[c + 1]) * ua + np.float64(flat[c + 5]) * wa) * ur
-            v1 += (np.float64(flat[d + 1]) * ua + np.float64(flat[d + 5]) * wa) * wr
-            v2 = (np.float64(flat[c + 2]) * ua + np.float64(flat[c + 6]) * wa) * ur
-            v2 += (np.float64(flat[d + 2]) * ua + np.float64(flat[d + 6]) * wa) * wr
-            v3 = (np.float64(flat[c + 3]) * ua + np.float64(flat[c + 7]) * wa) * ur
-            v3 += (np.float64(flat[d + 3]) * ua + np.float64(flat[d + 7]) * wa) * wr
-            p_null = v0 if hit else 1 - P_EPS
-            if has_spur:
-                p_null = min(p_null, 1 - P_EPS - P_SPUR_EPS)
-            uk = u[p, k]
-            if uk < p_null:  # a null whatever the other parameters
-                out[p, k] = null
-                continue
-            if extended and has_spur:
-                p_spur = min(max(v3, P_SPUR_EPS), 1 - P_EPS - p_null)
-                if uk < p_null + p_spur:  # a spurious return
-                    out[p, k] = spur_mu + spur_sigma * z[p, k]
-                    continue
-            mu = rq + (1.0 - shrink) * v1 if has_bias else rq
-            sigma = math.exp(v2) if log_scale else v2
-            out[p, k] = max(mu + sigma * z[p, k], 1e-4)
-    return out
+            wr[p, k] = fr - i
+            wa[p, k] = fa - j
+            rq[p, k] = rk if hit else math.nan
+            node[p, k] = ((k * nr + i) * na + j) * 4
+
+
+def _scan_gather(
+    flat: NDArray[np.floating[Any]],
+    row: int,
+    node: NDArray[np.int64],
+    wr: NDArray[np.float64],
+    wa: NDArray[np.float64],
+    v0: NDArray[np.float64],
+    v1: NDArray[np.float64],
+    v2: NDArray[np.float64],
+    v3: NDArray[np.float64],
+) -> None:
+    """Pass 2 of :meth:`LidarLWLR.sample_scan`: the bilinear values of the 4 table slots of every cell.
+
+    ``flat`` is :meth:`LidarLWLR._scan_tables`' array raveled (float32 or float64, read as float64), ``row``
+    the offset of the next range node (``4 na``), ``node, wr, wa`` :func:`_scan_nodes`' output. Writes slots
+    0-3 (``p_null``, bias, scale, ``p_spur``) into ``v0..v3``, each :func:`~sensor_envs.lidar.kernel._bilinear`'s
+    expression. The loop does only the table reads and their weighting (two runs of 8 adjacent values per
+    cell); a per-cell gather does not vectorise, so everything that can is left to the passes around it.
+    """
+    nd, wrf, waf = node.ravel(), wr.ravel(), wa.ravel()
+    o0, o1, o2, o3 = v0.ravel(), v1.ravel(), v2.ravel(), v3.ravel()
+    for q in range(nd.size):
+        c = nd[q]
+        d = c + row
+        w_r, w_a = wrf[q], waf[q]
+        u_r, u_a = 1 - w_r, 1 - w_a
+        x = (np.float64(flat[c]) * u_a + np.float64(flat[c + 4]) * w_a) * u_r
+        o0[q] = x + (np.float64(flat[d]) * u_a + np.float64(flat[d + 4]) * w_a) * w_r
+        x = (np.float64(flat[c + 1]) * u_a + np.float64(flat[c + 5]) * w_a) * u_r
+        o1[q] = x + (np.float64(flat[d + 1]) * u_a + np.float64(flat[d + 5]) * w_a) * w_r
+        x = (np.float64(flat[c + 2]) * u_a + np.float64(flat[c + 6]) * w_a) * u_r
+        o2[q] = x + (np.float64(flat[d + 2]) * u_a + np.float64(flat[d + 6]) * w_a) * w_r
+        x = (np.float64(flat[c + 3]) * u_a + np.float64(flat[c + 7]) * w_a) * u_r
+        o3[q] = x + (np.float64(flat[d + 3]) * u_a + np.float64(flat[d + 7]) * w_a) * w_r
+
+
+def _scan_readings(
+    p_null: NDArray[np.float64],
+    bias: NDArray[np.float64],
+    sigma: NDArray[np.float64],
+    p_spur: NDArray[np.float64],
+    rq: NDArray[np.float64],
+    r_last: float,
+    u: NDArray[np.float64],
+    z: NDArray[np.float64],
+    bias_weight: float,
+    has_spur: bool,
+    spurious: bool,
+    spur_mu: float,
+    spur_sigma: float,
+    null: float,
+    out: NDArray[np.float64],
+) -> None:
+    """Pass 3 of :meth:`LidarLWLR.sample_scan`: readings [m] from the looked-up parameters and the draws ``u, z``.
+
+    :meth:`LidarLWLR.params_from_features`' clipping and :meth:`LidarLWLR.sample_from_params`' selection,
+    elementwise and branch-free (it vectorises; a branch on the null decision, which no predictor can guess,
+    cost more than the work it skipped): a no-hit cell (``rq`` NaN) has ``p_null = 1 - P_EPS``; ``mu = r +
+    bias_weight bias`` (``bias_weight`` 0 without a bias); ``null`` where ``u < p_null``, else
+    ``spur_mu + spur_sigma z`` where ``u < p_null + p_spur`` (``spurious`` only), else ``max(mu + sigma z,
+    1e-4)``. ``out`` may be ``rq``.
+    """
+    n0, b, s, n3, rr, uf, zf, o = (
+        p_null.ravel(),
+        bias.ravel(),
+        sigma.ravel(),
+        p_spur.ravel(),
+        rq.ravel(),
+        u.ravel(),
+        z.ravel(),
+        out.ravel(),
+    )
+    for q in range(o.size):
+        r = rr[q]
+        hit = r == r  # not NaN
+        r = r if hit else r_last
+        pn = n0[q] if hit else 1 - P_EPS
+        if has_spur:
+            pn = min(pn, 1 - P_EPS - P_SPUR_EPS)
+        ps = min(max(n3[q], P_SPUR_EPS), 1 - P_EPS - pn) if spurious else 0.0
+        x = max(r + bias_weight * b[q] + s[q] * zf[q], 1e-4)
+        uq = uf[q]
+        x = spur_mu + spur_sigma * zf[q] if uq < pn + ps else x
+        o[q] = null if uq < pn else x
 
 
 # ---------------------------------------------------------------------------------------- the adapter
