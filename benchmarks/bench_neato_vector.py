@@ -91,30 +91,21 @@ def step_breakdown(lidar: str, n: int = 64, calls: int = 1000) -> dict[str, floa
         from sensor_envs.lidar import lwlr
 
         passes = compiled(lwlr._scan_nodes), compiled(lwlr._scan_gather), compiled(lwlr._scan_readings)
-        shrink = float(getattr(model, "bias_shrinkage_", 0.0))
-        cells, idx = model._scan_tables(with_bias=shrink != 1.0)
-        rg, ag = model.range_grid_, model.alpha_grid_
         uu, zz = rngs.random(nom.shape), rngs.standard_normal(nom.shape)
-        ext = model.variant == "extended"
-        spur = (float(model.spur_mu_), float(model.spur_sigma_)) if ext else (0.0, 0.0)
         parts["  of it: uniform draws"] = lambda: rngs.random(nom.shape)
         parts["  of it: normal draws"] = lambda: rngs.standard_normal(nom.shape)
         if None not in passes:
             nodes, gather, readings = passes
-            nr, na = cells.shape[1], cells.shape[2]
-            grid = (float(rg[0]), float(rg[1]), float(rg[-1]), float(ag[0]), float(ag[1]))
+            cells, grid, draw, _ = model._scan_constants()
             node = np.empty(nom.shape, dtype=np.int64)
             wr, wa, rq, v0, v1, v2, v3 = (np.empty(nom.shape) for _ in range(7))
-            flags = (1.0 - shrink if idx[0] >= 0 else 0.0, bool(idx[2] >= 0), bool(ext and idx[2] >= 0))
-            parts["  of it: pass 1, nodes and weights (compiled)"] = lambda: nodes(
-                nr, na, *grid, nom, inc, node, wr, wa, rq
-            )
+            parts["  of it: pass 1, nodes and weights (compiled)"] = lambda: nodes(*grid, nom, inc, node, wr, wa, rq)
             parts["  of it: pass 2, table reads (compiled)"] = lambda: gather(
-                cells.ravel(), 4 * na, node, wr, wa, v0, v1, v2, v3
+                cells.ravel(), 4 * grid[1], node, wr, wa, v0, v1, v2, v3
             )
             parts["  of it: exp of the log-scales (numpy)"] = lambda: np.exp(v2)
             parts["  of it: pass 3, the draw (compiled)"] = lambda: readings(
-                v0, v1, v2, v3, rq, grid[2], uu, zz, *flags, *spur, np.nan, np.empty_like(rq)
+                v0, v1, v2, v3, rq, grid[4], uu, zz, *draw, np.nan, np.empty_like(rq)
             )
     out = {}
     for name, f in parts.items():

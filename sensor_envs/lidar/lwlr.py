@@ -726,40 +726,48 @@ class LidarLWLR(BaseEstimator):
         shape, k = r.shape, r.shape[-1]
         u = rng.random(shape)
         z = rng.standard_normal(shape)
-        shrink = float(getattr(self, "bias_shrinkage_", 0.0))
-        cells, idx = self._scan_tables(with_bias=shrink != 1.0)
-        rg, ag = self.range_grid_, self.alpha_grid_
+        cells, grid, draw, log_scale = self._scan_constants()
         rows = np.ascontiguousarray(r.reshape(-1, k))
         node = np.empty(rows.shape, dtype=np.int64)
         wr, wa, rq = np.empty(rows.shape), np.empty(rows.shape), np.empty(rows.shape)
-        nr, na = cells.shape[1], cells.shape[2]
-        r_last = float(rg[-1])
         alpha_rows = np.ascontiguousarray(np.asarray(alpha, dtype=np.float64).reshape(-1, k))
-        nodes(
-            nr, na, float(rg[0]), float(rg[1]), r_last, float(ag[0]), float(ag[1]), rows, alpha_rows, node, wr, wa, rq
-        )
+        nodes(*grid, rows, alpha_rows, node, wr, wa, rq)
         p_null, bias, scale, p_spur = (np.empty(rows.shape) for _ in range(4))
-        gather(cells.ravel(), 4 * na, node, wr, wa, p_null, bias, scale, p_spur)
-        sigma = np.exp(scale, out=scale) if idx[3] == 1 else scale  # numpy's exp, as params_from_features'
-        extended = self.variant == "extended"
-        readings(
-            p_null,
-            bias,
-            sigma,
-            p_spur,
-            rq,
-            r_last,
-            np.ascontiguousarray(u.reshape(-1, k)),
-            np.ascontiguousarray(z.reshape(-1, k)),
+        gather(cells.ravel(), 4 * grid[1], node, wr, wa, p_null, bias, scale, p_spur)
+        sigma = np.exp(scale, out=scale) if log_scale else scale  # numpy's exp, as params_from_features'
+        u_rows, z_rows = np.ascontiguousarray(u.reshape(-1, k)), np.ascontiguousarray(z.reshape(-1, k))
+        readings(p_null, bias, sigma, p_spur, rq, grid[4], u_rows, z_rows, *draw, float(null), rq)
+        return rq.reshape(shape)
+
+    def _scan_constants(
+        self,
+    ) -> tuple[
+        NDArray[np.floating[Any]],
+        tuple[int, int, float, float, float, float, float],
+        tuple[float, bool, bool, float, float],
+        bool,
+    ]:
+        """What :meth:`sample_scan`'s passes take besides the cells: ``(cells, grid, draw, log_scale)``.
+
+        ``cells``: :meth:`_scan_tables` (the bias left out when shrunk fully to zero); ``grid``: :func:`_scan_nodes`'
+        leading arguments ``(nr, na, r0, r1, r_last, a0, a1)`` (grid sizes, then nodes [m, rad]); ``draw``:
+        :func:`_scan_readings`' ``(bias_weight, has_spur, spurious, spur_mu, spur_sigma)`` (``bias_weight = 1 -
+        shrinkage``, 0 without a bias; spurious returns only in the extended variant); ``log_scale``: whether the
+        scale slot holds ``log_sigma`` (then ``sigma = exp``).
+        """
+        shrink = float(getattr(self, "bias_shrinkage_", 0.0))
+        cells, idx = self._scan_tables(with_bias=shrink != 1.0)
+        rg, ag = self.range_grid_, self.alpha_grid_
+        grid = (cells.shape[1], cells.shape[2], float(rg[0]), float(rg[1]), float(rg[-1]), float(ag[0]), float(ag[1]))
+        extended, has_spur = self.variant == "extended", bool(idx[2] >= 0)
+        draw = (
             1.0 - shrink if idx[0] >= 0 else 0.0,
-            bool(idx[2] >= 0),
-            bool(extended and idx[2] >= 0),
+            has_spur,
+            extended and has_spur,
             float(self.spur_mu_) if extended else 0.0,
             float(self.spur_sigma_) if extended else 0.0,
-            float(null),
-            rq,
         )
-        return rq.reshape(shape)
+        return cells, grid, draw, bool(idx[3] == 1)
 
     def _nominal_ranges(self, r: ArrayLike) -> NDArray[np.float64]:
         """``r`` [m] as float64 ``(..., K)``, checked against the fitted model's ``K`` bearings."""
