@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from sensor_envs.cli.main import main
+from sensor_envs.geometry import closest_corner, rectangle_corners
 from sensor_envs.modelio import ModelFileError
 from sensor_envs.radar.calibrate import (
     DET_RANGE_EDGES,
@@ -24,6 +25,7 @@ from sensor_envs.radar.log import REF_COLUMNS, RadarLog, clutter_counts, read_lo
 from sensor_envs.radar.rig import (
     RadarRig,
     RigConfig,
+    SnapshotDraws,
     _reflection_geometry,
     _reflection_point,
     generate_scenario,
@@ -351,3 +353,184 @@ def test_shipped_rig_matches_real_astyx_detection_rates(real_data):
         gaps[name] = np.abs(sim["det_range"][ok] - real["det_range"][ok])
     assert np.all(gaps["shipped"] < 0.08), gaps
     assert np.max(gaps["generic"]) > 0.15, gaps
+
+
+# ------------------------------------------------------------------------------ offset mixture law
+
+MIXTURE = replace(
+    TRUE,
+    offset_mixture_edges=(0.0, 40.0, 120.0),
+    # near bin: a tight core on the corner plus a wide component 0.6 m outward; far bin: one component
+    offset_mixture_weights=(0.7, 0.3, 1.0, 0.0),
+    offset_mixture_means=(0.0, 0.0, -0.2, 0.6, -0.5, 0.3, 0.0, 0.0),
+    offset_mixture_scales=(0.1, 0.0, 0.1, 0.4, 0.1, 0.3, 0.5, -0.2, 0.2, 0.1, 0.0, 0.1),
+)
+"""A rig with the offset mixture law (two range bins of two components; the far bin's second is padding)."""
+
+
+def _polar_offsets(corner: np.ndarray, meas: np.ndarray) -> np.ndarray:
+    from sensor_envs.radar.rig import polar_frame
+
+    u, v = polar_frame(corner)
+    z = meas - corner
+    return np.stack([(z * u).sum(axis=1), (z * v).sum(axis=1)], axis=1)
+
+
+@pytest.mark.parametrize("mode", ["snapshot", "record"])
+def test_mixture_law_draws_the_mixture_around_the_closest_corner(mode):
+    """Snapshot and the running rig's stationary law are the bin's mixture in the corner's polar frame."""
+    from sensor_envs.radar.rig import OffsetMixture
+
+    mix = OffsetMixture.from_config(MIXTURE)
+    assert mix is not None
+    rng = np.random.default_rng(4)
+    if mode == "snapshot":
+        boxes = generate_scenario(20000, 1, 1.0, rng).boxes[0]
+        meas, _ = RadarRig(MIXTURE).snapshot(boxes, np.zeros(boxes.shape[0]), SnapshotDraws.draw(boxes.shape[0], rng))
+    else:  # static boxes, so every cycle's corner is the same; latency 0: the corner is the box's own
+        cfg = replace(MIXTURE, latency=0.0, tracker_tau=1.0, reflection_tau=1.0)
+        sc = generate_scenario(250, 40, 1.0, rng)
+        sc = replace(sc, boxes=np.broadcast_to(sc.boxes[:1], sc.boxes.shape).copy(), velocity=0 * sc.velocity)
+        log = RadarRig(cfg).record(sc, rng)
+        tgt = ~log.is_clutter
+        boxes = np.stack([log[c] for c in REF_COLUMNS], axis=1)[tgt]
+        meas = np.stack([log["meas_x"], log["meas_y"]], axis=1)[tgt]
+    corner, _, _ = _reflection_geometry(boxes)
+    det = np.isfinite(meas[:, 0])
+    z = _polar_offsets(corner[det], meas[det])
+    b = mix.range_bin(corner[det])
+    for k in range(2):  # one iteration per range bin: the mixture's mean and covariance
+        mean, cov = _moments(mix, k)
+        zk = z[b == k]
+        assert zk.shape[0] > 1000
+        np.testing.assert_allclose(zk.mean(axis=0), mean, atol=0.03)
+        np.testing.assert_allclose(np.cov(zk.T), cov, atol=0.03)
+    core = np.hypot(*(z[b == 0] - MIXTURE.offset_mixture_means[:2]).T) < 0.15  # the near bin's tight core
+    assert abs(core.mean() - 0.7 * (1 - np.exp(-0.5 * 1.5**2))) < 0.05
+
+
+def test_mixture_law_is_correlated_from_cycle_to_cycle():
+    """Components persist (reflection time constant) and the normal draw is the tracker's AR(1)."""
+    rng = np.random.default_rng(5)
+    sc = generate_scenario(150, 20, 1.0, rng)
+    fast = RadarRig(replace(MIXTURE, tracker_tau=20.0, reflection_tau=20.0)).record(sc, np.random.default_rng(1))
+    slow = RadarRig(replace(MIXTURE, tracker_tau=0.05, reflection_tau=0.05)).record(sc, np.random.default_rng(1))
+
+    def lag1(log: RadarLog) -> float:
+        tgt = ~log.is_clutter
+        boxes = np.stack([log[c] for c in REF_COLUMNS], axis=1)[tgt]
+        meas = np.stack([log["meas_x"], log["meas_y"]], axis=1)[tgt]
+        corner, _ = closest_corner(rectangle_corners(*boxes.T))
+        z = _polar_offsets(corner, meas)[:, 1]
+        tid, cyc = log["target"][tgt], log["frame"][tgt]
+        order = np.lexsort((cyc, tid))
+        z, tid, cyc = z[order], tid[order], cyc[order]
+        nxt = (tid[1:] == tid[:-1]) & (cyc[1:] == cyc[:-1] + 1) & np.isfinite(z[1:]) & np.isfinite(z[:-1])
+        return float(np.corrcoef(z[:-1][nxt], z[1:][nxt])[0, 1])
+
+    assert lag1(fast) > 0.8 and abs(lag1(slow)) < 0.15, (lag1(fast), lag1(slow))
+
+
+def test_rig_without_the_mixture_records_as_before():
+    """Rig files without ``offset_mixture_*`` keep the reflection-point law, draw for draw: the numbers
+    below were printed by the code before the mixture law existed (commit c6099aa)."""
+    sc = generate_scenario(8, 10, 1.0, np.random.default_rng(2))
+    log = RadarRig(TRUE).record(sc, np.random.default_rng(3))
+    meas = np.stack([log["meas_x"], log["meas_y"]], axis=1)[~log.is_clutter]
+    assert meas.shape == (80, 2) and int(np.isnan(meas[:, 0]).sum()) == 24
+    last = [[79.52516288, 7.13932957], [94.83064211, 2.41560932], [7.69498214, -2.76553736],
+            [np.nan, np.nan], [61.2092296, -3.49102347], [48.62778417, -6.27557335]]  # fmt: skip
+    np.testing.assert_allclose(meas[-6:], last, atol=1e-8)
+    rng = np.random.default_rng(4)
+    boxes = generate_scenario(50, 1, 1.0, rng).boxes[0]
+    snap, _ = RadarRig(TRUE).snapshot(boxes, np.zeros(50), SnapshotDraws.draw(50, rng))
+    first = [[61.48558344, -1.11307323], [53.15142756, 2.71336078], [63.92467662, 11.06092181],
+             [48.29677568, -6.25441322]]  # fmt: skip
+    np.testing.assert_allclose(snap[:4], first, atol=1e-8)
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        ({"offset_mixture_weights": [0.7, 0.2, 1.0, 0.0]}, "params.offset_mixture_weights"),  # sums to 0.9
+        ({"offset_mixture_weights": [0.7, 0.3, 1.2, -0.2]}, "params.offset_mixture_weights"),  # not in [0, 1]
+        ({"offset_mixture_weights": [0.7, 0.3, 1.0]}, "params.offset_mixture_weights"),  # not bins x components
+        ({"offset_mixture_means": [0.0] * 6}, "params.offset_mixture_means"),  # wrong length
+        ({"offset_mixture_means": [float("nan")] * 8}, "params.offset_mixture_means"),
+        ({"offset_mixture_scales": [0.0, 0.0, 0.1] + [0.1, 0.0, 0.1] * 3}, "params.offset_mixture_scales"),
+        ({"offset_mixture_scales": [0.1, 0.0, -0.1] + [0.1, 0.0, 0.1] * 3}, "params.offset_mixture_scales"),
+        ({"offset_mixture_edges": None}, "params.offset_mixture_weights"),  # tables without edges
+        ({"offset_mixture_scales": None}, "params.offset_mixture_scales"),  # edges without every table
+    ],
+)
+def test_bad_mixture_values_fail_at_load_naming_file_and_field(tmp_path, change, field):
+    params = {k: v for k, v in MIXTURE.to_params().items() if v is not None}
+    params.update(change)
+    params = {k: v for k, v in params.items() if v is not None}
+    path = tmp_path / "bad_rig.json"
+    path.write_text(json.dumps({"kind": "radar_rig", "format_version": 1, "params": params}))
+    with pytest.raises(ModelFileError, match=f"bad_rig.json: field '{field}'"):
+        load_rig(path)
+
+
+def test_fit_offset_mixture_recovers_a_known_offset_law():
+    """EM per range bin recovers the rig's mixture; the CV keeps one component where one suffices."""
+    from sensor_envs.radar.calibrate import fit_offset_mixture
+    from sensor_envs.radar.rig import OffsetMixture
+
+    frames = synthetic_frames(MIXTURE, n_frames=200, seed=6)
+    cfg, report = fit_offset_mixture(frames, RigConfig(), seed=0, components=(1, 2, 3))
+    assert cfg.offset_mixture_edges == DET_RANGE_EDGES
+    comps = [b["components"] for b in report["bins"]]
+    assert comps[3] == 1 and comps[0] >= 2, comps  # 50-75 m: the true far law is one Gaussian
+    true, fit = OffsetMixture.from_config(MIXTURE), OffsetMixture.from_config(cfg)
+    assert true is not None and fit is not None
+    r = np.hypot(frames.corner[:, 0], frames.corner[:, 1])
+    for k, t in ((0, 0), (1, 0), (3, 1)):  # calibration bins 0-15, 15-30 and 50-75 m lie in true bins 0, 0, 1
+        (m_fit, c_fit), (m_true, c_true) = _moments(fit, k), _moments(true, t)
+        s = (r >= DET_RANGE_EDGES[k]) & (r < DET_RANGE_EDGES[k + 1]) & np.isfinite(frames.meas[:, 0])
+        z = _polar_offsets(frames.corner[s], frames.meas[s])
+        # maximum likelihood keeps the sample's mean and covariance (EM's fixed point), up to the 1e-4 m^2 floor
+        np.testing.assert_allclose(m_fit, z.mean(axis=0), atol=0.01)
+        np.testing.assert_allclose(c_fit, np.cov(z.T, bias=True), atol=0.01)
+        # and the sample comes from the true law (sampling noise of a few hundred heavy-tailed rows)
+        np.testing.assert_allclose(m_fit, m_true, atol=0.08)
+        np.testing.assert_allclose(np.sqrt(np.diag(c_fit)), np.sqrt(np.diag(c_true)), rtol=0.3)
+
+
+def test_calibrate_cli_offset_law_mixture(tmp_path):
+    real = _synthetic_csv_of(tmp_path, MIXTURE, synthetic_frames(MIXTURE, n_frames=40, seed=2))
+    rig = tmp_path / "rig.json"
+    argv = [
+        "calibrate",
+        "radar",
+        str(real),
+        "--out",
+        str(rig),
+        "--offset-law",
+        "mixture",
+        "--mixture-max-components",
+        "2",
+    ]
+    assert main(argv) == 0
+    cfg, card = load_rig(rig)
+    assert card["offset_law"] == "mixture" and cfg.offset_mixture_edges == DET_RANGE_EDGES
+    assert all(b["components"] <= 2 and len(b["cv_loglik"]) == 2 for b in card["offset_mixture"]["bins"])
+    assert card["discrepancy_after"]["offset"] < 0.1 * card["discrepancy_before"]["offset"]
+    out = tmp_path / "log.csv"
+    assert main(["record", "radar", "--rig", str(rig), "--out", str(out), "--sequences", "2", "--cycles", "5"]) == 0
+
+
+def _moments(mix, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean (2,) and covariance (2, 2) of bin ``k`` of an offset mixture [m, m^2]."""
+    w, mu, L = mix.weights[k], mix.means[k], mix.chol[k]
+    mean = (w[:, None] * mu).sum(axis=0)
+    cov = sum(w[j] * (L[j] @ L[j].T + np.outer(mu[j] - mean, mu[j] - mean)) for j in range(w.size))
+    return mean, cov
+
+
+def _synthetic_csv_of(tmp_path: Path, config: RigConfig, frames) -> Path:
+    log = snapshot_log(config, frames, np.random.default_rng(0))
+    path = tmp_path / "real.csv"
+    write_log(log, path)
+    return path

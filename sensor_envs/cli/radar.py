@@ -93,6 +93,19 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         "(generalises worse across Astyx frames held out: benchmarks/real_radar_calibration_cv.py)",
     )
     cal.add_argument(
+        "--offset-law",
+        choices=["reflection", "mixture"],
+        default="reflection",
+        help="offset law: the reflection-point law's parameters by Powell on the energy distance (default), or "
+        "a Gaussian mixture per range bin in the closest corner's polar frame (EM, component count by CV)",
+    )
+    cal.add_argument(
+        "--mixture-max-components",
+        type=positive_int,
+        default=6,
+        help="--offset-law mixture: the CV tries 1..N components per range bin (default 6)",
+    )
+    cal.add_argument(
         "--base",
         metavar="RIG.json",
         help="rig file to start from (its parameters are the starting point, and the source of those single "
@@ -177,6 +190,8 @@ def _calibrate(args: argparse.Namespace) -> int:
             seed=args.seed,
             max_evals=args.max_evals,
             signed_azimuth=args.signed_azimuth,
+            offset_law=args.offset_law,
+            mixture_components=tuple(range(1, args.mixture_max_components + 1)),
             progress=sys.stderr.isatty(),
         )
     card["seconds"] = round(time.perf_counter() - t0, 1)

@@ -54,6 +54,16 @@ the discrepancy is a deterministic function of the parameters):
    data's (each is the exact minimiser of its term: the rig's expected statistic equals the parameter),
    then checked by simulation.
 
+With ``offset_law="mixture"`` (``calibrate radar --offset-law mixture``) steps 2-3 are replaced by
+:func:`fit_offset_mixture`: the rig's offset law becomes a Gaussian mixture per corner-range bin in
+the closest corner's polar frame (radial, outward cross-range). The rig's offset at a box is then
+exactly a draw of that mixture, so its discrepancy to the real offsets is minimised in closed form
+(maximum likelihood by EM, i.e. the Kullback-Leibler discrepancy), and the ``offset`` energy-distance
+term is reported as the check. It is a few dozen numbers of statistics (weights, means and Cholesky
+factors per bin), no real rows. The reflection-point law can only place the point on a face, at a
+Gaussian-plus-tail spread; on Astyx HiRes2019 the real offsets' shape is not that (see the card of
+``models/radar_rig.json``).
+
 The rig's time-series parameters (latency, tracker and reflection time constants) cannot be seen in
 single frames and keep their generic values. All lengths in metres, angles in radians.
 """
@@ -552,6 +562,91 @@ def _fit_offsets(
     return config(fit.x)
 
 
+OFFSET_LAWS = ("reflection", "mixture")
+"""Offset laws ``calibrate_rig`` can fit (``offset_law``)."""
+
+MIXTURE_COMPONENTS = (1, 2, 3, 4, 5, 6)
+"""Component counts the offset mixture's per-bin CV tries (``offset_law="mixture"``)."""
+
+
+MIXTURE_TOLERANCE = 0.01
+"""The fewest components whose held-out log-likelihood is within this many nats per row of the best."""
+
+
+def _gmm(z: NDArray, k: int, seed: int) -> Any:
+    """A ``k``-component full-covariance Gaussian mixture fitted to ``z`` ``(n, 2)`` [m] by EM."""
+    from sklearn.mixture import GaussianMixture
+
+    return GaussianMixture(k, covariance_type="full", reg_covar=1e-4, n_init=3, random_state=seed).fit(z)
+
+
+def _choose_components(
+    z: NDArray, frame: NDArray, seed: int, components: tuple[int, ...], folds: int = 5, block: int = 10
+) -> dict[int, float]:
+    """Held-out log-likelihood per row of each component count (folds of ``block``-frame blocks)."""
+    fold = (frame // block) % folds
+    out: dict[int, float] = {}
+    for k in components:  # one iteration per candidate count
+        ll, n = 0.0, 0
+        for f in range(folds):  # one iteration per held-out fold
+            tr, te = fold != f, fold == f
+            if te.sum() == 0 or tr.sum() < 5 * k:
+                continue
+            ll += float(_gmm(z[tr], k, seed).score_samples(z[te]).sum())
+            n += int(te.sum())
+        if n:
+            out[k] = ll / n
+    return out
+
+
+def fit_offset_mixture(
+    frames: RealFrames, base: RigConfig, seed: int = 0, components: tuple[int, ...] = MIXTURE_COMPONENTS
+) -> tuple[RigConfig, dict[str, Any]]:
+    """Stage 2 of ``offset_law="mixture"``: a Gaussian mixture of the real polar offsets per range bin.
+
+    The rig's offset at a box is then exactly a draw of the bin's mixture in the closest corner's polar
+    frame (radial, outward cross-range), so the discrepancy minimised is the Kullback-Leibler one:
+    maximum likelihood (EM, ``sklearn.mixture.GaussianMixture``) of the real detected offsets of each
+    corner-range bin of :data:`DET_RANGE_EDGES`; the component count (``components``, 1-6) by held-out log-likelihood
+    over 5 folds of 10-frame blocks (each bin apart; the fewest components within
+    :data:`MIXTURE_TOLERANCE` of the best, so a bin with few rows gets few components). Returns
+    the config and a report (the chosen count and the CV scores per bin).
+    """
+    rb = _bin(np.hypot(frames.corner[:, 0], frames.corner[:, 1]), DET_RANGE_EDGES)
+    rb = np.where(rb < 0, len(DET_RANGE_EDGES) - 2, rb)  # beyond the last edge: the last bin
+    z, b = _offset_samples(frames.corner, frames.meas, rb)
+    det = np.isfinite(frames.meas[:, 0])
+    frame = frames.frame[det]
+    fits, report = [], []
+    for k in range(len(DET_RANGE_EDGES) - 1):  # one iteration per range bin
+        sel = b == k
+        if sel.sum() < 10:
+            raise ValueError(f"offsets: only {int(sel.sum())} detected rows in range bin {k}; a mixture needs 10")
+        scores = _choose_components(z[sel], frame[sel], seed, components)
+        top = max(scores.values())
+        best = min(c for c, v in scores.items() if v >= top - MIXTURE_TOLERANCE)
+        fits.append(_gmm(z[sel], best, seed))
+        report.append({"rows": int(sel.sum()), "components": best, "cv_loglik": scores})
+    n_comp = max(g.n_components for g in fits)
+    w = np.zeros((len(fits), n_comp))
+    mu = np.zeros((len(fits), n_comp, 2))
+    sc = np.tile([0.1, 0.0, 0.1], (len(fits), n_comp, 1))  # padding components (weight 0)
+    for k, g in enumerate(fits):  # one iteration per range bin
+        m = g.n_components
+        w[k, :m], mu[k, :m] = g.weights_, g.means_
+        L = np.linalg.cholesky(g.covariances_)
+        sc[k, :m] = np.stack([L[:, 0, 0], L[:, 1, 0], L[:, 1, 1]], axis=1)
+    w /= w.sum(axis=1, keepdims=True)
+    cfg = replace(
+        base,
+        offset_mixture_edges=DET_RANGE_EDGES,
+        offset_mixture_weights=tuple(w.ravel().tolist()),
+        offset_mixture_means=tuple(mu.ravel().tolist()),
+        offset_mixture_scales=tuple(sc.ravel().tolist()),
+    )
+    return cfg, {"bins": report}
+
+
 def _fit_clutter(base: RigConfig, frames: RealFrames) -> RigConfig:
     """Stage 4: clutter count mean and dispersion, range and azimuth shares (closed form)."""
     counts = frames.clutter_counts
@@ -581,6 +676,8 @@ def calibrate_rig(
     max_evals: int = 1500,
     ridge: float = 0.002,
     signed_azimuth: bool = False,
+    offset_law: str = "reflection",
+    mixture_components: tuple[int, ...] = MIXTURE_COMPONENTS,
     progress: bool = False,
 ) -> tuple[RigConfig, dict[str, Any]]:
     """Fit the rig's parameters to ``frames`` (see the module docstring); returns the config and its card.
@@ -595,16 +692,27 @@ def calibrate_rig(
         signed_azimuth: ``False`` (default): an ``|azimuth|`` table (left-right symmetric); ``True``: a
             signed azimuth table (left and right apart; generalises worse across Astyx frames, see the
             module docstring).
+        offset_law: ``"reflection"`` (default): the reflection-point law's parameters by Powell on the
+            offsets' energy distance (stage 2 above); ``"mixture"``: a Gaussian mixture per range bin
+            (:func:`fit_offset_mixture`; the detection stage is not repeated, the reflection points
+            it reads do not move).
+        mixture_components: component counts the mixture's CV tries (``offset_law="mixture"``).
         progress: show a tqdm bar over function evaluations.
     """
+    if offset_law not in OFFSET_LAWS:
+        raise ValueError(f"offset_law: must be one of {OFFSET_LAWS}, got {offset_law!r}")
     base = base or RigConfig()
     real = real_statistics(frames)
     sim = _sim_setup(frames, replicates, np.random.default_rng([seed, 7]))
     bar = tqdm(total=2 * 300 + max_evals, disable=not progress, desc="calibrate radar", unit="eval")
     try:
         cfg = _fit_detection(replace(base, max_range=150.0), sim, real, ridge, bar, signed_azimuth)
-        cfg = _fit_offsets(cfg, sim, real, max_evals, bar)
-        cfg = _fit_detection(cfg, sim, real, ridge, bar, signed_azimuth)
+        mixture: dict[str, Any] | None = None
+        if offset_law == "mixture":
+            cfg, mixture = fit_offset_mixture(frames, cfg, seed, mixture_components)
+        else:
+            cfg = _fit_offsets(cfg, sim, real, max_evals, bar)
+            cfg = _fit_detection(cfg, sim, real, ridge, bar, signed_azimuth)
     finally:
         bar.close()
     cfg = _fit_clutter(cfg, frames)
@@ -621,7 +729,13 @@ def calibrate_rig(
         },
         "procedure": "sensor_envs.radar.calibrate (simulation at the real boxes, common random numbers; "
         f"least_squares on detection terms ({'signed azimuth' if signed_azimuth else 'symmetric |azimuth|'} table), "
-        "Powell on the offsets' energy distance, closed-form clutter)",
+        + (
+            "offset mixture per range bin by EM, component count by held-out likelihood"
+            if offset_law == "mixture"
+            else "Powell on the offsets' energy distance"
+        )
+        + ", closed-form clutter)",
+        "offset_law": offset_law,
         "seed": seed,
         "replicates": replicates,
         "ridge": ridge,
@@ -631,6 +745,8 @@ def calibrate_rig(
         "discrepancy_after": after,
         "not_calibrated": ["cycle_time", "latency", "tracker_tau", "reflection_tau"],
     }
+    if mixture is not None:
+        card["offset_mixture"] = mixture
     return cfg, card
 
 

@@ -19,6 +19,16 @@ Used when no recording is at hand and for time series (Astyx has none). Per rada
   (``geometry.occluded_fraction``): object loss;
 * **clutter**: Poisson(``clutter_rate``) detections per cycle, uniform in range and azimuth.
 
+**Offset mixture law** (optional, ``offset_mixture_*``; what ``calibrate radar --offset-law mixture``
+fits): the measured position is the closest corner of the (latency-delayed) box plus an offset drawn
+from a Gaussian mixture per corner-range bin in the corner's polar frame (radial, OUTWARD
+cross-range: away from the boresight on either side). The mixture component persists from cycle to
+cycle with probability ``exp(-cycle_time / reflection_tau)`` (else it is drawn afresh from the bin's
+weights) and its standard-normal draw follows the tracker's AR(1) process, so the stationary law of
+one cycle is exactly the mixture and consecutive outputs stay correlated. The reflection point, its
+fraction along the face and the polar noise tables then only place the point whose range and
+azimuth the detection probability reads.
+
 The sensor sits at the origin of its frame (x forward, y left); targets are boxes moving in that
 frame (:func:`generate_scenario`). All lengths in metres, angles in radians, times in seconds.
 """
@@ -56,6 +66,8 @@ __all__ = [
     "Scenario",
     "generate_scenario",
     "RadarRig",
+    "OffsetMixture",
+    "polar_frame",
     "record_rig_log",
 ]
 
@@ -96,6 +108,12 @@ class RigConfig:
         reflection_center: mean position of that point along the face, as a fraction of the face's
             length from its end nearer the sensor (0.5: the face's midpoint; smaller: nearer the
             closest corner, where a real radar's strongest return tends to be).
+        offset_mixture_edges: corner-range bin edges [m] of the offset mixture law (beyond the edges
+            the first / last bin holds); ``None``: the reflection-point law.
+        offset_mixture_weights: component weights, ``bins x components`` values (each bin's sum 1).
+        offset_mixture_means: component means (radial, outward cross-range) [m], ``bins x components x 2``.
+        offset_mixture_scales: lower Cholesky factors ``(l_rr, l_or, l_oo)`` [m] of the component
+            covariances in the (radial, outward) frame, ``bins x components x 3`` (``l_rr, l_oo > 0``).
         clutter_dispersion: clutter count over-dispersion ``k``: variance = mean + k mean^2
             (negative binomial; 0 = Poisson).
         clutter_range_edges, clutter_range_weights: clutter range bins [m] and their shares
@@ -132,6 +150,10 @@ class RigConfig:
     corner_share: float = 0.0
     reflection_spread: float = 0.4
     reflection_center: float = 0.5
+    offset_mixture_edges: Table = None
+    offset_mixture_weights: Table = None
+    offset_mixture_means: Table = None
+    offset_mixture_scales: Table = None
     clutter_dispersion: float = 0.0
     clutter_range_edges: Table = None
     clutter_range_weights: Table = None
@@ -168,6 +190,36 @@ class RigConfig:
                 raise ValueError(f"{weights}: must be given with {edges!r} and have one value per bin")
             if w is not None and not sum(w) > 0:
                 raise ValueError(f"{weights}: the shares must not all be 0")
+        self._check_offset_mixture()
+
+    def _check_offset_mixture(self) -> None:
+        """The offset mixture's tables agree in size, each bin's weights sum to 1, scales are positive."""
+        names = ("offset_mixture_weights", "offset_mixture_means", "offset_mixture_scales")
+        e, given = self.offset_mixture_edges, [getattr(self, n) for n in names]
+        if e is None:
+            for n, v in zip(names, given, strict=True):
+                if v is not None:
+                    raise ValueError(f"{n}: must be given with 'offset_mixture_edges'")
+            return
+        n_bins = len(e) - 1
+        for n, v in zip(names, given, strict=True):
+            if v is None:
+                raise ValueError(f"{n}: must be given with 'offset_mixture_edges'")
+        w = np.asarray(given[0], dtype=np.float64)
+        if w.size % n_bins:
+            raise ValueError(f"offset_mixture_weights: {w.size} values is not a multiple of {n_bins} bins")
+        k = w.size // n_bins
+        for n, v, per in zip(names[1:], given[1:], (2, 3), strict=True):
+            if len(v) != n_bins * k * per:
+                raise ValueError(f"{n}: must have {n_bins * k * per} values ({n_bins} bins x {k} components x {per})")
+        sums = w.reshape(n_bins, k).sum(axis=1)
+        if not np.all(np.abs(sums - 1.0) <= 1e-6):
+            raise ValueError(
+                f"offset_mixture_weights: each bin's weights must sum to 1 (sums {sums.round(6).tolist()})"
+            )
+        diag = np.asarray(given[2], dtype=np.float64).reshape(-1, 3)[:, [0, 2]]
+        if not np.all(diag > 0):
+            raise ValueError("offset_mixture_scales: the Cholesky diagonals (l_rr, l_oo) must be > 0")
 
     def to_params(self) -> dict[str, Any]:
         """The parameters as plain JSON values (tuples as lists)."""
@@ -206,6 +258,10 @@ RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
     "corner_share": [_PROB],
     "reflection_spread": [Interval(0, 0.5)],
     "reflection_center": [_PROB],
+    "offset_mixture_edges": [None, Numbers(_NONNEG, min_length=2, increasing=True)],
+    "offset_mixture_weights": [None, Numbers(_PROB, min_length=1)],
+    "offset_mixture_means": [None, Numbers(Interval(-50, 50), min_length=2)],
+    "offset_mixture_scales": [None, Numbers(Interval(-50, 50), min_length=3)],
     "clutter_dispersion": [Interval(0, 100)],
     "clutter_range_edges": [None, Numbers(_NONNEG, min_length=2, increasing=True)],
     "clutter_range_weights": [None, Numbers(_NONNEG, min_length=1)],
@@ -317,6 +373,64 @@ def _reflection_point(
     return pt if at_corner is None else np.where(at_corner[:, None], corner, pt)
 
 
+def polar_frame(corner: NDArray) -> tuple[NDArray, NDArray]:
+    """Unit vectors ``(n, 2)`` of the polar frame at ``corner`` [m]: radial, and OUTWARD cross-range.
+
+    Outward points away from the boresight: to the left for corners left of it (azimuth >= 0), to the
+    right otherwise (sensor frame, x forward, y left).
+    """
+    az = np.arctan2(corner[:, 1], corner[:, 0])
+    side = np.where(az < 0, -1.0, 1.0)
+    return np.stack([np.cos(az), np.sin(az)], axis=1), side[:, None] * np.stack([-np.sin(az), np.cos(az)], axis=1)
+
+
+@dataclass(frozen=True)
+class OffsetMixture:
+    """The rig's offset mixture law as arrays (see :class:`RigConfig`'s ``offset_mixture_*``).
+
+    Attributes:
+        edges: ``(B + 1,)`` corner-range bin edges [m].
+        weights: ``(B, K)`` component weights.
+        means: ``(B, K, 2)`` means (radial, outward) [m].
+        chol: ``(B, K, 2, 2)`` lower Cholesky factors [m].
+    """
+
+    edges: NDArray[np.float64]
+    weights: NDArray[np.float64]
+    means: NDArray[np.float64]
+    chol: NDArray[np.float64]
+
+    @classmethod
+    def from_config(cls, c: RigConfig) -> OffsetMixture | None:
+        """The mixture of ``c``, or ``None`` for the reflection-point law."""
+        if c.offset_mixture_edges is None or c.offset_mixture_weights is None:
+            return None
+        edges = np.asarray(c.offset_mixture_edges, dtype=np.float64)
+        b = edges.size - 1
+        w = np.asarray(c.offset_mixture_weights, dtype=np.float64).reshape(b, -1)
+        k = w.shape[1]
+        s = np.asarray(c.offset_mixture_scales, dtype=np.float64).reshape(b, k, 3)
+        chol = np.zeros((b, k, 2, 2))
+        chol[..., 0, 0], chol[..., 1, 0], chol[..., 1, 1] = s[..., 0], s[..., 1], s[..., 2]
+        return cls(edges, w, np.asarray(c.offset_mixture_means, dtype=np.float64).reshape(b, k, 2), chol)
+
+    def range_bin(self, corner: NDArray) -> NDArray[np.intp]:
+        """Bin index ``(n,)`` of each corner's range (clipped to the first / last bin)."""
+        r = np.hypot(corner[:, 0], corner[:, 1])
+        return np.clip(np.searchsorted(self.edges, r, side="right") - 1, 0, self.weights.shape[0] - 1)
+
+    def component(self, b: NDArray, u: NDArray) -> NDArray[np.intp]:
+        """Component ``(n,)`` drawn by inverse CDF from uniforms ``u`` ``(n,)`` in bins ``b``."""
+        cdf = np.cumsum(self.weights[b], axis=1)
+        return np.minimum((u[:, None] >= cdf).sum(axis=1), self.weights.shape[1] - 1)
+
+    def offset(self, corner: NDArray, b: NDArray, comp: NDArray, normal: NDArray) -> NDArray[np.float64]:
+        """Sensor-frame offset ``(n, 2)`` [m] of component ``comp`` in bins ``b`` from standard normals ``(n, 2)``."""
+        local = self.means[b, comp] + np.einsum("nij,nj->ni", self.chol[b, comp], normal)
+        u, v = polar_frame(corner)
+        return local[:, :1] * u + local[:, 1:] * v
+
+
 class RadarRig:
     """The reference radar: turns a :class:`Scenario` into a :class:`RadarLog` (one sequence).
 
@@ -326,6 +440,7 @@ class RadarRig:
 
     def __init__(self, config: RigConfig | None = None) -> None:
         self.config = config or RigConfig()
+        self.mixture = OffsetMixture.from_config(self.config)
 
     def detection_probability(self, rng_m: NDArray, az: NDArray, occluded: NDArray) -> NDArray[np.float64]:
         """Detection probability ``(n,)`` at range [m], azimuth [rad] (left > 0) and occluded fraction [0, 1]."""
@@ -405,6 +520,8 @@ class RadarRig:
         spread = c.reflection_spread
         frac = rng.uniform(-spread, spread, n_tgt)
         tracked = np.zeros(n_tgt, dtype=bool)
+        mix = self.mixture
+        comp = np.zeros(n_tgt, dtype=np.intp)  # mixture law: each target's current component
         rows: list[NDArray[np.float64]] = []
         for k in range(n_cyc):
             box = scenario.boxes[k]
@@ -421,10 +538,19 @@ class RadarRig:
             det = rng.random(n_tgt) < self.detection_probability(r, az, occ)
             normal = np.stack([rng.normal(0, 1, n_tgt), rng.normal(0, 1, n_tgt)], axis=1)
             u_out = np.ones(n_tgt) if c.outlier_share == 0 else np.asarray(rng.random(n_tgt), dtype=np.float64)
-            innov = self.innovation(r, az, normal, u_out)
-            err = np.where(tracked[:, None], rho * err + np.sqrt(1 - rho**2) * innov, innov)
+            if mix is None:
+                innov = self.innovation(r, az, normal, u_out)
+                err = np.where(tracked[:, None], rho * err + np.sqrt(1 - rho**2) * innov, innov)
+                meas = self._to_xy(refl, err, c.range_bias)
+            else:  # the component persists (reflection time constant), its normal draw is the tracker's AR(1)
+                corner, _, _ = _reflection_geometry(lag)
+                b = mix.range_bin(corner)
+                fresh = mix.component(b, np.asarray(rng.random(n_tgt), dtype=np.float64))
+                keep_comp = (np.asarray(rng.random(n_tgt)) < rho_ref) & (k > 0)
+                comp = np.where(keep_comp, comp, fresh)
+                err = np.where(tracked[:, None], rho * err + np.sqrt(1 - rho**2) * normal, normal)
+                meas = corner + mix.offset(corner, b, comp, err)
             tracked = det
-            meas = self._to_xy(refl, err, c.range_bias)
             meas[~det] = np.nan
             keep = np.hypot(box[:, 0], box[:, 1]) <= c.log_range
             if in_view_only:
@@ -456,7 +582,13 @@ class RadarRig:
         )
         r, az = np.hypot(refl[:, 0], refl[:, 1]), np.arctan2(refl[:, 1], refl[:, 0])
         p = self.detection_probability(r, az, occluded)
-        meas = self._to_xy(refl, self.innovation(r, az, draws.normal, draws.u_outlier), c.range_bias)
+        mix = self.mixture
+        if mix is None:
+            meas = self._to_xy(refl, self.innovation(r, az, draws.normal, draws.u_outlier), c.range_bias)
+        else:  # the mixture's stationary law: component from the outlier uniform, normal draw as drawn
+            corner, _, _ = _reflection_geometry(boxes)
+            b = mix.range_bin(corner)
+            meas = corner + mix.offset(corner, b, mix.component(b, draws.u_outlier), draws.normal)
         meas[~(draws.u_detect < p)] = np.nan
         return meas, p
 
