@@ -1,4 +1,5 @@
 import pickle
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -258,3 +259,37 @@ def test_stored_clutter_is_capped_by_a_uniform_subsample(rig_split, monkeypatch)
     assert all(tuple(r) in rows for r in capped.clutter_xy_)  # a subset of the log's rows
     np.testing.assert_allclose(capped.clutter_xy_.mean(0), full.clutter_xy_.mean(0), atol=3.0)
     np.testing.assert_array_equal(capped.z_, full.z_)  # the cap is drawn last: nothing else changes
+
+
+def test_bandwidth_scale_fits_the_same_model_as_rescaling_after(tmp_path):
+    """``bandwidth_scale=f`` multiplies the CV bandwidths and changes nothing else; ``with_bandwidth_scale``
+    gives the same model from a fit at 1; the factor survives save / load; files without it load as 1."""
+    from sensor_envs.radar.rig import record_rig_log
+
+    log = record_rig_log(12, 20, 6, np.random.default_rng(3))
+    plain = KDERadarModel(random_state=0).fit(log, cycle_time=1.0)
+    narrow = KDERadarModel(random_state=0, bandwidth_scale=0.5).fit(log, cycle_time=1.0)
+    np.testing.assert_allclose(narrow.log_h_, plain.log_h_ + np.log(0.5))
+    np.testing.assert_array_equal(narrow.z_, plain.z_)
+    after = plain.with_bandwidth_scale(0.5)
+    assert after.bandwidth_scale == 0.5 and plain.bandwidth_scale == 1.0  # a copy: the original is unchanged
+    np.testing.assert_array_equal(after.log_h_, narrow.log_h_)
+    states = np.array(_states(plain) * 10)
+    a, b = narrow.sample(states, np.random.default_rng(5)), after.sample(states, np.random.default_rng(5))
+    np.testing.assert_array_equal(a[0], b[0])
+    corners = states[:, :2]
+    np.testing.assert_allclose(narrow.bandwidth(corners), 0.5 * plain.bandwidth(corners))
+    back = KDERadarModel.load(narrow.save(tmp_path / "narrow.npz"))
+    assert back.bandwidth_scale == 0.5
+    np.testing.assert_array_equal(back.log_h_, narrow.log_h_)
+    old = Path(__file__).resolve().parents[1] / "models" / "radar_kde_fast.npz"  # written before the factor
+    assert KDERadarModel.load(old).bandwidth_scale == 1.0
+
+
+@pytest.mark.parametrize("bad", [0.0, -0.5, float("nan"), 1000.0])
+def test_bad_bandwidth_scale_is_refused_naming_it(bad):
+    with pytest.raises(ValueError, match="bandwidth_scale"):
+        KDERadarModel(bandwidth_scale=bad).fit(_uniform_miss_log(0.1, np.random.default_rng(0))[0])
+    fitted = KDERadarModel(random_state=0).fit(_uniform_miss_log(0.1, np.random.default_rng(0))[0])
+    with pytest.raises(ValueError, match="bandwidth_scale"):
+        fitted.with_bandwidth_scale(bad)

@@ -359,6 +359,10 @@ class KDERadarModel(BaseEstimator):
         relevance_candidates_azimuth: azimuth variances [rad^2] tried by the CV with
             ``state_transform="polar"`` (after the range variance; unused otherwise).
         relevance_candidates_prev: ``z_{t-1}`` variances [m^2] tried by ``relevance="cv_state"``.
+        bandwidth_scale: factor on every contribution bandwidth the leave-one-track-out CV chose (1: the
+            seed's CV bandwidths). A KDE fitted on a SIMULATED log (the rig) may need narrower kernels
+            for the real sensor than that log's CV picks: ``benchmarks/real_radar_bandwidth_scale.py``
+            chooses the factor by held-out likelihood on real frames (model card).
         state_transform: corner features of the relevance kernel: ``"cartesian"`` (``(c_x, c_y)``, the
             paper's; what files before format 5 hold) or ``"polar"`` (``(range, azimuth)``: a kernel
             narrow in azimuth at every range, so near targets left and right are not mixed).
@@ -396,6 +400,7 @@ class KDERadarModel(BaseEstimator):
         "extra_state": [InstanceOf(tuple, list)],  # details: _check_extra_params
         "extra_variance": [None, InstanceOf(tuple, list)],
         "extra_candidates": [InstanceOf(tuple, list)],
+        "bandwidth_scale": [Interval(0.01, 100)],
     }
     """One declarative check of every hyperparameter, used by :meth:`fit` and :meth:`load`."""
 
@@ -427,6 +432,7 @@ class KDERadarModel(BaseEstimator):
         state_transform: str = "cartesian",
         relevance_candidates_azimuth: tuple[float, ...] = AZIMUTH_CANDIDATES,
         relevance_candidates_prev: tuple[float, ...] = PREV_CANDIDATES,
+        bandwidth_scale: float = 1.0,
     ) -> None:
         self.rel_variance = rel_variance
         self.use_prev = use_prev
@@ -453,6 +459,7 @@ class KDERadarModel(BaseEstimator):
         self.state_transform = state_transform
         self.relevance_candidates_azimuth = relevance_candidates_azimuth
         self.relevance_candidates_prev = relevance_candidates_prev
+        self.bandwidth_scale = bandwidth_scale
 
     # ------------------------------------------------------------------ fit
     def _check_params(self) -> None:
@@ -540,6 +547,7 @@ class KDERadarModel(BaseEstimator):
             rng,
             self.state_transform,
         )
+        self.log_h_ = self.log_h_ + np.log(self.bandwidth_scale)  # no draw depends on it: the rest is the same
         counts, xy = clutter_counts(log)
         if xy.shape[0] > MAX_CLUTTER_POSITIONS:  # drawn last: smaller logs keep every earlier draw
             xy = xy[np.sort(rng.choice(xy.shape[0], MAX_CLUTTER_POSITIONS, replace=False))]
@@ -1045,6 +1053,27 @@ class KDERadarModel(BaseEstimator):
         return (1.0 - p_miss[0]) * np.einsum("i,ia,ib->ab", wd, px, py), float(p_miss[0])
 
     # ------------------------------------------------------------------ files
+    def with_bandwidth_scale(self, factor: float) -> KDERadarModel:
+        """A copy whose contribution bandwidths are ``factor`` times this model's (``bandwidth_scale`` too).
+
+        The same model as fitting with ``bandwidth_scale`` multiplied by ``factor`` (the factor is applied
+        after the bandwidth CV, and no random draw of :meth:`fit` depends on it).
+        """
+        import copy
+
+        self._check_fitted()
+        validate_params(
+            {"bandwidth_scale": factor}, {"bandwidth_scale": self._hyperparameter_constraints["bandwidth_scale"]}
+        )
+        out = copy.deepcopy(self)
+        out.bandwidth_scale = float(self.bandwidth_scale * factor)
+        validate_params(
+            {"bandwidth_scale": out.bandwidth_scale},
+            {"bandwidth_scale": self._hyperparameter_constraints["bandwidth_scale"]},
+        )
+        out.log_h_ = self.log_h_ + np.log(factor)
+        return out
+
     def save(self, path: str | os.PathLike[str], card: dict[str, Any] | None = None) -> Path:
         """Save to a pickle-free ``.npz`` model file (:mod:`sensor_envs.modelio`)."""
         self._check_fitted()
@@ -1106,6 +1135,7 @@ class KDERadarModel(BaseEstimator):
             "extra_variance": None,
             "extra_candidates": (0.25, 0.5, 1.0, 2.0),
             "relevance_candidates_prev": PREV_CANDIDATES,  # files written before relevance="cv_state"
+            "bandwidth_scale": 1.0,  # files written before the factor existed
         }
         if int(header.get("format_version", 0)) < 5:  # format 5 must state its corner features
             defaults.update(state_transform="cartesian", relevance_candidates_azimuth=AZIMUTH_CANDIDATES)
