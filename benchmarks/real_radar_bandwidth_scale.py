@@ -84,8 +84,16 @@ def main() -> None:
             raise ValueError(f"--factors: each must be in [0.01, 100], got {args.factors}")
         model = KDERadarModel.load(args.model)
         log = load_astyx(args.data, block=args.block, progress=False)
-        out = check_output(args.write, inputs=[args.model], force=args.force, suffix=".npz") if args.write else None
-        js = check_output(args.json, inputs=[args.model], force=args.force, suffix=".json") if args.json else None
+        out = (
+            check_output(args.write, inputs=[args.model], force=args.force, suffix=".npz", option="--write")
+            if args.write
+            else None
+        )
+        js = (
+            check_output(args.json, inputs=[args.model], force=args.force, suffix=".json", option="--json")
+            if args.json
+            else None
+        )
     except (FileNotFoundError, ValueError, ModelFileError, OutputError) as exc:
         print(exc, file=sys.stderr)
         raise SystemExit(2) from None
