@@ -369,11 +369,10 @@ MIXTURE = replace(
 
 
 def _polar_offsets(corner: np.ndarray, meas: np.ndarray) -> np.ndarray:
-    from sensor_envs.radar.rig import polar_frame
+    """(radial, outward cross-range) offsets [m] of ``meas`` from ``corner``: the calibration's statistic."""
+    from sensor_envs.radar.calibrate import _polar
 
-    u, v = polar_frame(corner)
-    z = meas - corner
-    return np.stack([(z * u).sum(axis=1), (z * v).sum(axis=1)], axis=1)
+    return _polar(corner, meas - corner)
 
 
 @pytest.mark.parametrize("mode", ["snapshot", "record"])

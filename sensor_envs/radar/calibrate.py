@@ -81,8 +81,9 @@ from tqdm import tqdm
 
 from sensor_envs.geometry import closest_corner, occluded_fraction, rectangle_corners
 from sensor_envs.radar.log import REF_COLUMNS, RadarLog, clutter_counts
-from sensor_envs.radar.rig import RadarRig, RigConfig, SnapshotDraws
+from sensor_envs.radar.rig import RadarRig, RigConfig, SnapshotDraws, polar_frame
 from sensor_envs.radar.validate import energy_distance_2d
+from sensor_envs.rng import fold_ids
 
 __all__ = [
     "DET_RANGE_EDGES",
@@ -211,10 +212,8 @@ def _polar(corner: NDArray, z: NDArray) -> NDArray[np.float64]:
     end of the face turned to the sensor shows on both sides alike (with a signed cross-range the
     two sides cancel in pooled quantiles).
     """
-    az = np.arctan2(corner[:, 1], corner[:, 0])
-    c, s = np.cos(az), np.sin(az)
-    side = np.where(az < 0, -1.0, 1.0)
-    return np.stack([c * z[:, 0] + s * z[:, 1], side * (-s * z[:, 0] + c * z[:, 1])], axis=1)
+    u, v = polar_frame(corner)
+    return np.stack([(z * u).sum(axis=1), (z * v).sum(axis=1)], axis=1)
 
 
 def _rates(det: NDArray, b: NDArray, n_bins: int) -> NDArray[np.float64]:
@@ -569,6 +568,9 @@ MIXTURE_COMPONENTS = (1, 2, 3, 4, 5, 6)
 """Component counts the offset mixture's per-bin CV tries (``offset_law="mixture"``)."""
 
 
+MIXTURE_FOLDS, MIXTURE_BLOCK = 5, 10
+"""Folds and frames per block of the component count's CV (block ``b`` in fold ``b % 5``)."""
+
 MIXTURE_TOLERANCE = 0.01
 """The fewest components whose held-out log-likelihood is within this many nats per row of the best."""
 
@@ -580,15 +582,12 @@ def _gmm(z: NDArray, k: int, seed: int) -> Any:
     return GaussianMixture(k, covariance_type="full", reg_covar=1e-4, n_init=3, random_state=seed).fit(z)
 
 
-def _choose_components(
-    z: NDArray, frame: NDArray, seed: int, components: tuple[int, ...], folds: int = 5, block: int = 10
-) -> dict[int, float]:
-    """Held-out log-likelihood per row of each component count (folds of ``block``-frame blocks)."""
-    fold = (frame // block) % folds
+def _choose_components(z: NDArray, fold: NDArray, seed: int, components: tuple[int, ...]) -> dict[int, float]:
+    """Held-out log-likelihood per row of each component count (rows' CV folds ``fold``)."""
     out: dict[int, float] = {}
     for k in components:  # one iteration per candidate count
         ll, n = 0.0, 0
-        for f in range(folds):  # one iteration per held-out fold
+        for f in range(int(fold.max()) + 1):  # one iteration per held-out fold
             tr, te = fold != f, fold == f
             if te.sum() == 0 or tr.sum() < 5 * k:
                 continue
@@ -615,14 +614,14 @@ def fit_offset_mixture(
     rb = _bin(np.hypot(frames.corner[:, 0], frames.corner[:, 1]), DET_RANGE_EDGES)
     rb = np.where(rb < 0, len(DET_RANGE_EDGES) - 2, rb)  # beyond the last edge: the last bin
     z, b = _offset_samples(frames.corner, frames.meas, rb)
-    det = np.isfinite(frames.meas[:, 0])
-    frame = frames.frame[det]
+    blocks = np.arange(frames.n_frames) // MIXTURE_BLOCK  # frame blocks dealt round-robin into the folds
+    fold = fold_ids(blocks, MIXTURE_FOLDS)[frames.frame[np.isfinite(frames.meas[:, 0])]]
     fits, report = [], []
     for k in range(len(DET_RANGE_EDGES) - 1):  # one iteration per range bin
         sel = b == k
         if sel.sum() < 10:
             raise ValueError(f"offsets: only {int(sel.sum())} detected rows in range bin {k}; a mixture needs 10")
-        scores = _choose_components(z[sel], frame[sel], seed, components)
+        scores = _choose_components(z[sel], fold[sel], seed, components)
         top = max(scores.values())
         best = min(c for c, v in scores.items() if v >= top - MIXTURE_TOLERANCE)
         fits.append(_gmm(z[sel], best, seed))

@@ -1062,15 +1062,11 @@ class KDERadarModel(BaseEstimator):
         import copy
 
         self._check_fitted()
-        validate_params(
-            {"bandwidth_scale": factor}, {"bandwidth_scale": self._hyperparameter_constraints["bandwidth_scale"]}
-        )
+        check = {"bandwidth_scale": self._hyperparameter_constraints["bandwidth_scale"]}
+        for value in (factor, self.bandwidth_scale * factor):  # the factor, and the model's factor after it
+            validate_params({"bandwidth_scale": value}, check)
         out = copy.deepcopy(self)
         out.bandwidth_scale = float(self.bandwidth_scale * factor)
-        validate_params(
-            {"bandwidth_scale": out.bandwidth_scale},
-            {"bandwidth_scale": self._hyperparameter_constraints["bandwidth_scale"]},
-        )
         out.log_h_ = self.log_h_ + np.log(factor)
         return out
 

@@ -355,15 +355,17 @@ def _reflection_point(
     frac: NDArray[np.float64],
     at_corner: NDArray[np.bool_] | None = None,
     center: float = 0.5,
+    geometry: tuple[NDArray, NDArray, NDArray] | None = None,
 ) -> NDArray[np.float64]:
     """Reflection point ``(n, 2)`` [m] on the face most turned to the sensor.
 
     The point is ``frac`` (in [-0.5, 0.5], along the face's edge vector) of the face's length from
     the face's reference point: its midpoint for ``center = 0.5``, else the point ``center`` of the
     length from the face's end nearer the sensor. Rows where ``at_corner`` is true reflect at the
-    box's closest corner instead.
+    box's closest corner instead. ``geometry``: :func:`_reflection_geometry` of ``box`` when the caller
+    already has it.
     """
-    corner, mid, edge = _reflection_geometry(box)
+    corner, mid, edge = _reflection_geometry(box) if geometry is None else geometry
     pt = mid + frac[:, None] * edge
     if center != 0.5:  # move the reference point along the face towards its near end (0.5 - center) lengths
         a, b = mid - 0.5 * edge, mid + 0.5 * edge
@@ -531,7 +533,8 @@ class RadarRig:
             at_corner: NDArray[np.bool_] | None = None
             if c.corner_share > 0:
                 at_corner = np.asarray(rng.random(n_tgt)) < c.corner_share
-            refl = _reflection_point(lag, frac, at_corner, c.reflection_center)
+            geom = _reflection_geometry(lag)
+            refl = _reflection_point(lag, frac, at_corner, c.reflection_center, geom)
             r, az = np.hypot(refl[:, 0], refl[:, 1]), np.arctan2(refl[:, 1], refl[:, 0])
             corners = rectangle_corners(box[:, 0], box[:, 1], box[:, 2], box[:, 3], box[:, 4])
             occ = occluded_fraction(corners)
@@ -543,7 +546,7 @@ class RadarRig:
                 err = np.where(tracked[:, None], rho * err + np.sqrt(1 - rho**2) * innov, innov)
                 meas = self._to_xy(refl, err, c.range_bias)
             else:  # the component persists (reflection time constant), its normal draw is the tracker's AR(1)
-                corner, _, _ = _reflection_geometry(lag)
+                corner = geom[0]
                 b = mix.range_bin(corner)
                 fresh = mix.component(b, np.asarray(rng.random(n_tgt), dtype=np.float64))
                 keep_comp = (np.asarray(rng.random(n_tgt)) < rho_ref) & (k > 0)
@@ -577,8 +580,9 @@ class RadarRig:
         """
         c = self.config
         spread = c.reflection_spread
+        geom = _reflection_geometry(boxes)
         refl = _reflection_point(
-            boxes, spread * (2 * draws.u_frac - 1), draws.u_corner < c.corner_share, c.reflection_center
+            boxes, spread * (2 * draws.u_frac - 1), draws.u_corner < c.corner_share, c.reflection_center, geom
         )
         r, az = np.hypot(refl[:, 0], refl[:, 1]), np.arctan2(refl[:, 1], refl[:, 0])
         p = self.detection_probability(r, az, occluded)
@@ -586,7 +590,7 @@ class RadarRig:
         if mix is None:
             meas = self._to_xy(refl, self.innovation(r, az, draws.normal, draws.u_outlier), c.range_bias)
         else:  # the mixture's stationary law: component from the outlier uniform, normal draw as drawn
-            corner, _, _ = _reflection_geometry(boxes)
+            corner = geom[0]
             b = mix.range_bin(corner)
             meas = corner + mix.offset(corner, b, mix.component(b, draws.u_outlier), draws.normal)
         meas[~(draws.u_detect < p)] = np.nan
