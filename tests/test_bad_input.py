@@ -841,6 +841,19 @@ CASES += [
     ),
     C(
         OPTION,
+        "fit-radar-bandwidth-scale-out-of-range",
+        opt(["fit", "radar", "{d}/x.csv", "--out", "{d}/m.npz", "--bandwidth-scale", "1000"], "--bandwidth-scale"),
+        "[0.01, 100]",
+    ),
+    C(
+        OPTION,
+        "calibrate-radar-mixture-min-range-negative",
+        opt(["calibrate", "radar", "{d}/x.csv", "--out", "{d}/r.json", "--offset-law", "mixture",
+             "--mixture-min-range", "-5"], "--mixture-min-range"),
+        "> 0",
+    ),  # fmt: skip
+    C(
+        OPTION,
         "fit-radar-cycle-time-inf",
         opt(["fit", "radar", "{d}/x.csv", "--out", "{d}/m.npz", "--cycle-time", "inf"], "--cycle-time"),
         "> 0",

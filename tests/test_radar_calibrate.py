@@ -520,6 +520,53 @@ def test_calibrate_cli_offset_law_mixture(tmp_path):
     assert main(["record", "radar", "--rig", str(rig), "--out", str(out), "--sequences", "2", "--cycles", "5"]) == 0
 
 
+def test_mixture_min_range_keeps_the_reflection_law_nearer():
+    """``offset_mixture_min_range``: boxes whose closest corner is nearer keep the reflection-point law,
+    the others draw the mixture, draw for draw (same random stream; the far rows are the pure mixture's)."""
+    rng = np.random.default_rng(8)
+    boxes = generate_scenario(400, 1, 1.0, rng).boxes[0]
+    draws = SnapshotDraws.draw(boxes.shape[0], rng)
+    occ = np.zeros(boxes.shape[0])
+    near = np.hypot(*_reflection_geometry(boxes)[0].T) < 40.0
+    assert 50 < near.sum() < 350
+    hybrid, _ = RadarRig(replace(MIXTURE, offset_mixture_min_range=40.0)).snapshot(boxes, occ, draws)
+    for cfg, rows in ((TRUE, near), (MIXTURE, ~near)):  # reflection law nearer, mixture from 40 m on
+        pure, _ = RadarRig(cfg).snapshot(boxes, occ, draws)
+        np.testing.assert_array_equal(hybrid[rows], pure[rows])
+    sc = generate_scenario(30, 15, 1.0, np.random.default_rng(9))
+    mix_log = RadarRig(MIXTURE).record(sc, np.random.default_rng(3))
+    hyb_log = RadarRig(replace(MIXTURE, offset_mixture_min_range=40.0)).record(sc, np.random.default_rng(3))
+    m0, m1 = (np.stack([lg["meas_x"], lg["meas_y"]], axis=1) for lg in (mix_log, hyb_log))
+    rng_ref = np.hypot(mix_log["ref_x"], mix_log["ref_y"])
+    same = np.all((m0 == m1) | (np.isnan(m0) & np.isnan(m1)), axis=1)
+    assert np.all(same[rng_ref > 45.0]) and not np.any(same[(rng_ref < 35.0) & np.isfinite(m0[:, 0])])
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [({"offset_mixture_min_range": -1.0}, "params.offset_mixture_min_range"),
+     ({"offset_mixture_edges": None, "offset_mixture_weights": None, "offset_mixture_means": None,
+       "offset_mixture_scales": None, "offset_mixture_min_range": 30.0}, "params.offset_mixture_min_range")],
+)  # fmt: skip
+def test_bad_mixture_min_range_fails_at_load(tmp_path, change, field):
+    test_bad_mixture_values_fail_at_load_naming_file_and_field(tmp_path, change, field)
+
+
+def test_calibrate_cli_mixture_min_range(tmp_path, capsys):
+    """``--mixture-min-range``: the reflection law is fitted for the nearer boxes, the mixture beyond;
+    refused (exit 2, one line naming the option, nothing written) without ``--offset-law mixture``."""
+    real = _synthetic_csv_of(tmp_path, MIXTURE, synthetic_frames(MIXTURE, n_frames=40, seed=2))
+    rig = tmp_path / "rig.json"
+    argv = ["calibrate", "radar", str(real), "--out", str(rig), "--mixture-min-range", "30", "--max-evals", "60"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--mixture-min-range" in err and not rig.exists(), err
+    assert main([*argv, "--offset-law", "mixture", "--mixture-max-components", "2"]) == 0
+    cfg, card = load_rig(rig)
+    assert cfg.offset_mixture_min_range == 30.0 and cfg.offset_mixture_edges == DET_RANGE_EDGES
+    assert "below 30 m" in card["procedure"] and cfg.reflection_center != RigConfig().reflection_center
+
+
 def _moments(mix, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Mean (2,) and covariance (2, 2) of bin ``k`` of an offset mixture [m, m^2]."""
     w, mu, L = mix.weights[k], mix.means[k], mix.chol[k]

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import NoReturn
 
-__all__ = ["about", "OneLineParser", "positive_int", "nonneg_int", "positive_float", "add_force"]
+__all__ = ["about", "OneLineParser", "positive_int", "nonneg_int", "positive_float", "float_between", "add_force"]
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -49,6 +49,21 @@ def positive_float(text: str) -> float:
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
     return value
+
+
+def float_between(low: float, high: float) -> Callable[[str], float]:
+    """An argparse ``type=`` accepting a finite number in ``[low, high]`` (e.g. a model's accepted range)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and low <= value <= high):
+            raise argparse.ArgumentTypeError(f"expected a number in [{low:g}, {high:g}], got {text!r}")
+        return value
+
+    return parse
 
 
 def add_force(parser: argparse.ArgumentParser) -> None:

@@ -11,7 +11,15 @@ from typing import Any
 
 import numpy as np
 
-from sensor_envs.cli.args import OneLineParser, about, add_force, nonneg_int, positive_float, positive_int
+from sensor_envs.cli.args import (
+    OneLineParser,
+    about,
+    add_force,
+    float_between,
+    nonneg_int,
+    positive_float,
+    positive_int,
+)
 from sensor_envs.modelio import read_model
 from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
 
@@ -70,7 +78,7 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     )
     fit.add_argument(
         "--bandwidth-scale",
-        type=positive_float,
+        type=float_between(0.01, 100.0),  # the model's accepted range (KDERadarModel's constraint)
         default=1.0,
         help="factor on the contribution bandwidths the CV chose (default 1; the shipped KDE's factor was chosen "
         "on real frames: benchmarks/real_radar_bandwidth_scale.py)",
@@ -111,6 +119,14 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         type=positive_int,
         default=6,
         help="--offset-law mixture: the CV tries 1..N components per range bin (default 6)",
+    )
+    cal.add_argument(
+        "--mixture-min-range",
+        type=positive_float,
+        default=None,
+        metavar="M",
+        help="--offset-law mixture: the mixture only from this closest-corner range [m] on; nearer boxes keep "
+        "the reflection-point law, fitted too (default: the mixture at every range)",
     )
     cal.add_argument(
         "--base",
@@ -185,6 +201,8 @@ def _calibrate(args: argparse.Namespace) -> int:
     from sensor_envs.radar.calibrate import calibrate_rig, load_real
     from sensor_envs.radar.rig import load_rig, save_rig
 
+    if args.mixture_min_range is not None and args.offset_law != "mixture":
+        raise ValueError("--mixture-min-range: only with --offset-law mixture")
     check_inputs(args.real_data, args.base)
     out = check_output(args.out, inputs=[args.real_data, args.base], force=args.force, suffix=".json")
     base = load_rig(args.base)[0] if args.base else None
@@ -199,6 +217,7 @@ def _calibrate(args: argparse.Namespace) -> int:
             signed_azimuth=args.signed_azimuth,
             offset_law=args.offset_law,
             mixture_components=tuple(range(1, args.mixture_max_components + 1)),
+            mixture_min_range=args.mixture_min_range or 0.0,
             progress=sys.stderr.isatty(),
         )
     card["seconds"] = round(time.perf_counter() - t0, 1)

@@ -677,6 +677,7 @@ def calibrate_rig(
     signed_azimuth: bool = False,
     offset_law: str = "reflection",
     mixture_components: tuple[int, ...] = MIXTURE_COMPONENTS,
+    mixture_min_range: float = 0.0,
     progress: bool = False,
 ) -> tuple[RigConfig, dict[str, Any]]:
     """Fit the rig's parameters to ``frames`` (see the module docstring); returns the config and its card.
@@ -696,10 +697,17 @@ def calibrate_rig(
             (:func:`fit_offset_mixture`; the detection stage is not repeated, the reflection points
             it reads do not move).
         mixture_components: component counts the mixture's CV tries (``offset_law="mixture"``).
+        mixture_min_range: with ``offset_law="mixture"``: closest-corner range [m] from which the mixture
+            applies (``offset_mixture_min_range``); when > 0 the reflection-point law is fitted too
+            (stages 2-3, after the mixture is set, so that only the nearer boxes' offsets move its terms).
         progress: show a tqdm bar over function evaluations.
     """
     if offset_law not in OFFSET_LAWS:
         raise ValueError(f"offset_law: must be one of {OFFSET_LAWS}, got {offset_law!r}")
+    if not (np.isfinite(mixture_min_range) and mixture_min_range >= 0):
+        raise ValueError(f"mixture_min_range: must be a finite range >= 0 m, got {mixture_min_range!r}")
+    if mixture_min_range > 0 and offset_law != "mixture":
+        raise ValueError("mixture_min_range: only with offset_law 'mixture'")
     base = base or RigConfig()
     real = real_statistics(frames)
     sim = _sim_setup(frames, replicates, np.random.default_rng([seed, 7]))
@@ -709,8 +717,9 @@ def calibrate_rig(
         mixture: dict[str, Any] | None = None
         if offset_law == "mixture":
             cfg, mixture = fit_offset_mixture(frames, cfg, seed, mixture_components)
-        else:
-            cfg = _fit_offsets(cfg, sim, real, max_evals, bar)
+            cfg = replace(cfg, offset_mixture_min_range=float(mixture_min_range))
+        if offset_law == "reflection" or mixture_min_range > 0:  # with the mixture set, Powell sees only the
+            cfg = _fit_offsets(cfg, sim, real, max_evals, bar)  # nearer boxes' terms move: the law they keep
             cfg = _fit_detection(cfg, sim, real, ridge, bar, signed_azimuth)
     finally:
         bar.close()
@@ -729,7 +738,12 @@ def calibrate_rig(
         "procedure": "sensor_envs.radar.calibrate (simulation at the real boxes, common random numbers; "
         f"least_squares on detection terms ({'signed azimuth' if signed_azimuth else 'symmetric |azimuth|'} table), "
         + (
-            "offset mixture per range bin by EM, component count by held-out likelihood"
+            (
+                f"Powell on the offsets' energy distance below {mixture_min_range:g} m corner range, beyond it "
+                if mixture_min_range > 0
+                else ""
+            )
+            + "offset mixture per range bin by EM, component count by held-out likelihood"
             if offset_law == "mixture"
             else "Powell on the offsets' energy distance"
         )

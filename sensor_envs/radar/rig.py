@@ -27,7 +27,9 @@ cycle with probability ``exp(-cycle_time / reflection_tau)`` (else it is drawn a
 weights) and its standard-normal draw follows the tracker's AR(1) process, so the stationary law of
 one cycle is exactly the mixture and consecutive outputs stay correlated. The reflection point, its
 fraction along the face and the polar noise tables then only place the point whose range and
-azimuth the detection probability reads.
+azimuth the detection probability reads. With ``offset_mixture_min_range`` the mixture applies from
+that corner range on only; nearer boxes keep the reflection-point law (its own tracker error, driven
+by the same normal draws, so the random stream is the same).
 
 The sensor sits at the origin of its frame (x forward, y left); targets are boxes moving in that
 frame (:func:`generate_scenario`). All lengths in metres, angles in radians, times in seconds.
@@ -114,6 +116,8 @@ class RigConfig:
         offset_mixture_means: component means (radial, outward cross-range) [m], ``bins x components x 2``.
         offset_mixture_scales: lower Cholesky factors ``(l_rr, l_or, l_oo)`` [m] of the component
             covariances in the (radial, outward) frame, ``bins x components x 3`` (``l_rr, l_oo > 0``).
+        offset_mixture_min_range: closest-corner range [m] from which the mixture law applies; nearer
+            boxes keep the reflection-point law (0, the default: the mixture everywhere).
         clutter_dispersion: clutter count over-dispersion ``k``: variance = mean + k mean^2
             (negative binomial; 0 = Poisson).
         clutter_range_edges, clutter_range_weights: clutter range bins [m] and their shares
@@ -154,6 +158,7 @@ class RigConfig:
     offset_mixture_weights: Table = None
     offset_mixture_means: Table = None
     offset_mixture_scales: Table = None
+    offset_mixture_min_range: float = 0.0
     clutter_dispersion: float = 0.0
     clutter_range_edges: Table = None
     clutter_range_weights: Table = None
@@ -197,7 +202,8 @@ class RigConfig:
         names = ("offset_mixture_weights", "offset_mixture_means", "offset_mixture_scales")
         e, given = self.offset_mixture_edges, [getattr(self, n) for n in names]
         if e is None:
-            for n, v in zip(names, given, strict=True):
+            tables = (*given, self.offset_mixture_min_range or None)
+            for n, v in zip((*names, "offset_mixture_min_range"), tables, strict=True):
                 if v is not None:
                     raise ValueError(f"{n}: must be given with 'offset_mixture_edges'")
             return
@@ -262,6 +268,7 @@ RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
     "offset_mixture_weights": [None, Numbers(_PROB, min_length=1)],
     "offset_mixture_means": [None, Numbers(Interval(-50, 50), min_length=2)],
     "offset_mixture_scales": [None, Numbers(Interval(-50, 50), min_length=3)],
+    "offset_mixture_min_range": [_NONNEG],
     "clutter_dispersion": [Interval(0, 100)],
     "clutter_range_edges": [None, Numbers(_NONNEG, min_length=2, increasing=True)],
     "clutter_range_weights": [None, Numbers(_NONNEG, min_length=1)],
@@ -395,12 +402,14 @@ class OffsetMixture:
         weights: ``(B, K)`` component weights.
         means: ``(B, K, 2)`` means (radial, outward) [m].
         chol: ``(B, K, 2, 2)`` lower Cholesky factors [m].
+        min_range: closest-corner range [m] from which the mixture applies (nearer: reflection-point law).
     """
 
     edges: NDArray[np.float64]
     weights: NDArray[np.float64]
     means: NDArray[np.float64]
     chol: NDArray[np.float64]
+    min_range: float = 0.0
 
     @classmethod
     def from_config(cls, c: RigConfig) -> OffsetMixture | None:
@@ -414,7 +423,12 @@ class OffsetMixture:
         s = np.asarray(c.offset_mixture_scales, dtype=np.float64).reshape(b, k, 3)
         chol = np.zeros((b, k, 2, 2))
         chol[..., 0, 0], chol[..., 1, 0], chol[..., 1, 1] = s[..., 0], s[..., 1], s[..., 2]
-        return cls(edges, w, np.asarray(c.offset_mixture_means, dtype=np.float64).reshape(b, k, 2), chol)
+        means = np.asarray(c.offset_mixture_means, dtype=np.float64).reshape(b, k, 2)
+        return cls(edges, w, means, chol, float(c.offset_mixture_min_range))
+
+    def near(self, corner: NDArray) -> NDArray[np.bool_]:
+        """Which corners ``(n, 2)`` [m] lie nearer than ``min_range``: the reflection-point law's boxes."""
+        return np.asarray(np.hypot(corner[:, 0], corner[:, 1]) < self.min_range, dtype=bool)
 
     def range_bin(self, corner: NDArray) -> NDArray[np.intp]:
         """Bin index ``(n,)`` of each corner's range (clipped to the first / last bin)."""
@@ -519,6 +533,7 @@ class RadarRig:
         rho = np.exp(-c.cycle_time / c.tracker_tau)
         rho_ref = np.exp(-c.cycle_time / c.reflection_tau)
         err = np.zeros((n_tgt, 2))
+        err_near = np.zeros((n_tgt, 2))  # mixture law with min_range: the reflection law's tracker error
         spread = c.reflection_spread
         frac = rng.uniform(-spread, spread, n_tgt)
         tracked = np.zeros(n_tgt, dtype=bool)
@@ -553,6 +568,11 @@ class RadarRig:
                 comp = np.where(keep_comp, comp, fresh)
                 err = np.where(tracked[:, None], rho * err + np.sqrt(1 - rho**2) * normal, normal)
                 meas = corner + mix.offset(corner, b, comp, err)
+                if mix.min_range > 0:  # nearer boxes: the reflection-point law (same normal draws, own AR(1))
+                    innov = self.innovation(r, az, normal, u_out)
+                    err_near = np.where(tracked[:, None], rho * err_near + np.sqrt(1 - rho**2) * innov, innov)
+                    near = mix.near(corner)
+                    meas[near] = self._to_xy(refl[near], err_near[near], c.range_bias)
             tracked = det
             meas[~det] = np.nan
             keep = np.hypot(box[:, 0], box[:, 1]) <= c.log_range
@@ -593,6 +613,10 @@ class RadarRig:
             corner = geom[0]
             b = mix.range_bin(corner)
             meas = corner + mix.offset(corner, b, mix.component(b, draws.u_outlier), draws.normal)
+            near = mix.near(corner)  # nearer than min_range: the reflection-point law
+            if near.any():
+                innov = self.innovation(r[near], az[near], draws.normal[near], draws.u_outlier[near])
+                meas[near] = self._to_xy(refl[near], innov, c.range_bias)
         meas[~(draws.u_detect < p)] = np.nan
         return meas, p
 
