@@ -6,12 +6,13 @@ The whole chain runs from a fresh clone (~30-45 min on 2 shared cores, most of i
 1. AFTER models: record the calibrated rig (``--rig``, default ``models/radar_rig.json``) with the
    command of the model card (``record radar ... --in-view-only``; ``--all-targets`` records every
    box, the chain of the models shipped until 2026-11-24) and fit the KDE (``--relevance cv_state
-   --relevance-candidates 6 12 24 48 96 192``, both options of this script; ``--relevance cv_axes``
+   --relevance-candidates 6 12 24 48 96 192 --bandwidth-scale 0.7``, options of this script; ``--relevance cv_axes``
    with ``--rig`` = the rig file of commit 8e72122 is the chain of the models shipped there) and the Gaussian baseline
    on it, both through the ``sensor-envs`` CLI (``--models-from DIR`` skips this and uses
    ``DIR/radar_kde.npz`` and ``DIR/radar_gaussian.npz``, e.g. ``models``);
-2. BEFORE models: ``git show <--before-rev>:models/radar_kde.npz`` (and the Gaussian): the models
-   shipped before the calibration (fitted on the generic rig);
+2. BEFORE models: ``git show <--before-rev>:models/radar_kde.npz`` (and the Gaussian): by default the
+   models shipped before the rig with the offset mixture from 50 m (ce7b78a; ``--before-rev f327671``:
+   those before the calibration, fitted on the generic rig);
 3. real data: ``load_astyx`` (cars; measured position = a cluster's detection nearest to the
    sensor); frames in blocks of ``--block`` consecutive frames, block ``b`` in test fold
    ``b % --folds`` (``validate.split_by_blocks``). Every fold: a KDE fitted on the other folds
@@ -65,8 +66,9 @@ from sensor_envs.radar.validate import RANGE_BINS, energy_distance_2d, split_by_
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT / ".." / "shared" / "data" / "real" / "astyx_hires2019"
-BEFORE_REV = "f327671"
-"""Commit whose ``models/`` hold the radar models shipped before the calibration (generic rig)."""
+BEFORE_REV = "ce7b78a"
+"""Commit whose ``models/`` hold the radar models shipped before the last change (the reflection-law rig at
+every range; before the calibration itself: f327671, the generic rig)."""
 RANGE_LABELS = [f"{lo:g}-{hi:g}" for lo, hi in zip(RANGE_BINS[:-1], RANGE_BINS[1:], strict=True)]
 AZ_DEG = np.rad2deg(DET_AZIMUTH_EDGES)
 AZ_LABELS = [f"{lo:g}..{hi:g}" for lo, hi in zip(AZ_DEG[:-1], AZ_DEG[1:], strict=True)]
@@ -86,6 +88,10 @@ RELEVANCE_CANDIDATES = (6.0, 12.0, 24.0, 48.0, 96.0, 192.0)
 """Corner variances [m^2] the shipped model's CV tried (``fit radar --relevance-candidates``)."""
 
 
+BANDWIDTH_SCALE = 0.7
+"""Contribution-bandwidth factor of the shipped KDE (``fit radar --bandwidth-scale``; see the model card)."""
+
+
 def chain(
     work: Path,
     rig: str,
@@ -93,12 +99,15 @@ def chain(
     in_view_only: bool = True,
     relevance: str = RELEVANCE,
     candidates: tuple[float, ...] | None = RELEVANCE_CANDIDATES,
+    bandwidth_scale: float = BANDWIDTH_SCALE,
 ) -> tuple[Path, Path]:
     """Record the calibrated rig and fit the KDE and Gaussian as the model card says; returns their paths.
 
     The defaults are the card's commands of the shipped model (2026-11-24, second refit): ``record radar
     --in-view-only`` (boxes wholly outside the rig's field of view left out of the log) and ``fit radar
-    --relevance cv_state --relevance-candidates 6 12 24 48 96 192``. ``relevance="cv_axes"`` (with the
+    --relevance cv_state --relevance-candidates 6 12 24 48 96 192 --bandwidth-scale 0.7``, the factor the
+    shipped file carries (chosen on Astyx by ``real_radar_bandwidth_scale.py``; 1 for the files before
+    commit 621e782). ``relevance="cv_axes"`` (with the
     rig of commit 8e72122) is the chain of the models shipped at 8e72122; ``in_view_only=False,
     relevance="cv", candidates=None`` that of the models shipped before (commit 156053f).
     """
@@ -110,7 +119,8 @@ def chain(
     cli("record", "radar", "--rig", rig, "--out", str(log), "--seed", str(seed), "--sequences", "50",
         "--cycles", "40", "--targets", "8", "--cycle-time", "1.0", *view, "--force")  # fmt: skip
     cli("fit", "radar", str(log), "--out", str(kde), "--baseline-out", str(gauss), "--cycle-time", "1.0",
-        "--seed", str(seed), "--relevance", relevance, *cand, "--force")  # fmt: skip
+        "--seed", str(seed), "--relevance", relevance, *cand, "--bandwidth-scale", f"{bandwidth_scale:g}",
+        "--force")  # fmt: skip
     return kde, gauss
 
 
@@ -308,6 +318,13 @@ def main() -> None:
         + " ".join(f"{c:g}" for c in RELEVANCE_CANDIDATES)
         + "; the models before used the CLI's default 3 6 12 24 48)",
     )
+    ap.add_argument(
+        "--bandwidth-scale",
+        type=float,
+        default=BANDWIDTH_SCALE,
+        help=f"chain: fit radar --bandwidth-scale (default {BANDWIDTH_SCALE:g}, the shipped model's; "
+        "1: files before 621e782)",
+    )
     ap.add_argument("--before-rev", default=BEFORE_REV, help="git revision of the BEFORE models")
     ap.add_argument("--block", type=int, default=10)
     ap.add_argument("--folds", type=int, default=5)
@@ -333,6 +350,7 @@ def main() -> None:
             in_view_only=args.in_view_only,
             relevance=args.relevance,
             candidates=tuple(args.relevance_candidates),
+            bandwidth_scale=args.bandwidth_scale,
         )
     kde_before, gauss_before = before_models(out / "before", args.before_rev)
     fixed = {
@@ -389,7 +407,8 @@ def main() -> None:
         "after_from": str(
             args.models_from
             or f"chain: {args.rig} -> record{' --in-view-only' if args.in_view_only else ''} -> fit --relevance "
-            f"{args.relevance} --relevance-candidates {' '.join(f'{c:g}' for c in args.relevance_candidates)}"
+            f"{args.relevance} --relevance-candidates {' '.join(f'{c:g}' for c in args.relevance_candidates)} "
+            f"--bandwidth-scale {args.bandwidth_scale:g}"
         ),
         "range_bins_m": list(RANGE_BINS),
         "azimuth_bins_deg": AZ_DEG.tolist(),

@@ -15,7 +15,9 @@ bin (mean over folds). Candidates:
   midpoint, the only law before the centre became a parameter);
 * ``centre`` - offsets refitted with the reflection centre free (what ``calibrate radar`` does);
 * ``mixture`` - the offset mixture law refitted by EM on the training folds (``calibrate radar
-  --offset-law mixture``: a Gaussian mixture per range bin in the closest corner's polar frame).
+  --offset-law mixture``: a Gaussian mixture per range bin in the closest corner's polar frame);
+* ``hybrid`` - the mixture from ``--mixture-min-range`` (default 50 m) on, the reflection law refitted
+  (centre free) for the nearer boxes (``calibrate radar --offset-law mixture --mixture-min-range 50``).
 
 ``--candidates`` picks some (default: all).
 
@@ -49,7 +51,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from real_radar_calibration_cv import _NoBar, subset  # noqa: E402  (benchmarks are scripts, not a package)
 
-CANDIDATES = ("rig", "midpoint", "centre", "mixture")
+CANDIDATES = ("rig", "midpoint", "centre", "mixture", "hybrid")
 
 
 def held_out_offsets(cfg: RigConfig, test: cal.RealFrames, replicates: int, seed: int) -> dict[str, np.ndarray]:
@@ -100,6 +102,7 @@ def main() -> None:
     ap.add_argument("--max-evals", type=int, default=1500)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--candidates", nargs="+", choices=CANDIDATES, default=list(CANDIDATES))
+    ap.add_argument("--mixture-min-range", type=float, default=50.0, help="candidate 'hybrid': mixture from here [m]")
     ap.add_argument("--json", default=None, help="also write the figures to this JSON file")
     args = ap.parse_args()
     t0 = time.perf_counter()
@@ -122,9 +125,12 @@ def main() -> None:
         res["real_halves"].append(real_halves(test, args.seed).tolist())
         for cand in cands:  # one iteration per candidate
             cfg = base
-            if cand == "mixture":
+            if cand in ("mixture", "hybrid"):
                 cfg, rep = cal.fit_offset_mixture(train, base, args.seed)
                 params[cand].append({"components": [b["components"] for b in rep["bins"]]})
+                if cand == "hybrid":  # as calibrate_rig: the mixture set first, then Powell on the nearer boxes
+                    cfg = replace(cfg, offset_mixture_min_range=args.mixture_min_range)
+                    cfg = cal._fit_offsets(cfg, sim, real_tr, args.max_evals, _NoBar())
             elif cand != "rig":
                 start = base if cand == "centre" else replace(base, reflection_center=0.5)
                 cfg = cal._fit_offsets(start, sim, real_tr, args.max_evals, _NoBar(), fit_center=cand == "centre")

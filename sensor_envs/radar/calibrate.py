@@ -62,7 +62,9 @@ exactly a draw of that mixture, so its discrepancy to the real offsets is minimi
 term is reported as the check. It is a few dozen numbers of statistics (weights, means and Cholesky
 factors per bin), no real rows. The reflection-point law can only place the point on a face, at a
 Gaussian-plus-tail spread; on Astyx HiRes2019 the real offsets' shape is not that (see the card of
-``models/radar_rig.json``).
+``models/radar_rig.json``). With ``mixture_min_range`` (``--mixture-min-range M``) the mixture applies from
+that closest-corner range on and steps 2-3 run after it is set, so the reflection-point law is fitted on
+the nearer boxes, which keep it (the shipped rig: 50 m).
 
 The rig's time-series parameters (latency, tracker and reflection time constants) cannot be seen in
 single frames and keep their generic values. All lengths in metres, angles in radians.
