@@ -848,8 +848,20 @@ CASES += [
     C(
         OPTION,
         "calibrate-radar-mixture-min-range-negative",
-        opt(["calibrate", "radar", "{d}/x.csv", "--out", "{d}/r.json", "--offset-law", "mixture",
-             "--mixture-min-range", "-5"], "--mixture-min-range"),
+        opt(
+            [
+                "calibrate",
+                "radar",
+                "{d}/x.csv",
+                "--out",
+                "{d}/r.json",
+                "--offset-law",
+                "mixture",
+                "--mixture-min-range",
+                "-5",
+            ],
+            "--mixture-min-range",
+        ),
         "> 0",
     ),  # fmt: skip
     C(
