@@ -125,12 +125,14 @@ def main() -> None:
         res["real_halves"].append(real_halves(test, args.seed).tolist())
         for cand in cands:  # one iteration per candidate
             cfg = base
-            if cand in ("mixture", "hybrid"):
-                cfg, rep = cal.fit_offset_mixture(train, base, args.seed)
+            if cand in ("mixture", "hybrid"):  # calibrate_rig's offset stage for --offset-law mixture
+                min_range = args.mixture_min_range if cand == "hybrid" else 0.0
+                cfg, rep = cal.fit_offset_law(
+                    train, base, sim, real_tr, "mixture", args.seed, cal.MIXTURE_COMPONENTS, min_range,
+                    args.max_evals, _NoBar(),
+                )  # fmt: skip
+                assert rep is not None
                 params[cand].append({"components": [b["components"] for b in rep["bins"]]})
-                if cand == "hybrid":  # as calibrate_rig: the mixture set first, then Powell on the nearer boxes
-                    cfg = replace(cfg, offset_mixture_min_range=args.mixture_min_range)
-                    cfg = cal._fit_offsets(cfg, sim, real_tr, args.max_evals, _NoBar())
             elif cand != "rig":
                 start = base if cand == "centre" else replace(base, reflection_center=0.5)
                 cfg = cal._fit_offsets(start, sim, real_tr, args.max_evals, _NoBar(), fit_center=cand == "centre")

@@ -98,6 +98,8 @@ __all__ = [
     "real_statistics",
     "discrepancy",
     "calibrate_rig",
+    "fit_offset_law",
+    "fit_offset_mixture",
     "snapshot_log",
 ]
 
@@ -668,6 +670,46 @@ def _fit_clutter(base: RigConfig, frames: RealFrames) -> RigConfig:
     )
 
 
+def fit_offset_law(
+    frames: RealFrames,
+    base: RigConfig,
+    sim: _Sim,
+    real: dict[str, NDArray],
+    offset_law: str,
+    seed: int,
+    components: tuple[int, ...],
+    mixture_min_range: float,
+    max_evals: int,
+    bar: Any,
+) -> tuple[RigConfig, dict[str, Any] | None]:
+    """Stages 2 (offsets) of :func:`calibrate_rig` for ``offset_law``; returns the config and the mixture report.
+
+    ``"reflection"``: Powell on the offsets' energy distance. ``"mixture"``: the mixture per range bin
+    (:func:`fit_offset_mixture`) with ``offset_mixture_min_range = mixture_min_range``; when that is > 0,
+    Powell runs AFTER the mixture is set, so only the nearer boxes' offset terms move it and the
+    reflection-point law is fitted where the rig uses it. The detection refit (stage 3) is the caller's.
+    """
+    mixture: dict[str, Any] | None = None
+    cfg = base
+    if offset_law == "mixture":
+        cfg, mixture = fit_offset_mixture(frames, cfg, seed, components)
+        cfg = replace(cfg, offset_mixture_min_range=float(mixture_min_range))
+    if offset_law == "reflection" or mixture_min_range > 0:
+        cfg = _fit_offsets(cfg, sim, real, max_evals, bar)
+    return cfg, mixture
+
+
+def _offset_procedure(offset_law: str, mixture_min_range: float) -> str:
+    """How the offset law was fitted, for the rig card's ``procedure``."""
+    powell = "Powell on the offsets' energy distance"
+    if offset_law != "mixture":
+        return powell
+    mixture = "offset mixture per range bin by EM, component count by held-out likelihood"
+    if mixture_min_range > 0:
+        return f"{powell} below {mixture_min_range:g} m corner range, beyond it {mixture}"
+    return mixture
+
+
 def calibrate_rig(
     frames: RealFrames,
     base: RigConfig | None = None,
@@ -716,12 +758,10 @@ def calibrate_rig(
     bar = tqdm(total=2 * 300 + max_evals, disable=not progress, desc="calibrate radar", unit="eval")
     try:
         cfg = _fit_detection(replace(base, max_range=150.0), sim, real, ridge, bar, signed_azimuth)
-        mixture: dict[str, Any] | None = None
-        if offset_law == "mixture":
-            cfg, mixture = fit_offset_mixture(frames, cfg, seed, mixture_components)
-            cfg = replace(cfg, offset_mixture_min_range=float(mixture_min_range))
-        if offset_law == "reflection" or mixture_min_range > 0:  # with the mixture set, Powell sees only the
-            cfg = _fit_offsets(cfg, sim, real, max_evals, bar)  # nearer boxes' terms move: the law they keep
+        cfg, mixture = fit_offset_law(
+            frames, cfg, sim, real, offset_law, seed, mixture_components, mixture_min_range, max_evals, bar
+        )
+        if offset_law == "reflection" or mixture_min_range > 0:  # the reflection points moved
             cfg = _fit_detection(cfg, sim, real, ridge, bar, signed_azimuth)
     finally:
         bar.close()
@@ -739,17 +779,7 @@ def calibrate_rig(
         },
         "procedure": "sensor_envs.radar.calibrate (simulation at the real boxes, common random numbers; "
         f"least_squares on detection terms ({'signed azimuth' if signed_azimuth else 'symmetric |azimuth|'} table), "
-        + (
-            (
-                f"Powell on the offsets' energy distance below {mixture_min_range:g} m corner range, beyond it "
-                if mixture_min_range > 0
-                else ""
-            )
-            + "offset mixture per range bin by EM, component count by held-out likelihood"
-            if offset_law == "mixture"
-            else "Powell on the offsets' energy distance"
-        )
-        + ", closed-form clutter)",
+        f"{_offset_procedure(offset_law, mixture_min_range)}, closed-form clutter)",
         "offset_law": offset_law,
         "seed": seed,
         "replicates": replicates,

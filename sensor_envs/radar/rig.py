@@ -202,10 +202,11 @@ class RigConfig:
         names = ("offset_mixture_weights", "offset_mixture_means", "offset_mixture_scales")
         e, given = self.offset_mixture_edges, [getattr(self, n) for n in names]
         if e is None:
-            tables = (*given, self.offset_mixture_min_range or None)
-            for n, v in zip((*names, "offset_mixture_min_range"), tables, strict=True):
+            for n, v in zip(names, given, strict=True):
                 if v is not None:
                     raise ValueError(f"{n}: must be given with 'offset_mixture_edges'")
+            if self.offset_mixture_min_range:
+                raise ValueError("offset_mixture_min_range: must be given with 'offset_mixture_edges'")
             return
         n_bins = len(e) - 1
         for n, v in zip(names, given, strict=True):
@@ -382,6 +383,15 @@ def _reflection_point(
     return pt if at_corner is None else np.where(at_corner[:, None], corner, pt)
 
 
+def _tracker_ar1(err: NDArray, innov: NDArray, tracked: NDArray, rho: float) -> NDArray[np.float64]:
+    """One cycle of the tracker's AR(1) error ``(n, 2)``.
+
+    ``rho err + sqrt(1 - rho^2) innov`` where the target was ``tracked`` last cycle; the innovation alone
+    where its track (re)starts.
+    """
+    return np.where(tracked[:, None], rho * err + np.sqrt(1 - rho**2) * innov, innov)
+
+
 def polar_frame(corner: NDArray) -> tuple[NDArray, NDArray]:
     """Unit vectors ``(n, 2)`` of the polar frame at ``corner`` [m]: radial, and OUTWARD cross-range.
 
@@ -532,8 +542,8 @@ class RadarRig:
         n_cyc, n_tgt, _ = scenario.boxes.shape
         rho = np.exp(-c.cycle_time / c.tracker_tau)
         rho_ref = np.exp(-c.cycle_time / c.reflection_tau)
-        err = np.zeros((n_tgt, 2))
-        err_near = np.zeros((n_tgt, 2))  # mixture law with min_range: the reflection law's tracker error
+        err = np.zeros((n_tgt, 2))  # the reflection-point law's tracker error (polar, metres)
+        err_mix = np.zeros((n_tgt, 2))  # the mixture law's standard-normal tracker draw
         spread = c.reflection_spread
         frac = rng.uniform(-spread, spread, n_tgt)
         tracked = np.zeros(n_tgt, dtype=bool)
@@ -556,23 +566,18 @@ class RadarRig:
             det = rng.random(n_tgt) < self.detection_probability(r, az, occ)
             normal = np.stack([rng.normal(0, 1, n_tgt), rng.normal(0, 1, n_tgt)], axis=1)
             u_out = np.ones(n_tgt) if c.outlier_share == 0 else np.asarray(rng.random(n_tgt), dtype=np.float64)
-            if mix is None:
-                innov = self.innovation(r, az, normal, u_out)
-                err = np.where(tracked[:, None], rho * err + np.sqrt(1 - rho**2) * innov, innov)
+            if mix is None or mix.min_range > 0:  # the reflection-point law (with a mixture: nearer boxes)
+                err = _tracker_ar1(err, self.innovation(r, az, normal, u_out), tracked, rho)
                 meas = self._to_xy(refl, err, c.range_bias)
-            else:  # the component persists (reflection time constant), its normal draw is the tracker's AR(1)
+            if mix is not None:  # the component persists (reflection time constant), its normal draw is the AR(1)
                 corner = geom[0]
                 b = mix.range_bin(corner)
                 fresh = mix.component(b, np.asarray(rng.random(n_tgt), dtype=np.float64))
                 keep_comp = (np.asarray(rng.random(n_tgt)) < rho_ref) & (k > 0)
                 comp = np.where(keep_comp, comp, fresh)
-                err = np.where(tracked[:, None], rho * err + np.sqrt(1 - rho**2) * normal, normal)
-                meas = corner + mix.offset(corner, b, comp, err)
-                if mix.min_range > 0:  # nearer boxes: the reflection-point law (same normal draws, own AR(1))
-                    innov = self.innovation(r, az, normal, u_out)
-                    err_near = np.where(tracked[:, None], rho * err_near + np.sqrt(1 - rho**2) * innov, innov)
-                    near = mix.near(corner)
-                    meas[near] = self._to_xy(refl[near], err_near[near], c.range_bias)
+                err_mix = _tracker_ar1(err_mix, normal, tracked, rho)
+                mixed = corner + mix.offset(corner, b, comp, err_mix)
+                meas = np.where(mix.near(corner)[:, None], meas, mixed) if mix.min_range > 0 else mixed
             tracked = det
             meas[~det] = np.nan
             keep = np.hypot(box[:, 0], box[:, 1]) <= c.log_range
