@@ -59,8 +59,9 @@ MAE = [
     ("clean", "mae_sigma"),
     ("clean", "mae_p_null"),
     (None, "mae_p_spur"),
+    (None, "mse_p_spur"),
 ]
-LL = ["ll_per_reading", "ll_per_reading_in_range", "ll_null_counts_per_reading"]
+LL = ["ll_per_reading", "ll_per_reading_in_range", "ll_null_counts_per_reading", "ll_spur_counts_per_reading"]
 
 
 def _model(**kw: Any) -> LidarLWLR:

@@ -19,7 +19,10 @@ bin (mean over folds). Candidates:
 * ``hybrid`` - the mixture from ``--mixture-min-range`` (default 50 m) on, the reflection law refitted
   (centre free) for the nearer boxes (``calibrate radar --offset-law mixture --mixture-min-range 50``).
 
-``--candidates`` picks some (default: all).
+``--candidates`` picks some (default: all). With a ``--rig`` whose offsets already follow the mixture
+from some range on (``offset_mixture_min_range`` > 0, as the shipped ``models/radar_rig.json`` from
+50 m), ``midpoint`` and ``centre`` refit only the reflection law of the nearer boxes: beyond that
+range the rig's mixture tables are not refitted.
 
 Also printed: the distance pooled over the folds (every real row held out once, the rig's rows
 simulated at each fold's boxes with the rig fitted without that fold): the figure comparable with

@@ -184,22 +184,26 @@ def test_null_count_log_prob_is_a_beta_binomial():
         assert pmf @ (k - n * q) ** 2 == pytest.approx(n * q * (1 - q) * (1 + (n - 1) * rho), rel=1e-9)
 
 
+@pytest.mark.parametrize("outcome", ["null", "spur"])
 @pytest.mark.parametrize("rho", [0.0, 0.5])
-def test_sampled_null_counts_follow_the_beta_binomial(rig_fit, rho):
+def test_sampled_null_and_spurious_counts_follow_the_beta_binomial(rig_fit, rho, outcome):
     _, _, ext, _ = rig_fit
     cells, n, q = 4000, 20, 0.3
+    null = outcome == "null"
     p = {
-        "p_null": np.full((cells, 1), q),
-        "p_spur": np.full((cells, 1), 1e-4),
+        "p_null": np.full((cells, 1), q if null else 1e-4),
+        "p_spur": np.full((cells, 1), 1e-4 if null else q),
         "mu": np.full((cells, 1), 2.0),
         "sigma": np.full((cells, 1), 0.01),
         "tau": np.zeros((cells, 1)),
         "p_out": np.zeros((cells, 1)),
         "out_range": np.full((cells, 1), 5.0),
-        "null_rho": np.full((cells, 1), rho),
+        "null_rho": np.full((cells, 1), rho if null else 0.0),
+        "spur_rho": np.full((cells, 1), 0.0 if null else rho),
     }
     x = ext.sample_from_params(p, np.random.default_rng(11), (cells, n), pose_uncertainty=True)
-    obs = np.bincount((x == 0).sum(1), minlength=n + 1)
+    hits = (x == 0) if null else (x > ext.spur_above)
+    obs = np.bincount(hits.sum(1), minlength=n + 1)
     exp = cells * np.exp(null_count_log_prob(np.arange(n + 1), n, q, rho))
     keep = exp >= 5  # pool the sparse tails into one bin
     o, e = np.append(obs[keep], obs[~keep].sum()), np.append(exp[keep], exp[~keep].sum())
@@ -219,6 +223,23 @@ def test_fit_finds_persistent_nulls(rig_fit):
     assert independent.null_rho_ <= 0.1
     s = persistent.cv_scores_["null_rho"]
     assert s["ll_per_reading_best"] > s["ll_per_reading_independent"]
+
+
+def test_fit_finds_persistent_spurious_returns(rig_fit):
+    log, _, ext, _ = rig_fit
+    x = log.ranges
+    assert np.any(x > ext.spur_above)  # the rig's spurious-prone cells
+    assert ext.spur_rho_ >= 0.5
+    s = ext.cv_scores_["spur_rho"]
+    assert s["ll_per_reading_best"] > s["ll_per_reading_independent"]
+    # the same share of spurious readings, scattered independently over the readings: no persistence
+    rng = np.random.default_rng(5)
+    share = float(np.nanmean(np.where(np.isnan(x), np.nan, x > ext.spur_above)))
+    clean = np.where(x > ext.spur_above, 0.0, x)
+    scattered = np.where((rng.random(x.shape) < share) & (clean > 0), 16.9, clean)
+    kw = dict(SMALL, h_bearing_grid=(0.0,), degree_grid=(1,))
+    independent = LidarLWLR(variant="extended", **kw).fit(dataclasses.replace(log, ranges=scattered))
+    assert independent.spur_rho_ <= 0.1
 
 
 def test_rig_nulls_persist_per_cell_and_the_fit_finds_them():
@@ -258,7 +279,7 @@ def test_save_load_round_trip(rig_fit, tmp_path):
     back = LidarLWLR.load(path)
     np.testing.assert_array_equal(back.tables_, ext.tables_)
     assert back.h_ == ext.h_ and back.p_out_ == ext.p_out_ and back.spur_mu_ == ext.spur_mu_
-    assert back.null_rho_ == ext.null_rho_
+    assert back.null_rho_ == ext.null_rho_ and back.spur_rho_ == ext.spur_rho_
     a = ext.sample(log.poses[:2], ROOM, np.random.default_rng(9), n_repeats=3)
     b = back.sample(log.poses[:2], ROOM, np.random.default_rng(9), n_repeats=3)
     np.testing.assert_array_equal(a, b)
@@ -271,7 +292,15 @@ def test_format_version_1_files_load_with_independent_nulls(rig_fit, tmp_path):
     with np.load(path) as z:
         arrays = {k: z[k] for k in z.files}
     header = json.loads(arrays["__header__"].tobytes().decode("utf-8"))
-    assert header["format_version"] == 4
+    assert header["format_version"] == 5
+    assert header["spur_rho"] == ext.spur_rho_
+    del header["spur_rho"]  # format 5 added the persistence of spurious returns
+    header["format_version"] = 4
+    arrays["__header__"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
+    np.savez(tmp_path / "v4.npz", **arrays)
+    v4 = LidarLWLR.load(tmp_path / "v4.npz")
+    assert v4.spur_rho_ == 0.0 and v4.null_rho_ == ext.null_rho_
+    np.testing.assert_array_equal(v4.tables_, ext.tables_)
     for k in ("bias_shrinkage", "pose_correction"):  # format 4 added the bias shrinkage
         del header["params"][k]
     del header["bias_shrinkage"]
@@ -297,11 +326,11 @@ def test_format_version_1_files_load_with_independent_nulls(rig_fit, tmp_path):
     old = LidarLWLR.load(tmp_path / "v1.npz")
     assert old.null_rho_ == 0.0
     np.testing.assert_array_equal(old.tables_, ext.tables_)
-    header["format_version"] = 5
+    header["format_version"] = 6
     arrays["__header__"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
-    np.savez(tmp_path / "v5.npz", **arrays)
-    with pytest.raises(ModelFileError, match=re.escape("field 'format_version' is 5")):
-        LidarLWLR.load(tmp_path / "v5.npz")
+    np.savez(tmp_path / "v6.npz", **arrays)
+    with pytest.raises(ModelFileError, match=re.escape("field 'format_version' is 6")):
+        LidarLWLR.load(tmp_path / "v6.npz")
 
 
 def test_bad_model_files_name_the_field(rig_fit, tmp_path):
@@ -396,6 +425,36 @@ def test_real_data_model_beats_baselines_on_held_out_poses(real_data):
     # real nulls persist per cell: the fitted intra-cell correlation scores held-out null counts better
     assert model.null_rho_ >= 0.3
     assert ours["ll_null_counts_per_reading"] > ours["ll_null_counts_per_reading_independent"] + 0.05
+    # and so do the real spurious returns (a cell has them in almost all or none of its readings)
+    assert model.spur_rho_ >= 0.5
+    assert ours["ll_spur_counts_per_reading"] > ours["ll_spur_counts_per_reading_independent"] + 0.01
+
+
+def test_mae_of_p_spur_favours_predicting_none_the_proper_scores_do_not():
+    from sensor_envs.lidar.log import LidarLog
+    from sensor_envs.lidar.validate import table_one
+
+    # 400 cells of 50 readings at 1 m; 5 % of the cells are spurious in every reading (persistent)
+    cells, n = 400, 50
+    x = np.full((cells, 1, n), 1.0)
+    x[: cells // 20] = 16.9
+    log = LidarLog(ranges=x, bearings=np.zeros(1), poses=np.zeros((cells, 3)), map_segments=None, source="synthetic")
+
+    def params(p_spur: float, rho: float) -> dict[str, np.ndarray]:
+        full = np.full((cells, 1), 1.0)
+        return {
+            "p_null": full * 1e-4,
+            "p_spur": full * p_spur,
+            "mu": full,
+            "sigma": full * 0.01,
+            "tau": full * 0,
+            "spur_rho": full * rho,
+        }
+
+    none, calibrated = table_one(log, params(0.0, 0.0)), table_one(log, params(0.05, 0.95))
+    assert none["mae_p_spur"] < calibrated["mae_p_spur"]  # 0.05 vs 0.095: the MAE rewards predicting none
+    assert calibrated["mse_p_spur"] < none["mse_p_spur"]  # the Brier score and the count likelihood do not
+    assert calibrated["ll_spur_counts_per_reading"] > none["ll_spur_counts_per_reading"]
 
 
 def test_cross_validated_table_runs_on_a_small_rig_log():

@@ -21,7 +21,11 @@ the ray, computed from the (approximate) sensor pose and the nominal map.
   over a cell's repeats with mean ``p_null``, chosen by leave-poses-out likelihood). :meth:`LidarLWLR.sample`
   draws each cell's null probability once from ``Beta(p_null c, (1 - p_null) c)``, ``c = 1 / rho - 1``,
   shared by its repeats; :func:`null_count_log_prob` scores a cell's null count. The per-reading
-  :meth:`LidarLWLR.log_prob` and the world's sensor use the marginal ``p_null`` (unchanged).
+  :meth:`LidarLWLR.log_prob` and the world's sensor use the marginal ``p_null`` (unchanged). Spurious
+  far returns persist per cell too (on the real log, a cell that has any is spurious in a median 96 %
+  of its readings): ``spur_rho_`` is their intra-cell correlation, chosen the same way from the
+  cells' spurious counts around the out-of-fold ``p_spur``, and :meth:`LidarLWLR.sample` draws each
+  cell's spurious probability from the same kind of Beta (mean ``p_spur``).
 
 Each parameter is regressed per bearing by locally weighted linear regression (LWLR) on
 ``(r, alpha)`` of the training cells (one cell = one pose and one bearing, summarised by its
@@ -126,13 +130,14 @@ __all__ = [
 """Cell-mean residuals [m] are clipped to this before their variance ``tau^2`` is regressed."""
 VARIANTS = ("seed", "extended")
 MODEL_KIND = "sensor_envs.lidar_lwlr"  # the file format's kind string (kept: shipped files carry it)
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5
 """2 adds ``null_rho`` to the header (version 1 files load with ``null_rho = 0``, independent nulls); 3 adds the
 extra state (``params.extra_state``, arrays ``extra_mean``, ``extra_scale``, ``extra_coef``; older files load
 with no extra state); 4 adds the bias shrinkage (header ``bias_shrinkage``, ``params.bias_shrinkage``,
-``params.pose_correction``; older files load with shrinkage 0 and no pose correction, their old behaviour)."""
+``params.pose_correction``; older files load with shrinkage 0 and no pose correction, their old behaviour);
+5 adds ``spur_rho`` (persistent spurious returns; older files load with ``spur_rho = 0``, independent ones)."""
 RHO_GRID = (0.0, 0.01, 0.03, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95)
-"""Candidate intra-cell correlations of nulls (extended variant)."""
+"""Candidate intra-cell correlations of nulls and of spurious returns (extended variant)."""
 _PARAMS = {"seed": ("p_null", "bias", "sigma"), "extended": ("p_null", "p_spur", "bias", "log_sigma")}
 _TABLES = {"seed": _PARAMS["seed"], "extended": _PARAMS["extended"] + ("tau2",)}
 MAX_SIGMA = 1e3
@@ -403,8 +408,10 @@ class LidarLWLR(BaseEstimator):
         del self._bias_oof
         if self.variant == "seed":
             self.p_out_ = 0.0
-        self.null_rho_ = self._fit_null_rho(stats, r) if self.variant == "extended" else 0.0
-        del self._p_null_oof
+        extended = self.variant == "extended"
+        self.null_rho_ = self._fit_count_rho("p_null", "null_rho", stats, r) if extended else 0.0
+        self.spur_rho_ = self._fit_count_rho("p_spur", "spur_rho", stats, r) if extended else 0.0
+        del self._count_oof
         self._fit_spurious(log)
         self.training_ = {
             "source": Path(log.source).name,
@@ -486,18 +493,21 @@ class LidarLWLR(BaseEstimator):
             oof[te] = pred[0, 0, ..., 0]
         return y_ap, oof, m_ap
 
-    def _fit_null_rho(self, stats: dict[str, NDArray[np.float64]], r: NDArray[np.float64]) -> float:
-        """Intra-cell correlation of nulls (``0`` = independent readings).
+    def _fit_count_rho(
+        self, name: str, score: str, stats: dict[str, NDArray[np.float64]], r: NDArray[np.float64]
+    ) -> float:
+        """Intra-cell correlation of the outcome ``name`` (``p_null``: nulls, ``p_spur``: spurious returns).
 
-        The ``RHO_GRID`` value maximising the beta-binomial likelihood of the training cells' null counts
-        around the out-of-fold ``p_null`` of the chosen kernel widths.
+        The ``RHO_GRID`` value maximising the beta-binomial likelihood of the training cells' counts of
+        that outcome around its out-of-fold probability at the chosen kernel widths (``0`` = independent
+        readings); the scores go to ``cv_scores_[score]``.
         """
         m = np.isfinite(r) & (stats["n"] > 0)
         n = stats["n"][m]
-        k = np.round(stats["p_null"][m] * n)
-        q = self._p_null_oof[m]
+        k = np.round(stats[name][m] * n)
+        q = self._count_oof[name][m]
         ll = [null_count_log_prob(k, n, q, rho).sum() for rho in RHO_GRID]
-        self.cv_scores_["null_rho"] = {
+        self.cv_scores_[score] = {
             "ll_per_reading_best": float(max(ll) / n.sum()),
             "ll_per_reading_independent": float(ll[0] / n.sum()),
             "n_candidates": len(RHO_GRID),
@@ -519,7 +529,8 @@ class LidarLWLR(BaseEstimator):
         per = len(degs) * len(hb)
         err = {n: np.zeros(len(grid)) for g in groups for n in g[0]}
         oof = np.zeros((len(grid),) + r.shape)  # out-of-fold bias predictions (for tau)
-        oof_p = np.zeros((len(grid),) + r.shape)  # out-of-fold p_null predictions (for null_rho)
+        counts = ("p_null", "p_spur")  # out-of-fold probabilities of the counted outcomes (for null_rho, spur_rho)
+        oof_p = {n: np.zeros((len(grid),) + r.shape) for g in groups for n in g[0] if n in counts}
         cnt = {n: np.zeros(len(grid)) for g in groups for n in g[0]}
         for f in tqdm(range(self.n_folds), desc=f"CV lidar LWLR ({self.variant})", disable=not self.progress):
             tr, te = fold != f, fold == f
@@ -531,14 +542,16 @@ class LidarLWLR(BaseEstimator):
                     pred = pred.reshape((per,) + pred.shape[2:])  # (degrees x bearing widths, Q, K, n)
                     if names[0] == "bias":
                         oof[i * per : (i + 1) * per, te] = pred[..., 0]
-                    if names[0] == "p_null":
-                        oof_p[i * per : (i + 1) * per, te] = _finish("p_null", pred[..., 0])
+                    for j, n in enumerate(names):
+                        if n in oof_p:
+                            oof_p[n][i * per : (i + 1) * per, te] = _finish(n, pred[..., j])
                     for j, n in enumerate(names):
                         for b in range(per):
                             e, c = _cv_loss(n, pred[b, ..., j], y[te][..., j], m_te)
                             err[n][i * per + b] += e
                             cnt[n][i * per + b] += c
         best, scores = {}, {}
+        self._count_oof: dict[str, NDArray[np.float64]] = {}
         for n in err:
             mae = err[n] / np.maximum(cnt[n], 1)
             i = int(np.argmin(mae))
@@ -546,8 +559,8 @@ class LidarLWLR(BaseEstimator):
             scores[n] = {"cv_mae_best": float(mae[i]), "cv_mae_worst": float(mae.max()), "n_candidates": len(grid)}
             if n == "bias":
                 self._bias_oof = oof[i]
-            if n == "p_null":
-                self._p_null_oof = oof_p[i]
+            if n in oof_p:
+                self._count_oof[n] = oof_p[n][i]
         return best, scores
 
     def _grid(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -643,6 +656,7 @@ class LidarLWLR(BaseEstimator):
             "p_out": np.full(rq.shape, self.p_out_),
             "out_range": np.full(rq.shape, self.max_range),
             "null_rho": np.full(rq.shape, self.null_rho_),
+            "spur_rho": np.full(rq.shape, self.spur_rho_),
         }
 
     def params(
@@ -679,7 +693,8 @@ class LidarLWLR(BaseEstimator):
         cell), shared by the repeats along the extra axes of ``shape``: with probability ``p_out``
         uniform on ``[0, out_range]`` (a ray whose nominal hit is another surface), else ``mu + tau z``;
         and so is the cell's null probability, from ``Beta(p_null c, (1 - p_null) c)``, ``c = 1 / null_rho - 1``
-        (persistent nulls; ``p_null`` itself where ``null_rho`` is 0 or absent).
+        (persistent nulls; ``p_null`` itself where ``null_rho`` is 0 or absent), then its spurious probability
+        from the same Beta with mean ``p_spur`` and ``spur_rho`` (at most ``1 -`` the cell's null probability).
         """
         shape = p["mu"].shape if shape is None else shape
         u = rng.random(shape)
@@ -692,8 +707,8 @@ class LidarLWLR(BaseEstimator):
                 rng.uniform(0.0, 1.0, cell) * p["out_range"],
                 mu + p["tau"] * rng.standard_normal(cell),
             )
-            p_null = _cell_null_probability(p_null, p.get("null_rho"), rng)
-            p_spur = np.minimum(p_spur, 1 - p_null)
+            p_null = _cell_probability(p_null, p.get("null_rho"), rng)
+            p_spur = np.minimum(_cell_probability(p_spur, p.get("spur_rho"), rng), 1 - p_null)
         x = np.maximum(mu + p["sigma"] * z, 1e-4)
         if self.variant == "extended":
             spur = (u >= p_null) & (u < p_null + p_spur)
@@ -873,6 +888,7 @@ class LidarLWLR(BaseEstimator):
             "spur_sigma": self.spur_sigma_,
             "p_out": self.p_out_,
             "null_rho": self.null_rho_,
+            "spur_rho": self.spur_rho_,
             "bias_shrinkage": self.bias_shrinkage_,
             "card": card,
         }
@@ -911,7 +927,7 @@ class LidarLWLR(BaseEstimator):
         version = _peek_version(path)
         if version >= 3:
             schema.update({"extra_mean": ("f", 1, True), "extra_scale": ("f", 1, True), "extra_coef": ("f", 2, True)})
-        header, arr = load_model_file(path, MODEL_KIND, (1, 2, 3, FORMAT_VERSION), schema)
+        header, arr = load_model_file(path, MODEL_KIND, (1, 2, 3, 4, FORMAT_VERSION), schema)
         defaults: dict[str, Any] = {"extra_state": ()}
         if version < 4:  # before the shrinkage: the learned bias as is, no pose correction (their old behaviour)
             defaults.update(bias_shrinkage=0.0, pose_correction=False)
@@ -926,6 +942,7 @@ class LidarLWLR(BaseEstimator):
             model.spur_mu_, model.spur_sigma_ = float(header["spur_mu"]), float(header["spur_sigma"])
             model.p_out_ = float(header["p_out"])
             model.null_rho_ = float(header.get("null_rho", 0.0))
+            model.spur_rho_ = float(header["spur_rho"]) if version >= 5 else 0.0
             shrink = header["bias_shrinkage"] if version >= 4 else 0.0
             model.bias_shrinkage_ = float(check_range(path, "bias_shrinkage", shrink, 0.0, 1.0))
             card = dict(header["card"])
@@ -1011,6 +1028,7 @@ def _check_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dict[str,
     check_positive(path, "spur_sigma", model.spur_sigma_, high=MAX_SIGMA)
     check_probability(path, "p_out", model.p_out_)
     check_range(path, "null_rho", model.null_rho_, 0.0, 0.999)
+    check_range(path, "spur_rho", model.spur_rho_, 0.0, 0.999)
     check_range(path, "bias_shrinkage", model.bias_shrinkage_, 0.0, 1.0)
     if model.bias_shrinkage != "cv" and model.bias_shrinkage_ != float(model.bias_shrinkage):
         raise ModelFileError(
@@ -1028,16 +1046,19 @@ def _check_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dict[str,
         check_range(path, f"h[{name}]", h[2:], 0.0, None)
 
 
-def _cell_null_probability(
-    p_null: NDArray[np.float64], rho: NDArray[np.float64] | None, rng: np.random.Generator
+def _cell_probability(
+    p: NDArray[np.float64], rho: NDArray[np.float64] | None, rng: np.random.Generator
 ) -> NDArray[np.float64]:
-    """One null probability per cell, ``Beta(p_null c, (1 - p_null) c)`` with ``c = 1 / rho - 1`` (mean ``p_null``)."""
+    """One probability of an outcome (null, spurious) per cell: ``Beta(p c, (1 - p) c)``, mean ``p``.
+
+    ``c = 1 / rho - 1``; ``p`` itself (and no draw) where ``rho`` is 0 or absent.
+    """
     if rho is None or not np.any(rho > 0):
-        return p_null
+        return p
     c = 1 / np.maximum(rho, 1e-9) - 1
-    q = np.clip(p_null, P_EPS, 1 - P_EPS)
+    q = np.clip(p, P_EPS, 1 - P_EPS)
     draw = rng.beta(q * c, (1 - q) * c)
-    return np.where(rho > 0, draw, p_null)
+    return np.where(rho > 0, draw, p)
 
 
 def null_count_log_prob(k: ArrayLike, n: ArrayLike, p_null: ArrayLike, rho: ArrayLike) -> NDArray[np.float64]:

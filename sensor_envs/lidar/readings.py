@@ -21,7 +21,7 @@ of its scan's pose; the parameters are regressed per bearing by the same LWLR as
   held-out Gaussian negative log-likelihood of those residuals. With one reading per pose this ``sigma`` is the whole
   spread around ``mu`` (pose error included): ``tau2`` (extended) is tabulated as 0.
 * ``p_out`` (extended): the fraction of in-range hit readings with bisquare weight 0 (the uniform
-  outlier component); ``null_rho = 0`` (persistence of nulls needs repeats).
+  outlier component); ``null_rho = spur_rho = 0`` (persistence of nulls and spurious returns needs repeats).
 
 Cross-validation folds are contiguous blocks of scans (consecutive scans are correlated; random rows
 would leak): block ``b`` of ``L`` consecutive scans goes to fold ``b mod n_folds``. ``L`` is
@@ -397,7 +397,7 @@ def fit_per_reading(
     _tabulate(model, tr_r, tr_a, targets, ext)
     n_in = (ok & hit).sum()
     model.p_out_ = float(np.clip(((w_bias == 0) & ok).sum() / max(n_in, 1), P_EPS, 0.5)) if ext else 0.0
-    model.null_rho_ = 0.0
+    model.null_rho_ = model.spur_rho_ = 0.0
     model._fit_spurious(log)
     model.training_ = {
         "source": Path(log.source).name,

@@ -15,6 +15,15 @@ Definitions (written into every ``report.json``):
   nulls among its readings, beta-binomial with mean ``p_null`` and the model's intra-cell correlation
   ``null_rho`` (persistent nulls); ``..._independent`` uses ``null_rho = 0`` (binomial: readings
   independent, as the per-reading log-likelihood assumes). Baselines have ``null_rho = 0``.
+* MSE of ``p_spur``: mean squared error over cells between the model's ``p_spur`` and the cell's
+  spurious fraction (a Brier score: least in expectation for the cell's true probability).
+* Spurious-count log-likelihood: the same for each cell's number of spurious far returns, beta-binomial
+  with mean ``p_spur`` and the model's ``spur_rho`` (``..._independent``: ``spur_rho = 0``). Unlike the
+  MAE of ``p_spur`` these two are proper scores: the real spurious cells are rare and near-binary (a cell is
+  spurious in almost all or none of its readings), so a cell's MAE is least at ``p_spur = 0`` whenever the
+  cell is more likely clean than spurious, as almost all are: a model that predicts no spurious return
+  at all has a lower MAE than one whose ``p_spur`` is the true probability. Baselines (no spurious
+  outcome) have ``p_spur = 0``, scored at the floor ``P_EPS``.
 * Baselines (same features): ``ideal`` has ``mu = r``, ``sigma = IDEAL_SIGMA`` (the 1 mm range quantum:
   a floor that keeps its likelihood finite) and ``p_null = P_EPS`` on a hit (``1 - P_EPS`` without);
   ``gaussian`` is :class:`~sensor_envs.lidar.sensors.GaussianLidar` with its ``sigma0``, ``k_range``,
@@ -120,12 +129,19 @@ def table_one(log: LidarLog, p: Params, spur: tuple[Any, Any] = (0.0, 1.0), spur
             "n_cells_p_null": int((has & sel).sum()),
         }
     out["mae_p_spur"] = float(np.abs(p["p_spur"] - st["p_spur"])[has].mean())
+    out["mse_p_spur"] = float(((p["p_spur"] - st["p_spur"]) ** 2)[has].mean())
     out.update(_ll(log, p, spur, spur_above))
     k, n = np.round(st["p_null"][has] * st["n"][has]), st["n"][has]
     rho = p["null_rho"][has] if "null_rho" in p else 0.0
     out["ll_null_counts_per_reading"] = float(null_count_log_prob(k, n, p["p_null"][has], rho).sum() / n.sum())
     out["ll_null_counts_per_reading_independent"] = float(
         null_count_log_prob(k, n, p["p_null"][has], 0.0).sum() / n.sum()
+    )
+    k_s = np.round(st["p_spur"][has] * n)
+    rho_s = p["spur_rho"][has] if "spur_rho" in p else 0.0
+    out["ll_spur_counts_per_reading"] = float(null_count_log_prob(k_s, n, p["p_spur"][has], rho_s).sum() / n.sum())
+    out["ll_spur_counts_per_reading_independent"] = float(
+        null_count_log_prob(k_s, n, p["p_spur"][has], 0.0).sum() / n.sum()
     )
     return out
 
@@ -191,17 +207,20 @@ def metrics_markdown(metrics: dict[str, dict[str, Any]]) -> str:
     """A Markdown table of :func:`table_one` results keyed by model name."""
     lines = [
         "| model | MAE mu [m] | MAE sigma [m] | MAE p_null | clean: MAE mu | clean: MAE sigma | "
-        "clean: MAE p_null | MAE p_spur | LL/reading | LL/reading in range | null-count LL/reading | "
-        "null-count LL/reading (independent) |",
-        "|" + "---|" * 12,
+        "clean: MAE p_null | MAE p_spur | MSE p_spur | LL/reading | LL/reading in range | null-count LL/reading | "
+        "null-count LL/reading (independent) | spurious-count LL/reading | spurious-count LL/reading (independent) |",
+        "|" + "---|" * 15,
     ]
     for k, m in metrics.items():
         a, c = m["all"], m["clean"]
         lines.append(
             f"| {k} | {a['mae_mu']:.4f} | {a['mae_sigma']:.4f} | {a['mae_p_null']:.4f} | {c['mae_mu']:.4f} | "
             f"{c['mae_sigma']:.4f} | {c['mae_p_null']:.4f} | {m['mae_p_spur']:.4f} | "
+            f"{m['mse_p_spur']:.4f} | "
             f"{m['ll_per_reading']:.4g} | {m['ll_per_reading_in_range']:.4g} | "
-            f"{m['ll_null_counts_per_reading']:.4g} | {m['ll_null_counts_per_reading_independent']:.4g} |"
+            f"{m['ll_null_counts_per_reading']:.4g} | {m['ll_null_counts_per_reading_independent']:.4g} | "
+            f"{m['ll_spur_counts_per_reading']:.4g} | "
+            f"{m['ll_spur_counts_per_reading_independent']:.4g} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -450,6 +469,15 @@ def model_card_markdown(model: LidarLWLR, commands: list[str], validation: dict[
             f"cell's repeats; chosen among {rho_s['n_candidates']} values by the likelihood of the training cells' "
             f"null counts around the out-of-fold `p_null`: {rho_s['ll_per_reading_best']:.4f} per reading vs "
             f"{rho_s['ll_per_reading_independent']:.4f} for independent readings).",
+            "",
+        ]
+    spur_s = model.cv_scores_.get("spur_rho")
+    if spur_s:
+        lines += [
+            f"Persistent spurious returns: intra-cell correlation `spur_rho` = {model.spur_rho_} (the same "
+            f"beta-binomial on the training cells' spurious counts around the out-of-fold `p_spur`: "
+            f"{spur_s['ll_per_reading_best']:.4f} per reading vs {spur_s['ll_per_reading_independent']:.4f} for "
+            "independent readings).",
             "",
         ]
     lines += _shrinkage_markdown(model)
