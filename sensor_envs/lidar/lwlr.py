@@ -545,7 +545,6 @@ class LidarLWLR(BaseEstimator):
                     for j, n in enumerate(names):
                         if n in oof_p:
                             oof_p[n][i * per : (i + 1) * per, te] = _finish(n, pred[..., j])
-                    for j, n in enumerate(names):
                         for b in range(per):
                             e, c = _cv_loss(n, pred[b, ..., j], y[te][..., j], m_te)
                             err[n][i * per + b] += e
@@ -1063,6 +1062,8 @@ def _cell_probability(
 
 def null_count_log_prob(k: ArrayLike, n: ArrayLike, p_null: ArrayLike, rho: ArrayLike) -> NDArray[np.float64]:
     """Log-probability of ``k`` nulls among a cell's ``n`` readings, beta-binomial with mean ``p_null``.
+
+    Also scores the counts of spurious returns (``p_null`` = ``p_spur``, ``rho`` = ``spur_rho``).
 
     ``rho`` is the intra-cell correlation of nulls (``0`` = independent readings, binomial); shapes broadcast.
     """

@@ -131,18 +131,12 @@ def table_one(log: LidarLog, p: Params, spur: tuple[Any, Any] = (0.0, 1.0), spur
     out["mae_p_spur"] = float(np.abs(p["p_spur"] - st["p_spur"])[has].mean())
     out["mse_p_spur"] = float(((p["p_spur"] - st["p_spur"]) ** 2)[has].mean())
     out.update(_ll(log, p, spur, spur_above))
-    k, n = np.round(st["p_null"][has] * st["n"][has]), st["n"][has]
-    rho = p["null_rho"][has] if "null_rho" in p else 0.0
-    out["ll_null_counts_per_reading"] = float(null_count_log_prob(k, n, p["p_null"][has], rho).sum() / n.sum())
-    out["ll_null_counts_per_reading_independent"] = float(
-        null_count_log_prob(k, n, p["p_null"][has], 0.0).sum() / n.sum()
-    )
-    k_s = np.round(st["p_spur"][has] * n)
-    rho_s = p["spur_rho"][has] if "spur_rho" in p else 0.0
-    out["ll_spur_counts_per_reading"] = float(null_count_log_prob(k_s, n, p["p_spur"][has], rho_s).sum() / n.sum())
-    out["ll_spur_counts_per_reading_independent"] = float(
-        null_count_log_prob(k_s, n, p["p_spur"][has], 0.0).sum() / n.sum()
-    )
+    n = st["n"][has]
+    for outcome in ("null", "spur"):  # counts per cell, beta-binomial with the model's rho and independent
+        k, q = np.round(st[f"p_{outcome}"][has] * n), p[f"p_{outcome}"][has]
+        rho = p[f"{outcome}_rho"][has] if f"{outcome}_rho" in p else 0.0
+        out[f"ll_{outcome}_counts_per_reading"] = float(null_count_log_prob(k, n, q, rho).sum() / n.sum())
+        out[f"ll_{outcome}_counts_per_reading_independent"] = float(null_count_log_prob(k, n, q, 0.0).sum() / n.sum())
     return out
 
 

@@ -670,6 +670,15 @@ def _fit_clutter(base: RigConfig, frames: RealFrames) -> RigConfig:
     )
 
 
+def _uses_reflection_law(offset_law: str, mixture_min_range: float) -> bool:
+    """Whether the rig places some boxes' points by the reflection-point law.
+
+    All boxes, or with the mixture those nearer than ``mixture_min_range``: then Powell fits that law and the
+    detection terms are refitted.
+    """
+    return offset_law == "reflection" or mixture_min_range > 0
+
+
 def fit_offset_law(
     frames: RealFrames,
     base: RigConfig,
@@ -694,7 +703,7 @@ def fit_offset_law(
     if offset_law == "mixture":
         cfg, mixture = fit_offset_mixture(frames, cfg, seed, components)
         cfg = replace(cfg, offset_mixture_min_range=float(mixture_min_range))
-    if offset_law == "reflection" or mixture_min_range > 0:
+    if _uses_reflection_law(offset_law, mixture_min_range):
         cfg = _fit_offsets(cfg, sim, real, max_evals, bar)
     return cfg, mixture
 
@@ -761,7 +770,7 @@ def calibrate_rig(
         cfg, mixture = fit_offset_law(
             frames, cfg, sim, real, offset_law, seed, mixture_components, mixture_min_range, max_evals, bar
         )
-        if offset_law == "reflection" or mixture_min_range > 0:  # the reflection points moved
+        if _uses_reflection_law(offset_law, mixture_min_range):  # the reflection points moved
             cfg = _fit_detection(cfg, sim, real, ridge, bar, signed_azimuth)
     finally:
         bar.close()
