@@ -25,3 +25,15 @@ def test_lag1_autocorr_of_an_ar1_series():
     for t in range(1, len(x)):
         x[t] = 0.7 * x[t - 1] + rng.normal(size=2)
     np.testing.assert_allclose(lag1_autocorr(x[1:], x[:-1]), 0.7, atol=0.03)
+
+
+def test_unbiased_energy_distance_centres_on_zero_for_one_law_and_the_v_statistic_does_not():
+    rng = np.random.default_rng(3)
+    pairs = [(rng.normal(size=(40, 2)), rng.normal(size=(15, 2))) for _ in range(400)]
+    u = np.array([energy_distance_2d(a, b, unbiased=True) for a, b in pairs])
+    v = np.array([energy_distance_2d(a, b) for a, b in pairs])
+    se = u.std() / np.sqrt(u.size)
+    assert abs(u.mean()) < 3 * se  # unbiased: the mean over replicates is zero within noise
+    # the V-statistic's bias is E|A-A'|/n_a + E|B-B'|/n_b, sqrt(pi) (mean distance of two N(0, I_2) draws) / n
+    assert v.mean() - u.mean() > 0.5 * np.sqrt(np.pi) * (1 / 40 + 1 / 15)
+    assert np.isnan(energy_distance_2d(np.zeros((1, 2)), np.ones((5, 2)), unbiased=True))

@@ -129,6 +129,12 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         "the reflection-point law, fitted too (default: the mixture at every range)",
     )
     cal.add_argument(
+        "--azimuth-bias",
+        action="store_true",
+        help="also fit the radar's mounting yaw error (every detection rotated about the sensor), by a 1-D "
+        "search on the signed cross-range offsets; the laws are then fitted on the de-rotated data (2 rounds)",
+    )
+    cal.add_argument(
         "--base",
         metavar="RIG.json",
         help="rig file to start from (its parameters are the starting point, and the source of those single "
@@ -218,6 +224,7 @@ def _calibrate(args: argparse.Namespace) -> int:
             offset_law=args.offset_law,
             mixture_components=tuple(range(1, args.mixture_max_components + 1)),
             mixture_min_range=args.mixture_min_range or 0.0,
+            azimuth_bias=args.azimuth_bias,
             progress=sys.stderr.isatty(),
         )
     card["seconds"] = round(time.perf_counter() - t0, 1)

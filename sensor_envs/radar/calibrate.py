@@ -27,6 +27,10 @@ data:
   (``n_b``: real detected rows; a proper distance between distributions, so point masses and
   shape count, which matching a few quantiles missed: the rig calibrated on quantiles had
   near-zero cross-range noise at several knots);
+* ``offset_signed``: the same with a SIGNED cross-range (counter-clockwise positive on both sides). The
+  outward frame mirrors the right side, so it cannot see a rotation of every detection (a mounting yaw
+  error: outward on one side, inward on the other); this term can (added 2026-11-25, when the closed loop
+  found one on Astyx, see :func:`fit_azimuth_bias`);
 * ``clutter_count``: ``((mean_sim - mean_real) / mean_real)^2 + ((std_sim - std_real) / std_real)^2``;
 * clutter density terms: ``sum_b (share_sim_b - share_real_b)^2``.
 
@@ -66,6 +70,15 @@ Gaussian-plus-tail spread; on Astyx HiRes2019 the real offsets' shape is not tha
 that closest-corner range on and steps 2-3 run after it is set, so the reflection-point law is fitted on
 the nearer boxes, which keep it (the shipped rig: 50 m).
 
+**Mounting yaw error** (``azimuth_bias=True``, ``calibrate radar --azimuth-bias``): a radar mounted a
+fraction of a degree off its reference frame reports every detection rotated about the sensor, a
+cross-range error that grows with range and has the SAME sign on both sides of the boresight. The outward
+offset frame above mirrors the right side, so the ``offset`` term cannot see it, and a law fitted there
+absorbs it as extra spread. :func:`fit_azimuth_bias` finds it by a 1-D search on the ``offset_signed`` term
+(signed cross-range), with the current laws; the real frames are then de-rotated by it
+(:func:`rotate_frames`) and steps 1-4 fitted on them, so the laws describe the reflection alone; two rounds
+(search, laws, search, laws). On Astyx HiRes2019 it finds -0.13 deg (models/radar_kde.md).
+
 The rig's time-series parameters (latency, tracker and reflection time constants) cannot be seen in
 single frames and keep their generic values. All lengths in metres, angles in radians.
 """
@@ -81,7 +94,7 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from sensor_envs.geometry import closest_corner, occluded_fraction, rectangle_corners
+from sensor_envs.geometry import closest_corner, from_frame, occluded_fraction, rectangle_corners
 from sensor_envs.radar.log import REF_COLUMNS, RadarLog, clutter_counts
 from sensor_envs.radar.rig import RadarRig, RigConfig, SnapshotDraws, polar_frame
 from sensor_envs.radar.validate import energy_distance_2d
@@ -288,10 +301,23 @@ def _offset_energy(
     return out
 
 
+def _signed_offset_samples(corner: NDArray, meas: NDArray, range_bin: NDArray) -> tuple[NDArray, NDArray]:
+    """``(radial, SIGNED cross-range)`` ``z`` [m] of the detected rows and their range bins.
+
+    The cross-range is counter-clockwise positive on both sides of the boresight, so a rotation of every
+    detection shows (the outward frame of :func:`_polar` mirrors it away).
+    """
+    pz, rb = _offset_samples(corner, meas, range_bin)
+    det = np.isfinite(meas[:, 0])
+    side = np.where(np.arctan2(corner[det, 1], corner[det, 0]) < 0, -1.0, 1.0)
+    return np.stack([pz[:, 0], side * pz[:, 1]], axis=1), rb
+
+
 def _offset_stats(corner: NDArray, meas: NDArray, range_bin: NDArray) -> dict[str, NDArray]:
     """The offset statistics of the detected rows.
 
     ``offset_z`` / ``offset_bin``: polar samples [m] and their range bins (:func:`_offset_samples`);
+    ``offset_signed_z``: the same rows with a signed cross-range (:func:`_signed_offset_samples`);
     ``offset``: their quantiles ``(n_range_bins, n_quantiles, 2)`` (reports).
     """
     pz, rb = _offset_samples(corner, meas, range_bin)
@@ -300,7 +326,8 @@ def _offset_stats(corner: NDArray, meas: NDArray, range_bin: NDArray) -> dict[st
         sel = rb == b
         if sel.sum() >= 5:
             out[b] = np.quantile(pz[sel], QUANTILES, axis=0)
-    return {"offset": out, "offset_z": pz, "offset_bin": rb}
+    signed = _signed_offset_samples(corner, meas, range_bin)[0]
+    return {"offset": out, "offset_z": pz, "offset_bin": rb, "offset_signed_z": signed}
 
 
 def _clutter_stats(counts: NDArray, xy: NDArray) -> dict[str, NDArray[np.float64]]:
@@ -401,6 +428,8 @@ def discrepancy(sim: dict[str, NDArray], real: dict[str, NDArray]) -> dict[str, 
     w = real["n_offset"] / max(real["n_offset"].sum(), 1.0)
     ed = _offset_energy(sim["offset_z"], sim["offset_bin"], real["offset_z"], real["offset_bin"])
     out["offset"] = float(np.sum(w * np.nan_to_num(ed)))
+    ed = _offset_energy(sim["offset_signed_z"], sim["offset_bin"], real["offset_signed_z"], real["offset_bin"])
+    out["offset_signed"] = float(np.sum(w * np.nan_to_num(ed)))
     m, s = real["clutter_count"]
     ms, ss = sim["clutter_count"]
     out["clutter_count"] = float(((ms - m) / max(m, 1e-9)) ** 2 + ((ss - s) / max(s, 1e-9)) ** 2)
@@ -670,6 +699,54 @@ def _fit_clutter(base: RigConfig, frames: RealFrames) -> RigConfig:
     )
 
 
+AZIMUTH_BIAS_GRID = np.deg2rad(np.arange(-1.0, 1.0001, 0.05))
+"""Coarse candidates [rad] of :func:`fit_azimuth_bias` (+-1 deg in 0.05 deg steps; then 0.005 deg steps)."""
+
+
+def rotate_frames(frames: RealFrames, angle: float) -> RealFrames:
+    """``frames`` with every measured target position rotated about the sensor by ``angle`` [rad] (ccw).
+
+    Calibration de-rotates the real data by the fitted mounting yaw error (``-azimuth_bias``) before it fits
+    the offset laws, which then describe the reflection alone. Clutter is left as measured.
+    """
+    return replace(frames, meas=from_frame(frames.meas, (0.0, 0.0, angle)))
+
+
+def fit_azimuth_bias(
+    frames: RealFrames, base: RigConfig, sim: _Sim, grid: NDArray | None = None
+) -> tuple[float, dict[str, Any]]:
+    """The rig's mounting yaw error ``azimuth_bias`` [rad] by a 1-D search on the ``offset_signed`` term.
+
+    ``base``'s laws simulated at the real boxes (common random numbers ``sim``) with each candidate rotation,
+    and the signed-cross-range offset discrepancy to ``frames`` (as measured) computed: the coarse
+    :data:`AZIMUTH_BIAS_GRID` (or ``grid``), then 0.005 deg steps around its best. Returns the best angle and a
+    report (the coarse scores, for the card).
+    """
+    real = real_statistics(frames)
+    w = real["n_offset"] / max(real["n_offset"].sum(), 1.0)
+
+    def score(angle: float) -> float:
+        meas, _ = RadarRig(replace(base, azimuth_bias=float(angle))).snapshot(sim.boxes, sim.occluded, sim.draws)
+        z, b = _signed_offset_samples(sim.corner, meas, sim.bins.range)
+        return float(np.sum(w * np.nan_to_num(_offset_energy(z, b, real["offset_signed_z"], real["offset_bin"]))))
+
+    coarse = AZIMUTH_BIAS_GRID if grid is None else np.asarray(grid, dtype=np.float64)
+    scores = np.array([score(a) for a in coarse])  # one simulation per candidate
+    best = float(coarse[int(np.argmin(scores))])
+    step = float(np.min(np.diff(coarse))) if coarse.size > 1 else np.deg2rad(0.05)
+    fine = best + np.arange(-step, step * 1.0001, np.deg2rad(0.005))
+    fine_scores = np.array([score(a) for a in fine])
+    angle = float(fine[int(np.argmin(fine_scores))])
+    report = {
+        "azimuth_bias_deg": float(np.rad2deg(angle)),
+        "offset_signed_at_best": float(fine_scores.min()),
+        "offset_signed_at_zero": score(0.0),
+        "coarse_deg": np.rad2deg(coarse).round(4).tolist(),
+        "coarse_scores": scores.round(6).tolist(),
+    }
+    return angle, report
+
+
 def _uses_reflection_law(offset_law: str, mixture_min_range: float) -> bool:
     """Whether the rig places some boxes' points by the reflection-point law.
 
@@ -731,6 +808,7 @@ def calibrate_rig(
     offset_law: str = "reflection",
     mixture_components: tuple[int, ...] = MIXTURE_COMPONENTS,
     mixture_min_range: float = 0.0,
+    azimuth_bias: bool = False,
     progress: bool = False,
 ) -> tuple[RigConfig, dict[str, Any]]:
     """Fit the rig's parameters to ``frames`` (see the module docstring); returns the config and its card.
@@ -753,6 +831,10 @@ def calibrate_rig(
         mixture_min_range: with ``offset_law="mixture"``: closest-corner range [m] from which the mixture
             applies (``offset_mixture_min_range``); when > 0 the reflection-point law is fitted too
             (stages 2-3, after the mixture is set, so that only the nearer boxes' offsets move its terms).
+        azimuth_bias: also fit the radar's mounting yaw error (``RigConfig.azimuth_bias``), alternating
+            twice: :func:`fit_azimuth_bias` with the current laws (first ``base``'s), then every stage
+            above on the real frames de-rotated by it (:func:`rotate_frames`), so the laws describe the
+            reflection alone; the rig then rotates its detections back. ``False``: the bias stays ``base``'s.
         progress: show a tqdm bar over function evaluations.
     """
     if offset_law not in OFFSET_LAWS:
@@ -762,19 +844,32 @@ def calibrate_rig(
     if mixture_min_range > 0 and offset_law != "mixture":
         raise ValueError("mixture_min_range: only with offset_law 'mixture'")
     base = base or RigConfig()
-    real = real_statistics(frames)
     sim = _sim_setup(frames, replicates, np.random.default_rng([seed, 7]))
-    bar = tqdm(total=2 * 300 + max_evals, disable=not progress, desc="calibrate radar", unit="eval")
+    rounds = 2 if azimuth_bias else 1
+    bar = tqdm(total=rounds * (2 * 300 + max_evals), disable=not progress, desc="calibrate radar", unit="eval")
+    cfg, bias, bias_reports = base, base.azimuth_bias, []
     try:
-        cfg = _fit_detection(replace(base, max_range=150.0), sim, real, ridge, bar, signed_azimuth)
-        cfg, mixture = fit_offset_law(
-            frames, cfg, sim, real, offset_law, seed, mixture_components, mixture_min_range, max_evals, bar
-        )
-        if _uses_reflection_law(offset_law, mixture_min_range):  # the reflection points moved
-            cfg = _fit_detection(cfg, sim, real, ridge, bar, signed_azimuth)
+        for _ in range(rounds):  # one iteration per round of (mounting yaw error, laws)
+            if azimuth_bias:
+                bias, rep = fit_azimuth_bias(frames, cfg, sim)
+                bias_reports.append(rep)
+            cfg, mixture = _fit_laws(
+                rotate_frames(frames, -bias) if bias else frames,
+                replace(cfg, azimuth_bias=0.0),
+                sim,
+                seed=seed,
+                max_evals=max_evals,
+                ridge=ridge,
+                signed_azimuth=signed_azimuth,
+                offset_law=offset_law,
+                mixture_components=mixture_components,
+                mixture_min_range=mixture_min_range,
+                bar=bar,
+            )
+            cfg = replace(cfg, azimuth_bias=bias)
     finally:
         bar.close()
-    cfg = _fit_clutter(cfg, frames)
+    real = real_statistics(frames)
     check = {"seed": seed + 1, "replicates": 8}
     before = discrepancy(rig_statistics(base, frames, 8, seed + 1), real)
     after = discrepancy(rig_statistics(cfg, frames, 8, seed + 1), real)
@@ -788,7 +883,8 @@ def calibrate_rig(
         },
         "procedure": "sensor_envs.radar.calibrate (simulation at the real boxes, common random numbers; "
         f"least_squares on detection terms ({'signed azimuth' if signed_azimuth else 'symmetric |azimuth|'} table), "
-        f"{_offset_procedure(offset_law, mixture_min_range)}, closed-form clutter)",
+        f"{_offset_procedure(offset_law, mixture_min_range)}, closed-form clutter"
+        f"{'; mounting yaw error by 1-D search on the signed offsets, 2 rounds' if azimuth_bias else ''})",
         "offset_law": offset_law,
         "seed": seed,
         "replicates": replicates,
@@ -801,7 +897,34 @@ def calibrate_rig(
     }
     if mixture is not None:
         card["offset_mixture"] = mixture
+    if bias_reports:
+        card["azimuth_bias"] = {"deg": float(np.rad2deg(bias)), "rounds": bias_reports}
     return cfg, card
+
+
+def _fit_laws(
+    frames: RealFrames,
+    base: RigConfig,
+    sim: _Sim,
+    *,
+    seed: int,
+    max_evals: int,
+    ridge: float,
+    signed_azimuth: bool,
+    offset_law: str,
+    mixture_components: tuple[int, ...],
+    mixture_min_range: float,
+    bar: Any,
+) -> tuple[RigConfig, dict[str, Any] | None]:
+    """Stages 1-4 of :func:`calibrate_rig` on ``frames``: detection, offset law, detection again, clutter."""
+    real = real_statistics(frames)
+    cfg = _fit_detection(replace(base, max_range=150.0), sim, real, ridge, bar, signed_azimuth)
+    cfg, mixture = fit_offset_law(
+        frames, cfg, sim, real, offset_law, seed, mixture_components, mixture_min_range, max_evals, bar
+    )
+    if _uses_reflection_law(offset_law, mixture_min_range):  # the reflection points moved
+        cfg = _fit_detection(cfg, sim, real, ridge, bar, signed_azimuth)
+    return _fit_clutter(cfg, frames), mixture
 
 
 def snapshot_log(config: RigConfig, frames: RealFrames, rng: np.random.Generator) -> RadarLog:

@@ -31,6 +31,9 @@ azimuth the detection probability reads. With ``offset_mixture_min_range`` the m
 that corner range on only; nearer boxes keep the reflection-point law (its own tracker error, driven
 by the same normal draws, so the random stream is the same).
 
+**Mounting yaw error** (``azimuth_bias``): every target detection is finally rotated about the sensor
+by it (:meth:`RadarRig.mounted`); 0 (the default, and every older rig file) leaves them as they are.
+
 The sensor sits at the origin of its frame (x forward, y left); targets are boxes moving in that
 frame (:func:`generate_scenario`). All lengths in metres, angles in radians, times in seconds.
 """
@@ -46,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from sensor_envs.geometry import closest_corner, occluded_fraction, rectangle_corners
+from sensor_envs.geometry import closest_corner, from_frame, occluded_fraction, rectangle_corners
 from sensor_envs.modelio import (
     Constraint,
     Interval,
@@ -102,6 +105,10 @@ class RigConfig:
         sigma_cross_table: cross-range noise std [m] at each knot (replaces ``sigma_azimuth * range``
             and the edge gain).
         range_bias: radial offset [m] of every detection (negative: towards the sensor).
+        azimuth_bias: the radar's mounting yaw error [rad] (counter-clockwise positive): every target
+            detection is rotated about the sensor by it, i.e. a cross-range error growing with range
+            (0.1 deg is 0.17 m at 100 m). Clutter is not rotated: its azimuth law is fitted on the real
+            clutter as measured.
         outlier_share: share of detections whose noise is scaled by ``outlier_scale`` (tail shape).
         outlier_scale: noise scale factor of those detections (>= 1).
         corner_share: probability that a cycle's reflection point is the closest corner instead of
@@ -149,6 +156,7 @@ class RigConfig:
     sigma_range_table: Table = None
     sigma_cross_table: Table = None
     range_bias: float = 0.0
+    azimuth_bias: float = 0.0
     outlier_share: float = 0.0
     outlier_scale: float = 1.0
     corner_share: float = 0.0
@@ -260,6 +268,7 @@ RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
     "sigma_range_table": [None, Numbers(_NONNEG, min_length=2)],
     "sigma_cross_table": [None, Numbers(_NONNEG, min_length=2)],
     "range_bias": [Interval(-10, 10)],
+    "azimuth_bias": [Interval(-0.05, 0.05)],
     "outlier_share": [_PROB],
     "outlier_scale": [Interval(1, 100)],
     "corner_share": [_PROB],
@@ -529,6 +538,14 @@ class RadarRig:
         v = np.stack([-np.sin(az), np.cos(az)], axis=1)
         return point + (err[:, :1] + bias) * u + err[:, 1:] * v
 
+    def mounted(self, meas: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Positions ``(n, 2)`` [m] (sensor frame) as the radar reports them.
+
+        Rotated about the sensor by ``azimuth_bias`` (the mounting yaw error); the same array when it is 0.
+        """
+        bias = self.config.azimuth_bias
+        return meas if bias == 0 else from_frame(meas, (0.0, 0.0, bias))
+
     def record(
         self, scenario: Scenario, rng: np.random.Generator, sequence: int = 0, in_view_only: bool = False
     ) -> RadarLog:
@@ -578,6 +595,7 @@ class RadarRig:
                 err_mix = _tracker_ar1(err_mix, normal, tracked, rho)
                 mixed = corner + mix.offset(corner, b, comp, err_mix)
                 meas = np.where(mix.near(corner)[:, None], meas, mixed) if mix.min_range > 0 else mixed
+            meas = self.mounted(meas)
             tracked = det
             meas[~det] = np.nan
             keep = np.hypot(box[:, 0], box[:, 1]) <= c.log_range
@@ -622,6 +640,7 @@ class RadarRig:
             if near.any():
                 innov = self.innovation(r[near], az[near], draws.normal[near], draws.u_outlier[near])
                 meas[near] = self._to_xy(refl[near], innov, c.range_bias)
+        meas = self.mounted(meas)
         meas[~(draws.u_detect < p)] = np.nan
         return meas, p
 

@@ -63,12 +63,21 @@ def split_by_blocks(log: RadarLog, block: int, n_folds: int, fold: int) -> tuple
     return log.select(~test), log.select(test)
 
 
-def energy_distance_2d(a: NDArray, b: NDArray, rng: np.random.Generator | None = None, max_n: int = 800) -> float:
-    """Energy distance ``2E|A-B| - E|A-A'| - E|B-B'|`` between 2-D samples [m] (V-statistic).
+def energy_distance_2d(
+    a: NDArray,
+    b: NDArray,
+    rng: np.random.Generator | None = None,
+    max_n: int = 800,
+    unbiased: bool = False,
+) -> float:
+    """Energy distance ``2E|A-B| - E|A-A'| - E|B-B'|`` between 2-D samples [m].
 
-    With ``rng``, each sample is subsampled to at most ``max_n`` rows to bound the cost; without,
-    every row is used (deterministic, e.g. for calibration under common random numbers). ``NaN`` if
-    either sample is empty.
+    By default the V-statistic (the self terms average over all pairs, a row with itself included): it
+    is biased up by ``E|A-A'|/n_a + E|B-B'|/n_b``, which favours the narrower sample. ``unbiased``
+    gives the U-statistic (self terms over distinct pairs), unbiased for the laws' energy distance and
+    possibly slightly negative when they agree. With ``rng``, each sample is subsampled to at most
+    ``max_n`` rows to bound the cost; without, every row is used (deterministic, e.g. for calibration
+    under common random numbers). ``NaN`` if either sample is empty (or, unbiased, has one row).
     """
     from scipy.spatial.distance import cdist
 
@@ -80,10 +89,13 @@ def energy_distance_2d(a: NDArray, b: NDArray, rng: np.random.Generator | None =
     if rng is not None and b.shape[0] > max_n:
         b = b[rng.choice(b.shape[0], max_n, replace=False)]
 
-    def mean_dist(p: NDArray, q: NDArray) -> float:
-        return float(cdist(p, q).mean())
+    def mean_self(p: NDArray) -> float:
+        n = p.shape[0]
+        return float(cdist(p, p).sum() / (n * (n - 1) if unbiased else n * n))
 
-    return 2 * mean_dist(a, b) - mean_dist(a, a) - mean_dist(b, b)
+    if unbiased and min(a.shape[0], b.shape[0]) < 2:
+        return float("nan")
+    return 2 * float(cdist(a, b).mean()) - mean_self(a) - mean_self(b)
 
 
 def lag1_autocorr(z: NDArray, z_prev: NDArray) -> NDArray[np.float64]:
