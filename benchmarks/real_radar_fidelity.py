@@ -96,8 +96,9 @@ RELEVANCE_CANDIDATES = (6.0, 12.0, 24.0, 48.0, 96.0, 192.0)
 
 
 BANDWIDTH_SCALE = 0.7
-ENERGY_MAX_N = 4000  # simulated draws per range bin for the energy distance (of up to chains x rows)
 """Contribution-bandwidth factor of the shipped KDE (``fit radar --bandwidth-scale``; see the model card)."""
+ENERGY_MAX_N = 4000
+"""Simulated draws per range bin for the energy distance (of up to ``chains`` x rows)."""
 
 
 def chain(
@@ -175,11 +176,14 @@ def marginal(
     if has_prev:  # the start-tuple score is a new track's; the stationary law's misses are after-miss rows
         kw = {"new_track": np.full(n * m, not uses_prev) & np.isnan(prev[:, 0])}
     last, _ = model.sample_cycle(cc, prev, rng, **kw)
-    state = np.concatenate([cc, prev], axis=1)
-    lp = model.log_prob(np.repeat(z, m, axis=0), state, **kw).reshape(n, m)
-    lp_miss = model.log_prob(np.full((n * m, 2), np.nan), state, **kw).reshape(n, m)
-    logp = logsumexp(lp, axis=1) - np.log(m)
-    p_miss = np.exp(logsumexp(lp_miss, axis=1) - np.log(m))
+    # the density: without z_{t-1} fed back every copy of a row has the row's state, so one copy is scored
+    d, one = (m, slice(None)) if uses_prev else (1, slice(None, None, m))
+    state = np.concatenate([cc, prev], axis=1)[one]
+    kw = {key: v[one] for key, v in kw.items()}
+    lp = model.log_prob(np.repeat(z, d, axis=0), state, **kw).reshape(n, d)
+    lp_miss = model.log_prob(np.full((n * d, 2), np.nan), state, **kw).reshape(n, d)
+    logp = logsumexp(lp, axis=1) - np.log(d)
+    p_miss = np.exp(logsumexp(lp_miss, axis=1) - np.log(d))
     out = {"p_det": 1.0 - p_miss, "sample": last.reshape(n, m, 2)[:, 0], "logp": logp}
     if all_samples:
         out["samples"] = last.reshape(n, m, 2)
