@@ -135,6 +135,16 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         "search on the signed cross-range offsets; the laws are then fitted on the de-rotated data (2 rounds)",
     )
     cal.add_argument(
+        "--scene",
+        action="store_true",
+        help="also fit the scene the rig records (box positions, headings, sizes) to the real reference boxes",
+    )
+    cal.add_argument(
+        "--scene-only",
+        action="store_true",
+        help="with --base: only fit the scene law (seconds); the base rig's sensor laws and card are kept",
+    )
+    cal.add_argument(
         "--base",
         metavar="RIG.json",
         help="rig file to start from (its parameters are the starting point, and the source of those single "
@@ -209,10 +219,16 @@ def _calibrate(args: argparse.Namespace) -> int:
 
     if args.mixture_min_range is not None and args.offset_law != "mixture":
         raise ValueError("--mixture-min-range: only with --offset-law mixture")
+    if args.scene_only and not args.base:
+        raise ValueError("--scene-only: needs --base (the rig whose sensor laws are kept)")
+    if args.scene_only and (args.azimuth_bias or args.signed_azimuth or args.offset_law != "reflection"):
+        raise ValueError("--scene-only: fits no sensor law; drop --azimuth-bias, --signed-azimuth and --offset-law")
     check_inputs(args.real_data, args.base)
     out = check_output(args.out, inputs=[args.real_data, args.base], force=args.force, suffix=".json")
-    base = load_rig(args.base)[0] if args.base else None
+    base, base_card = load_rig(args.base) if args.base else (None, {})
     t0 = time.perf_counter()
+    if args.scene_only:
+        return _calibrate_scene_only(args, out, base, base_card, t0)
     with about(args.real_data):
         frames = load_real(args.real_data, progress=sys.stderr.isatty())
         config, card = calibrate_rig(
@@ -225,6 +241,7 @@ def _calibrate(args: argparse.Namespace) -> int:
             mixture_components=tuple(range(1, args.mixture_max_components + 1)),
             mixture_min_range=args.mixture_min_range or 0.0,
             azimuth_bias=args.azimuth_bias,
+            scene=args.scene,
             progress=sys.stderr.isatty(),
         )
     card["seconds"] = round(time.perf_counter() - t0, 1)
@@ -236,6 +253,25 @@ def _calibrate(args: argparse.Namespace) -> int:
         f"calibrated on {frames.n_frames} frames in {card['seconds']} s -> {out}; discrepancy "
         f"({'base rig' if args.base else 'generic rig'} -> "
         f"calibrated): " + ", ".join(f"{k} {before[k]:.4g} -> {after[k]:.4g}" for k in before)
+    )
+    return 0
+
+
+def _calibrate_scene_only(args: argparse.Namespace, out: Path, base: Any, base_card: dict[str, Any], t0: float) -> int:
+    """``calibrate radar --scene-only``: the base rig with its scene law fitted; its card gains a scene section."""
+    from sensor_envs.radar.calibrate import calibrate_scene, load_real
+    from sensor_envs.radar.rig import save_rig
+
+    with about(args.real_data):
+        frames = load_real(args.real_data, progress=sys.stderr.isatty())
+        config, scene = calibrate_scene(frames, base, seed=args.seed)
+    scene["seconds"] = round(time.perf_counter() - t0, 1)
+    scene["base"] = Path(args.base).name
+    with OutputTransaction() as tx:
+        save_rig(tx.file(out), config, {**base_card, "scene": scene})
+    print(
+        f"scene law fitted on {frames.boxes.shape[0]} reference boxes of {frames.n_frames} frames -> {out}; "
+        "the base rig's sensor laws kept"
     )
     return 0
 

@@ -97,6 +97,7 @@ from tqdm import tqdm
 from sensor_envs.geometry import closest_corner, from_frame, occluded_fraction, rectangle_corners
 from sensor_envs.radar.log import REF_COLUMNS, RadarLog, clutter_counts
 from sensor_envs.radar.rig import RadarRig, RigConfig, SnapshotDraws, polar_frame
+from sensor_envs.radar.scene_law import scene_card, with_scene_law
 from sensor_envs.radar.validate import energy_distance_2d
 from sensor_envs.rng import fold_ids
 
@@ -809,6 +810,7 @@ def calibrate_rig(
     mixture_components: tuple[int, ...] = MIXTURE_COMPONENTS,
     mixture_min_range: float = 0.0,
     azimuth_bias: bool = False,
+    scene: bool = False,
     progress: bool = False,
 ) -> tuple[RigConfig, dict[str, Any]]:
     """Fit the rig's parameters to ``frames`` (see the module docstring); returns the config and its card.
@@ -835,6 +837,8 @@ def calibrate_rig(
             twice: :func:`fit_azimuth_bias` with the current laws (first ``base``'s), then every stage
             above on the real frames de-rotated by it (:func:`rotate_frames`), so the laws describe the
             reflection alone; the rig then rotates its detections back. ``False``: the bias stays ``base``'s.
+        scene: also fit the scene the rig records to the real reference boxes
+            (:func:`sensor_envs.radar.scene_law.fit_scene_law`; closed form). ``False``: ``base``'s scene.
         progress: show a tqdm bar over function evaluations.
     """
     if offset_law not in OFFSET_LAWS:
@@ -899,7 +903,19 @@ def calibrate_rig(
         card["offset_mixture"] = mixture
     if bias_reports:
         card["azimuth_bias"] = {"deg": float(np.rad2deg(bias)), "rounds": bias_reports}
+    if scene:
+        cfg, card["scene"] = calibrate_scene(frames, cfg, seed=seed)
     return cfg, card
+
+
+def calibrate_scene(frames: RealFrames, base: RigConfig, *, seed: int = 0) -> tuple[RigConfig, dict[str, Any]]:
+    """``base`` with its scene law fitted to ``frames``' reference boxes; returns it and the card's scene section.
+
+    The sensor's laws are not touched (``calibrate radar --scene-only``): the scene decides which boxes a
+    rig log holds, not how the radar sees a box.
+    """
+    cfg = with_scene_law(base, frames.boxes)
+    return cfg, {"data": frames.source, **scene_card(cfg, frames.boxes, seed)}
 
 
 def _fit_laws(

@@ -34,6 +34,12 @@ by the same normal draws, so the random stream is the same).
 **Mounting yaw error** (``azimuth_bias``): every target detection is finally rotated about the sensor
 by it (:meth:`RadarRig.mounted`); 0 (the default, and every older rig file) leaves them as they are.
 
+**Scene law** (optional, ``scene_*``; what ``calibrate radar --scene`` fits to real reference boxes,
+:mod:`sensor_envs.radar.scene_law`): the boxes a rig log records are drawn from shares of x bins and,
+per x bin, of y bins and heading bins, instead of the generic lane traffic. It is not a property of the
+sensor but of the data a model learns from: the KDE's state is the closest corner, so its law at a corner
+position is an average over the boxes (headings, sizes) the log had there.
+
 The sensor sits at the origin of its frame (x forward, y left); targets are boxes moving in that
 frame (:func:`generate_scenario`). All lengths in metres, angles in radians, times in seconds.
 """
@@ -70,6 +76,7 @@ __all__ = [
     "default_rig_path",
     "Scenario",
     "generate_scenario",
+    "scene_boxes",
     "RadarRig",
     "OffsetMixture",
     "polar_frame",
@@ -131,6 +138,16 @@ class RigConfig:
             (uniform in range inside a bin; ``None``: uniform in area inside ``max_range``).
         clutter_azimuth_edges, clutter_azimuth_weights: clutter azimuth bins [rad] and their shares
             (``None``: uniform in ``+-fov``).
+        scene_x_edges, scene_x_weights: the recorded SCENE (:func:`generate_scenario`; ``None``: the generic
+            lane traffic): bins of the target centre's x [m] (sensor frame) and their shares.
+        scene_y_edges: bins of the target centre's y [m] (sensor frame, left positive).
+        scene_y_weights: shares of the y bins in each x bin, ``x bins x y bins`` values.
+        scene_heading_edges: bins of the target's heading modulo pi [rad], in ``[-pi/2, pi/2]`` (a box turned
+            by pi is the same box; 0 = along the sensor's x axis).
+        scene_heading_weights: shares of the heading bins in each x bin, ``x bins x heading bins`` values.
+        scene_length_range, scene_width_range: ``(low, high)`` [m] of the uniform box length and width.
+        scene_speed_std: std [m/s] of the target's velocity relative to the sensor, along the sensor's x (the
+            calibrated scene; the generic lane traffic has its own speeds).
     """
 
     cycle_time: float = 1.0
@@ -172,6 +189,15 @@ class RigConfig:
     clutter_range_weights: Table = None
     clutter_azimuth_edges: Table = None
     clutter_azimuth_weights: Table = None
+    scene_x_edges: Table = None
+    scene_x_weights: Table = None
+    scene_y_edges: Table = None
+    scene_y_weights: Table = None
+    scene_heading_edges: Table = None
+    scene_heading_weights: Table = None
+    scene_length_range: Table = None
+    scene_width_range: Table = None
+    scene_speed_std: float = 1.5
 
     def __post_init__(self) -> None:
         """Check values and the relations between them (``ValueError`` naming the field)."""
@@ -204,6 +230,32 @@ class RigConfig:
             if w is not None and not sum(w) > 0:
                 raise ValueError(f"{weights}: the shares must not all be 0")
         self._check_offset_mixture()
+        self._check_scene()
+
+    def _check_scene(self) -> None:
+        """The scene law's fields come together, its weight tables have one row per x bin, each row sums > 0."""
+        given = {n: getattr(self, n) for n in SCENE_TABLES}
+        if all(v is None for v in given.values()):
+            return
+        for n, v in given.items():
+            if v is None:
+                raise ValueError(f"{n}: the scene law's fields must be given together (with 'scene_x_edges')")
+        n_x = len(given["scene_x_edges"]) - 1
+        if len(given["scene_x_weights"]) != n_x:
+            raise ValueError("scene_x_weights: must have one value per bin of 'scene_x_edges'")
+        if not sum(given["scene_x_weights"]) > 0:
+            raise ValueError("scene_x_weights: the shares must not all be 0")
+        for edges, weights in (("scene_y_edges", "scene_y_weights"), ("scene_heading_edges", "scene_heading_weights")):
+            n_b = len(given[edges]) - 1
+            w = np.asarray(given[weights], dtype=np.float64)
+            if w.size != n_x * n_b:
+                raise ValueError(f"{weights}: must have {n_x * n_b} values ({n_x} x bins x {n_b} bins of {edges!r})")
+            if not np.all(w.reshape(n_x, n_b).sum(axis=1) > 0):
+                raise ValueError(f"{weights}: each x bin's shares must not all be 0")
+        for n in ("scene_length_range", "scene_width_range"):
+            lo, hi = given[n]
+            if not lo <= hi:
+                raise ValueError(f"{n}: must be (low, high) with low <= high")
 
     def _check_offset_mixture(self) -> None:
         """The offset mixture's tables agree in size, each bin's weights sum to 1, scales are positive."""
@@ -284,8 +336,29 @@ RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
     "clutter_range_weights": [None, Numbers(_NONNEG, min_length=1)],
     "clutter_azimuth_edges": [None, Numbers(Interval(-np.pi, np.pi), min_length=2, increasing=True)],
     "clutter_azimuth_weights": [None, Numbers(_NONNEG, min_length=1)],
+    "scene_x_edges": [None, Numbers(Interval(0, 500), min_length=2, increasing=True)],
+    "scene_x_weights": [None, Numbers(_NONNEG, min_length=1)],
+    "scene_y_edges": [None, Numbers(Interval(-500, 500), min_length=2, increasing=True)],
+    "scene_y_weights": [None, Numbers(_NONNEG, min_length=1)],
+    "scene_heading_edges": [None, Numbers(Interval(-np.pi / 2, np.pi / 2), min_length=2, increasing=True)],
+    "scene_heading_weights": [None, Numbers(_NONNEG, min_length=1)],
+    "scene_length_range": [None, Numbers(Interval(0, 30, open_low=True), length=2)],
+    "scene_width_range": [None, Numbers(Interval(0, 10, open_low=True), length=2)],
+    "scene_speed_std": [Interval(0, 50)],
 }
 """Accepted values of every :class:`RigConfig` field (the rig file's value checks)."""
+
+SCENE_TABLES = (
+    "scene_x_edges",
+    "scene_x_weights",
+    "scene_y_edges",
+    "scene_y_weights",
+    "scene_heading_edges",
+    "scene_heading_weights",
+    "scene_length_range",
+    "scene_width_range",
+)
+"""The scene law's tables (all given, or none: the generic lane traffic)."""
 
 RIG_KIND = "radar_rig"
 
@@ -325,25 +398,88 @@ class Scenario:
     velocity: NDArray[np.float64]
 
 
-def generate_scenario(n_targets: int, n_cycles: int, cycle_time: float, rng: np.random.Generator) -> Scenario:
-    """Random traffic ahead of the sensor: lane vehicles plus some crossing or turning ones.
+def generate_scenario(
+    n_targets: int, n_cycles: int, cycle_time: float, rng: np.random.Generator, config: RigConfig | None = None
+) -> Scenario:
+    """Random traffic ahead of the sensor: the generic lane traffic, or the rig's calibrated scene law.
 
-    Lane vehicles (80 %) drive along x on lanes ``y in {-7, -3.5, 0, 3.5, 7}`` m with relative speed
-    ~N(0, 1.5) m/s; the others cross with headings uniform in ``[-pi, pi)`` at 0.5-3 m/s. Vehicles
-    are 3.8-5 m long, 1.7-2.0 m wide, starting 5-100 m ahead.
+    **Generic lane traffic** (``config`` without a scene law, or ``None``; the random stream of every
+    older rig file): lane vehicles (80 %) drive along x on lanes ``y in {-7, -3.5, 0, 3.5, 7}`` m with
+    relative speed ~N(0, 1.5) m/s; the others cross with headings uniform in ``[-pi, pi)`` at 0.5-3 m/s.
+    Vehicles are 3.8-5 m long, 1.7-2.0 m wide, starting 5-100 m ahead.
+
+    **Scene law** (``config.scene_*``, what ``calibrate radar --scene`` fits to the real reference
+    boxes): see :func:`scene_boxes`; each target moves relative to the sensor along its x axis (the
+    ego driving past parked and queued cars) at ~N(0, ``scene_speed_std``) m/s, and it is at the drawn
+    place at a cycle drawn uniformly in the sequence, so every cycle's boxes follow the law up to that
+    drift in x (y and the heading are kept exactly).
     """
+    if config is not None and config.scene_x_edges is not None:
+        return _scene_scenario(config, n_targets, n_cycles, cycle_time, rng)
     lane = rng.random(n_targets) < 0.8
     y0 = np.where(lane, rng.choice([-7.0, -3.5, 0.0, 3.5, 7.0], n_targets), rng.uniform(-25, 25, n_targets))
     x0 = rng.uniform(5.0, 100.0, n_targets)
     heading = np.where(lane, rng.normal(0.0, 0.03, n_targets), rng.uniform(-np.pi, np.pi, n_targets))
     speed = np.where(lane, rng.normal(0.0, 1.5, n_targets), rng.uniform(0.5, 3.0, n_targets))
-    vel = np.stack([np.cos(heading), np.sin(heading)], axis=1) * speed[:, None]
-    t = np.arange(n_cycles, dtype=np.float64) * cycle_time
-    xy = np.stack([x0, y0], axis=1)[None] + t[:, None, None] * vel[None]
     dims = np.stack([rng.uniform(3.8, 5.0, n_targets), rng.uniform(1.7, 2.0, n_targets)], axis=1)
+    vel = np.stack([np.cos(heading), np.sin(heading)], axis=1) * speed[:, None]
+    return _moving_boxes(np.stack([x0, y0], axis=1), heading, vel, dims, np.zeros(n_targets), n_cycles, cycle_time)
+
+
+def scene_boxes(config: RigConfig, n: int, rng: np.random.Generator) -> NDArray[np.float64]:
+    """``n`` boxes ``(n, 5)`` ``x, y, heading, length, width`` [m, rad] drawn from the rig's scene law.
+
+    x from its bins' shares (uniform inside a bin); y and the heading (modulo pi) from the shares of
+    their bins in that x bin (uniform inside); length and width uniform in their ranges.
+
+    Raises:
+        ValueError: when ``config`` has no scene law.
+    """
+    c = config
+    if c.scene_x_edges is None:
+        raise ValueError("scene_x_edges: the rig has no scene law (calibrate radar --scene fits one)")
+    x_edges = np.asarray(c.scene_x_edges, dtype=np.float64)
+    n_x = x_edges.size - 1
+    bx = rng.choice(n_x, n, p=_shares(np.asarray(c.scene_x_weights, dtype=np.float64)))
+    x = x_edges[bx] + np.diff(x_edges)[bx] * rng.random(n)
+    cols = [x]
+    for edges_name, weights_name in (
+        ("scene_y_edges", "scene_y_weights"),
+        ("scene_heading_edges", "scene_heading_weights"),
+    ):
+        edges = np.asarray(getattr(c, edges_name), dtype=np.float64)
+        w = np.asarray(getattr(c, weights_name), dtype=np.float64).reshape(n_x, -1)
+        cdf = np.cumsum(w, axis=1) / w.sum(axis=1, keepdims=True)
+        b = np.minimum((rng.random(n)[:, None] > cdf[bx]).sum(axis=1), edges.size - 2)
+        cols.append(edges[b] + np.diff(edges)[b] * rng.random(n))
+    lo_l, hi_l = np.asarray(c.scene_length_range, dtype=np.float64)
+    lo_w, hi_w = np.asarray(c.scene_width_range, dtype=np.float64)
+    cols += [rng.uniform(lo_l, hi_l, n), rng.uniform(lo_w, hi_w, n)]
+    return np.stack(cols, axis=1)
+
+
+def _shares(w: NDArray[np.float64]) -> NDArray[np.float64]:
+    return w / w.sum()
+
+
+def _scene_scenario(c: RigConfig, n: int, n_cycles: int, cycle_time: float, rng: np.random.Generator) -> Scenario:
+    """The scene law's scenario (:func:`generate_scenario`)."""
+    box = scene_boxes(c, n, rng)
+    vel = np.stack([rng.normal(0.0, c.scene_speed_std, n), np.zeros(n)], axis=1)  # along the sensor's x
+    anchor = rng.integers(0, n_cycles, n) * cycle_time  # the time at which each target is at its drawn place
+    return _moving_boxes(box[:, :2], box[:, 2], vel, box[:, 3:], anchor, n_cycles, cycle_time)
+
+
+def _moving_boxes(
+    xy: NDArray, heading: NDArray, vel: NDArray, dims: NDArray, anchor: NDArray, n_cycles: int, cycle_time: float
+) -> Scenario:
+    """Boxes of ``heading`` [rad] moving at velocity ``vel`` ``(n, 2)`` [m/s], at ``xy`` [m] at time ``anchor`` [s]."""
+    t = np.arange(n_cycles, dtype=np.float64) * cycle_time
+    pos = xy[None] + (t[:, None] - anchor[None, :])[:, :, None] * vel[None]
+    n_targets = xy.shape[0]
     boxes = np.concatenate(
         [
-            xy,
+            pos,
             np.broadcast_to(heading[None, :, None], (n_cycles, n_targets, 1)),
             np.broadcast_to(dims[None], (n_cycles, n_targets, 2)),
         ],
@@ -728,7 +864,7 @@ def record_rig_log(
     rig = RadarRig(config)
     logs, vel = [], []
     for s in tqdm(range(n_sequences), disable=not progress, desc="rig"):
-        sc = generate_scenario(n_targets, n_cycles, rig.config.cycle_time, rng)
+        sc = generate_scenario(n_targets, n_cycles, rig.config.cycle_time, rng, rig.config)
         logs.append(rig.record(sc, rng, sequence=s, in_view_only=in_view_only))
         tgt = logs[-1]["target"]
         vel.append(np.where((tgt >= 0)[:, None], sc.velocity[np.maximum(tgt, 0)], np.nan))
