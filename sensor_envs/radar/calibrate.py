@@ -302,6 +302,12 @@ def _offset_energy(
     return out
 
 
+def _offset_term(z_sim: NDArray, b_sim: NDArray, z_real: NDArray, real: dict[str, NDArray]) -> float:
+    """An offset term of :func:`discrepancy` [m]: the bins' energy distances weighted by the real detected rows."""
+    w = real["n_offset"] / max(real["n_offset"].sum(), 1.0)
+    return float(np.sum(w * np.nan_to_num(_offset_energy(z_sim, b_sim, z_real, real["offset_bin"]))))
+
+
 def _signed_offset_samples(corner: NDArray, meas: NDArray, range_bin: NDArray) -> tuple[NDArray, NDArray]:
     """``(radial, SIGNED cross-range)`` ``z`` [m] of the detected rows and their range bins.
 
@@ -309,9 +315,14 @@ def _signed_offset_samples(corner: NDArray, meas: NDArray, range_bin: NDArray) -
     detection shows (the outward frame of :func:`_polar` mirrors it away).
     """
     pz, rb = _offset_samples(corner, meas, range_bin)
+    return _signed_cross_range(pz, corner, meas), rb
+
+
+def _signed_cross_range(pz: NDArray, corner: NDArray, meas: NDArray) -> NDArray[np.float64]:
+    """The polar samples ``pz`` of :func:`_offset_samples` (detected rows) with the outward cross-range signed."""
     det = np.isfinite(meas[:, 0])
     side = np.where(np.arctan2(corner[det, 1], corner[det, 0]) < 0, -1.0, 1.0)
-    return np.stack([pz[:, 0], side * pz[:, 1]], axis=1), rb
+    return np.stack([pz[:, 0], side * pz[:, 1]], axis=1)
 
 
 def _offset_stats(corner: NDArray, meas: NDArray, range_bin: NDArray) -> dict[str, NDArray]:
@@ -327,7 +338,7 @@ def _offset_stats(corner: NDArray, meas: NDArray, range_bin: NDArray) -> dict[st
         sel = rb == b
         if sel.sum() >= 5:
             out[b] = np.quantile(pz[sel], QUANTILES, axis=0)
-    signed = _signed_offset_samples(corner, meas, range_bin)[0]
+    signed = _signed_cross_range(pz, corner, meas)
     return {"offset": out, "offset_z": pz, "offset_bin": rb, "offset_signed_z": signed}
 
 
@@ -426,11 +437,8 @@ def discrepancy(sim: dict[str, NDArray], real: dict[str, NDArray]) -> dict[str, 
         w = real[nkey] / max(real[nkey].sum(), 1.0)
         d = np.nan_to_num(sim[key] - real[key]) ** 2
         out[key] = float(np.sum(w * d))
-    w = real["n_offset"] / max(real["n_offset"].sum(), 1.0)
-    ed = _offset_energy(sim["offset_z"], sim["offset_bin"], real["offset_z"], real["offset_bin"])
-    out["offset"] = float(np.sum(w * np.nan_to_num(ed)))
-    ed = _offset_energy(sim["offset_signed_z"], sim["offset_bin"], real["offset_signed_z"], real["offset_bin"])
-    out["offset_signed"] = float(np.sum(w * np.nan_to_num(ed)))
+    out["offset"] = _offset_term(sim["offset_z"], sim["offset_bin"], real["offset_z"], real)
+    out["offset_signed"] = _offset_term(sim["offset_signed_z"], sim["offset_bin"], real["offset_signed_z"], real)
     m, s = real["clutter_count"]
     ms, ss = sim["clutter_count"]
     out["clutter_count"] = float(((ms - m) / max(m, 1e-9)) ** 2 + ((ss - s) / max(s, 1e-9)) ** 2)
@@ -724,12 +732,11 @@ def fit_azimuth_bias(
     report (the coarse scores, for the card).
     """
     real = real_statistics(frames)
-    w = real["n_offset"] / max(real["n_offset"].sum(), 1.0)
 
     def score(angle: float) -> float:
         meas, _ = RadarRig(replace(base, azimuth_bias=float(angle))).snapshot(sim.boxes, sim.occluded, sim.draws)
         z, b = _signed_offset_samples(sim.corner, meas, sim.bins.range)
-        return float(np.sum(w * np.nan_to_num(_offset_energy(z, b, real["offset_signed_z"], real["offset_bin"]))))
+        return _offset_term(z, b, real["offset_signed_z"], real)
 
     coarse = AZIMUTH_BIAS_GRID if grid is None else np.asarray(grid, dtype=np.float64)
     scores = np.array([score(a) for a in coarse])  # one simulation per candidate

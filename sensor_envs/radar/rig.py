@@ -223,6 +223,7 @@ class RigConfig:
         for edges, weights in (
             ("clutter_range_edges", "clutter_range_weights"),
             ("clutter_azimuth_edges", "clutter_azimuth_weights"),
+            ("scene_x_edges", "scene_x_weights"),
         ):
             e, w = getattr(self, edges), getattr(self, weights)
             if (e is None) != (w is None) or (e is not None and w is not None and len(e) != len(w) + 1):
@@ -233,7 +234,10 @@ class RigConfig:
         self._check_scene()
 
     def _check_scene(self) -> None:
-        """The scene law's fields come together, its weight tables have one row per x bin, each row sums > 0."""
+        """The scene law's fields come together, its y and heading tables have one row per x bin, each row sums > 0.
+
+        (``scene_x_weights`` against ``scene_x_edges`` is checked with the other bin tables.)
+        """
         given = {n: getattr(self, n) for n in SCENE_TABLES}
         if all(v is None for v in given.values()):
             return
@@ -241,10 +245,6 @@ class RigConfig:
             if v is None:
                 raise ValueError(f"{n}: the scene law's fields must be given together (with 'scene_x_edges')")
         n_x = len(given["scene_x_edges"]) - 1
-        if len(given["scene_x_weights"]) != n_x:
-            raise ValueError("scene_x_weights: must have one value per bin of 'scene_x_edges'")
-        if not sum(given["scene_x_weights"]) > 0:
-            raise ValueError("scene_x_weights: the shares must not all be 0")
         for edges, weights in (("scene_y_edges", "scene_y_weights"), ("scene_heading_edges", "scene_heading_weights")):
             n_b = len(given[edges]) - 1
             w = np.asarray(given[weights], dtype=np.float64)
@@ -440,9 +440,9 @@ def scene_boxes(config: RigConfig, n: int, rng: np.random.Generator) -> NDArray[
         raise ValueError("scene_x_edges: the rig has no scene law (calibrate radar --scene fits one)")
     x_edges = np.asarray(c.scene_x_edges, dtype=np.float64)
     n_x = x_edges.size - 1
-    bx = rng.choice(n_x, n, p=_shares(np.asarray(c.scene_x_weights, dtype=np.float64)))
-    x = x_edges[bx] + np.diff(x_edges)[bx] * rng.random(n)
-    cols = [x]
+    x_weights = np.asarray(c.scene_x_weights, dtype=np.float64)
+    bx = rng.choice(n_x, n, p=x_weights / x_weights.sum())
+    cols = [_uniform_in_bins(x_edges, bx, rng)]
     for edges_name, weights_name in (
         ("scene_y_edges", "scene_y_weights"),
         ("scene_heading_edges", "scene_heading_weights"),
@@ -451,15 +451,11 @@ def scene_boxes(config: RigConfig, n: int, rng: np.random.Generator) -> NDArray[
         w = np.asarray(getattr(c, weights_name), dtype=np.float64).reshape(n_x, -1)
         cdf = np.cumsum(w, axis=1) / w.sum(axis=1, keepdims=True)
         b = np.minimum((rng.random(n)[:, None] > cdf[bx]).sum(axis=1), edges.size - 2)
-        cols.append(edges[b] + np.diff(edges)[b] * rng.random(n))
+        cols.append(_uniform_in_bins(edges, b, rng))
     lo_l, hi_l = np.asarray(c.scene_length_range, dtype=np.float64)
     lo_w, hi_w = np.asarray(c.scene_width_range, dtype=np.float64)
     cols += [rng.uniform(lo_l, hi_l, n), rng.uniform(lo_w, hi_w, n)]
     return np.stack(cols, axis=1)
-
-
-def _shares(w: NDArray[np.float64]) -> NDArray[np.float64]:
-    return w / w.sum()
 
 
 def _scene_scenario(c: RigConfig, n: int, n_cycles: int, cycle_time: float, rng: np.random.Generator) -> Scenario:
@@ -829,8 +825,12 @@ class SnapshotDraws:
 
 def _from_bins(edges: NDArray, weights: NDArray, m: int, rng: np.random.Generator) -> NDArray[np.float64]:
     """``m`` values uniform inside bins ``edges`` chosen with probabilities ``weights`` (normalised)."""
-    b = rng.choice(weights.size, m, p=weights / weights.sum())
-    return edges[b] + (edges[b + 1] - edges[b]) * rng.random(m)
+    return _uniform_in_bins(edges, rng.choice(weights.size, m, p=weights / weights.sum()), rng)
+
+
+def _uniform_in_bins(edges: NDArray, b: NDArray, rng: np.random.Generator) -> NDArray[np.float64]:
+    """One value uniform inside bin ``b[i]`` of ``edges`` for each ``i`` (one ``rng.random`` draw per value)."""
+    return np.asarray(edges[b] + (edges[b + 1] - edges[b]) * rng.random(b.size), dtype=np.float64)
 
 
 def _rows_to_log(rows: NDArray[np.float64], source: str) -> RadarLog:
