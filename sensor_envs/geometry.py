@@ -40,6 +40,9 @@ __all__ = [
     "closest_corner",
     "angular_interval",
     "occluded_fraction",
+    "polar_frame",
+    "to_polar_frame",
+    "from_polar_frame",
 ]
 
 RAY_EPS = 1e-9
@@ -570,3 +573,29 @@ def _first_edge_hit(
     ok = (neg_u <= 0.0) & (neg_u >= -1.0) & (t > RAY_EPS)
     first = np.argmin(np.where(ok, t, np.inf), axis=1)
     return ok.any(axis=1).reshape(angles.shape), first.reshape(angles.shape)
+
+
+def polar_frame(corner: NDArray) -> tuple[NDArray, NDArray]:
+    """Unit vectors ``(n, 2)`` of the polar frame at ``corner`` [m]: radial, and OUTWARD cross-range.
+
+    Outward points away from the boresight: to the left for corners left of it (azimuth >= 0), to the
+    right otherwise (sensor frame, x forward, y left).
+    """
+    az = np.arctan2(corner[:, 1], corner[:, 0])
+    side = np.where(az < 0, -1.0, 1.0)
+    return np.stack([np.cos(az), np.sin(az)], axis=1), side[:, None] * np.stack([-np.sin(az), np.cos(az)], axis=1)
+
+
+def to_polar_frame(vectors: NDArray, corner: NDArray) -> NDArray[np.float64]:
+    """Sensor-frame vectors ``(n, 2)`` [m] as (radial, OUTWARD cross-range) components at ``corner (n, 2)``.
+
+    The frame of :func:`polar_frame` (orthonormal, mirrored right of the boresight). NaN rows stay NaN.
+    """
+    u, v = polar_frame(corner)
+    return np.stack([(vectors * u).sum(axis=1), (vectors * v).sum(axis=1)], axis=1)
+
+
+def from_polar_frame(local: NDArray, corner: NDArray) -> NDArray[np.float64]:
+    """Inverse of :func:`to_polar_frame`: (radial, outward) components ``(n, 2)`` [m] back to the sensor frame."""
+    u, v = polar_frame(corner)
+    return local[:, :1] * u + local[:, 1:] * v

@@ -89,6 +89,13 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         choices=("cartesian", "polar"),
         help="corner features of the relevance kernel: corner x, y (the paper's) or range, azimuth",
     )
+    fit.add_argument(
+        "--output-frame",
+        default="cartesian",
+        choices=("cartesian", "polar"),
+        help="frame the kernels act on the outputs in: the sensor's x, y (the paper's) or the corner's radial and "
+        "outward cross-range axes (offsets toward the outer end of a face then pool across the boresight)",
+    )
     fit.add_argument("--seed", type=nonneg_int, default=0)
     add_force(fit)
     fit.set_defaults(func=_fit)
@@ -303,6 +310,7 @@ def _fit(args: argparse.Namespace) -> int:
         relevance=args.relevance,
         random_state=args.seed,
         state_transform=args.state_transform,
+        output_frame=args.output_frame,
         bandwidth_scale=args.bandwidth_scale,
         **extra,
     )
@@ -318,6 +326,7 @@ def _fit(args: argparse.Namespace) -> int:
         "seed": args.seed,
         "relevance": args.relevance,
         "state_transform": args.state_transform,
+        "output_frame": args.output_frame,
         "rel_variance_fitted": list(model.rel_variance_),
     }
     with about(args.log):

@@ -94,9 +94,9 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from sensor_envs.geometry import closest_corner, from_frame, occluded_fraction, rectangle_corners
+from sensor_envs.geometry import closest_corner, from_frame, occluded_fraction, rectangle_corners, to_polar_frame
 from sensor_envs.radar.log import REF_COLUMNS, RadarLog, clutter_counts
-from sensor_envs.radar.rig import RadarRig, RigConfig, SnapshotDraws, polar_frame
+from sensor_envs.radar.rig import RadarRig, RigConfig, SnapshotDraws
 from sensor_envs.radar.scene_law import scene_card, with_scene_law
 from sensor_envs.radar.validate import energy_distance_2d
 from sensor_envs.rng import fold_ids
@@ -230,8 +230,7 @@ def _polar(corner: NDArray, z: NDArray) -> NDArray[np.float64]:
     end of the face turned to the sensor shows on both sides alike (with a signed cross-range the
     two sides cancel in pooled quantiles).
     """
-    u, v = polar_frame(corner)
-    return np.stack([(z * u).sum(axis=1), (z * v).sum(axis=1)], axis=1)
+    return to_polar_frame(z, corner)
 
 
 def _rates(det: NDArray, b: NDArray, n_bins: int) -> NDArray[np.float64]:

@@ -16,6 +16,14 @@ kernel-peak weight, keeps both outcomes possible everywhere so held-out likeliho
 ``m`` the miss rate of the tuples the query is matched against (``prior_rate="tree"``: those with a
 previous output, or the start tuples) or the log's overall rate (``"global"``, format-1 models).
 
+**Output frame** (``output_frame``, format 6): the paper's kernels act on sensor-frame offsets
+(``"cartesian"``). With ``"polar"`` the model stores ``z`` and ``z_{t-1}`` in the corner's polar frame
+(radial, OUTWARD cross-range: mirrored right of the boresight, :func:`sensor_envs.geometry.polar_frame`)
+and the contribution bandwidths are radial and cross-range ones. A corner kernel wide enough to pool
+targets left and right of the boresight then keeps an offset toward the outer end of the face, which
+in the sensor frame points opposite ways on the two sides and averages out. Callers pass and receive
+sensor-frame offsets either way; the change of frame is orthonormal, so densities are unchanged.
+
 **Relevance bandwidth**: ``relevance="paper"`` uses ``rel_variance`` as given; ``relevance="cv"``
 chooses the corner variance from ``relevance_candidates`` by cross-validation on the training log
 (:mod:`sensor_envs.radar.relevance`); ``relevance="cv_axes"`` chooses the two corner variances
@@ -87,6 +95,7 @@ from scipy.special import ndtr
 from sklearn.base import BaseEstimator
 from sklearn.utils.validation import check_is_fitted
 
+from sensor_envs.geometry import from_polar_frame, to_polar_frame
 from sensor_envs.modelio import (
     RANDOM_STATE,
     Constraint,
@@ -119,16 +128,22 @@ from sensor_envs.radar.relevance import (
 __all__ = ["KDERadarModel", "corner_features", "cv_bandwidth_table"]
 
 KIND = "radar_kde"
-FORMAT_VERSION = 5
+FORMAT_VERSION = 6
 """Model file format: 1 = up to the ball sampler; 2 adds ``sampler``/``bucket_cell``, the relevance
 selection (``relevance*`` params, the fitted ``rel_variance_``) and ``start_split``; 3 adds the extra
 state (``extra_*`` params, the ``extra`` array, ``state_variables`` in the header); 4 adds the
 per-tuple ``new_track`` flags (uint8 0/1; new-track vs after-miss start trees); 5 adds the
 ``state_transform`` parameter (cartesian or polar corner features of the relevance kernel) and
-``relevance_candidates_azimuth``. Older files load with the defaults of the new parameters (no extra
-state; one combined start tree; cartesian corner features), so they behave exactly as before."""
+``relevance_candidates_azimuth``; 6 adds ``output_frame`` (outputs and previous outputs stored in
+the sensor frame or in the corner's polar frame). Older files load with the defaults of the new parameters (no extra
+state; one combined start tree; cartesian corner features; sensor-frame outputs), so they behave
+exactly as before."""
 STATE_TRANSFORMS = ("cartesian", "polar")
 """Corner features of the relevance kernel: ``(c_x, c_y)`` [m] or ``(range [m], azimuth [rad])``."""
+OUTPUT_FRAMES = ("cartesian", "polar")
+"""Frame the model stores outputs ``z`` and ``z_{t-1}`` in: the sensor frame, or the corner's polar frame
+(radial, OUTWARD cross-range; :func:`sensor_envs.geometry.polar_frame`). Callers always pass and get
+sensor-frame offsets."""
 AZIMUTH_CANDIDATES = (0.0025, 0.01, 0.04, 0.16)
 """Default azimuth variances [rad^2] the CV tries with polar corner features (``relevance_candidates_azimuth``)."""
 LOG_PROB_CHUNK = 1024
@@ -366,6 +381,13 @@ class KDERadarModel(BaseEstimator):
         state_transform: corner features of the relevance kernel: ``"cartesian"`` (``(c_x, c_y)``, the
             paper's; what files before format 5 hold) or ``"polar"`` (``(range, azimuth)``: a kernel
             narrow in azimuth at every range, so near targets left and right are not mixed).
+        output_frame: frame of the stored outputs and previous outputs, in which the kernels act:
+            ``"cartesian"`` (the sensor frame, the paper's; files before format 6) or ``"polar"`` (the
+            corner's radial and OUTWARD cross-range axes, mirrored right of the boresight: a corner
+            kernel wide enough to pool targets left and right of the boresight keeps an offset toward
+            the outer end of the face, which in the sensor frame points opposite ways on the two sides
+            and cancels). ``sample``/``log_prob`` take and return sensor-frame offsets either way
+            (the change of frame is a rotation or reflection: densities are unchanged).
         relevance_folds: folds of ``relevance="cv"`` (sequences dealt round-robin).
         random_state: seed or generator for the CV subsampling.
         extra_state: names of extra numeric log columns appended to the state (see the module docstring).
@@ -394,6 +416,7 @@ class KDERadarModel(BaseEstimator):
         "relevance_candidates_azimuth": [Numbers(Interval(0, np.pi**2, open_low=True))],
         "relevance_candidates_prev": [Numbers(Interval(0, MAX_POSITION**2, open_low=True))],
         "state_transform": [Options(*STATE_TRANSFORMS)],
+        "output_frame": [Options(*OUTPUT_FRAMES)],
         "relevance_folds": [Interval(2, None, integer=True)],
         "prior_rate": [Options("tree", "global")],
         "random_state": RANDOM_STATE,
@@ -433,6 +456,7 @@ class KDERadarModel(BaseEstimator):
         relevance_candidates_azimuth: tuple[float, ...] = AZIMUTH_CANDIDATES,
         relevance_candidates_prev: tuple[float, ...] = PREV_CANDIDATES,
         bandwidth_scale: float = 1.0,
+        output_frame: str = "cartesian",
     ) -> None:
         self.rel_variance = rel_variance
         self.use_prev = use_prev
@@ -460,6 +484,7 @@ class KDERadarModel(BaseEstimator):
         self.relevance_candidates_azimuth = relevance_candidates_azimuth
         self.relevance_candidates_prev = relevance_candidates_prev
         self.bandwidth_scale = bandwidth_scale
+        self.output_frame = output_frame
 
     # ------------------------------------------------------------------ fit
     def _check_params(self) -> None:
@@ -485,8 +510,8 @@ class KDERadarModel(BaseEstimator):
         det = ~np.isnan(tt.z[:, 0])
         if det.sum() < 2:
             raise ValueError(f"{log.source}: fewer than 2 detected target rows; cannot fit a KDE")
-        self.states_ = np.concatenate([tt.corner, tt.z_prev], axis=1)
-        self.z_ = tt.z
+        self.states_ = np.concatenate([tt.corner, self._to_model_frame(tt.z_prev, tt.corner)], axis=1)
+        self.z_ = self._to_model_frame(tt.z, tt.corner)
         self.log_row_ = tt.row
         self.new_track_: NDArray[np.bool_] | None = ~tt.has_prev_row  # first row of its target in the log
         self.rel_variance_ = tuple(float(v) for v in self.rel_variance)
@@ -580,6 +605,20 @@ class KDERadarModel(BaseEstimator):
             self.extra_variance_ = ()
         self.extra_scale_ = np.sqrt(np.asarray(self.extra_variance_, dtype=np.float64)).reshape(-1)
 
+    def _to_model_frame(self, z: NDArray, corners: NDArray) -> NDArray[np.float64]:
+        """Sensor-frame offsets ``z (n, 2)`` [m] at ``corners (n, 2)`` in the stored frame (``output_frame``)."""
+        return z if self.output_frame == "cartesian" else to_polar_frame(z, corners)
+
+    def _to_sensor_frame(self, z: NDArray, corners: NDArray) -> NDArray[np.float64]:
+        """Inverse of :meth:`_to_model_frame`: stored-frame offsets back to the sensor frame [m]."""
+        return z if self.output_frame == "cartesian" else from_polar_frame(z, corners)
+
+    def _model_state(self, st: NDArray) -> NDArray[np.float64]:
+        """Query states ``(n, 2|4)`` with the previous output (columns 2-3) in the stored frame."""
+        if st.shape[1] < 4 or self.output_frame == "cartesian":
+            return st
+        return np.concatenate([st[:, :2], to_polar_frame(st[:, 2:4], st[:, :2]), st[:, 4:]], axis=1)
+
     def _features(self, states: NDArray) -> NDArray[np.float64]:
         """States ``(n, d)`` with the corner columns as relevance features (:func:`relevance_features`)."""
         return relevance_features(states, self.state_transform)
@@ -612,7 +651,7 @@ class KDERadarModel(BaseEstimator):
     ) -> tuple[NDArray, NDArray]:
         """Expected output given a detection ``(n, 2)`` [m] and ``P(miss)`` ``(n,)`` (arguments as :meth:`log_prob`)."""
         self._check_fitted()
-        st = np.atleast_2d(np.asarray(state, dtype=np.float64))
+        st = self._model_state(np.atleast_2d(np.asarray(state, dtype=np.float64)))
         n = st.shape[0]
         ex = self._extra_query(extra, n)
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
@@ -621,7 +660,8 @@ class KDERadarModel(BaseEstimator):
         wd = w * ~self.miss_[gi]
         zi = np.nan_to_num(self.z_[gi])  # missed tuples have NaN outputs and zero weight here
         zsum = np.stack([np.bincount(q, weights=wd * zi[:, k], minlength=n) for k in range(2)], axis=1)
-        return zsum / np.bincount(q, weights=wd, minlength=n)[:, None], p_miss
+        mean = zsum / np.bincount(q, weights=wd, minlength=n)[:, None]
+        return self._to_sensor_frame(mean, st[:, :2]), p_miss
 
     def _build(self) -> None:
         """Build the search trees from the stored tuples (at fit and at load; never per call)."""
@@ -718,7 +758,10 @@ class KDERadarModel(BaseEstimator):
 
     # ------------------------------------------------------------------ query
     def bandwidth(self, corners: NDArray) -> NDArray[np.float64]:
-        """Output bandwidths ``(n, 2)`` [m] interpolated from the CV table at ``corners (n, 2)`` [m]."""
+        """Output bandwidths ``(n, 2)`` [m] interpolated from the CV table at ``corners (n, 2)`` [m].
+
+        Along the axes of ``output_frame``: sensor x, y, or the corner's radial and outward cross-range.
+        """
         self._check_fitted()
         return np.exp(_interp_log_h(self.grid_x_, self.grid_y_, self.log_h_, np.atleast_2d(corners)))
 
@@ -855,6 +898,8 @@ class KDERadarModel(BaseEstimator):
         if n == 0:
             return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
         prev = _as_prev(None if not self.use_prev else prev_z, n)
+        if self.output_frame != "cartesian":
+            prev = to_polar_frame(prev, corners)
         grp = self._route(prev, new_track)
         ex = self._extra_query(extra, n)
         bucket = self.sampler == "bucket" or (self.sampler == "auto" and self._auto_bucket)
@@ -864,7 +909,7 @@ class KDERadarModel(BaseEstimator):
             miss, src = self._draw_ball(corners, prev, rng, ex, grp)
         h = self.bandwidth(corners)
         z = np.where(miss[:, None], np.nan, self.z_[np.maximum(src, 0)] + h * rng.standard_normal((n, 2)))
-        return z, src
+        return self._to_sensor_frame(z, corners), src
 
     def _draw_ball(
         self,
@@ -988,6 +1033,7 @@ class KDERadarModel(BaseEstimator):
                     for a in range(0, n, LOG_PROB_CHUNK)  # one iteration per chunk of rows
                 ]
             )
+        st, z = self._model_state(st), self._to_model_frame(z, st[:, :2])
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
         grp = self._route(_as_prev(prev, n), new_track)
         gi, w, q, p_miss = self._outcome(st[:, :2], prev, self._extra_query(extra, n), grp)
@@ -1040,6 +1086,8 @@ class KDERadarModel(BaseEstimator):
             ``(len(edges_x) - 1, len(edges_y) - 1)`` bin probabilities and ``P(miss)``.
         """
         self._check_fitted()
+        if self.output_frame != "cartesian":
+            raise ValueError("bin_probabilities: the model's kernels act in the corner's polar frame (output_frame)")
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))[:1]
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
         grp = self._route(_as_prev(prev, 1), new_track)
@@ -1124,7 +1172,7 @@ class KDERadarModel(BaseEstimator):
             "clutter_counts": ("iu", 1, True),
             "clutter_xy": ("f", 2, True),
         }
-        header, a = load_model_file(path, KIND, (1, 2, 3, 4, FORMAT_VERSION), schema)
+        header, a = load_model_file(path, KIND, (1, 2, 3, 4, 5, FORMAT_VERSION), schema)
         defaults = {  # parameters older formats lack: 1 has no prior_rate, 1 and 2 no extra state
             "prior_rate": "global",
             "extra_state": (),
@@ -1135,6 +1183,8 @@ class KDERadarModel(BaseEstimator):
         }
         if int(header.get("format_version", 0)) < 5:  # format 5 must state its corner features
             defaults.update(state_transform="cartesian", relevance_candidates_azimuth=AZIMUTH_CANDIDATES)
+        if int(header.get("format_version", 0)) < 6:  # format 6 must state its output frame
+            defaults.update(output_frame="cartesian")
         not_saved = ("random_state", "cv_candidates")  # the candidates are stored as an array
         model = cls(**params_from_header(path, header, cls._hyperparameter_constraints, defaults, not_saved))
         _check_arrays(path, a)

@@ -55,7 +55,13 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from sensor_envs.geometry import closest_corner, from_frame, occluded_fraction, rectangle_corners
+from sensor_envs.geometry import (
+    closest_corner,
+    from_frame,
+    from_polar_frame,
+    occluded_fraction,
+    rectangle_corners,
+)
 from sensor_envs.modelio import (
     Constraint,
     Interval,
@@ -79,7 +85,6 @@ __all__ = [
     "scene_boxes",
     "RadarRig",
     "OffsetMixture",
-    "polar_frame",
     "record_rig_log",
 ]
 
@@ -533,17 +538,6 @@ def _tracker_ar1(err: NDArray, innov: NDArray, tracked: NDArray, rho: float) -> 
     return np.where(tracked[:, None], rho * err + np.sqrt(1 - rho**2) * innov, innov)
 
 
-def polar_frame(corner: NDArray) -> tuple[NDArray, NDArray]:
-    """Unit vectors ``(n, 2)`` of the polar frame at ``corner`` [m]: radial, and OUTWARD cross-range.
-
-    Outward points away from the boresight: to the left for corners left of it (azimuth >= 0), to the
-    right otherwise (sensor frame, x forward, y left).
-    """
-    az = np.arctan2(corner[:, 1], corner[:, 0])
-    side = np.where(az < 0, -1.0, 1.0)
-    return np.stack([np.cos(az), np.sin(az)], axis=1), side[:, None] * np.stack([-np.sin(az), np.cos(az)], axis=1)
-
-
 @dataclass(frozen=True)
 class OffsetMixture:
     """The rig's offset mixture law as arrays (see :class:`RigConfig`'s ``offset_mixture_*``).
@@ -594,8 +588,7 @@ class OffsetMixture:
     def offset(self, corner: NDArray, b: NDArray, comp: NDArray, normal: NDArray) -> NDArray[np.float64]:
         """Sensor-frame offset ``(n, 2)`` [m] of component ``comp`` in bins ``b`` from standard normals ``(n, 2)``."""
         local = self.means[b, comp] + np.einsum("nij,nj->ni", self.chol[b, comp], normal)
-        u, v = polar_frame(corner)
-        return local[:, :1] * u + local[:, 1:] * v
+        return from_polar_frame(local, corner)
 
 
 class RadarRig:
