@@ -6,13 +6,14 @@ The whole chain runs from a fresh clone (~30-45 min on 2 shared cores, most of i
 1. AFTER models: record the calibrated rig (``--rig``, default ``models/radar_rig.json``) with the
    command of the model card (``record radar ... --in-view-only``; ``--all-targets`` records every
    box, the chain of the models shipped until 2026-11-24) and fit the KDE (``--relevance cv_state
-   --relevance-candidates 6 12 24 48 96 192 --bandwidth-scale 0.7``, options of this script; ``--relevance cv_axes``
+   --relevance-candidates 6 12 24 48 96 192 --output-frame polar --bandwidth-scale 0.7``, options of this
+   script; ``--output-frame cartesian`` is the chain of the file shipped at 6f662ae; ``--relevance cv_axes``
    with ``--rig`` = the rig file of commit 8e72122 is the chain of the models shipped there) and the Gaussian baseline
    on it, both through the ``sensor-envs`` CLI (``--models-from DIR`` skips this and uses
    ``DIR/radar_kde.npz`` and ``DIR/radar_gaussian.npz``, e.g. ``models``);
 2. BEFORE models: ``git show <--before-rev>:models/radar_kde.npz`` (and the Gaussian): by default the
-   models shipped before the rig with the offset mixture from 50 m (ce7b78a; ``--before-rev f327671``:
-   those before the calibration, fitted on the generic rig);
+   models shipped before the KDE's polar output frame (6f662ae; ``--before-rev ce7b78a``: before the rig
+   with the offset mixture from 50 m; ``f327671``: before the calibration, fitted on the generic rig);
 3. real data: ``load_astyx`` (cars; measured position = a cluster's detection nearest to the
    sensor); frames in blocks of ``--block`` consecutive frames, block ``b`` in test fold
    ``b % --folds`` (``validate.split_by_blocks``). Every fold: a KDE fitted on the other folds
@@ -73,9 +74,9 @@ from sensor_envs.radar.validate import RANGE_BINS, energy_distance_2d, split_by_
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT / ".." / "shared" / "data" / "real" / "astyx_hires2019"
-BEFORE_REV = "ce7b78a"
-"""Commit whose ``models/`` hold the radar models shipped before the last change (the reflection-law rig at
-every range; before the calibration itself: f327671, the generic rig)."""
+BEFORE_REV = "6f662ae"
+"""Commit whose ``models/`` hold the radar models shipped before the last change (the KDE with sensor-frame
+outputs; ce7b78a: the reflection-law rig at every range; f327671: before the calibration, the generic rig)."""
 RANGE_LABELS = [f"{lo:g}-{hi:g}" for lo, hi in zip(RANGE_BINS[:-1], RANGE_BINS[1:], strict=True)]
 AZ_DEG = np.rad2deg(DET_AZIMUTH_EDGES)
 AZ_LABELS = [f"{lo:g}..{hi:g}" for lo, hi in zip(AZ_DEG[:-1], AZ_DEG[1:], strict=True)]
@@ -95,6 +96,8 @@ RELEVANCE_CANDIDATES = (6.0, 12.0, 24.0, 48.0, 96.0, 192.0)
 """Corner variances [m^2] the shipped model's CV tried (``fit radar --relevance-candidates``)."""
 
 
+OUTPUT_FRAME = "polar"
+"""Output frame of the shipped KDE (``fit radar --output-frame``; ``"cartesian"`` for the files up to 6f662ae)."""
 BANDWIDTH_SCALE = 0.7
 """Contribution-bandwidth factor of the shipped KDE (``fit radar --bandwidth-scale``; see the model card)."""
 ENERGY_MAX_N = 4000
@@ -109,6 +112,7 @@ def chain(
     relevance: str = RELEVANCE,
     candidates: tuple[float, ...] | None = RELEVANCE_CANDIDATES,
     bandwidth_scale: float = BANDWIDTH_SCALE,
+    output_frame: str = OUTPUT_FRAME,
 ) -> tuple[Path, Path]:
     """Record the calibrated rig and fit the KDE and Gaussian as the model card says; returns their paths.
 
@@ -129,7 +133,7 @@ def chain(
         "--cycles", "40", "--targets", "8", "--cycle-time", "1.0", *view, "--force")  # fmt: skip
     cli("fit", "radar", str(log), "--out", str(kde), "--baseline-out", str(gauss), "--cycle-time", "1.0",
         "--seed", str(seed), "--relevance", relevance, *cand, "--bandwidth-scale", f"{bandwidth_scale:g}",
-        "--force")  # fmt: skip
+        "--output-frame", output_frame, "--force")  # fmt: skip
     return kde, gauss
 
 
@@ -345,6 +349,12 @@ def main() -> None:
         help=f"chain: fit radar --bandwidth-scale (default {BANDWIDTH_SCALE:g}, the shipped model's; "
         "1: files before 621e782)",
     )
+    ap.add_argument(
+        "--output-frame",
+        choices=["cartesian", "polar"],
+        default=OUTPUT_FRAME,
+        help=f"chain: fit radar --output-frame (default {OUTPUT_FRAME}, the shipped model's; cartesian: up to 6f662ae)",
+    )
     ap.add_argument("--before-rev", default=BEFORE_REV, help="git revision of the BEFORE models")
     ap.add_argument("--block", type=int, default=10)
     ap.add_argument("--folds", type=int, default=5)
@@ -376,6 +386,7 @@ def main() -> None:
             relevance=args.relevance,
             candidates=tuple(args.relevance_candidates),
             bandwidth_scale=args.bandwidth_scale,
+            output_frame=args.output_frame,
         )
     kde_before, gauss_before = before_models(out / "before", args.before_rev)
     fixed = {
@@ -434,7 +445,7 @@ def main() -> None:
             args.models_from
             or f"chain: {args.rig} -> record{' --in-view-only' if args.in_view_only else ''} -> fit --relevance "
             f"{args.relevance} --relevance-candidates {' '.join(f'{c:g}' for c in args.relevance_candidates)} "
-            f"--bandwidth-scale {args.bandwidth_scale:g}"
+            f"--bandwidth-scale {args.bandwidth_scale:g} --output-frame {args.output_frame}"
         ),
         "range_bins_m": list(RANGE_BINS),
         "azimuth_bins_deg": AZ_DEG.tolist(),

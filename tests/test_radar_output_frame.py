@@ -11,6 +11,7 @@ from sensor_envs.modelio import ModelFileError, save_model_file
 from sensor_envs.radar.kde import KIND, KDERadarModel
 from sensor_envs.radar.log import RadarLog, target_tuples, write_log
 from sensor_envs.radar.rig import record_rig_log
+from sensor_envs.radar.validate import chi_square
 
 OUTWARD = 0.5
 """Offset [m] of every detection toward the outer end of the face (away from the boresight)."""
@@ -76,6 +77,36 @@ def test_polar_outputs_keep_the_outward_offset_the_sensor_frame_pools_away(pair,
 
 
 @pytest.mark.parametrize("with_prev", [False, True])
+def test_polar_samples_pass_the_chi_square_test_in_the_output_frame(pair, outward_log, with_prev):
+    """Two-stage samples against the binned analytic PDF (bins on the radial and outward axes)."""
+    _, polar = pair
+    tt = target_tuples(outward_log)
+    r = np.flatnonzero(np.isfinite(tt.z_prev[:, 0]) & (tt.corner[:, 1] < -3))[11]
+    state = np.concatenate([tt.corner[r], tt.z_prev[r]]) if with_prev else tt.corner[r]
+    res = chi_square(polar, state, np.random.default_rng(8), n=60_000)
+    assert res["p_value"] > 1e-3, res["p_value"]
+    shifted = chi_square(_Shifted(polar), state, np.random.default_rng(8), n=60_000)
+    assert shifted["p_value"] < 1e-6  # the test sees a 0.1 m bias along the outward axis
+
+
+class _Shifted:
+    """A model whose samples are 0.1 m further outward than its ``bin_probabilities`` say."""
+
+    def __init__(self, m):
+        self.m = m
+
+    def sample(self, s, rng):
+        z, src = self.m.sample(s, rng)
+        return z + from_polar_frame(np.tile([0.0, 0.1], (len(z), 1)), s[:, :2]), src
+
+    def to_output_frame(self, z, c):
+        return self.m.to_output_frame(z, c)
+
+    def bin_probabilities(self, s, ex, ey):
+        return self.m.bin_probabilities(s, ex, ey)
+
+
+@pytest.mark.parametrize("with_prev", [False, True])
 def test_polar_log_prob_is_a_density_in_the_sensor_frame(pair, outward_log, with_prev):
     _, polar = pair
     tt = target_tuples(outward_log)
@@ -119,8 +150,7 @@ def test_cartesian_default_and_polar_file_round_trip(pair, tmp_path):
     a = polar.sample(states, np.random.default_rng(3))
     b = loaded.sample(states, np.random.default_rng(3))
     np.testing.assert_array_equal(a[0], b[0])
-    with pytest.raises(ValueError, match="bin_probabilities"):
-        polar.bin_probabilities(states[0], np.linspace(-1, 1, 5), np.linspace(-1, 1, 5))
+    np.testing.assert_array_equal(cart.to_output_frame(states[:5, 2:], states[:5, :2]), states[:5, 2:])
 
 
 def _rewrite(model, path, version, drop):

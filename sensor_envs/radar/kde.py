@@ -605,6 +605,14 @@ class KDERadarModel(BaseEstimator):
             self.extra_variance_ = ()
         self.extra_scale_ = np.sqrt(np.asarray(self.extra_variance_, dtype=np.float64)).reshape(-1)
 
+    def to_output_frame(self, z: NDArray, corners: NDArray) -> NDArray[np.float64]:
+        """Sensor-frame offsets ``z (n, 2)`` [m] at ``corners (n, 2)`` on the axes of ``output_frame``.
+
+        The axes :meth:`bin_probabilities` and :meth:`bandwidth` refer to (identity for ``"cartesian"``).
+        """
+        self._check_fitted()
+        return self._to_model_frame(np.atleast_2d(np.asarray(z, dtype=np.float64)), np.atleast_2d(corners))
+
     def _to_model_frame(self, z: NDArray, corners: NDArray) -> NDArray[np.float64]:
         """Sensor-frame offsets ``z (n, 2)`` [m] at ``corners (n, 2)`` in the stored frame (``output_frame``)."""
         return z if self.output_frame == "cartesian" else to_polar_frame(z, corners)
@@ -1075,10 +1083,14 @@ class KDERadarModel(BaseEstimator):
     ) -> tuple[NDArray[np.float64], float]:
         """Exact probability of each output bin for ONE state (for the chi-square check).
 
+        The bins are along the axes of ``output_frame`` (where the kernels are axis-aligned Gaussians):
+        sensor x, y, or the corner's radial and outward cross-range; :meth:`to_output_frame` puts
+        sensor-frame samples on the same axes.
+
         Args:
-            state: ``(2,)``/``(4,)`` state as in :meth:`sample` [m].
-            edges_x: bin edges [m] of ``z_x``.
-            edges_y: bin edges [m] of ``z_y``.
+            state: ``(2,)``/``(4,)`` state as in :meth:`sample` [m] (previous output in the sensor frame).
+            edges_x: bin edges [m] of the output's first component (``z_x``, or radial).
+            edges_y: bin edges [m] of the second (``z_y``, or outward cross-range).
             extra: ``(1, E)`` extra state values (required when the model has any).
             new_track: ``(1,)`` new-track flag as in :meth:`sample` (``None`` = unknown).
 
@@ -1086,9 +1098,7 @@ class KDERadarModel(BaseEstimator):
             ``(len(edges_x) - 1, len(edges_y) - 1)`` bin probabilities and ``P(miss)``.
         """
         self._check_fitted()
-        if self.output_frame != "cartesian":
-            raise ValueError("bin_probabilities: the model's kernels act in the corner's polar frame (output_frame)")
-        st = np.atleast_2d(np.asarray(state, dtype=np.float64))[:1]
+        st = self._model_state(np.atleast_2d(np.asarray(state, dtype=np.float64))[:1])
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
         grp = self._route(_as_prev(prev, 1), new_track)
         gi, w, q, p_miss = self._outcome(st[:, :2], prev, self._extra_query(extra, 1), grp)

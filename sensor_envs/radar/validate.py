@@ -256,6 +256,8 @@ def chi_square(
 
     state = np.asarray(state, dtype=np.float64)
     z, _ = model.sample(np.repeat(state[None], n, axis=0), rng)
+    if hasattr(model, "to_output_frame"):  # bins along the axes the model's kernels are aligned with
+        z = model.to_output_frame(z, np.repeat(state[None, :2], n, axis=0))
     det = ~np.isnan(z[:, 0])
     lo, hi = np.nanpercentile(z, 0.1, axis=0), np.nanpercentile(z, 99.9, axis=0)
     ex, ey = np.linspace(lo[0], hi[0], n_bins + 1), np.linspace(lo[1], hi[1], n_bins + 1)
