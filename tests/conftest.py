@@ -44,3 +44,29 @@ def model(rig_split):
     from sensor_envs.radar.kde import KDERadarModel
 
     return KDERadarModel(random_state=0).fit(rig_split[0], cycle_time=1.0)
+
+
+def _rewrite_kde_file(model, path, version, drop=(), params=None):
+    """Write ``model`` as a KDE file of format ``version`` whose params lack ``drop`` and take ``params``."""
+    import json
+
+    from sensor_envs.modelio import save_model_file
+    from sensor_envs.radar.kde import KIND
+
+    model.save(path)
+    with np.load(path, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    header = json.loads(data.pop("__header__").tobytes().decode("utf-8"))
+    for k in drop:
+        header["params"].pop(k)
+    header["params"].update(params or {})
+    for k in ("kind", "format_version"):
+        header.pop(k)
+    save_model_file(path, KIND, version, header, data)
+    return path
+
+
+@pytest.fixture
+def rewrite_kde_file():
+    """``f(model, path, version, drop=(), params=None)``: a KDE file as an older format or with edited params."""
+    return _rewrite_kde_file

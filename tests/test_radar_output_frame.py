@@ -1,14 +1,12 @@
 """The KDE radar's output frame (format 6): kernels on sensor-frame offsets, or in the corner's polar frame."""
 
-import json
-
 import numpy as np
 import pytest
 
 from sensor_envs.cli.main import main
 from sensor_envs.geometry import from_polar_frame, polar_frame, to_polar_frame
-from sensor_envs.modelio import ModelFileError, save_model_file
-from sensor_envs.radar.kde import KIND, KDERadarModel
+from sensor_envs.modelio import ModelFileError
+from sensor_envs.radar.kde import KDERadarModel
 from sensor_envs.radar.log import RadarLog, target_tuples, write_log
 from sensor_envs.radar.rig import record_rig_log
 from sensor_envs.radar.validate import chi_square
@@ -153,38 +151,17 @@ def test_cartesian_default_and_polar_file_round_trip(pair, tmp_path):
     np.testing.assert_array_equal(cart.to_output_frame(states[:5, 2:], states[:5, :2]), states[:5, 2:])
 
 
-def _rewrite(model, path, version, drop):
-    """Write ``model`` as a file of format ``version`` whose params lack ``drop``."""
-    model.save(path)
-    with np.load(path, allow_pickle=False) as z:
-        data = {k: z[k] for k in z.files}
-    header = json.loads(data.pop("__header__").tobytes().decode("utf-8"))
-    for k in drop:
-        header["params"].pop(k)
-    for k in ("kind", "format_version"):
-        header.pop(k)
-    save_model_file(path, KIND, version, header, data)
-    return path
-
-
-def test_format5_files_load_with_sensor_frame_outputs_and_format6_must_name_it(pair, tmp_path):
+def test_format5_files_load_with_sensor_frame_outputs_and_format6_must_name_it(pair, tmp_path, rewrite_kde_file):
     cart, _ = pair
-    old = KDERadarModel.load(_rewrite(cart, tmp_path / "f5.npz", 5, ("output_frame",)))
+    old = KDERadarModel.load(rewrite_kde_file(cart, tmp_path / "f5.npz", 5, ("output_frame",)))
     assert old.output_frame == "cartesian"
     states = cart.states_[::53]
     np.testing.assert_array_equal(
         old.sample(states, np.random.default_rng(4))[0], cart.sample(states, np.random.default_rng(4))[0]
     )
     with pytest.raises(ModelFileError, match="params.output_frame"):
-        KDERadarModel.load(_rewrite(cart, tmp_path / "f6.npz", 6, ("output_frame",)))
-    bad = _rewrite(cart, tmp_path / "bad.npz", 6, ())
-    with np.load(bad, allow_pickle=False) as z:
-        data = {k: z[k] for k in z.files}
-    header = json.loads(data.pop("__header__").tobytes().decode("utf-8"))
-    header["params"]["output_frame"] = "spherical"
-    for k in ("kind", "format_version"):
-        header.pop(k)
-    save_model_file(bad, KIND, 6, header, data)
+        KDERadarModel.load(rewrite_kde_file(cart, tmp_path / "f6.npz", 6, ("output_frame",)))
+    bad = rewrite_kde_file(cart, tmp_path / "bad.npz", 6, params={"output_frame": "spherical"})
     with pytest.raises(ModelFileError, match="output_frame"):
         KDERadarModel.load(bad)
 

@@ -1,13 +1,12 @@
 """The KDE radar's corner features (format 5): cartesian as before, or polar (range, azimuth)."""
 
-import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from sensor_envs.modelio import ModelFileError, save_model_file
-from sensor_envs.radar.kde import KIND, KDERadarModel, corner_features
+from sensor_envs.modelio import ModelFileError
+from sensor_envs.radar.kde import KDERadarModel, corner_features
 from sensor_envs.radar.relevance import select_corner_variances, select_prev_variance
 from sensor_envs.radar.rig import record_rig_log
 from sensor_envs.radar.validate import chi_square
@@ -16,18 +15,8 @@ SHIPPED = Path(__file__).resolve().parents[1] / "models" / "radar_kde.npz"
 POLAR_VAR = (12.0, 0.01, 0.03, 0.03)  # range 3.5 m, azimuth 5.7 deg, z_{t-1} 0.17 m
 
 
-def _rewrite(model, path, version, drop=("state_transform", "relevance_candidates_azimuth")):
-    """Write ``model`` as a file of format ``version`` whose params lack ``drop`` (as older files)."""
-    model.save(path)
-    with np.load(path, allow_pickle=False) as z:
-        data = {k: z[k] for k in z.files}
-    header = json.loads(data.pop("__header__").tobytes().decode("utf-8"))
-    for k in drop:
-        header["params"].pop(k)
-    for k in ("kind", "format_version"):
-        header.pop(k)
-    save_model_file(path, KIND, version, header, data)
-    return path
+OLD_DROP = ("state_transform", "relevance_candidates_azimuth")
+"""Parameters files before format 5 lack."""
 
 
 @pytest.fixture(scope="module")
@@ -42,8 +31,8 @@ def polar():
     ).fit(log)
 
 
-def test_format4_files_load_cartesian_and_behave_as_saved(model, tmp_path):
-    old = KDERadarModel.load(_rewrite(model, tmp_path / "f4.npz", 4))
+def test_format4_files_load_cartesian_and_behave_as_saved(model, tmp_path, rewrite_kde_file):
+    old = KDERadarModel.load(rewrite_kde_file(model, tmp_path / "f4.npz", 4, OLD_DROP))
     assert old.state_transform == "cartesian" and KDERadarModel.load(SHIPPED).state_transform == "cartesian"
     states = model.states_[::97]
     z = np.where(np.isnan(model.z_[::97]), 0.3, model.z_[::97])
@@ -52,9 +41,9 @@ def test_format4_files_load_cartesian_and_behave_as_saved(model, tmp_path):
     np.testing.assert_array_equal(a[1], b[1])
 
 
-def test_format5_file_must_name_its_corner_features(model, tmp_path):
+def test_format5_file_must_name_its_corner_features(model, tmp_path, rewrite_kde_file):
     with pytest.raises(ModelFileError, match="params.state_transform"):
-        KDERadarModel.load(_rewrite(model, tmp_path / "f5.npz", 5, drop=("state_transform",)))
+        KDERadarModel.load(rewrite_kde_file(model, tmp_path / "f5.npz", 5, drop=("state_transform",)))
 
 
 def test_polar_kernel_weights_range_and_azimuth(polar, tmp_path):
@@ -92,7 +81,7 @@ def test_polar_relevance_cv_picks_from_the_candidates():
     assert scores[2 + (0.005, 0.08).index(va)] == scores[2:].max()
 
 
-def test_cv_state_chooses_the_previous_output_variance_on_the_training_log(tmp_path):
+def test_cv_state_chooses_the_previous_output_variance_on_the_training_log(tmp_path, rewrite_kde_file):
     """``relevance="cv_state"``: corner x and y variances, then the z_{t-1} variance, all from their candidates."""
     log = record_rig_log(8, 15, 6, np.random.default_rng(3))
     prev = (0.01, 0.3, 3.0)
@@ -116,7 +105,7 @@ def test_cv_state_chooses_the_previous_output_variance_on_the_training_log(tmp_p
     again = KDERadarModel.load(path)
     assert again.rel_variance_ == model.rel_variance_ and tuple(again.relevance_candidates_prev) == prev
     # files written before the parameter existed load with its default
-    old = KDERadarModel.load(_rewrite(model, tmp_path / "old.npz", 5, drop=("relevance_candidates_prev",)))
+    old = KDERadarModel.load(rewrite_kde_file(model, tmp_path / "old.npz", 5, drop=("relevance_candidates_prev",)))
     assert old.rel_variance_ == model.rel_variance_
 
 
