@@ -17,8 +17,9 @@ kernel-peak weight, keeps both outcomes possible everywhere so held-out likeliho
 previous output, or the start tuples) or the log's overall rate (``"global"``, format-1 models).
 
 **Output frame** (``output_frame``, format 6): the paper's kernels act on sensor-frame offsets
-(``"cartesian"``). With ``"polar"`` the model stores ``z`` and ``z_{t-1}`` in the corner's polar frame
-(radial, OUTWARD cross-range: mirrored right of the boresight, :func:`sensor_envs.geometry.polar_frame`)
+(``"cartesian"``). With ``"polar"`` the model stores ``z`` and ``z_{t-1}`` in the polar frame of the
+CURRENT cycle's corner, in training and in queries alike (radial, OUTWARD cross-range: mirrored right of
+the boresight, :func:`sensor_envs.geometry.polar_frame`)
 and the contribution bandwidths are radial and cross-range ones. A corner kernel wide enough to pool
 targets left and right of the boresight then keeps an offset toward the outer end of the face, which
 in the sensor frame points opposite ways on the two sides and averages out. Callers pass and receive
