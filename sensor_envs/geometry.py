@@ -590,6 +590,9 @@ def to_polar_frame(vectors: NDArray, corner: NDArray) -> NDArray[np.float64]:
     """Sensor-frame vectors ``(n, 2)`` [m] as (radial, OUTWARD cross-range) components at ``corner (n, 2)``.
 
     The frame of :func:`polar_frame` (orthonormal, mirrored right of the boresight). NaN rows stay NaN.
+    A positive cross-range component always points away from the boresight, so an offset toward the
+    outer end of the face turned to the sensor shows alike on both sides (with a signed cross-range
+    the two sides cancel when pooled).
     """
     u, v = polar_frame(corner)
     return np.stack([(vectors * u).sum(axis=1), (vectors * v).sum(axis=1)], axis=1)

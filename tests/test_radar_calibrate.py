@@ -372,9 +372,9 @@ MIXTURE = replace(
 
 def _polar_offsets(corner: np.ndarray, meas: np.ndarray) -> np.ndarray:
     """(radial, outward cross-range) offsets [m] of ``meas`` from ``corner``: the calibration's statistic."""
-    from sensor_envs.radar.calibrate import _polar
+    from sensor_envs.geometry import to_polar_frame
 
-    return _polar(corner, meas - corner)
+    return to_polar_frame(meas - corner, corner)
 
 
 @pytest.mark.parametrize("mode", ["snapshot", "record"])

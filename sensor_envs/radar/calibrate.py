@@ -222,17 +222,6 @@ def _bin(v: NDArray, edges: tuple[float, ...]) -> NDArray[np.int64]:
     return np.where((v >= e[0]) & (v < e[-1]), b, -1)
 
 
-def _polar(corner: NDArray, z: NDArray) -> NDArray[np.float64]:
-    """``z`` in the polar frame at ``corner``: (radial, OUTWARD cross-range) [m].
-
-    The cross-range component is mirrored on the right of the boresight (``azimuth < 0``), so a
-    positive value always points away from the boresight: a reflection displaced towards the outer
-    end of the face turned to the sensor shows on both sides alike (with a signed cross-range the
-    two sides cancel in pooled quantiles).
-    """
-    return to_polar_frame(z, corner)
-
-
 def _rates(det: NDArray, b: NDArray, n_bins: int) -> NDArray[np.float64]:
     """Mean of ``det`` per bin (NaN for empty bins)."""
     ok = b >= 0
@@ -275,7 +264,7 @@ def _detection_stats(det: NDArray, bins: _Bins) -> dict[str, NDArray[np.float64]
 def _offset_samples(corner: NDArray, meas: NDArray, range_bin: NDArray) -> tuple[NDArray, NDArray]:
     """Polar ``(radial, outward cross-range)`` ``z`` [m] of the detected rows and their range bins."""
     det = np.isfinite(meas[:, 0])
-    return _polar(corner[det], meas[det] - corner[det]), range_bin[det]
+    return to_polar_frame(meas[det] - corner[det], corner[det]), range_bin[det]
 
 
 def _offset_energy(
@@ -311,7 +300,7 @@ def _signed_offset_samples(corner: NDArray, meas: NDArray, range_bin: NDArray) -
     """``(radial, SIGNED cross-range)`` ``z`` [m] of the detected rows and their range bins.
 
     The cross-range is counter-clockwise positive on both sides of the boresight, so a rotation of every
-    detection shows (the outward frame of :func:`_polar` mirrors it away).
+    detection shows (the outward frame of :func:`~sensor_envs.geometry.to_polar_frame` mirrors it away).
     """
     pz, rb = _offset_samples(corner, meas, range_bin)
     return _signed_cross_range(pz, corner, meas), rb

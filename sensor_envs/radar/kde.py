@@ -624,9 +624,9 @@ class KDERadarModel(BaseEstimator):
 
     def _model_state(self, st: NDArray) -> NDArray[np.float64]:
         """Query states ``(n, 2|4)`` with the previous output (columns 2-3) in the stored frame."""
-        if st.shape[1] < 4 or self.output_frame == "cartesian":
+        if st.shape[1] < 4:
             return st
-        return np.concatenate([st[:, :2], to_polar_frame(st[:, 2:4], st[:, :2]), st[:, 4:]], axis=1)
+        return np.concatenate([st[:, :2], self._to_model_frame(st[:, 2:4], st[:, :2]), st[:, 4:]], axis=1)
 
     def _features(self, states: NDArray) -> NDArray[np.float64]:
         """States ``(n, d)`` with the corner columns as relevance features (:func:`relevance_features`)."""
@@ -906,9 +906,7 @@ class KDERadarModel(BaseEstimator):
         n = corners.shape[0]
         if n == 0:
             return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)
-        prev = _as_prev(None if not self.use_prev else prev_z, n)
-        if self.output_frame != "cartesian":
-            prev = to_polar_frame(prev, corners)
+        prev = self._to_model_frame(_as_prev(None if not self.use_prev else prev_z, n), corners)
         grp = self._route(prev, new_track)
         ex = self._extra_query(extra, n)
         bucket = self.sampler == "bucket" or (self.sampler == "auto" and self._auto_bucket)
