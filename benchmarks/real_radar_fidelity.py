@@ -6,19 +6,29 @@ The whole chain runs from a fresh clone (~30-45 min on 2 shared cores, most of i
 1. AFTER models: record the calibrated rig (``--rig``, default ``models/radar_rig.json``) with the
    command of the model card (``record radar ... --in-view-only``; ``--all-targets`` records every
    box, the chain of the models shipped until 2026-11-24) and fit the KDE (``--relevance cv_state
-   --relevance-candidates 6 12 24 48 96 192 --output-frame polar --bandwidth-scale 0.7``, options of this
-   script; ``--output-frame cartesian`` is the chain of the file shipped at 6f662ae; ``--relevance cv_axes``
+   --relevance-candidates 6 12 24 48 96 192 --output-frame polar --azimuth-bias fit --bandwidth-scale 0.5``,
+   options of this script; ``--azimuth-bias 0 --bandwidth-scale 0.7`` is the chain of the file shipped at
+   daf3071, ``--output-frame cartesian`` that of the file shipped at 6f662ae; ``--relevance cv_axes``
    with ``--rig`` = the rig file of commit 8e72122 is the chain of the models shipped there) and the Gaussian baseline
    on it, both through the ``sensor-envs`` CLI (``--models-from DIR`` skips this and uses
    ``DIR/radar_kde.npz`` and ``DIR/radar_gaussian.npz``, e.g. ``models``);
 2. BEFORE models: ``git show <--before-rev>:models/radar_kde.npz`` (and the Gaussian): by default the
-   models shipped before the KDE's polar output frame (6f662ae; ``--before-rev ce7b78a``: before the rig
-   with the offset mixture from 50 m; ``f327671``: before the calibration, fitted on the generic rig);
+   models shipped before the mounting yaw error and the offset mixture from 30 m (daf3071; ``6f662ae``:
+   before the KDE's polar output frame; ``ce7b78a``: before the rig with the offset mixture from 50 m;
+   ``f327671``: before the calibration, fitted on the generic rig);
 3. real data: ``load_astyx`` (cars; measured position = a cluster's detection nearest to the
    sensor); frames in blocks of ``--block`` consecutive frames, block ``b`` in test fold
    ``b % --folds`` (``validate.split_by_blocks``). Every fold: a KDE fitted on the other folds
    (``use_prev=False``, corner variance 48 m^2: what nested CV chose in all folds, see the card)
    is the "real-fitted" reference. Fixed models (shipped, ideal) are scored on the same test rows.
+4. with ``--rig-per-fold``, also ``kde_rig_per_fold``: the whole chain without the test fold. Per fold, the
+   rig is calibrated on the training frames only (``calibrate_rig`` with the shipped rig's options,
+   :data:`RIG_OPTIONS`, from ``--per-fold-base``), its log recorded as the card says, the KDE fitted with
+   the after model's hyperparameters (its CV-chosen relevance variances given, ``relevance="paper"``: the
+   CV runs on rig logs, not real rows) and its bandwidth factor chosen on the training folds' real rows
+   (``real_radar_bandwidth_scale.py``'s criterion ``--per-fold-criterion``). No real row of the test fold
+   enters; what does: the base rig's time constants and the optimiser's starting point (the base rig was
+   calibrated on every frame). ~9 min per fold.
 
 **Single frames and a tracker-state model.** Astyx frames are snapshots of a radar that has been
 running, not first sightings. A model with ``z_{t-1}`` in its state is therefore evaluated at its
@@ -65,18 +75,20 @@ from scipy.special import logsumexp
 
 from sensor_envs.outputs import write_json
 from sensor_envs.radar.astyx import load_astyx
-from sensor_envs.radar.calibrate import DET_AZIMUTH_EDGES
+from sensor_envs.radar.calibrate import DET_AZIMUTH_EDGES, calibrate_rig, frames_from_log
 from sensor_envs.radar.gaussian import GaussianRadar
 from sensor_envs.radar.kde import KDERadarModel
-from sensor_envs.radar.log import target_tuples
+from sensor_envs.radar.log import RadarLog, TargetTuples, target_tuples
+from sensor_envs.radar.rig import RigConfig, load_rig, record_rig_log
 from sensor_envs.radar.sensors import IdealRadar
 from sensor_envs.radar.validate import RANGE_BINS, energy_distance_2d, split_by_blocks
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT / ".." / "shared" / "data" / "real" / "astyx_hires2019"
-BEFORE_REV = "6f662ae"
-"""Commit whose ``models/`` hold the radar models shipped before the last change (the KDE with sensor-frame
-outputs; ce7b78a: the reflection-law rig at every range; f327671: before the calibration, the generic rig)."""
+BEFORE_REV = "daf3071"
+"""Commit whose ``models/`` hold the radar models shipped before the last change (no mounting yaw error, the
+offset mixture from 50 m; 6f662ae: the KDE with sensor-frame outputs; ce7b78a: the reflection-law rig at every
+range; f327671: before the calibration, the generic rig)."""
 RANGE_LABELS = [f"{lo:g}-{hi:g}" for lo, hi in zip(RANGE_BINS[:-1], RANGE_BINS[1:], strict=True)]
 AZ_DEG = np.rad2deg(DET_AZIMUTH_EDGES)
 AZ_LABELS = [f"{lo:g}..{hi:g}" for lo, hi in zip(AZ_DEG[:-1], AZ_DEG[1:], strict=True)]
@@ -98,8 +110,15 @@ RELEVANCE_CANDIDATES = (6.0, 12.0, 24.0, 48.0, 96.0, 192.0)
 
 OUTPUT_FRAME = "polar"
 """Output frame of the shipped KDE (``fit radar --output-frame``; ``"cartesian"`` for the files up to 6f662ae)."""
-BANDWIDTH_SCALE = 0.7
+BANDWIDTH_SCALE = 0.5
 """Contribution-bandwidth factor of the shipped KDE (``fit radar --bandwidth-scale``; see the model card)."""
+START_BANDWIDTH_SCALE: float | None = None
+"""The start trees' factor of the shipped KDE (``fit radar --start-bandwidth-scale``; None: ``BANDWIDTH_SCALE``)."""
+AZIMUTH_BIAS = "fit"
+"""Mounting yaw error of the shipped KDE (``fit radar --azimuth-bias``: estimated from the rig log)."""
+RIG_OPTIONS: dict[str, Any] = {"offset_law": "mixture", "mixture_min_range": 30.0, "azimuth_bias": True}
+"""``calibrate_rig`` options of the shipped rig (``calibrate radar --offset-law mixture --mixture-min-range 30
+--azimuth-bias``), used by ``--rig-per-fold``."""
 ENERGY_MAX_N = 4000
 """Simulated draws per range bin for the energy distance (of up to ``chains`` x rows)."""
 
@@ -113,28 +132,69 @@ def chain(
     candidates: tuple[float, ...] | None = RELEVANCE_CANDIDATES,
     bandwidth_scale: float = BANDWIDTH_SCALE,
     output_frame: str = OUTPUT_FRAME,
+    azimuth_bias: str = AZIMUTH_BIAS,
+    start_bandwidth_scale: float | None = START_BANDWIDTH_SCALE,
 ) -> tuple[Path, Path]:
     """Record the calibrated rig and fit the KDE and Gaussian as the model card says; returns their paths.
 
-    The defaults are the card's commands of the shipped model (2026-11-24, second refit): ``record radar
+    The defaults are the card's commands of the shipped model (2026-11-27): ``record radar
     --in-view-only`` (boxes wholly outside the rig's field of view left out of the log) and ``fit radar
-    --relevance cv_state --relevance-candidates 6 12 24 48 96 192 --bandwidth-scale 0.7``, the factor the
-    shipped file carries (chosen on Astyx by ``real_radar_bandwidth_scale.py``; 1 for the files before
-    commit 621e782). ``relevance="cv_axes"`` (with the
-    rig of commit 8e72122) is the chain of the models shipped at 8e72122; ``in_view_only=False,
-    relevance="cv", candidates=None`` that of the models shipped before (commit 156053f).
+    --relevance cv_state --relevance-candidates 6 12 24 48 96 192 --output-frame polar --azimuth-bias fit
+    --bandwidth-scale B --start-bandwidth-scale S``, the factors the shipped file carries (chosen on Astyx by
+    ``real_radar_bandwidth_scale.py``; 1 for the files before commit 621e782, one factor up to daf3071).
+    ``relevance="cv_axes"`` (with the rig of commit 8e72122) is the chain of the models shipped at 8e72122;
+    ``in_view_only=False, relevance="cv", candidates=None`` that of the models shipped before (commit 156053f).
     """
     work.mkdir(parents=True, exist_ok=True)
     log = work / "rig_train.csv"
     kde, gauss = work / "radar_kde.npz", work / "radar_gaussian.npz"
     view = ["--in-view-only"] if in_view_only else []
     cand = ["--relevance-candidates", *(f"{c:g}" for c in candidates)] if candidates else []
+    start = ["--start-bandwidth-scale", f"{start_bandwidth_scale:g}"] if start_bandwidth_scale is not None else []
     cli("record", "radar", "--rig", rig, "--out", str(log), "--seed", str(seed), "--sequences", "50",
         "--cycles", "40", "--targets", "8", "--cycle-time", "1.0", *view, "--force")  # fmt: skip
     cli("fit", "radar", str(log), "--out", str(kde), "--baseline-out", str(gauss), "--cycle-time", "1.0",
         "--seed", str(seed), "--relevance", relevance, *cand, "--bandwidth-scale", f"{bandwidth_scale:g}",
-        "--output-frame", output_frame, "--force")  # fmt: skip
+        "--output-frame", output_frame, "--azimuth-bias", azimuth_bias, *start, "--force")  # fmt: skip
     return kde, gauss
+
+
+def rig_per_fold_model(
+    train: RadarLog,
+    train_rows: list[TargetTuples],
+    base: RigConfig,
+    after: KDERadarModel,
+    args: argparse.Namespace,
+    fold: int,
+) -> tuple[KDERadarModel, dict[str, Any]]:
+    """The chain of the after model with no real row of the test fold: rig calibrated on ``train``'s frames.
+
+    Calibration (``calibrate_rig(..., **RIG_OPTIONS)`` from ``base``), the card's log (50 sequences x 40
+    cycles x 8 targets, in view only), the KDE with ``after``'s hyperparameters and its CV-chosen relevance
+    variances, then the bandwidth factor chosen on ``train_rows`` (the training folds' real rows) by
+    ``args.per_fold_criterion``. Returns the model and what was fitted (angle, factor, seconds).
+    """
+    from real_radar_bandwidth_scale import FACTORS, choose, fold_scores  # lazy: that script imports this one
+
+    t0 = time.perf_counter()
+    cfg, _ = calibrate_rig(frames_from_log(train), base, seed=args.seed, **RIG_OPTIONS)
+    log = record_rig_log(50, 40, 8, np.random.default_rng(args.seed), cfg, in_view_only=True)
+    params = {**after.get_params(), "relevance": "paper", "rel_variance": after.rel_variance_, "bandwidth_scale": 1.0}
+    kde = KDERadarModel(**{**params, "random_state": args.seed}).fit(log, cycle_time=1.0)
+    scores = {
+        f: fold_scores(kde.with_bandwidth_scale(f), train_rows, args.seed, args.chains, args.cycles)
+        for f in FACTORS  # one scoring per candidate factor
+    }
+    factor, _ = choose(scores, args.per_fold_criterion, args.seed)  # the default guard, as the shipped choice
+    info = {
+        "fold": fold,
+        "rig_azimuth_bias_deg": float(np.rad2deg(cfg.azimuth_bias)),
+        "kde_azimuth_bias_deg": float(np.rad2deg(kde.azimuth_bias_)),
+        "factor": factor,
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
+    print(f"rig per fold: {json.dumps(info)}", flush=True)
+    return kde.with_bandwidth_scale(factor), info
 
 
 def before_models(work: Path, rev: str) -> tuple[Path, Path]:
@@ -350,12 +410,40 @@ def main() -> None:
         "1: files before 621e782)",
     )
     ap.add_argument(
+        "--start-bandwidth-scale",
+        type=float,
+        default=START_BANDWIDTH_SCALE,
+        help=f"chain: fit radar --start-bandwidth-scale (default {START_BANDWIDTH_SCALE}, the shipped model's; "
+        "none up to daf3071)",
+    )
+    ap.add_argument(
         "--output-frame",
         choices=["cartesian", "polar"],
         default=OUTPUT_FRAME,
         help=f"chain: fit radar --output-frame (default {OUTPUT_FRAME}, the shipped model's; cartesian: up to 6f662ae)",
     )
+    ap.add_argument(
+        "--azimuth-bias",
+        default=AZIMUTH_BIAS,
+        help=f"chain: fit radar --azimuth-bias (default {AZIMUTH_BIAS}, the shipped model's; 0: up to daf3071)",
+    )
     ap.add_argument("--before-rev", default=BEFORE_REV, help="git revision of the BEFORE models")
+    ap.add_argument(
+        "--rig-per-fold",
+        action="store_true",
+        help="also score the chain with the rig calibrated on each fold's training frames (~9 min per fold)",
+    )
+    ap.add_argument(
+        "--per-fold-base",
+        default=None,
+        help="starting rig of --rig-per-fold's calibrations (default: models/radar_rig.json of --before-rev)",
+    )
+    ap.add_argument(
+        "--per-fold-criterion",
+        choices=("nll", "energy"),
+        default="energy",
+        help="what chooses --rig-per-fold's bandwidth factor on the training folds (default energy, the shipped one's)",
+    )
     ap.add_argument("--block", type=int, default=10)
     ap.add_argument("--folds", type=int, default=5)
     ap.add_argument("--chains", type=int, default=16, help="rollouts per row of the stationary law")
@@ -387,8 +475,18 @@ def main() -> None:
             candidates=tuple(args.relevance_candidates),
             bandwidth_scale=args.bandwidth_scale,
             output_frame=args.output_frame,
+            azimuth_bias=args.azimuth_bias,
+            start_bandwidth_scale=args.start_bandwidth_scale,
         )
     kde_before, gauss_before = before_models(out / "before", args.before_rev)
+    if args.rig_per_fold:
+        base_path = args.per_fold_base or out / "before" / "radar_rig.json"
+        if not args.per_fold_base:
+            rig_blob = subprocess.run(["git", "show", f"{args.before_rev}:models/radar_rig.json"], cwd=ROOT, check=True,
+                                      capture_output=True).stdout  # fmt: skip
+            Path(base_path).write_bytes(rig_blob)
+        per_fold_base, _ = load_rig(base_path)
+        after_model = KDERadarModel.load(kde_after)
     fixed = {
         "kde_before_start": (KDERadarModel.load(kde_before), 1),
         "kde_before_stationary": (KDERadarModel.load(kde_before), args.cycles),
@@ -398,8 +496,12 @@ def main() -> None:
         "gaussian_after": (GaussianRadar.load(gauss_after), 1),
         "ideal": (IdealRadar(), 1),
     }
-    parts: dict[str, list[dict]] = {k: [] for k in ["kde_real_fitted", *fixed]}
-    corners, zs, per_fold = [], [], []
+    names = ["kde_real_fitted", *(["kde_rig_per_fold"] if args.rig_per_fold else []), *fixed]
+    parts: dict[str, list[dict]] = {k: [] for k in names}
+    corners, zs, per_fold, rig_folds = [], [], [], []
+    fold_rows = [
+        target_tuples(split_by_blocks(log, block=args.block, n_folds=args.folds, fold=k)[1]) for k in range(args.folds)
+    ]
     for k in range(args.folds):  # one iteration per fold
         train, test = split_by_blocks(log, block=args.block, n_folds=args.folds, fold=k)
         tt = target_tuples(test)
@@ -407,7 +509,13 @@ def main() -> None:
             use_prev=False, cv_group="sequence", rel_variance=(48.0, 48.0, 0.03, 0.03), random_state=k
         ).fit(train)
         fold = {"fold": k, "n_rows": int(tt.z.shape[0])}
-        for name, (model, cycles) in {"kde_real_fitted": (real_kde, 1), **fixed}.items():
+        scored: dict[str, tuple[Any, int]] = {"kde_real_fitted": (real_kde, 1)}
+        if args.rig_per_fold:
+            others = [rows for j, rows in enumerate(fold_rows) if j != k]
+            rig_kde, info = rig_per_fold_model(train, others, per_fold_base, after_model, args, k)
+            scored["kde_rig_per_fold"] = (rig_kde, args.cycles)
+            rig_folds.append(info)
+        for name, (model, cycles) in {**scored, **fixed}.items():
             rng = np.random.default_rng([args.seed, k, len(parts[name])])
             res = marginal(model, tt.corner, tt.z, rng, args.chains, cycles, all_samples=True)
             parts[name].append(res)
@@ -445,7 +553,8 @@ def main() -> None:
             args.models_from
             or f"chain: {args.rig} -> record{' --in-view-only' if args.in_view_only else ''} -> fit --relevance "
             f"{args.relevance} --relevance-candidates {' '.join(f'{c:g}' for c in args.relevance_candidates)} "
-            f"--bandwidth-scale {args.bandwidth_scale:g} --output-frame {args.output_frame}"
+            f"--bandwidth-scale {args.bandwidth_scale:g} --output-frame {args.output_frame} "
+            f"--azimuth-bias {args.azimuth_bias} --start-bandwidth-scale {args.start_bandwidth_scale}"
         ),
         "range_bins_m": list(RANGE_BINS),
         "azimuth_bins_deg": AZ_DEG.tolist(),
@@ -453,6 +562,7 @@ def main() -> None:
         "models": models,
         "targets": {n: targets(m, real, models["kde_real_fitted"]) for n, m in models.items()},
         "per_fold": per_fold,
+        "rig_per_fold": rig_folds,
         "seconds": round(time.perf_counter() - t0, 1),
     }
     write_json(out / "fidelity.json", rep)

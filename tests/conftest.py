@@ -46,6 +46,25 @@ def model(rig_split):
     return KDERadarModel(random_state=0).fit(rig_split[0], cycle_time=1.0)
 
 
+def _outward_rig_log(outward: float, rotation: float = 0.0):
+    """A rig log whose detections sit ``outward`` m outward of the closest corner (radial noise 0.3 m, outward
+    0.15 m), on both sides of the boresight, then rotated about the sensor by ``rotation`` [rad]."""
+    from sensor_envs.geometry import from_polar_frame
+    from sensor_envs.radar.alignment import rotate_offsets
+    from sensor_envs.radar.log import RadarLog, target_tuples
+    from sensor_envs.radar.rig import record_rig_log
+
+    rng = np.random.default_rng(5)
+    log = record_rig_log(16, 25, 8, rng)
+    tt = target_tuples(log)
+    det = np.isfinite(tt.z[:, 0])
+    local = np.stack([rng.normal(0.0, 0.3, det.sum()), outward + rng.normal(0.0, 0.15, det.sum())], axis=1)
+    meas = tt.corner[det] + rotate_offsets(from_polar_frame(local, tt.corner[det]), tt.corner[det], rotation)
+    c = {k: v.copy() for k, v in log.columns.items()}
+    c["meas_x"][tt.row[det]], c["meas_y"][tt.row[det]] = meas[:, 0], meas[:, 1]
+    return RadarLog(c, source="outward log" if rotation == 0.0 else "rotated outward log")
+
+
 def _rewrite_kde_file(model, path, version, drop=(), params=None):
     """Write ``model`` as a KDE file of format ``version`` whose params lack ``drop`` and take ``params``."""
     import json
@@ -70,3 +89,10 @@ def _rewrite_kde_file(model, path, version, drop=(), params=None):
 def rewrite_kde_file():
     """``f(model, path, version, drop=(), params=None)``: a KDE file as an older format or with edited params."""
     return _rewrite_kde_file
+
+
+@pytest.fixture(scope="session")
+def outward_rig_log():
+    """``f(outward, rotation=0)``: a rig log with detections ``outward`` m toward the outer end of the face,
+    rotated about the sensor by ``rotation`` [rad] (``_outward_rig_log``)."""
+    return _outward_rig_log

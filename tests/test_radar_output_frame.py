@@ -8,7 +8,6 @@ from sensor_envs.geometry import from_polar_frame, polar_frame, to_polar_frame
 from sensor_envs.modelio import ModelFileError
 from sensor_envs.radar.kde import KDERadarModel
 from sensor_envs.radar.log import RadarLog, target_tuples, write_log
-from sensor_envs.radar.rig import record_rig_log
 from sensor_envs.radar.validate import chi_square
 
 OUTWARD = 0.5
@@ -19,17 +18,9 @@ FAST = {"cv_candidates": (0.1, 0.3, 1.0), "cv_max_tuples": 150, "random_state": 
 
 
 @pytest.fixture(scope="module")
-def outward_log() -> RadarLog:
+def outward_log(outward_rig_log) -> RadarLog:
     """A rig log whose detections sit ``OUTWARD`` m outward of the corner (plus noise), on both sides."""
-    rng = np.random.default_rng(5)
-    log = record_rig_log(16, 25, 8, rng)
-    tt = target_tuples(log)
-    det = np.isfinite(tt.z[:, 0])
-    local = np.stack([rng.normal(0.0, 0.3, det.sum()), OUTWARD + rng.normal(0.0, 0.15, det.sum())], axis=1)
-    meas = tt.corner[det] + from_polar_frame(local, tt.corner[det])
-    c = {k: v.copy() for k, v in log.columns.items()}
-    c["meas_x"][tt.row[det]], c["meas_y"][tt.row[det]] = meas[:, 0], meas[:, 1]
-    return RadarLog(c, source="outward log")
+    return outward_rig_log(OUTWARD)
 
 
 @pytest.fixture(scope="module")

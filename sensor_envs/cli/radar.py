@@ -84,6 +84,12 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         "on real frames: benchmarks/real_radar_bandwidth_scale.py)",
     )
     fit.add_argument(
+        "--start-bandwidth-scale",
+        type=float_between(0.01, 100.0),
+        default=None,
+        help="the same factor for the start trees (new tracks, after a miss; default: --bandwidth-scale's)",
+    )
+    fit.add_argument(
         "--state-transform",
         default="cartesian",
         choices=("cartesian", "polar"),
@@ -95,6 +101,13 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         choices=("cartesian", "polar"),
         help="frame the kernels act on the outputs in: the sensor's x, y (the paper's) or the corner's radial and "
         "outward cross-range axes (offsets toward the outer end of a face then pool across the boresight)",
+    )
+    fit.add_argument(
+        "--azimuth-bias",
+        type=_azimuth_bias,
+        default=0.0,
+        help="the radar's mounting yaw error [rad] undone before the kernels (counter-clockwise positive), or 'fit' "
+        "to estimate it from the log's detections (default 0: none)",
     )
     fit.add_argument("--seed", type=nonneg_int, default=0)
     add_force(fit)
@@ -283,6 +296,13 @@ def _calibrate_scene_only(args: argparse.Namespace, out: Path, base: Any, base_c
     return 0
 
 
+def _azimuth_bias(text: str) -> float | str:
+    """``--azimuth-bias``: ``fit`` or an angle [rad] within the model's bound."""
+    from sensor_envs.radar.alignment import MAX_AZIMUTH_BIAS
+
+    return "fit" if text == "fit" else float_between(-MAX_AZIMUTH_BIAS, MAX_AZIMUTH_BIAS)(text)
+
+
 def _fit(args: argparse.Namespace) -> int:
     from sensor_envs.radar.gaussian import GaussianRadar
     from sensor_envs.radar.kde import KDERadarModel
@@ -312,6 +332,8 @@ def _fit(args: argparse.Namespace) -> int:
         state_transform=args.state_transform,
         output_frame=args.output_frame,
         bandwidth_scale=args.bandwidth_scale,
+        start_bandwidth_scale=args.start_bandwidth_scale,
+        azimuth_bias=args.azimuth_bias,
         **extra,
     )
     with about(args.log):
@@ -327,6 +349,8 @@ def _fit(args: argparse.Namespace) -> int:
         "relevance": args.relevance,
         "state_transform": args.state_transform,
         "output_frame": args.output_frame,
+        "azimuth_bias": args.azimuth_bias,
+        "azimuth_bias_fitted_deg": round(float(np.rad2deg(model.azimuth_bias_)), 4),
         "rel_variance_fitted": list(model.rel_variance_),
     }
     with about(args.log):

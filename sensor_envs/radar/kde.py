@@ -25,6 +25,15 @@ targets left and right of the boresight then keeps an offset toward the outer en
 in the sensor frame points opposite ways on the two sides and averages out. Callers pass and receive
 sensor-frame offsets either way; the change of frame is orthonormal, so densities are unchanged.
 
+**Mounting yaw error** (``azimuth_bias``, format 7): a radar mounted with a yaw error ``b`` reports every
+target rotated about the sensor by ``b``, a cross-range error growing with range and of the same sign on
+both sides of the boresight. The outward frame mirrors it (the two sides cancel when pooled) and the
+sensor frame cancels the outward offset instead. With ``azimuth_bias`` set (a number [rad], or ``"fit"``:
+estimated from the training log by :func:`sensor_envs.radar.alignment.estimate_azimuth_bias`), the model
+undoes the rotation before storing ``z`` and ``z_{t-1}`` (``R(-b) (corner + z) - corner``, then the output
+frame) and applies it to what it samples; ``log_prob`` scores the de-rotated offset (a rotation: densities
+unchanged). ``z_{t-1}`` is turned about the CURRENT corner, in training and in queries alike.
+
 **Relevance bandwidth**: ``relevance="paper"`` uses ``rel_variance`` as given; ``relevance="cv"``
 chooses the corner variance from ``relevance_candidates`` by cross-validation on the training log
 (:mod:`sensor_envs.radar.relevance`); ``relevance="cv_axes"`` chooses the two corner variances
@@ -116,6 +125,7 @@ from sensor_envs.modelio import (
     save_model_file,
     validate_params,
 )
+from sensor_envs.radar.alignment import MAX_AZIMUTH_BIAS, derotate_offsets, estimate_azimuth_bias, rotate_offsets
 from sensor_envs.radar.buckets import build_buckets, sample_proportional
 from sensor_envs.radar.features import state_matrix
 from sensor_envs.radar.log import RadarLog, TargetTuples, clutter_counts, target_tuples
@@ -129,16 +139,17 @@ from sensor_envs.radar.relevance import (
 __all__ = ["KDERadarModel", "corner_features", "cv_bandwidth_table"]
 
 KIND = "radar_kde"
-FORMAT_VERSION = 6
+FORMAT_VERSION = 7
 """Model file format: 1 = up to the ball sampler; 2 adds ``sampler``/``bucket_cell``, the relevance
 selection (``relevance*`` params, the fitted ``rel_variance_``) and ``start_split``; 3 adds the extra
 state (``extra_*`` params, the ``extra`` array, ``state_variables`` in the header); 4 adds the
 per-tuple ``new_track`` flags (uint8 0/1; new-track vs after-miss start trees); 5 adds the
 ``state_transform`` parameter (cartesian or polar corner features of the relevance kernel) and
 ``relevance_candidates_azimuth``; 6 adds ``output_frame`` (outputs and previous outputs stored in
-the sensor frame or in the corner's polar frame). Older files load with the defaults of the new parameters (no extra
-state; one combined start tree; cartesian corner features; sensor-frame outputs), so they behave
-exactly as before."""
+the sensor frame or in the corner's polar frame); 7 adds ``azimuth_bias`` (the mounting yaw error undone
+before the kernels, and its fitted value ``azimuth_bias_fitted``) and ``start_bandwidth_scale``. Older files
+load with the defaults of the new parameters (no extra state; one combined start tree; cartesian corner
+features; sensor-frame outputs; no yaw error; one bandwidth factor), so they behave exactly as before."""
 STATE_TRANSFORMS = ("cartesian", "polar")
 """Corner features of the relevance kernel: ``(c_x, c_y)`` [m] or ``(range [m], azimuth [rad])``."""
 OUTPUT_FRAMES = ("cartesian", "polar")
@@ -379,6 +390,10 @@ class KDERadarModel(BaseEstimator):
             seed's CV bandwidths). A KDE fitted on a SIMULATED log (the rig) may need narrower kernels
             for the real sensor than that log's CV picks: ``benchmarks/real_radar_bandwidth_scale.py``
             chooses the factor by held-out likelihood on real frames (model card).
+        start_bandwidth_scale: the same factor for the START trees (queries without ``z_{t-1}``: new tracks,
+            after a miss), or ``None`` (default): ``bandwidth_scale``. A start tuple is drawn once, while a
+            chain fed its own outputs draws every cycle and its stationary law spreads wider than the tuples
+            it resamples; the two may need different factors (model card).
         state_transform: corner features of the relevance kernel: ``"cartesian"`` (``(c_x, c_y)``, the
             paper's; what files before format 5 hold) or ``"polar"`` (``(range, azimuth)``: a kernel
             narrow in azimuth at every range, so near targets left and right are not mixed).
@@ -395,6 +410,10 @@ class KDERadarModel(BaseEstimator):
         extra_variance: relevance variances of the extra dimensions [unit^2]; ``None`` (or a NaN entry) =
             chosen by CV.
         extra_candidates: factors ``f`` of the column std tried by that CV (variance ``(f * std)^2``).
+        azimuth_bias: the radar's mounting yaw error [rad] (counter-clockwise positive) undone before the
+            kernels and applied to samples (see the module docstring), or ``"fit"``: estimated from the
+            training log's detections (``azimuth_bias_``; :func:`~sensor_envs.radar.alignment.estimate_azimuth_bias`).
+            ``0`` (the default, and every file before format 7) is the paper's model.
     """
 
     _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
@@ -425,6 +444,8 @@ class KDERadarModel(BaseEstimator):
         "extra_variance": [None, InstanceOf(tuple, list)],
         "extra_candidates": [InstanceOf(tuple, list)],
         "bandwidth_scale": [Interval(0.01, 100)],
+        "start_bandwidth_scale": [None, Interval(0.01, 100)],
+        "azimuth_bias": [Options("fit"), Interval(-MAX_AZIMUTH_BIAS, MAX_AZIMUTH_BIAS)],
     }
     """One declarative check of every hyperparameter, used by :meth:`fit` and :meth:`load`."""
 
@@ -457,7 +478,9 @@ class KDERadarModel(BaseEstimator):
         relevance_candidates_azimuth: tuple[float, ...] = AZIMUTH_CANDIDATES,
         relevance_candidates_prev: tuple[float, ...] = PREV_CANDIDATES,
         bandwidth_scale: float = 1.0,
+        start_bandwidth_scale: float | None = None,
         output_frame: str = "cartesian",
+        azimuth_bias: float | str = 0.0,
     ) -> None:
         self.rel_variance = rel_variance
         self.use_prev = use_prev
@@ -485,7 +508,9 @@ class KDERadarModel(BaseEstimator):
         self.relevance_candidates_azimuth = relevance_candidates_azimuth
         self.relevance_candidates_prev = relevance_candidates_prev
         self.bandwidth_scale = bandwidth_scale
+        self.start_bandwidth_scale = start_bandwidth_scale
         self.output_frame = output_frame
+        self.azimuth_bias = azimuth_bias
 
     # ------------------------------------------------------------------ fit
     def _check_params(self) -> None:
@@ -511,6 +536,9 @@ class KDERadarModel(BaseEstimator):
         det = ~np.isnan(tt.z[:, 0])
         if det.sum() < 2:
             raise ValueError(f"{log.source}: fewer than 2 detected target rows; cannot fit a KDE")
+        self.azimuth_bias_ = (
+            estimate_azimuth_bias(tt.corner, tt.z) if self.azimuth_bias == "fit" else float(self.azimuth_bias)
+        )
         self.states_ = np.concatenate([tt.corner, self._to_model_frame(tt.z_prev, tt.corner)], axis=1)
         self.z_ = self._to_model_frame(tt.z, tt.corner)
         self.log_row_ = tt.row
@@ -609,18 +637,24 @@ class KDERadarModel(BaseEstimator):
     def to_output_frame(self, z: NDArray, corners: NDArray) -> NDArray[np.float64]:
         """Sensor-frame offsets ``z (n, 2)`` [m] at ``corners (n, 2)`` on the axes of ``output_frame``.
 
-        The axes :meth:`bin_probabilities` and :meth:`bandwidth` refer to (identity for ``"cartesian"``).
+        The axes :meth:`bin_probabilities` and :meth:`bandwidth` refer to, after the mounting yaw error
+        ``azimuth_bias_`` is undone (identity for ``"cartesian"`` without one).
         """
         self._check_fitted()
         return self._to_model_frame(np.atleast_2d(np.asarray(z, dtype=np.float64)), np.atleast_2d(corners))
 
     def _to_model_frame(self, z: NDArray, corners: NDArray) -> NDArray[np.float64]:
-        """Sensor-frame offsets ``z (n, 2)`` [m] at ``corners (n, 2)`` in the stored frame (``output_frame``)."""
+        """Sensor-frame offsets ``z (n, 2)`` [m] at ``corners (n, 2)`` in the stored frame.
+
+        The mounting yaw error ``azimuth_bias_`` undone first, then the axes of ``output_frame``.
+        """
+        z = derotate_offsets(z, corners, self.azimuth_bias_)
         return z if self.output_frame == "cartesian" else to_polar_frame(z, corners)
 
     def _to_sensor_frame(self, z: NDArray, corners: NDArray) -> NDArray[np.float64]:
         """Inverse of :meth:`_to_model_frame`: stored-frame offsets back to the sensor frame [m]."""
-        return z if self.output_frame == "cartesian" else from_polar_frame(z, corners)
+        z = z if self.output_frame == "cartesian" else from_polar_frame(z, corners)
+        return rotate_offsets(z, corners, self.azimuth_bias_)
 
     def _model_state(self, st: NDArray) -> NDArray[np.float64]:
         """Query states ``(n, 2|4)`` with the previous output (columns 2-3) in the stored frame."""
@@ -766,13 +800,24 @@ class KDERadarModel(BaseEstimator):
         check_is_fitted(self, "states_", msg=_NOT_FITTED)
 
     # ------------------------------------------------------------------ query
-    def bandwidth(self, corners: NDArray) -> NDArray[np.float64]:
+    def bandwidth(self, corners: NDArray, start: NDArray | bool = False) -> NDArray[np.float64]:
         """Output bandwidths ``(n, 2)`` [m] interpolated from the CV table at ``corners (n, 2)`` [m].
 
         Along the axes of ``output_frame``: sensor x, y, or the corner's radial and outward cross-range.
+        ``start`` (one flag, or one per corner): the bandwidths of a start-tree query (no ``z_{t-1}``), the
+        table times ``start_bandwidth_scale`` instead of ``bandwidth_scale``.
         """
         self._check_fitted()
-        return np.exp(_interp_log_h(self.grid_x_, self.grid_y_, self.log_h_, np.atleast_2d(corners)))
+        h = np.exp(_interp_log_h(self.grid_x_, self.grid_y_, self.log_h_, np.atleast_2d(corners)))
+        ratio = self._start_ratio()
+        if ratio == 1.0:
+            return h
+        return h * np.where(np.broadcast_to(np.asarray(start, dtype=bool), (h.shape[0],)), ratio, 1.0)[:, None]
+
+    def _start_ratio(self) -> float:
+        """Start-tree bandwidth over main-tree bandwidth (1 without ``start_bandwidth_scale``)."""
+        s = self.start_bandwidth_scale
+        return 1.0 if s is None else float(s) / float(self.bandwidth_scale)
 
     def _neighbours(
         self, corners: NDArray, prev_z: NDArray | None, extra: NDArray | None = None, grp: NDArray | None = None
@@ -914,7 +959,7 @@ class KDERadarModel(BaseEstimator):
             miss, src = self._draw_bucket(corners, prev, rng, grp)
         else:
             miss, src = self._draw_ball(corners, prev, rng, ex, grp)
-        h = self.bandwidth(corners)
+        h = self.bandwidth(corners, start=grp != GROUP_MAIN)
         z = np.where(miss[:, None], np.nan, self.z_[np.maximum(src, 0)] + h * rng.standard_normal((n, 2)))
         return self._to_sensor_frame(z, corners), src
 
@@ -1045,7 +1090,7 @@ class KDERadarModel(BaseEstimator):
         grp = self._route(_as_prev(prev, n), new_track)
         gi, w, q, p_miss = self._outcome(st[:, :2], prev, self._extra_query(extra, n), grp)
         gi, w, q = self._with_detected_fallback(gi, w, q, st[:, :2])
-        h = self.bandwidth(st[:, :2])
+        h = self.bandwidth(st[:, :2], start=grp != GROUP_MAIN)
         det_t = ~self.miss_[gi]
         r = (z[q] - np.where(det_t[:, None], self.z_[gi], 0.0)) / h[q]
         logk = -0.5 * np.sum(r**2, axis=1) - _LOG_2PI - np.log(h[q]).sum(axis=1)
@@ -1102,7 +1147,7 @@ class KDERadarModel(BaseEstimator):
         grp = self._route(_as_prev(prev, 1), new_track)
         gi, w, q, p_miss = self._outcome(st[:, :2], prev, self._extra_query(extra, 1), grp)
         gi, w, _ = self._with_detected_fallback(gi, w, q, st[:, :2])
-        h = self.bandwidth(st[:, :2])[0]
+        h = self.bandwidth(st[:, :2], start=grp != GROUP_MAIN)[0]
         det = ~self.miss_[gi]
         zi, wd = self.z_[gi[det]], w[det] / w[det].sum()
         px = np.diff(ndtr((np.asarray(edges_x)[None, :] - zi[:, :1]) / h[0]), axis=1)
@@ -1127,6 +1172,17 @@ class KDERadarModel(BaseEstimator):
         out.log_h_ = self.log_h_ + np.log(factor)
         return out
 
+    def with_start_bandwidth_scale(self, value: float | None) -> KDERadarModel:
+        """A copy with ``start_bandwidth_scale = value`` (the start trees' factor on the CV table; ``None``:
+        ``bandwidth_scale``'s), the same model as a fit with it. The main trees are unchanged."""
+        import copy
+
+        self._check_fitted()
+        validate_params({"start_bandwidth_scale": value}, self._hyperparameter_constraints)
+        out = copy.deepcopy(self)
+        out.start_bandwidth_scale = None if value is None else float(value)
+        return out
+
     def save(self, path: str | os.PathLike[str], card: dict[str, Any] | None = None) -> Path:
         """Save to a pickle-free ``.npz`` model file (:mod:`sensor_envs.modelio`)."""
         self._check_fitted()
@@ -1148,6 +1204,7 @@ class KDERadarModel(BaseEstimator):
             "extra_variance_fitted": [float(v) for v in self.extra_variance_],
             "extra_fill": [float(v) for v in self.extra_fill_],
             "new_track_flags": self.new_track_ is not None,
+            "azimuth_bias_fitted": float(self.azimuth_bias_),
         }
         arrays = {
             "states": self.states_,
@@ -1181,7 +1238,7 @@ class KDERadarModel(BaseEstimator):
             "clutter_counts": ("iu", 1, True),
             "clutter_xy": ("f", 2, True),
         }
-        header, a = load_model_file(path, KIND, (1, 2, 3, 4, 5, FORMAT_VERSION), schema)
+        header, a = load_model_file(path, KIND, (1, 2, 3, 4, 5, 6, FORMAT_VERSION), schema)
         defaults = {  # parameters older formats lack: 1 has no prior_rate, 1 and 2 no extra state
             "prior_rate": "global",
             "extra_state": (),
@@ -1194,6 +1251,8 @@ class KDERadarModel(BaseEstimator):
             defaults.update(state_transform="cartesian", relevance_candidates_azimuth=AZIMUTH_CANDIDATES)
         if int(header.get("format_version", 0)) < 6:  # format 6 must state its output frame
             defaults.update(output_frame="cartesian")
+        if int(header.get("format_version", 0)) < 7:  # format 7 must state its yaw error and start factor
+            defaults.update(azimuth_bias=0.0, start_bandwidth_scale=None)
         not_saved = ("random_state", "cv_candidates")  # the candidates are stored as an array
         model = cls(**params_from_header(path, header, cls._hyperparameter_constraints, defaults, not_saved))
         _check_arrays(path, a)
@@ -1209,6 +1268,7 @@ class KDERadarModel(BaseEstimator):
         model.scale_ = np.sqrt(np.asarray(model.rel_variance_, dtype=np.float64))
         model.cycle_time_ = optional_positive(path, "cycle_time", header.get("cycle_time"))
         model.card_ = header.get("card", {})
+        model.azimuth_bias_ = _load_azimuth_bias(header, path, model.azimuth_bias)
         _load_extra(model, header, a, path)
         model.new_track_ = _load_new_track(header, a, path, model.states_)
         model._build()
@@ -1250,6 +1310,27 @@ def _check_arrays(path: str | os.PathLike[str], a: dict[str, NDArray[Any]]) -> N
     check_shape(path, "clutter_xy", a["clutter_xy"], (a["clutter_xy"].shape[0], 2))
     check_range(path, "clutter_xy", a["clutter_xy"], -MAX_POSITION, MAX_POSITION)
     check_finite(path, "cv_candidates", a["cv_candidates"])
+
+
+def _load_azimuth_bias(header: dict[str, Any], path: Any, given: float | str) -> float:
+    """The fitted mounting yaw error [rad] of a file (0 before format 7), checked finite and within bounds.
+
+    Raises:
+        ModelFileError: naming the file and the field ``azimuth_bias_fitted`` (missing from a format-7 file,
+            not a finite number within ``+-MAX_AZIMUTH_BIAS``, or unlike a given ``params.azimuth_bias``).
+    """
+    if int(header.get("format_version", 0)) < 7:
+        return 0.0
+    if "azimuth_bias_fitted" not in header:
+        raise ModelFileError(f"{path}: field 'azimuth_bias_fitted' is missing")
+    b = header["azimuth_bias_fitted"]
+    if isinstance(b, bool) or not isinstance(b, (int, float)) or not abs(b) <= MAX_AZIMUTH_BIAS:
+        raise ModelFileError(
+            f"{path}: field 'azimuth_bias_fitted' must be a finite angle within +-{MAX_AZIMUTH_BIAS} rad, got {b!r}"
+        )
+    if given != "fit" and float(b) != float(given):
+        raise ModelFileError(f"{path}: field 'azimuth_bias_fitted' ({b}) differs from 'params.azimuth_bias' ({given})")
+    return float(b)
 
 
 def _load_new_track(
