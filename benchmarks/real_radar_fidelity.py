@@ -6,11 +6,12 @@ The whole chain runs from a fresh clone (~30-45 min on 2 shared cores, most of i
 1. AFTER models: record the calibrated rig (``--rig``, default ``models/radar_rig.json``) with the
    command of the model card (``record radar ... --in-view-only``; ``--all-targets`` records every
    box, the chain of the models shipped until 2026-11-24) and fit the KDE (``--relevance cv_state
-   --relevance-candidates 6 12 24 48 96 192 --output-frame polar --azimuth-bias fit --bandwidth-scale 0.5``,
-   options of this script; ``--azimuth-bias 0 --bandwidth-scale 0.7`` is the chain of the file shipped at
-   daf3071, ``--output-frame cartesian`` that of the file shipped at 6f662ae; ``--relevance cv_axes``
-   with ``--rig`` = the rig file of commit 8e72122 is the chain of the models shipped there) and the Gaussian baseline
-   on it, both through the ``sensor-envs`` CLI (``--models-from DIR`` skips this and uses
+   --relevance-candidates 6 12 24 48 96 192 --output-frame polar --azimuth-bias fit --bandwidth-scale 0.35
+   --start-bandwidth-scale 0.85``, options of this script; ``--azimuth-bias 0 --bandwidth-scale 0.7`` is the chain
+   of the file shipped at daf3071 (with ``--start-bandwidth-scale none``), ``--output-frame cartesian`` that
+   of the file shipped at 6f662ae; ``--relevance cv_axes`` with ``--rig`` = the rig file of commit 8e72122 is
+   the chain of the models shipped there) and the Gaussian baseline on it, both through the ``sensor-envs`` CLI
+   (``--models-from DIR`` skips this and uses
    ``DIR/radar_kde.npz`` and ``DIR/radar_gaussian.npz``, e.g. ``models``);
 2. BEFORE models: ``git show <--before-rev>:models/radar_kde.npz`` (and the Gaussian): by default the
    models shipped before the mounting yaw error and the offset mixture from 30 m (daf3071; ``6f662ae``:
@@ -110,9 +111,9 @@ RELEVANCE_CANDIDATES = (6.0, 12.0, 24.0, 48.0, 96.0, 192.0)
 
 OUTPUT_FRAME = "polar"
 """Output frame of the shipped KDE (``fit radar --output-frame``; ``"cartesian"`` for the files up to 6f662ae)."""
-BANDWIDTH_SCALE = 0.5
+BANDWIDTH_SCALE = 0.35
 """Contribution-bandwidth factor of the shipped KDE (``fit radar --bandwidth-scale``; see the model card)."""
-START_BANDWIDTH_SCALE: float | None = None
+START_BANDWIDTH_SCALE: float | None = 0.85
 """The start trees' factor of the shipped KDE (``fit radar --start-bandwidth-scale``; None: ``BANDWIDTH_SCALE``)."""
 AZIMUTH_BIAS = "fit"
 """Mounting yaw error of the shipped KDE (``fit radar --azimuth-bias``: estimated from the rig log)."""
@@ -411,7 +412,7 @@ def main() -> None:
     )
     ap.add_argument(
         "--start-bandwidth-scale",
-        type=float,
+        type=lambda text: None if text.lower() == "none" else float(text),
         default=START_BANDWIDTH_SCALE,
         help=f"chain: fit radar --start-bandwidth-scale (default {START_BANDWIDTH_SCALE}, the shipped model's; "
         "none up to daf3071)",

@@ -1,5 +1,4 @@
 import pickle
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -261,7 +260,7 @@ def test_stored_clutter_is_capped_by_a_uniform_subsample(rig_split, monkeypatch)
     np.testing.assert_array_equal(capped.z_, full.z_)  # the cap is drawn last: nothing else changes
 
 
-def test_bandwidth_scale_fits_the_same_model_as_rescaling_after(tmp_path):
+def test_bandwidth_scale_fits_the_same_model_as_rescaling_after(tmp_path, rewrite_kde_file):
     """``bandwidth_scale=f`` multiplies the CV bandwidths and changes nothing else; ``with_bandwidth_scale``
     gives the same model from a fit at 1; the factor survives save / load; files without it load as 1."""
     from sensor_envs.radar.rig import record_rig_log
@@ -282,8 +281,8 @@ def test_bandwidth_scale_fits_the_same_model_as_rescaling_after(tmp_path):
     back = KDERadarModel.load(narrow.save(tmp_path / "narrow.npz"))
     assert back.bandwidth_scale == 0.5
     np.testing.assert_array_equal(back.log_h_, narrow.log_h_)
-    old = Path(__file__).resolve().parents[1] / "models" / "radar_kde_fast.npz"  # written before the factor
-    assert KDERadarModel.load(old).bandwidth_scale == 1.0
+    old = rewrite_kde_file(plain, tmp_path / "f6.npz", 6, ("bandwidth_scale", "start_bandwidth_scale", "azimuth_bias"))
+    assert KDERadarModel.load(old).bandwidth_scale == 1.0  # written before the factor: 1
 
 
 @pytest.mark.parametrize("bad", [0.0, -0.5, float("nan"), 1000.0])

@@ -1173,8 +1173,11 @@ class KDERadarModel(BaseEstimator):
         return out
 
     def with_start_bandwidth_scale(self, value: float | None) -> KDERadarModel:
-        """A copy with ``start_bandwidth_scale = value`` (the start trees' factor on the CV table; ``None``:
-        ``bandwidth_scale``'s), the same model as a fit with it. The main trees are unchanged."""
+        """A copy with ``start_bandwidth_scale = value``: the same model as a fit with it.
+
+        ``value`` is the start trees' factor on the CV table (``None``: ``bandwidth_scale``'s); the main trees
+        are unchanged.
+        """
         import copy
 
         self._check_fitted()
