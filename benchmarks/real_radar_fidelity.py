@@ -173,8 +173,8 @@ def rig_per_fold_model(
     Calibration (``calibrate_rig(..., **RIG_OPTIONS)`` from ``base``), the card's log (50 sequences x 40
     cycles x 8 targets, in view only), the KDE with ``after``'s hyperparameters and its CV-chosen relevance
     variances, then the main trees' bandwidth factor chosen on ``train_rows`` (the training folds' real rows) by
-    ``args.per_fold_criterion`` among :data:`FACTORS` (the start trees keep ``after``'s factor, chosen on every
-    fold: a start-factor scan per fold would double the cost).
+    ``args.per_fold_criterion`` among :data:`FACTORS` (the start trees keep ``after``'s factor, which was
+    chosen on every fold: a small leak of the test fold into the start trees' law).
     Returns the model and what was fitted (angle, factor, seconds).
     """
     from real_radar_bandwidth_scale import FACTORS, choose, fold_scores  # lazy: that script imports this one
