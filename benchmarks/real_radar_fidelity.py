@@ -506,8 +506,8 @@ def main() -> None:
         target_tuples(split_by_blocks(log, block=args.block, n_folds=args.folds, fold=k)[1]) for k in range(args.folds)
     ]
     for k in range(args.folds):  # one iteration per fold
-        train, test = split_by_blocks(log, block=args.block, n_folds=args.folds, fold=k)
-        tt = target_tuples(test)
+        train, _ = split_by_blocks(log, block=args.block, n_folds=args.folds, fold=k)
+        tt = fold_rows[k]  # the test fold's rows
         real_kde = KDERadarModel(
             use_prev=False, cv_group="sequence", rel_variance=(48.0, 48.0, 0.03, 0.03), random_state=k
         ).fit(train)

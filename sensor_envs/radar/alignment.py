@@ -17,6 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from sensor_envs.geometry import from_frame
+
 __all__ = ["MAX_AZIMUTH_BIAS", "derotate_offsets", "estimate_azimuth_bias", "rotate_offsets"]
 
 MAX_AZIMUTH_BIAS = 0.05
@@ -37,9 +39,7 @@ def rotate_offsets(z: NDArray, corners: NDArray, angle: float) -> NDArray[np.flo
     if angle == 0.0:
         return z
     c = np.asarray(corners, dtype=np.float64)
-    p = z + c
-    ca, sa = np.cos(angle), np.sin(angle)
-    return np.stack([ca * p[:, 0] - sa * p[:, 1], sa * p[:, 0] + ca * p[:, 1]], axis=1) - c
+    return from_frame(z + c, (0.0, 0.0, angle)) - c
 
 
 def derotate_offsets(z: NDArray, corners: NDArray, bias: float) -> NDArray[np.float64]:

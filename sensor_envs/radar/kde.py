@@ -1326,14 +1326,13 @@ def _load_azimuth_bias(header: dict[str, Any], path: Any, given: float | str) ->
         return 0.0
     if "azimuth_bias_fitted" not in header:
         raise ModelFileError(f"{path}: field 'azimuth_bias_fitted' is missing")
-    b = header["azimuth_bias_fitted"]
-    if isinstance(b, bool) or not isinstance(b, (int, float)) or not abs(b) <= MAX_AZIMUTH_BIAS:
-        raise ModelFileError(
-            f"{path}: field 'azimuth_bias_fitted' must be a finite angle within +-{MAX_AZIMUTH_BIAS} rad, got {b!r}"
-        )
-    if given != "fit" and float(b) != float(given):
+    raw = header["azimuth_bias_fitted"]
+    if isinstance(raw, bool) or not isinstance(raw, (int, float)):
+        raise ModelFileError(f"{path}: field 'azimuth_bias_fitted' must be an angle [rad], got {raw!r}")
+    b = float(check_range(path, "azimuth_bias_fitted", raw, -MAX_AZIMUTH_BIAS, MAX_AZIMUTH_BIAS))
+    if given != "fit" and b != float(given):
         raise ModelFileError(f"{path}: field 'azimuth_bias_fitted' ({b}) differs from 'params.azimuth_bias' ({given})")
-    return float(b)
+    return b
 
 
 def _load_new_track(

@@ -72,6 +72,7 @@ from sensor_envs.modelio import (
     save_rig_file,
     validate_params,
 )
+from sensor_envs.radar.alignment import MAX_AZIMUTH_BIAS
 from sensor_envs.radar.log import REQUIRED_COLUMNS, RadarLog
 
 __all__ = [
@@ -325,7 +326,7 @@ RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
     "sigma_range_table": [None, Numbers(_NONNEG, min_length=2)],
     "sigma_cross_table": [None, Numbers(_NONNEG, min_length=2)],
     "range_bias": [Interval(-10, 10)],
-    "azimuth_bias": [Interval(-0.05, 0.05)],
+    "azimuth_bias": [Interval(-MAX_AZIMUTH_BIAS, MAX_AZIMUTH_BIAS)],
     "outlier_share": [_PROB],
     "outlier_scale": [Interval(1, 100)],
     "corner_share": [_PROB],
