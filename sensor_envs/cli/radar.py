@@ -300,7 +300,14 @@ def _azimuth_bias(text: str) -> float | str:
     """``--azimuth-bias``: ``fit`` or an angle [rad] within the model's bound."""
     from sensor_envs.radar.alignment import MAX_AZIMUTH_BIAS
 
-    return "fit" if text == "fit" else float_between(-MAX_AZIMUTH_BIAS, MAX_AZIMUTH_BIAS)(text)
+    if text == "fit":
+        return "fit"
+    try:
+        return float_between(-MAX_AZIMUTH_BIAS, MAX_AZIMUTH_BIAS)(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(
+            f"expected 'fit' or a number in [{-MAX_AZIMUTH_BIAS:g}, {MAX_AZIMUTH_BIAS:g}], got {text!r}"
+        ) from None
 
 
 def _fit(args: argparse.Namespace) -> int:
