@@ -1,6 +1,6 @@
 """Steps/s of highway-fast-v0 with highway-env's ideal Kinematics vs each radar, in one run.
 
-    python benchmarks/bench_highway.py [--steps 150] [--repeats 5] [--seed 0]
+    python benchmarks/bench_highway.py [--steps 150] [--repeats 5] [--seed 0] [--model KDE.npz ...]
 
 Prints, per configuration, the median over repeats (configurations interleaved within each repeat,
 so machine drift hits all alike) of: steps/s, ms per step, ms per step spent computing the
@@ -24,6 +24,7 @@ import argparse
 import time
 import warnings
 from collections.abc import Callable
+from pathlib import Path
 
 import gymnasium as gym
 import highway_env  # noqa: F401
@@ -100,11 +101,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-rate", action="store_true", help="skip the radar-rate rows (15 Hz world)")
+    parser.add_argument(
+        "--model",
+        nargs="+",
+        default=[],
+        help="also time these KDE model files at highway-fast-v0 (radar='kde', radar_model=PATH), e.g. one "
+        "with extra state variables",
+    )
     args = parser.parse_args(argv)
     base_name, base15 = "kinematics (highway-env)", "kinematics, sim 15 Hz"
     configs: dict[str, Callable[[], gym.Env]] = {base_name: lambda: gym.make("highway-fast-v0")}
     for r in RADARS:
         configs[f"radar={r}"] = lambda r=r: gym.make("sensor_envs/HighwayFast-v0", radar=r)
+    for path in args.model:
+        configs[f"kde {Path(path).name}"[:25]] = lambda p=path: gym.make("sensor_envs/HighwayFast-v0", radar="kde",
+                                                                        radar_model=p)  # fmt: skip
     if not args.no_rate:
         sim15 = {"simulation_frequency": 15}
         configs[base15] = lambda: gym.make("highway-fast-v0", config=sim15)
@@ -116,6 +127,7 @@ def main(argv: list[str] | None = None) -> None:
             radar_rate="simulation",
             config=sim15,
         )
+    rate_rows = {base15, "kde, 15 Hz, rate=policy", "kde_fast, rate=simulation"}  # their baseline: 15 Hz
     results: dict[str, list[tuple[float, float, float]]] = {k: [] for k in configs}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -133,7 +145,7 @@ def main(argv: list[str] | None = None) -> None:
     for k, res in results.items():
         step, obs, model = (float(np.median([r[i] for r in res])) for i in range(3))
         radar = not k.startswith("kinematics")
-        base_step = base_steps[base15 if ("15" in k or "fast" in k) else base_name]
+        base_step = base_steps[base15 if k in rate_rows else base_name]
         model_col = f"{model * 1e3:>10.3f}" if radar else f"{'-':>10}"
         wrapper_col = f"{100 * (obs - model) / base_step:>10.1f}%" if radar else f"{'-':>11}"
         print(

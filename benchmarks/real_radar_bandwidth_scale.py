@@ -63,13 +63,13 @@ from tqdm import tqdm
 from sensor_envs.modelio import ModelFileError
 from sensor_envs.outputs import OutputError, OutputTransaction, check_output
 from sensor_envs.radar.astyx import load_astyx
+from sensor_envs.radar.features import model_extra
 from sensor_envs.radar.kde import KDERadarModel
-from sensor_envs.radar.log import target_tuples
-from sensor_envs.radar.validate import RANGE_BINS, energy_distance_2d, split_by_blocks
+from sensor_envs.radar.validate import RANGE_BINS, energy_distance_2d
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from real_radar_fidelity import ENERGY_MAX_N, marginal  # noqa: E402  (benchmarks are scripts, not a package)
+from real_radar_fidelity import ENERGY_MAX_N, fold_rows, marginal  # noqa: E402  (benchmarks are scripts, not a package)
 
 FACTORS = (0.35, 0.5, 0.6, 0.7, 0.85, 1.0)
 CRITERIA = ("nll", "energy")
@@ -88,11 +88,15 @@ def with_factor(model: KDERadarModel, factor: float, tree: str) -> KDERadarModel
 
 
 def fold_scores(model: KDERadarModel, folds: list, seed: int, chains: int, cycles: int) -> list[dict]:
-    """``model``'s stationary law on each fold's real rows: ``nll`` (mean NLL of outcomes [nats]), the real
-    rows (``corner``, ``z``) and the chains' last draws ``samples (n, chains, 2)`` [m]."""
+    """``model``'s stationary law on each fold's real rows (``folds``: (tuples, log) pairs of ``fold_rows``):
+    ``nll`` (mean NLL of outcomes [nats]), the real rows (``corner``, ``z``) and the chains' last draws
+    ``samples (n, chains, 2)`` [m]."""
     out = []
-    for k, tt in enumerate(folds):  # one iteration per fold
-        res = marginal(model, tt.corner, tt.z, np.random.default_rng([seed, k]), chains, cycles, all_samples=True)
+    for k, (tt, test) in enumerate(folds):  # one iteration per fold
+        rng = np.random.default_rng([seed, k])
+        res = marginal(
+            model, tt.corner, tt.z, rng, chains, cycles, all_samples=True, extra=model_extra(model, test, tt.row)
+        )
         out.append({"nll": float(-res["logp"].mean()), "corner": tt.corner, "z": tt.z, "samples": res["samples"]})
     return out
 
@@ -200,9 +204,7 @@ def main() -> None:
     except (FileNotFoundError, ValueError, ModelFileError, OutputError) as exc:
         print(exc, file=sys.stderr)
         raise SystemExit(2) from None
-    folds = [
-        target_tuples(split_by_blocks(log, block=args.block, n_folds=args.folds, fold=k)[1]) for k in range(args.folds)
-    ]
+    folds = [fold_rows(log, args, k) for k in range(args.folds)]
     scores = {}
     cycles = 1 if args.tree == "start" else args.cycles  # the start tuple: a new track's first draw
     for f in tqdm(args.factors, desc="bandwidth factors", unit="factor"):  # one iteration per factor

@@ -26,10 +26,10 @@ The whole chain runs from a fresh clone (~30-45 min on 2 shared cores, most of i
    rig is calibrated on the training frames only (``calibrate_rig`` with the shipped rig's options,
    :data:`RIG_OPTIONS`, from ``--per-fold-base``), its log recorded as the card says, the KDE fitted with
    the after model's hyperparameters (its CV-chosen relevance variances given, ``relevance="paper"``: the
-   CV runs on rig logs, not real rows) and its bandwidth factor chosen on the training folds' real rows
-   (``real_radar_bandwidth_scale.py``'s criterion ``--per-fold-criterion``). No real row of the test fold
-   enters; what does: the base rig's time constants and the optimiser's starting point (the base rig was
-   calibrated on every frame). ~9 min per fold.
+   CV runs on rig logs, not real rows) and its two bandwidth factors chosen on the training folds' real rows
+   (``real_radar_bandwidth_scale.py``'s criterion ``--per-fold-criterion``; the start trees' first, then the
+   main trees', as the card did). No real row of the test fold enters; what does: the base rig's time
+   constants and the optimiser's starting point (the base rig was calibrated on every frame). ~10 min per fold.
 
 **Single frames and a tracker-state model.** Astyx frames are snapshots of a radar that has been
 running, not first sightings. A model with ``z_{t-1}`` in its state is therefore evaluated at its
@@ -77,6 +77,7 @@ from scipy.special import logsumexp
 from sensor_envs.outputs import write_json
 from sensor_envs.radar.astyx import load_astyx
 from sensor_envs.radar.calibrate import DET_AZIMUTH_EDGES, calibrate_rig, frames_from_log
+from sensor_envs.radar.features import model_extra
 from sensor_envs.radar.gaussian import GaussianRadar
 from sensor_envs.radar.kde import KDERadarModel
 from sensor_envs.radar.log import RadarLog, TargetTuples, target_tuples
@@ -120,6 +121,8 @@ AZIMUTH_BIAS = "fit"
 RIG_OPTIONS: dict[str, Any] = {"offset_law": "mixture", "mixture_min_range": 30.0, "azimuth_bias": True}
 """``calibrate_rig`` options of the shipped rig (``calibrate radar --offset-law mixture --mixture-min-range 30
 --azimuth-bias``), used by ``--rig-per-fold``."""
+MAIN_FACTORS = (0.2, 0.25, 0.3, 0.35, 0.5, 0.6, 0.7, 0.85, 1.0)
+"""Main-tree factors ``--rig-per-fold`` tries (the card's ``real_radar_bandwidth_scale.py --tree main --factors``)."""
 ENERGY_MAX_N = 4000
 """Simulated draws per range bin for the energy distance (of up to ``chains`` x rows)."""
 
@@ -162,7 +165,7 @@ def chain(
 
 def rig_per_fold_model(
     train: RadarLog,
-    train_rows: list[TargetTuples],
+    train_rows: list[tuple[TargetTuples, RadarLog]],
     base: RigConfig,
     after: KDERadarModel,
     args: argparse.Namespace,
@@ -172,32 +175,49 @@ def rig_per_fold_model(
 
     Calibration (``calibrate_rig(..., **RIG_OPTIONS)`` from ``base``), the card's log (50 sequences x 40
     cycles x 8 targets, in view only), the KDE with ``after``'s hyperparameters and its CV-chosen relevance
-    variances, then the main trees' bandwidth factor chosen on ``train_rows`` (the training folds' real rows) by
-    ``args.per_fold_criterion`` among :data:`FACTORS` (the start trees keep ``after``'s factor, which was
-    chosen on every fold: a small leak of the test fold into the start trees' law).
-    Returns the model and what was fitted (angle, factor, seconds).
+    variances, then both bandwidth factors chosen on ``train_rows`` (the training folds' real rows) by
+    ``args.per_fold_criterion``, in the card's order: the start trees' among :data:`FACTORS` on the start
+    tuple (one cycle), then the main trees' among :data:`MAIN_FACTORS` on the stationary law (the start
+    trees at their chosen factor). Until 2026-11-27 the start trees kept ``after``'s factor, chosen on every
+    fold (a leak of the test fold). Returns the model and what was fitted (angle, factors, seconds).
     """
-    from real_radar_bandwidth_scale import FACTORS, choose, fold_scores  # lazy: that script imports this one
+    from real_radar_bandwidth_scale import FACTORS, choose, fold_scores, with_factor  # lazy: it imports this one
 
     t0 = time.perf_counter()
     cfg, _ = calibrate_rig(frames_from_log(train), base, seed=args.seed, **RIG_OPTIONS)
     log = record_rig_log(50, 40, 8, np.random.default_rng(args.seed), cfg, in_view_only=True)
     params = {**after.get_params(), "relevance": "paper", "rel_variance": after.rel_variance_, "bandwidth_scale": 1.0}
+    params["start_bandwidth_scale"] = None
+    if after.extra_state_:  # the extra dimensions' variances as CV chose them for the after model
+        params["extra_variance"] = tuple(after.extra_variance_)
     kde = KDERadarModel(**{**params, "random_state": args.seed}).fit(log, cycle_time=1.0)
-    scores = {
-        f: fold_scores(kde.with_bandwidth_scale(f), train_rows, args.seed, args.chains, args.cycles)
-        for f in FACTORS  # one scoring per candidate factor
+    start_scores = {
+        f: fold_scores(with_factor(kde, f, "start"), train_rows, args.seed, args.chains, 1)
+        for f in FACTORS  # one scoring per candidate factor: the start tuple alone
     }
-    factor, _ = choose(scores, args.per_fold_criterion, args.seed)  # the default guard, as the shipped choice
+    start, _ = choose(start_scores, args.per_fold_criterion, args.seed)  # the default guard, as the shipped choice
+    kde = with_factor(kde, start, "start")
+    scores = {
+        f: fold_scores(with_factor(kde, f, "main"), train_rows, args.seed, args.chains, args.cycles)
+        for f in MAIN_FACTORS  # one scoring per candidate factor
+    }
+    factor, _ = choose(scores, args.per_fold_criterion, args.seed)
     info = {
         "fold": fold,
         "rig_azimuth_bias_deg": float(np.rad2deg(cfg.azimuth_bias)),
         "kde_azimuth_bias_deg": float(np.rad2deg(kde.azimuth_bias_)),
+        "start_factor": start,
         "factor": factor,
         "seconds": round(time.perf_counter() - t0, 1),
     }
     print(f"rig per fold: {json.dumps(info)}", flush=True)
-    return kde.with_bandwidth_scale(factor), info
+    return with_factor(kde, factor, "main"), info
+
+
+def fold_rows(log: RadarLog, args: argparse.Namespace, fold: int) -> tuple[TargetTuples, RadarLog]:
+    """The test rows of ``fold`` (10-frame blocks, ``validate.split_by_blocks``) and their log (extra state)."""
+    test = split_by_blocks(log, block=args.block, n_folds=args.folds, fold=fold)[1]
+    return target_tuples(test), test
 
 
 def before_models(work: Path, rev: str) -> tuple[Path, Path]:
@@ -219,13 +239,15 @@ def marginal(
     chains: int,
     cycles: int,
     all_samples: bool = False,
+    extra: NDArray | None = None,
 ) -> dict:
     """Stationary law of ``model`` at static corners: detection probability, one sample, log p(z), log P(det).
 
-    Returns ``p_det (n,)``, ``sample (n, 2)`` (NaN: miss), ``logp (n,)`` (of the observed ``z``,
-    NaN rows = misses) and ``logp_det (n,)``; with ``all_samples`` also ``samples (n, chains, 2)``, the
-    last output of every chain (a model without ``z_{t-1}``, or at ``cycles == 1``: ``chains``
-    independent draws at the row's state).
+    ``extra (n, E)``: the values of the model's extra state variables at the rows (``features.model_extra``;
+    static over the chain's cycles, as the box is). Returns ``p_det (n,)``, ``sample (n, 2)`` (NaN: miss),
+    ``logp (n,)`` (of the observed ``z``, NaN rows = misses) and ``logp_det (n,)``; with ``all_samples`` also
+    ``samples (n, chains, 2)``, the last output of every chain (a model without ``z_{t-1}``, or at
+    ``cycles == 1``: ``chains`` independent draws at the row's state).
     """
     n = corner.shape[0]
     if isinstance(model, IdealRadar):
@@ -234,19 +256,20 @@ def marginal(
     uses_prev = has_prev and cycles > 1
     m = chains if uses_prev or all_samples else 1
     cc = np.repeat(corner, m, axis=0)
+    ex: dict[str, Any] = {} if extra is None else {"extra": np.repeat(np.asarray(extra, dtype=np.float64), m, axis=0)}
     prev = np.full((n * m, 2), np.nan)
     kw: dict[str, Any] = {}
     for k in range(cycles - 1 if uses_prev else 0):  # one iteration per cycle, vectorised over rows x chains
         if uses_prev:  # cycle 0: a new track; later, no previous output = missed last cycle (format 4 trees)
             kw = {"new_track": np.full(n * m, k == 0) & np.isnan(prev[:, 0])}
-        prev, _ = model.sample_cycle(cc, prev, rng, **kw)
+        prev, _ = model.sample_cycle(cc, prev, rng, **kw, **ex)
     if has_prev:  # the start-tuple score is a new track's; the stationary law's misses are after-miss rows
         kw = {"new_track": np.full(n * m, not uses_prev) & np.isnan(prev[:, 0])}
-    last, _ = model.sample_cycle(cc, prev, rng, **kw)
+    last, _ = model.sample_cycle(cc, prev, rng, **kw, **ex)
     # the density: without z_{t-1} fed back every copy of a row has the row's state, so one copy is scored
     d, one = (m, slice(None)) if uses_prev else (1, slice(None, None, m))
     state = np.concatenate([cc, prev], axis=1)[one]
-    kw = {key: v[one] for key, v in kw.items()}
+    kw = {key: v[one] for key, v in {**kw, **ex}.items()}
     lp = model.log_prob(np.repeat(z, d, axis=0), state, **kw).reshape(n, d)
     lp_miss = model.log_prob(np.full((n * d, 2), np.nan), state, **kw).reshape(n, d)
     logp = logsumexp(lp, axis=1) - np.log(d)
@@ -286,20 +309,31 @@ def scores(res: dict, corner: NDArray, z: NDArray, rng: np.random.Generator) -> 
     return out
 
 
-def real_rates(corner: NDArray, z: NDArray) -> dict[str, list]:
-    """Measured detection shares per range and azimuth bin, and row counts."""
+def real_rates(corner: NDArray, z: NDArray, block: NDArray, rng: np.random.Generator, n_boot: int = 2000) -> dict:
+    """Measured detection shares per range and azimuth bin, row counts and 95 % block-bootstrap intervals.
+
+    The interval (``det_range_ci``, ``det_azimuth_ci``: ``[low, high]`` per bin) resamples whole
+    frame blocks (``block``: each row's block id) with replacement, ``n_boot`` times: how far the
+    measured share of a bin moves when other scenes of the same radar are drawn. Rows of one block
+    are one scene and not independent, so this interval is wider than the binomial one.
+    """
     r = np.hypot(corner[:, 0], corner[:, 1])
     az = np.arctan2(corner[:, 1], corner[:, 0])
     det = np.isfinite(z[:, 0])
-    out: dict[str, list] = {"det_range": [], "n_range": [], "det_azimuth": [], "n_azimuth": []}
-    for lo, hi in zip(RANGE_BINS[:-1], RANGE_BINS[1:], strict=True):
-        s = (r >= lo) & (r < hi)
-        out["det_range"].append(float(det[s].mean()) if s.any() else None)
-        out["n_range"].append(int(s.sum()))
-    for lo, hi in zip(DET_AZIMUTH_EDGES[:-1], DET_AZIMUTH_EDGES[1:], strict=True):
-        s = (az >= lo) & (az < hi)
-        out["det_azimuth"].append(float(det[s].mean()) if s.any() else None)
-        out["n_azimuth"].append(int(s.sum()))
+    _, blk = np.unique(block, return_inverse=True)
+    nb = int(blk.max()) + 1
+    mult = np.stack([np.bincount(rng.integers(0, nb, nb), minlength=nb) for _ in range(n_boot)])  # (n_boot, nb)
+    out: dict[str, list] = {k: [] for k in ("det_range", "n_range", "det_range_ci", "det_azimuth", "n_azimuth",
+                                             "det_azimuth_ci")}  # fmt: skip
+    for key, v, edges in (("range", r, RANGE_BINS), ("azimuth", az, DET_AZIMUTH_EDGES)):
+        for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+            s = (v >= lo) & (v < hi)
+            out[f"det_{key}"].append(float(det[s].mean()) if s.any() else None)
+            out[f"n_{key}"].append(int(s.sum()))
+            n_b = mult @ np.bincount(blk[s], minlength=nb)
+            d_b = mult @ np.bincount(blk[s], weights=det[s].astype(np.float64), minlength=nb)
+            share = d_b[n_b > 0] / n_b[n_b > 0]
+            out[f"det_{key}_ci"].append(np.quantile(share, [0.025, 0.975]).tolist() if share.size else None)
     return out
 
 
@@ -311,9 +345,12 @@ def targets(row: dict, real: dict, ref: dict) -> dict[str, Any]:
     """Worst gaps to the targets: detection |model - real| per bin, metric ratio to the real-fitted KDE."""
     gaps = [abs(a - b) for k in ("det_range", "det_azimuth") for a, b in zip(row[k], real[k], strict=True)
             if a is not None and b is not None]  # fmt: skip
+    inside = [lo <= a <= hi for k in ("det_range", "det_azimuth") for a, (lo, hi) in zip(row[k], real[f"{k}_ci"],
+              strict=True) if a is not None]  # fmt: skip
     out: dict[str, Any] = {
         "max_det_gap": max(gaps),
         "det_bins_within_0.05": f"{sum(g <= 0.05 for g in gaps)}/{len(gaps)}",
+        "det_bins_within_block_ci": f"{sum(inside)}/{len(inside)}",
     }
     for k in ("nll_outcome", "nll_z_given_detected"):
         out[f"{k}_rel"] = None if row[k] is None else (row[k] - ref[k]) / abs(ref[k])
@@ -330,19 +367,21 @@ def markdown(rep: dict) -> str:
         f"# Radar fidelity on real Astyx frames ({rep['data_name']}, {rep['n_frames']} frames, "
         f"{rep['n_rows']} car rows, {rep['folds']} folds of {rep['block']}-frame blocks)",
         "",
-        "Detection rate: model's detection probability vs measured share (target: within 0.05 per bin). "
+        "Detection rate: model's detection probability vs measured share (target: within 0.05 per bin; in "
+        "brackets the measured share's 95 % interval when whole 10-frame blocks are resampled). "
         "NLL [nats] and energy distance [m]: target within 15 % of the KDE fitted on the real training folds. "
         "'stationary' = last of a few cycles at the static box (z_{t-1} fed back); 'start' = the start tuple.",
         "",
         "| metric | real | " + " | ".join(names) + " |",
         "|---|---|" + "---|" * len(names),
     ]
-    for i, lab in enumerate(RANGE_LABELS):
-        lines.append(f"| det. rate {lab} m (n={real['n_range'][i]}) | {fmt(real['det_range'][i])} | "
-                     + " | ".join(fmt(rep["models"][k]["det_range"][i]) for k in names) + " |")  # fmt: skip
-    for i, lab in enumerate(AZ_LABELS):
-        lines.append(f"| det. rate az {lab} deg (n={real['n_azimuth'][i]}) | {fmt(real['det_azimuth'][i])} | "
-                     + " | ".join(fmt(rep["models"][k]["det_azimuth"][i]) for k in names) + " |")  # fmt: skip
+    for key, labels, unit in (("range", RANGE_LABELS, "m"), ("azimuth", AZ_LABELS, "deg")):
+        for i, lab in enumerate(labels):
+            ci = real[f"det_{key}_ci"][i]
+            cell = fmt(real[f"det_{key}"][i]) + ("" if ci is None else f" [{fmt(ci[0])}, {fmt(ci[1])}]")
+            models = " | ".join(fmt(rep["models"][k][f"det_{key}"][i]) for k in names)
+            prefix = "az " if key == "azimuth" else ""
+            lines.append(f"| det. rate {prefix}{lab} {unit} (n={real[f'n_{key}'][i]}) | {cell} | {models} |")
     for key, lab in (("nll_outcome", "NLL outcomes"), ("nll_z_given_detected", "NLL z given detection (mean)"),
                      ("nll_z_given_detected_median", "NLL z given detection (median)")):  # fmt: skip
         lines.append(f"| {lab} | | " + " | ".join(fmt(rep["models"][k][key]) for k in names) + " |")
@@ -353,6 +392,8 @@ def markdown(rep: dict) -> str:
     tg = rep["targets"]
     cells = [f"{fmt(tg[k]['max_det_gap'])} ({tg[k]['det_bins_within_0.05']})" for k in names]
     lines.append("| max detection gap (bins within 0.05) | | " + " | ".join(cells) + " |")
+    cells = [tg[k]["det_bins_within_block_ci"] for k in names]
+    lines.append("| det. bins inside the real share's 95 % block-bootstrap interval | | " + " | ".join(cells) + " |")
     for key, lab in (("nll_outcome_rel", "NLL outcomes vs real-fitted"),
                      ("nll_z_given_detected_rel", "NLL z given det. vs real-fitted"),
                      ("energy_max_rel", "worst energy distance vs real-fitted"),
@@ -445,7 +486,7 @@ def main() -> None:
         "--per-fold-criterion",
         choices=("nll", "energy"),
         default="energy",
-        help="what chooses --rig-per-fold's bandwidth factor on the training folds (default energy, the shipped one's)",
+        help="what chooses --rig-per-fold's bandwidth factors on the training folds (default energy, as shipped)",
     )
     ap.add_argument("--block", type=int, default=10)
     ap.add_argument("--folds", type=int, default=5)
@@ -501,26 +542,30 @@ def main() -> None:
     }
     names = ["kde_real_fitted", *(["kde_rig_per_fold"] if args.rig_per_fold else []), *fixed]
     parts: dict[str, list[dict]] = {k: [] for k in names}
-    corners, zs, per_fold, rig_folds = [], [], [], []
-    fold_rows = [
-        target_tuples(split_by_blocks(log, block=args.block, n_folds=args.folds, fold=k)[1]) for k in range(args.folds)
-    ]
+    corners, zs, blocks, per_fold, rig_folds = [], [], [], [], []
+    folds = [fold_rows(log, args, k) for k in range(args.folds)]  # (test tuples, test log) of each fold
+    real_state = tuple(KDERadarModel.load(kde_after).extra_state_)  # the reference has the shipped model's state
     for k in range(args.folds):  # one iteration per fold
         train, _ = split_by_blocks(log, block=args.block, n_folds=args.folds, fold=k)
-        tt = fold_rows[k]  # the test fold's rows
+        tt, test = folds[k]
         real_kde = KDERadarModel(
-            use_prev=False, cv_group="sequence", rel_variance=(48.0, 48.0, 0.03, 0.03), random_state=k
+            use_prev=False,
+            cv_group="sequence",
+            rel_variance=(48.0, 48.0, 0.03, 0.03),
+            extra_state=real_state,
+            random_state=k,
         ).fit(train)
-        fold = {"fold": k, "n_rows": int(tt.z.shape[0])}
+        fold: dict[str, Any] = {"fold": k, "n_rows": int(tt.z.shape[0])}
         scored: dict[str, tuple[Any, int]] = {"kde_real_fitted": (real_kde, 1)}
         if args.rig_per_fold:
-            others = [rows for j, rows in enumerate(fold_rows) if j != k]
+            others = [rows for j, rows in enumerate(folds) if j != k]
             rig_kde, info = rig_per_fold_model(train, others, per_fold_base, after_model, args, k)
             scored["kde_rig_per_fold"] = (rig_kde, args.cycles)
             rig_folds.append(info)
         for name, (model, cycles) in {**scored, **fixed}.items():
             rng = np.random.default_rng([args.seed, k, len(parts[name])])
-            res = marginal(model, tt.corner, tt.z, rng, args.chains, cycles, all_samples=True)
+            ex = model_extra(model, test, tt.row)
+            res = marginal(model, tt.corner, tt.z, rng, args.chains, cycles, all_samples=True, extra=ex)
             parts[name].append(res)
             if res["logp"] is not None:
                 det = np.isfinite(tt.z[:, 0])
@@ -528,6 +573,7 @@ def main() -> None:
                 fold[name] = {"nll_outcome": float(-res["logp"].mean()), "nll_z_given_detected": float(-cond.mean())}
         corners.append(tt.corner)
         zs.append(tt.z)
+        blocks.append(tt.sequence)  # load_astyx: a sequence is one block of --block frames
         per_fold.append(fold)
         print(f"fold {k}: " + json.dumps({n: v for n, v in fold.items() if isinstance(v, dict)}), flush=True)
     corner, z = np.concatenate(corners), np.concatenate(zs)
@@ -540,7 +586,7 @@ def main() -> None:
             "logp": None if res_list[0]["logp"] is None else np.concatenate([r["logp"] for r in res_list]),
         }
         models[name] = scores(res, corner, z, np.random.default_rng([args.seed, 99]))
-    real = real_rates(corner, z)
+    real = real_rates(corner, z, np.concatenate(blocks), np.random.default_rng([args.seed, 98]))
     rep = {
         "data": str(args.data),
         "data_name": Path(args.data).name,

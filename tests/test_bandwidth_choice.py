@@ -68,3 +68,19 @@ def test_tree_factors_act_on_their_own_kernels(script, outward_rig_log):
     np.testing.assert_allclose(main.bandwidth(corners, start=True), 0.5 * base)  # the start trees held
     both = script.with_factor(model, 0.4, "both")
     np.testing.assert_allclose(both.bandwidth(corners, start=True), 0.4 * base)
+
+
+def test_block_bootstrap_interval_of_the_measured_share_widens_with_scene_to_scene_spread(script):
+    """real_rates' interval resamples whole blocks: alike blocks give a narrow one, opposite blocks a wide one."""
+    fid = sys.modules["real_radar_fidelity"]
+    rng = np.random.default_rng(0)
+    n = 400
+    corner = np.column_stack([np.full(n, 20.0), np.zeros(n)])  # one range bin, the 0-deg azimuth bin
+    block = np.repeat(np.arange(20), n // 20)
+    alike = np.where((rng.random(n) < 0.8)[:, None], 0.0, np.nan) * np.ones((n, 2))
+    split = np.where((block % 2 == 0)[:, None], 0.0, np.nan) * np.ones((n, 2))  # half the scenes miss all
+    ci_alike = fid.real_rates(corner, alike, block, np.random.default_rng(1))["det_range_ci"][1]
+    ci_split = fid.real_rates(corner, split, block, np.random.default_rng(1))["det_range_ci"][1]
+    assert ci_alike[0] <= np.mean(np.isfinite(alike[:, 0])) <= ci_alike[1]
+    assert ci_alike[1] - ci_alike[0] < 0.12  # ~ binomial: 4 sd of sqrt(.16 / 400) = 0.08
+    assert ci_split[1] - ci_split[0] > 0.3  # 20 scenes of all-or-nothing: the share moves by +-0.2

@@ -53,6 +53,14 @@ def latency_log() -> RadarLog:
 
 
 @pytest.fixture(scope="module")
+def occlusion_log() -> RadarLog:
+    """The generic rig: detection probability times (1 - 0.9 x occluded fraction), which the KDE's state lacks."""
+    rng = np.random.default_rng(5)
+    log = record_rig_log(24, 30, 10, rng)
+    return RadarLog(_with_distractors(dict(log.columns), rng), source="occlusion log")
+
+
+@pytest.fixture(scope="module")
 def null_log() -> RadarLog:
     rng = np.random.default_rng(11)
     log = record_rig_log(24, 30, 10, rng)
@@ -66,8 +74,9 @@ def null_log() -> RadarLog:
 
 
 def test_latency_is_found_first_added_and_lowers_the_error(latency_log):
+    """The rig's occlusion loss is a second true effect (test_occlusion_is_found...): excluded here."""
     held = block_split(radar_blocks(latency_log))
-    adapter = RadarAdapter(latency_log, held, params=FAST)
+    adapter = RadarAdapter(latency_log, held, params=FAST, exclude=("occluded",))
     res = run_diagnose(adapter, max_add=1, n_permutations=199)
     names = [e["name"] for e in res.effects]
     assert names[0] in ("rel_vx", "rel_vy"), names[:5]
@@ -79,6 +88,19 @@ def test_latency_is_found_first_added_and_lowers_the_error(latency_log):
     assert res.error_after < res.error_before - MARGIN, (res.error_before, res.error_after)
     # like with like: the Gaussian baseline with the same (linear) extra state improves too
     assert res.baseline_after < res.baseline_before - MARGIN
+
+
+def test_occlusion_is_found_as_a_derived_feature_and_added(occlusion_log):
+    """The occluded fraction is no log column: diagnose derives it from the boxes (features.occluded_column)."""
+    held = block_split(radar_blocks(occlusion_log))
+    adapter = RadarAdapter(occlusion_log, held, params=FAST)
+    res = run_diagnose(adapter, max_add=1, n_permutations=199)
+    assert res.effects[0]["name"] == "occluded", [e["name"] for e in res.effects[:5]]
+    assert res.effects[0]["p_value"] < 0.01
+    for distractor in ("noise_a", "noise_b"):
+        assert not next(x for x in res.effects if x["name"] == distractor)["significant"]
+    assert res.added == ["occluded"]
+    assert res.error_after < res.error_before - MARGIN, (res.error_before, res.error_after)
 
 
 def test_no_hidden_effect_reports_none(null_log, tmp_path):

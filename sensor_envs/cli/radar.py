@@ -109,6 +109,14 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         help="the radar's mounting yaw error [rad] undone before the kernels (counter-clockwise positive), or 'fit' "
         "to estimate it from the log's detections (default 0: none)",
     )
+    fit.add_argument(
+        "--extra-state",
+        nargs="+",
+        default=[],
+        metavar="NAME",
+        help="extra state variables of both models: numeric log columns or derived features (occluded, aspect, "
+        "range, azimuth, rel_speed); the KDE's variances by CV, the Gaussian's linear terms (default: none)",
+    )
     fit.add_argument("--seed", type=nonneg_int, default=0)
     add_force(fit)
     fit.set_defaults(func=_fit)
@@ -341,6 +349,7 @@ def _fit(args: argparse.Namespace) -> int:
         bandwidth_scale=args.bandwidth_scale,
         start_bandwidth_scale=args.start_bandwidth_scale,
         azimuth_bias=args.azimuth_bias,
+        extra_state=tuple(args.extra_state),
         **extra,
     )
     with about(args.log):
@@ -359,9 +368,11 @@ def _fit(args: argparse.Namespace) -> int:
         "azimuth_bias": args.azimuth_bias,
         "azimuth_bias_fitted_deg": round(float(np.rad2deg(model.azimuth_bias_)), 4),
         "rel_variance_fitted": list(model.rel_variance_),
+        "extra_state": list(model.extra_state_),
+        "extra_variance_fitted": list(model.extra_variance_),
     }
-    with about(args.log):
-        baseline = GaussianRadar().fit(log, cycle_time=args.cycle_time)
+    with about(args.log):  # like with like: the baseline has the same extra state
+        baseline = GaussianRadar(extra_state=tuple(args.extra_state)).fit(log, cycle_time=args.cycle_time)
     with OutputTransaction() as tx:  # model and baseline: both or neither
         model.save(tx.file(out), card=card)
         baseline.save(tx.file(base_out), card=card)

@@ -74,13 +74,13 @@ class RadarAdapter:
         progress: bool = False,
         exclude: tuple[str, ...] = (),
     ) -> None:
-        missing = [c for c in exclude if c not in log.columns]
-        if missing:
-            raise ValueError(f"{log.source}: excluded column {missing[0]!r} is not in the log")
-        self.exclude = tuple(exclude)
         if model_kind not in ("kde", "gaussian"):
             raise ValueError(f"model_kind must be 'kde' or 'gaussian', got {model_kind!r}")
         self.log = with_derived_columns(log)
+        missing = [c for c in exclude if c not in self.log.columns]  # a derived feature may be excluded too
+        if missing:
+            raise ValueError(f"{log.source}: excluded column {missing[0]!r} is not in the log")
+        self.exclude = tuple(exclude)
         self.fit_log = self.log.select(~held_out)
         self.held_log = self.log.select(held_out)
         self.fit_log.source = self.held_log.source = log.source

@@ -94,7 +94,8 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from sensor_envs.geometry import closest_corner, from_frame, occluded_fraction, rectangle_corners, to_polar_frame
+from sensor_envs.geometry import closest_corner, from_frame, rectangle_corners, to_polar_frame
+from sensor_envs.radar.features import occluded_column
 from sensor_envs.radar.log import REF_COLUMNS, RadarLog, clutter_counts
 from sensor_envs.radar.rig import RadarRig, RigConfig, SnapshotDraws
 from sensor_envs.radar.scene_law import scene_card, with_scene_law
@@ -187,15 +188,8 @@ def frames_from_log(log: RadarLog, source: str | None = None) -> RealFrames:
     inv = inv.ravel()
     boxes = np.stack([log[c] for c in REF_COLUMNS], axis=1)[tgt]
     frame = inv[tgt].astype(np.int64)
-    corners = rectangle_corners(*boxes.T)
-    corner, _ = closest_corner(corners)
-    occ = np.zeros(boxes.shape[0])
-    order = np.argsort(frame, kind="stable")
-    starts = np.flatnonzero(np.r_[True, np.diff(frame[order]) != 0])
-    for a, b in zip(starts, np.r_[starts[1:], order.size], strict=True):  # one iteration per frame
-        idx = order[a:b]
-        if idx.size > 1:
-            occ[idx] = occluded_fraction(corners[idx])
+    corner, _ = closest_corner(rectangle_corners(*boxes.T))
+    occ = occluded_column(log)[tgt]
     counts = np.bincount(inv[log.is_clutter], minlength=uniq.shape[0]).astype(np.float64)
     _, xy = clutter_counts(log)
     meas = np.stack([log["meas_x"], log["meas_y"]], axis=1)[tgt]

@@ -14,10 +14,19 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.geometry import wrap_angle
-from sensor_envs.radar.log import RadarLog
+from sensor_envs.geometry import occluded_fraction, rectangle_corners, wrap_angle
+from sensor_envs.radar.log import REF_COLUMNS, RadarLog
 
-__all__ = ["WORLD_VARIABLES", "aspect_angle", "derived_columns", "with_derived_columns", "state_matrix"]
+__all__ = [
+    "WORLD_VARIABLES",
+    "aspect_angle",
+    "occluded_column",
+    "derived_columns",
+    "with_derived_columns",
+    "state_matrix",
+    "with_state_columns",
+    "model_extra",
+]
 
 WORLD_VARIABLES = {
     "rel_vx": "target velocity minus ego velocity, sensor-frame x [m/s]",
@@ -28,6 +37,7 @@ WORLD_VARIABLES = {
     "ego_speed": "ego speed [m/s]",
     "range": "distance to the target centre [m]",
     "azimuth": "bearing of the target centre [rad]",
+    "occluded": "fraction of the target's angular extent hidden behind other vehicles, seen from the sensor [0, 1]",
 }
 """State variables the highway wrapper can supply at run time (name -> meaning)."""
 
@@ -43,15 +53,44 @@ def aspect_angle(x: NDArray, y: NDArray, heading: NDArray) -> NDArray[np.float64
     return np.asarray(wrap_angle(np.asarray(heading, dtype=np.float64) - np.arctan2(y, x)), dtype=np.float64)
 
 
+def occluded_column(log: RadarLog) -> NDArray[np.float64]:
+    """Occluded fraction of every target row's reference box among its cycle's target boxes (NaN on clutter).
+
+    A cycle is one ``(sequence, frame)``; the fraction is :func:`sensor_envs.geometry.occluded_fraction`
+    seen from the sensor at the origin (16 rays per box): the share of the box's angular extent
+    whose first hit is another box of the same cycle. Boxes the log does not hold (other classes,
+    beyond the log range) do not occlude. Range ``[0, 1]``.
+    """
+    out = np.full(len(log["frame"]), np.nan)
+    rows = np.flatnonzero(~log.is_clutter)
+    if rows.size == 0:
+        return out
+    corners = rectangle_corners(*(np.asarray(log[c], dtype=np.float64)[rows] for c in REF_COLUMNS))
+    keys = np.stack([log["sequence"][rows], log["frame"][rows]], axis=1)
+    _, cycle = np.unique(keys, axis=0, return_inverse=True)
+    cycle = cycle.ravel()
+    order = np.argsort(cycle, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(cycle[order]) != 0])
+    occ = np.zeros(rows.size)
+    for a, b in zip(starts, np.r_[starts[1:], order.size], strict=True):  # one iteration per cycle
+        idx = order[a:b]
+        if idx.size > 1:
+            occ[idx] = occluded_fraction(corners[idx])
+    out[rows] = occ
+    return out
+
+
 def derived_columns(log: RadarLog) -> dict[str, NDArray[np.float64]]:
     """Features derivable from every log row's reference box (NaN on clutter rows).
 
-    Returns ``range`` [m] and ``azimuth`` [rad] of the box centre, ``aspect`` [rad], and
-    ``rel_speed`` [m/s] when the log has ``rel_vx`` and ``rel_vy`` columns. Columns the log already
-    has are not recomputed.
+    Returns ``range`` [m] and ``azimuth`` [rad] of the box centre, ``aspect`` [rad], ``occluded``
+    (:func:`occluded_column`, [0, 1]), and ``rel_speed`` [m/s] when the log has ``rel_vx`` and
+    ``rel_vy`` columns. Columns the log already has are not recomputed.
     """
     x, y, h = log["ref_x"], log["ref_y"], log["ref_heading"]
     out = {"range": np.hypot(x, y), "azimuth": np.arctan2(y, x), "aspect": aspect_angle(x, y, h)}
+    if "occluded" not in log.columns:
+        out["occluded"] = occluded_column(log)
     if "rel_vx" in log.columns and "rel_vy" in log.columns:
         out["rel_speed"] = np.hypot(log["rel_vx"], log["rel_vy"])
     return {k: v for k, v in out.items() if k not in log.columns}
@@ -62,15 +101,43 @@ def with_derived_columns(log: RadarLog) -> RadarLog:
     return RadarLog({**log.columns, **derived_columns(log)}, source=log.source)
 
 
+def with_state_columns(log: RadarLog, names: tuple[str, ...]) -> RadarLog:
+    """``log`` itself when it has every column of ``names``, else a copy with the derivable ones added.
+
+    Derive once before many :func:`state_matrix` calls on parts of a log (CV folds): a derived feature
+    such as ``occluded`` costs a pass over the log's cycles.
+    """
+    missing = [n for n in names if n not in log.columns]
+    if not missing:
+        return log
+    derived = derived_columns(log)
+    return RadarLog({**log.columns, **{n: derived[n] for n in missing if n in derived}}, source=log.source)
+
+
 def state_matrix(log: RadarLog, names: tuple[str, ...], rows: NDArray[np.int64]) -> NDArray[np.float64]:
     """``(len(rows), len(names))`` values of the extra state columns ``names`` at log ``rows``.
 
+    A name the log lacks is taken from :func:`derived_columns` when it is derivable (e.g. ``occluded``).
+
     Raises:
-        ValueError: naming the log and the first column it lacks.
+        ValueError: naming the log and the first column it lacks (and cannot derive).
     """
+    cols: dict[str, NDArray] = dict(log.columns)
+    if any(n not in cols for n in names):
+        cols.update(derived_columns(log))
     for name in names:
-        if name not in log.columns:
+        if name not in cols:
             raise ValueError(f"{log.source}: column {name!r} (a state variable of the model) is missing from the log")
     if not names:
         return np.zeros((len(rows), 0))
-    return np.stack([np.asarray(log[n], dtype=np.float64)[rows] for n in names], axis=1)
+    return np.stack([np.asarray(cols[n], dtype=np.float64)[rows] for n in names], axis=1)
+
+
+def model_extra(model: object, log: RadarLog, rows: NDArray[np.int64]) -> NDArray[np.float64] | None:
+    """The ``extra`` argument of ``model``'s queries at log ``rows``: its ``extra_state_`` values, or None.
+
+    Raises:
+        ValueError: as :func:`state_matrix`, when the log lacks (and cannot derive) a variable the model names.
+    """
+    names = tuple(getattr(model, "extra_state_", ()) or ())
+    return state_matrix(log, names, rows) if names else None

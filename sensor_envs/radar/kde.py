@@ -127,7 +127,7 @@ from sensor_envs.modelio import (
 )
 from sensor_envs.radar.alignment import MAX_AZIMUTH_BIAS, derotate_offsets, estimate_azimuth_bias, rotate_offsets
 from sensor_envs.radar.buckets import build_buckets, sample_proportional
-from sensor_envs.radar.features import state_matrix
+from sensor_envs.radar.features import state_matrix, with_state_columns
 from sensor_envs.radar.log import RadarLog, TargetTuples, clutter_counts, target_tuples
 from sensor_envs.radar.relevance import (
     select_corner_variance,
@@ -613,6 +613,7 @@ class KDERadarModel(BaseEstimator):
     def _fit_extra(self, log: RadarLog, rows: NDArray[np.int64], progress: bool) -> None:
         """Extra state columns at the tuples' ``rows``: values, NaN fill, relevance scales (CV if not given)."""
         self.extra_state_ = tuple(str(n) for n in self.extra_state)
+        log = with_state_columns(log, self.extra_state_)  # derived features once, not per CV fold
         x = state_matrix(log, self.extra_state_, rows)
         fill = np.nanmedian(x, axis=0) if x.shape[1] and np.isfinite(x).any(axis=0).all() else np.zeros(x.shape[1])
         if x.shape[1] and not np.isfinite(x).any(axis=0).all():

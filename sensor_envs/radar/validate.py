@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.outputs import write_json
+from sensor_envs.radar.features import model_extra
 from sensor_envs.radar.log import RadarLog, TargetTuples, target_tuples
 from sensor_envs.rng import fold_ids
 
@@ -43,12 +44,15 @@ RANGE_BINS = (0.0, 15.0, 30.0, 50.0, 75.0, 120.0)
 """Default corner-range bin edges [m] of the per-bin metrics."""
 
 
+_Opt = NDArray | None
+
+
 class _Model(Protocol):
     def sample_cycle(
-        self, corners: NDArray, prev_z: NDArray | None, rng: np.random.Generator, new_track: NDArray | None = None
+        self, corners: NDArray, prev_z: _Opt, rng: np.random.Generator, extra: _Opt = None, new_track: _Opt = None
     ) -> tuple[NDArray, NDArray]: ...
 
-    def log_prob(self, z: NDArray, state: NDArray, new_track: NDArray | None = None) -> NDArray: ...
+    def log_prob(self, z: NDArray, state: NDArray, extra: _Opt = None, new_track: _Opt = None) -> NDArray: ...
 
 
 def split_by_blocks(log: RadarLog, block: int, n_folds: int, fold: int) -> tuple[RadarLog, RadarLog]:
@@ -106,8 +110,10 @@ def lag1_autocorr(z: NDArray, z_prev: NDArray) -> NDArray[np.float64]:
     return np.array([np.corrcoef(z[ok, j], z_prev[ok, j])[0, 1] for j in range(2)])
 
 
-def rollout(model: _Model, tt: TargetTuples, rng: np.random.Generator) -> tuple[NDArray, NDArray]:
-    """Closed-loop simulation over the log's target tracks.
+def rollout(
+    model: _Model, tt: TargetTuples, rng: np.random.Generator, extra: NDArray | None = None
+) -> tuple[NDArray, NDArray]:
+    """Closed-loop simulation over the log's target tracks (``extra``: the model's extra state per row).
 
     Every cycle, all targets present are sampled at once with their own simulated previous output
     (``NaN`` when the previous cycle is absent from the log or was a simulated miss) and their
@@ -131,7 +137,8 @@ def rollout(model: _Model, tt: TargetTuples, rng: np.random.Generator) -> tuple[
         rows = np.flatnonzero(frames == f)
         pr = prev_row[rows]
         zp[rows] = np.where((pr >= 0)[:, None], z[np.maximum(pr, 0)], np.nan)
-        z[rows], _ = model.sample_cycle(tt.corner[rows], zp[rows], rng, new_track=~tt.has_prev_row[rows])
+        ex = _extra_kw(extra, rows)
+        z[rows], _ = model.sample_cycle(tt.corner[rows], zp[rows], rng, new_track=~tt.has_prev_row[rows], **ex)
     return z, zp
 
 
@@ -150,13 +157,21 @@ def detection_by_previous(tt: TargetTuples, z: NDArray, z_prev: NDArray) -> dict
     return {k: {"rate": float(det[v].mean()) if v.any() else float("nan"), "n": int(v.sum())} for k, v in parts.items()}
 
 
-def nll(model: _Model, tt: TargetTuples) -> dict[str, float]:
-    """Mean negative log-likelihoods [nats] of the log's outcomes (see the module docstring)."""
+def _extra_kw(extra: NDArray | None, rows: Any = slice(None)) -> dict[str, NDArray]:
+    """``{"extra": extra[rows]}`` for a model with extra state variables, ``{}`` otherwise."""
+    return {} if extra is None else {"extra": np.asarray(extra)[rows]}
+
+
+def nll(model: _Model, tt: TargetTuples, extra: NDArray | None = None) -> dict[str, float]:
+    """Mean negative log-likelihoods [nats] of the log's outcomes (see the module docstring).
+
+    ``extra (n, E)``: values of the model's extra state variables at the rows (:func:`features.model_extra`).
+    """
     state = np.concatenate([tt.corner, tt.z_prev], axis=1)
     new = ~tt.has_prev_row
-    lp = model.log_prob(tt.z, state, new_track=new)
+    lp = model.log_prob(tt.z, state, new_track=new, **_extra_kw(extra))
     det = ~np.isnan(tt.z[:, 0])
-    lp_miss = model.log_prob(np.full_like(tt.z, np.nan), state, new_track=new)
+    lp_miss = model.log_prob(np.full_like(tt.z, np.nan), state, new_track=new, **_extra_kw(extra))
     with np.errstate(divide="ignore", invalid="ignore"):
         lp_det = np.log1p(-np.exp(lp_miss))
     cond = lp[det] - lp_det[det]
@@ -199,13 +214,14 @@ def evaluate(
 ) -> dict[str, Any]:
     """All metrics of one model on ``log`` (see the module docstring)."""
     tt = target_tuples(log)
+    extra = model_extra(model, log, tt.row)
     state = np.concatenate([tt.corner, tt.z_prev], axis=1)
-    res: dict[str, Any] = nll(model, tt)
-    z_sim, _ = model.sample_cycle(state[:, :2], state[:, 2:], rng, new_track=~tt.has_prev_row)
+    res: dict[str, Any] = nll(model, tt, extra)
+    z_sim, _ = model.sample_cycle(state[:, :2], state[:, 2:], rng, new_track=~tt.has_prev_row, **_extra_kw(extra))
     res["per_range_bin"] = _per_bin(tt, z_sim, np.asarray(edges, dtype=np.float64), rng)
     is_ts = bool(tt.has_prev_row.any()) if time_series is None else time_series
     if is_ts:
-        zr, zpr = rollout(model, tt, rng)
+        zr, zpr = rollout(model, tt, rng, extra)
         res["lag1_autocorr_measured"] = lag1_autocorr(tt.z, tt.z_prev).tolist()
         res["lag1_autocorr_simulated"] = lag1_autocorr(zr, zpr).tolist()
         res["detection_rate_rollout"] = float(np.mean(~np.isnan(zr[:, 0])))
@@ -242,9 +258,17 @@ def write_report(
 
 
 def chi_square(
-    model: Any, state: NDArray, rng: np.random.Generator, n: int = 95_000, n_bins: int = 12, min_expected: float = 5.0
+    model: Any,
+    state: NDArray,
+    rng: np.random.Generator,
+    n: int = 95_000,
+    n_bins: int = 12,
+    min_expected: float = 5.0,
+    extra: NDArray | None = None,
 ) -> dict[str, Any]:
     """Chi-square test of ``n`` two-stage samples against the binned analytic PDF at one state.
+
+    ``extra (E,)``: the model's extra state variables at that state (None: the model has none).
 
     Bins: ``n_bins x n_bins`` over the central 99.8 % of the analytic output range, plus one bin for
     "outside" and one for a miss; bins with fewer than ``min_expected`` expected counts are pooled.
@@ -255,13 +279,16 @@ def chi_square(
     from scipy.stats import chi2
 
     state = np.asarray(state, dtype=np.float64)
-    z, _ = model.sample(np.repeat(state[None], n, axis=0), rng)
+    xe = None if extra is None else np.asarray(extra, dtype=np.float64).reshape(1, -1)
+    z, _ = model.sample(
+        np.repeat(state[None], n, axis=0), rng, **_extra_kw(None if xe is None else np.repeat(xe, n, 0))
+    )
     if hasattr(model, "to_output_frame"):  # bins along the axes the model's kernels are aligned with
         z = model.to_output_frame(z, np.repeat(state[None, :2], n, axis=0))
     det = ~np.isnan(z[:, 0])
     lo, hi = np.nanpercentile(z, 0.1, axis=0), np.nanpercentile(z, 99.9, axis=0)
     ex, ey = np.linspace(lo[0], hi[0], n_bins + 1), np.linspace(lo[1], hi[1], n_bins + 1)
-    p, p_miss = model.bin_probabilities(state, ex, ey)
+    p, p_miss = model.bin_probabilities(state, ex, ey, **_extra_kw(xe))
     obs, _, _ = np.histogram2d(z[det, 0], z[det, 1], bins=[ex, ey])
     exp_all = np.concatenate([p.ravel(), [1.0 - p.sum() - p_miss, p_miss]]) * n
     obs_all = np.concatenate([obs.ravel(), [det.sum() - obs.sum(), (~det).sum()]])
@@ -286,11 +313,13 @@ def chi_square(
     }
 
 
-def plot_pdf_vs_samples(model: Any, state: NDArray, rng: np.random.Generator, path: Path, n: int = 95_000) -> dict:
+def plot_pdf_vs_samples(
+    model: Any, state: NDArray, rng: np.random.Generator, path: Path, n: int = 95_000, extra: NDArray | None = None
+) -> dict:
     """The seed's Fig. 5: binned analytic PDF next to the histogram of ``n`` two-stage samples."""
     import matplotlib.pyplot as plt
 
-    res = chi_square(model, state, rng, n=n, n_bins=30)
+    res = chi_square(model, state, rng, n=n, n_bins=30, extra=extra)
     fig, ax = plt.subplots(1, 2, figsize=(9, 4), sharex=True, sharey=True)
     ext = [res["edges_x"][0], res["edges_x"][-1], res["edges_y"][0], res["edges_y"][-1]]
     vmax = max(res["expected"].max(), res["observed"].max())
@@ -312,7 +341,9 @@ def plot_pdf_vs_samples(model: Any, state: NDArray, rng: np.random.Generator, pa
     return {k: res[k] for k in ("statistic", "dof", "p_value")}
 
 
-def plot_pdf_heatmap(model: Any, box: NDArray, prev_z: NDArray | None, path: Path, half: float = 6.0) -> None:
+def plot_pdf_heatmap(
+    model: Any, box: NDArray, prev_z: NDArray | None, path: Path, half: float = 6.0, extra: NDArray | None = None
+) -> None:
     """The seed's Fig. 3: density of the measured position around a target box (sensor frame).
 
     Args:
@@ -321,6 +352,7 @@ def plot_pdf_heatmap(model: Any, box: NDArray, prev_z: NDArray | None, path: Pat
         prev_z: ``(2,)`` previous output [m] or ``None``.
         path: output image.
         half: half-width [m] of the plotted square around the box centre.
+        extra: ``(E,)`` the model's extra state variables at the box (None: the model has none).
     """
     import matplotlib.pyplot as plt
 
@@ -334,7 +366,8 @@ def plot_pdf_heatmap(model: Any, box: NDArray, prev_z: NDArray | None, path: Pat
     pos = np.stack([mx.ravel(), my.ravel()], axis=1)
     prev = np.full(2, np.nan) if prev_z is None else np.asarray(prev_z, dtype=np.float64)
     state = np.concatenate([np.broadcast_to(corner, pos.shape), np.broadcast_to(prev, pos.shape)], axis=1)
-    dens = np.exp(model.log_prob(pos - corner, state)).reshape(mx.shape)
+    ex = None if extra is None else np.repeat(np.asarray(extra, dtype=np.float64).reshape(1, -1), len(pos), axis=0)
+    dens = np.exp(model.log_prob(pos - corner, state, **_extra_kw(ex))).reshape(mx.shape)
     fig, ax = plt.subplots(figsize=(5, 5))
     ax.imshow(dens.T, origin="lower", extent=(float(gx[0]), float(gx[-1]), float(gy[0]), float(gy[-1])), cmap="viridis")
     ring = np.vstack([corners[0], corners[0][:1]])
@@ -372,9 +405,12 @@ def plot_all(report: dict[str, Any], model: Any, log: RadarLog, out: Path) -> No
         i = det[np.argmin(np.abs(np.hypot(*tt.corner[det].T) - 25.0))]
         row = tt.row[i]
         box = np.array([log[c][row] for c in ("ref_x", "ref_y", "ref_heading", "ref_length", "ref_width")])
-        plot_pdf_heatmap(model, box, tt.z_prev[i] if np.isfinite(tt.z_prev[i, 0]) else None, out / "pdf_heatmap.png")
+        extra = model_extra(model, log, tt.row[i : i + 1])
+        ex = None if extra is None else extra[0]
+        prev = tt.z_prev[i] if np.isfinite(tt.z_prev[i, 0]) else None
+        plot_pdf_heatmap(model, box, prev, out / "pdf_heatmap.png", extra=ex)
         if hasattr(model, "bin_probabilities"):
             st = np.concatenate([tt.corner[i], tt.z_prev[i]])
             report["model"]["chi_square_at_example_state"] = plot_pdf_vs_samples(
-                model, st, np.random.default_rng(0), out / "pdf_vs_samples.png"
+                model, st, np.random.default_rng(0), out / "pdf_vs_samples.png", extra=ex
             )

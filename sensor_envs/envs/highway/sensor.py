@@ -253,5 +253,7 @@ def world_state(
         "ego_speed": lambda: np.full(k, float(np.hypot(*ego_v))),
         "range": lambda: np.hypot(centre[:, 0], centre[:, 1]),
         "azimuth": lambda: np.arctan2(centre[:, 1], centre[:, 0]),
+        # every object within perception distance occludes, as every box of a rig cycle does
+        "occluded": lambda: occluded_fraction(to_frame(truth.corners, pose), (0.0, 0.0), 16, targets=idx),
     }
     return np.stack([values[n]() for n in names], axis=1).reshape(k, len(names))
