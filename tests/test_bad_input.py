@@ -410,6 +410,12 @@ CASES: list[Case] = [
         lambda d: validate_radar_log(radar_cell(d, 0, "sequence", "1e30")),
         "'sequence'",
     ),
+    C(  # a state variable the log neither has nor can derive (occluded, aspect, ... are derived)
+        RADAR,
+        "fit-extra-state-not-in-the-log",
+        lambda d: (fit_radar(radar_csv(d))[0] + ["--relevance", "paper", "--extra-state", "bogus"], str(d / "log.csv")),
+        "'bogus'",
+    ),
 ]
 
 

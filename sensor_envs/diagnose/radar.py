@@ -13,8 +13,9 @@ Residuals of a fitted model on the held-out part (sensor frame, metres):
 
 Candidates: every extra numeric column of the log by its name (``t`` as ``time``), the ``frame``
 index, derived features (``range``, ``azimuth``, ``aspect`` = target heading relative to the line of
-sight, ``corner_x``/``corner_y`` = closest-corner position, ``rel_speed`` when ``rel_vx``/``rel_vy``
-exist; :mod:`sensor_envs.radar.features`) and the previous cycle's residuals of the same target
+sight, ``occluded`` = the share of the box hidden behind the other boxes of its cycle, ``corner_x``/
+``corner_y`` = closest-corner position, ``rel_speed`` when ``rel_vx``/``rel_vy`` exist;
+:mod:`sensor_envs.radar.features`) and the previous cycle's residuals of the same target
 (``prev_offset_x``, ``prev_offset_y``, ``prev_detection``). The model can take any log column into
 its state (``extra_state``); the previous residuals (the KDE's ``z_{t-1}`` plays that part) cannot be
 added. The corner, range and azimuth are functions of the state the models already have (the box
