@@ -77,7 +77,7 @@ from scipy.special import logsumexp
 from sensor_envs.outputs import write_json
 from sensor_envs.radar.astyx import load_astyx
 from sensor_envs.radar.calibrate import DET_AZIMUTH_EDGES, calibrate_rig, frames_from_log
-from sensor_envs.radar.features import model_extra
+from sensor_envs.radar.features import model_extra, with_derived_columns
 from sensor_envs.radar.gaussian import GaussianRadar
 from sensor_envs.radar.kde import KDERadarModel
 from sensor_envs.radar.log import RadarLog, TargetTuples, target_tuples
@@ -215,8 +215,9 @@ def rig_per_fold_model(
 
 
 def fold_rows(log: RadarLog, args: argparse.Namespace, fold: int) -> tuple[TargetTuples, RadarLog]:
-    """The test rows of ``fold`` (10-frame blocks, ``validate.split_by_blocks``) and their log (extra state)."""
-    test = split_by_blocks(log, block=args.block, n_folds=args.folds, fold=fold)[1]
+    """The test rows of ``fold`` (10-frame blocks, ``validate.split_by_blocks``) and their log, its derived
+    features added once (every model and factor scored on the fold reads its extra state from it)."""
+    test = with_derived_columns(split_by_blocks(log, block=args.block, n_folds=args.folds, fold=fold)[1])
     return target_tuples(test), test
 
 

@@ -27,7 +27,7 @@ from sensor_envs.radar.astyx import load_astyx
 from sensor_envs.radar.calibrate import DET_AZIMUTH_EDGES, frames_from_log
 from sensor_envs.radar.features import model_extra
 from sensor_envs.radar.kde import KDERadarModel
-from sensor_envs.radar.log import target_tuples
+from sensor_envs.radar.log import RadarLog, target_tuples
 from sensor_envs.radar.rig import RadarRig, SnapshotDraws, load_rig
 from sensor_envs.radar.validate import split_by_blocks
 
@@ -35,9 +35,9 @@ ROOT = Path(__file__).resolve().parents[1]
 OCC_BINS = ((0.0, 1e-9, "0"), (1e-9, 0.5, "(0, 0.5)"), (0.5, 1.01, "[0.5, 1]"))
 
 
-def by_occlusion(data: str, rig_path: str, seed: int) -> None:
+def by_occlusion(log: RadarLog, rig_path: str, seed: int) -> None:
     """Part 1: detection share and polar offsets per occluded-fraction bin, real vs rig."""
-    frames = frames_from_log(load_astyx(data))
+    frames = frames_from_log(log)
     cfg, _ = load_rig(rig_path)
     rng = np.random.default_rng(seed)
     sims = [RadarRig(cfg).snapshot(frames.boxes, frames.occluded, SnapshotDraws.draw(len(frames.boxes), rng))
@@ -55,9 +55,9 @@ def by_occlusion(data: str, rig_path: str, seed: int) -> None:
         print(f"| {lab} | {m.sum()} | {np.isfinite(real[m, 0]).mean():.3f} / {p_rig:.3f} | " + " | ".join(cols) + " |")
 
 
-def real_fitted(data: str, folds: int, block: int) -> None:
-    """Part 2: the real-fitted KDE with each extra state, scored on held-out folds."""
-    log = load_astyx(data, block=block)
+def real_fitted(log: RadarLog, folds: int, block: int) -> None:
+    """Part 2: the real-fitted KDE with each extra state, scored on held-out folds (``log`` in ``block``-frame
+    sequences)."""
     print("\n| extra state | NLL outcomes | NLL z given det. | detection log-loss | det. rate per azimuth bin "
           f"({', '.join(f'{np.rad2deg(a):g}' for a in DET_AZIMUTH_EDGES)} deg): model / real |")  # fmt: skip
     print("|---|---|---|---|---|")
@@ -107,8 +107,9 @@ def main() -> None:
     except (FileNotFoundError, ValueError) as exc:
         print(f"{exc}", file=sys.stderr)
         raise SystemExit(2) from None
-    by_occlusion(args.data, args.rig, args.seed)
-    real_fitted(args.data, args.folds, args.block)
+    log = load_astyx(args.data, block=args.block)  # read once: the frames of part 1 ignore the blocks
+    by_occlusion(log, args.rig, args.seed)
+    real_fitted(log, args.folds, args.block)
 
 
 if __name__ == "__main__":

@@ -5,7 +5,7 @@ import json
 import gymnasium as gym
 import numpy as np
 import pytest
-from test_highway import _check  # the tests folder is on the path (pytest's rootdir-relative import)
+from test_highway import _check, _place  # the tests folder is on the path (pytest's rootdir-relative import)
 
 import sensor_envs  # noqa: F401  (registers the ids)
 from sensor_envs.cli.main import main
@@ -110,14 +110,8 @@ def test_fit_cli_unknown_extra_state_exit_2_one_line(occlusion_log, tmp_path, ca
 def test_highway_world_state_occluded_is_the_hidden_fraction():
     env = gym.make(FAST, radar="ideal", config={"vehicles_count": 10})
     env.reset(seed=0)
-    base = env.unwrapped
-    base.vehicle.position, base.vehicle.heading = np.array([100.0, 4.0]), 0.0
+    base = _place(env, [(120.0, 4.0), (140.0, 4.0), (140.0, 8.0)])  # ego at (100, 4), the rest far away
     others = [v for v in base.road.vehicles if v is not base.vehicle]
-    places = [(120.0, 4.0), (140.0, 4.0), (140.0, 8.0)]
-    for v, p in zip(others, places, strict=False):
-        v.position, v.heading = np.array(p), 0.0
-    for v in others[len(places) :]:
-        v.position = np.array([-1000.0, 0.0])
     frame = env.get_wrapper_attr("sense")()
     truth = frame.truth
     idx = np.flatnonzero([o in others[:3] for o in truth.objects])

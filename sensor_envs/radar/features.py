@@ -11,6 +11,8 @@ Frames and units: sensor frame (x forward, y left), metres, radians, m/s.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -80,20 +82,25 @@ def occluded_column(log: RadarLog) -> NDArray[np.float64]:
     return out
 
 
-def derived_columns(log: RadarLog) -> dict[str, NDArray[np.float64]]:
+def derived_columns(log: RadarLog, names: tuple[str, ...] | None = None) -> dict[str, NDArray[np.float64]]:
     """Features derivable from every log row's reference box (NaN on clutter rows).
 
     Returns ``range`` [m] and ``azimuth`` [rad] of the box centre, ``aspect`` [rad], ``occluded``
     (:func:`occluded_column`, [0, 1]), and ``rel_speed`` [m/s] when the log has ``rel_vx`` and
-    ``rel_vy`` columns. Columns the log already has are not recomputed.
+    ``rel_vy`` columns; with ``names``, only those of them (the others are not computed: ``occluded``
+    costs a pass over the log's cycles). Columns the log already has are not recomputed.
     """
     x, y, h = log["ref_x"], log["ref_y"], log["ref_heading"]
-    out = {"range": np.hypot(x, y), "azimuth": np.arctan2(y, x), "aspect": aspect_angle(x, y, h)}
-    if "occluded" not in log.columns:
-        out["occluded"] = occluded_column(log)
+    makers: dict[str, Callable[[], NDArray[np.float64]]] = {
+        "range": lambda: np.hypot(x, y),
+        "azimuth": lambda: np.arctan2(y, x),
+        "aspect": lambda: aspect_angle(x, y, h),
+        "occluded": lambda: occluded_column(log),
+    }
     if "rel_vx" in log.columns and "rel_vy" in log.columns:
-        out["rel_speed"] = np.hypot(log["rel_vx"], log["rel_vy"])
-    return {k: v for k, v in out.items() if k not in log.columns}
+        makers["rel_speed"] = lambda: np.hypot(log["rel_vx"], log["rel_vy"])
+    wanted = makers if names is None else [n for n in names if n in makers]
+    return {k: makers[k]() for k in wanted if k not in log.columns}
 
 
 def with_derived_columns(log: RadarLog) -> RadarLog:
@@ -107,11 +114,10 @@ def with_state_columns(log: RadarLog, names: tuple[str, ...]) -> RadarLog:
     Derive once before many :func:`state_matrix` calls on parts of a log (CV folds): a derived feature
     such as ``occluded`` costs a pass over the log's cycles.
     """
-    missing = [n for n in names if n not in log.columns]
+    missing = tuple(n for n in names if n not in log.columns)
     if not missing:
         return log
-    derived = derived_columns(log)
-    return RadarLog({**log.columns, **{n: derived[n] for n in missing if n in derived}}, source=log.source)
+    return RadarLog({**log.columns, **derived_columns(log, missing)}, source=log.source)
 
 
 def state_matrix(log: RadarLog, names: tuple[str, ...], rows: NDArray[np.int64]) -> NDArray[np.float64]:
@@ -122,15 +128,13 @@ def state_matrix(log: RadarLog, names: tuple[str, ...], rows: NDArray[np.int64])
     Raises:
         ValueError: naming the log and the first column it lacks (and cannot derive).
     """
-    cols: dict[str, NDArray] = dict(log.columns)
-    if any(n not in cols for n in names):
-        cols.update(derived_columns(log))
+    log = with_state_columns(log, names)
     for name in names:
-        if name not in cols:
+        if name not in log.columns:
             raise ValueError(f"{log.source}: column {name!r} (a state variable of the model) is missing from the log")
     if not names:
         return np.zeros((len(rows), 0))
-    return np.stack([np.asarray(cols[n], dtype=np.float64)[rows] for n in names], axis=1)
+    return np.stack([np.asarray(log[n], dtype=np.float64)[rows] for n in names], axis=1)
 
 
 def model_extra(model: object, log: RadarLog, rows: NDArray[np.int64]) -> NDArray[np.float64] | None:
