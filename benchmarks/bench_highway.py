@@ -21,6 +21,7 @@ policy step. Their ratios are to the 15 Hz baseline; "obs" then includes every c
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 import warnings
 from collections.abc import Callable
@@ -32,7 +33,8 @@ import numpy as np
 
 import sensor_envs  # noqa: F401
 from sensor_envs.envs.highway import RadarObservation
-from sensor_envs.modelio import default_model_path
+from sensor_envs.modelio import ModelFileError, default_model_path
+from sensor_envs.radar.kde import KDERadarModel
 from sensor_envs.radar.sensors import RADAR_NAMES as RADARS
 
 
@@ -109,6 +111,12 @@ def main(argv: list[str] | None = None) -> None:
         "with extra state variables",
     )
     args = parser.parse_args(argv)
+    for path in args.model:  # bad input: one line naming the file, exit 2, before any timing
+        try:
+            KDERadarModel.load(path)
+        except ModelFileError as exc:
+            print(exc, file=sys.stderr)
+            raise SystemExit(2) from None
     base_name, base15 = "kinematics (highway-env)", "kinematics, sim 15 Hz"
     configs: dict[str, Callable[[], gym.Env]] = {base_name: lambda: gym.make("highway-fast-v0")}
     for r in RADARS:
