@@ -1,4 +1,5 @@
-"""Held-out check of the radar calibration's detection stage: the ridge weight and the signed azimuth table.
+"""Held-out check of the radar calibration's detection stage: the ridge weight, the signed azimuth table and
+the occlusion loss per range knot.
 
 The detection stage of ``sensor-envs calibrate radar`` (``sensor_envs/radar/calibrate.py``, stage 1/3:
 least squares on the detection terms plus a ridge on second differences of the tables) is fitted on
@@ -8,7 +9,10 @@ held-out boxes, ``--replicates`` simulations per box, seed ``--seed``). The offs
 parameters are those of ``--rig`` (held fixed: the reflection points the detection law sees); the
 detection law starts from the generic rig's, as in the calibration. Candidates: the ridge weights
 ``--ridges``, each with the signed azimuth table and, for comparison, with the symmetric ``|azimuth|``
-table (``calibrate_rig(signed_azimuth=False)``, the default: this check is why). Prints the mean held-out discrepancy
+table (``calibrate_rig(signed_azimuth=False)``, the default: this check is why), and the symmetric table with the
+occlusion loss per range knot (``--kinds occlusion_by_range``: ``calibrate_rig(occlusion_by_range=True)``). The
+held-out terms include ``det_occlusion_range`` (detection per range x occluded-fraction cell), which only the
+last kind fits. Prints the mean held-out discrepancy
 per term (x 1e-4), its sum per fold, and the held-out detection rate per signed azimuth bin (pooled
 over folds) as a markdown table. Models and data stay in memory (~2 min for 4 ridges).
 
@@ -29,7 +33,8 @@ from sensor_envs.radar import calibrate as cal
 from sensor_envs.radar.rig import RigConfig, load_rig
 
 ROOT = Path(__file__).resolve().parents[1]
-TERMS = ("det_range", "det_azimuth", "det_occlusion", "det_cells")
+TERMS = ("det_range", "det_azimuth", "det_occlusion", "det_cells", "det_occlusion_range")
+KINDS = ("signed", "symmetric", "occlusion_by_range")
 
 
 def subset(frames: cal.RealFrames, keep: np.ndarray) -> cal.RealFrames:
@@ -61,6 +66,7 @@ def main() -> None:
     ap.add_argument("--block", type=int, default=10)
     ap.add_argument("--folds", type=int, default=5)
     ap.add_argument("--replicates", type=int, default=4)
+    ap.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS), help="detection laws to compare")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     t0 = time.perf_counter()
@@ -81,29 +87,47 @@ def main() -> None:
         detect_azimuth_table=None,
         detect_azimuth_signed=False,
         occlusion_loss=generic.occlusion_loss,
+        occlusion_loss_knots=None,
+        occlusion_loss_table=None,
     )
     fold_of = (np.arange(frames.n_frames) // args.block) % args.folds
     rows = []
     for ridge in args.ridges:  # one iteration per candidate ridge weight
-        for kind in ("signed", "symmetric"):
+        for kind in args.kinds:
             terms = {t: [] for t in TERMS}
             det_az = np.zeros(len(cal.DET_AZIMUTH_EDGES) - 1)
             n_az = np.zeros_like(det_az)
+            det_or = np.zeros(cal._N_OCC_RANGE)
+            n_or = np.zeros_like(det_or)
             for k in range(args.folds):  # one iteration per held-out fold
                 train, test = subset(frames, fold_of != k), subset(frames, fold_of == k)
                 real_tr, real_te = cal.real_statistics(train), cal.real_statistics(test)
                 sim = cal._sim_setup(train, args.replicates, np.random.default_rng([args.seed, 7]))
-                cfg = cal._fit_detection(base, sim, real_tr, ridge, _NoBar(), signed=kind == "signed")
+                by_range = kind == "occlusion_by_range"
+                cfg = cal._fit_detection(
+                    base, sim, real_tr, ridge, _NoBar(), signed=kind == "signed", by_range=by_range
+                )
                 st = cal.rig_statistics(cfg, test, args.replicates, args.seed + 1, expected=True)
-                kept = ("offset", "offset_z", "offset_bin", "clutter_count", "clutter_range", "clutter_azimuth")
+                kept = (
+                    "offset",
+                    "offset_z",
+                    "offset_signed_z",
+                    "offset_bin",
+                    "clutter_count",
+                    "clutter_range",
+                    "clutter_azimuth",
+                )
                 d = cal.discrepancy({**st, **{c: real_te[c] for c in kept}}, real_te)
                 for t in TERMS:
                     terms[t].append(d[t])
                 ok = np.isfinite(st["det_azimuth"])
                 det_az[ok] += st["det_azimuth"][ok] * real_te["n_azimuth"][ok]
                 n_az += real_te["n_azimuth"]
+                ok = np.isfinite(st["det_occlusion_range"])
+                det_or[ok] += st["det_occlusion_range"][ok] * real_te["n_occlusion_range"][ok]
+                n_or += real_te["n_occlusion_range"]
             mean = {t: 1e4 * float(np.mean(v)) for t, v in terms.items()}
-            rows.append((ridge, kind, mean, det_az / np.maximum(n_az, 1)))
+            rows.append((ridge, kind, mean, det_az / np.maximum(n_az, 1), det_or / np.maximum(n_or, 1)))
             per_fold = 1e4 * np.sum([terms[t] for t in TERMS], axis=0)
             print(f"ridge {ridge:g} {kind}: " + ", ".join(f"{t} {v:.2f}" for t, v in mean.items())
                   + "; sum per fold " + " ".join(f"{v:.1f}" for v in per_fold), flush=True)  # fmt: skip
@@ -115,10 +139,23 @@ def main() -> None:
     print("| ridge | table | " + " | ".join(TERMS) + " | sum | " + " | ".join(labels) + " |")
     print("|---" * (3 + len(TERMS) + len(labels)) + "|")
     print("| real | | " + " | " * len(TERMS) + " | " + " | ".join(f"{v:.3f}" for v in real["det_azimuth"]) + " |")
-    for ridge, kind, mean, rates in rows:
+    for ridge, kind, mean, rates, _ in rows:
         cells = " | ".join(f"{mean[t]:.2f}" for t in TERMS)
         print(f"| {ridge:g} | {kind} | {cells} | {sum(mean.values()):.2f} | " + " | ".join(f"{v:.3f}" for v in rates)
               + " |")  # fmt: skip
+    occ = ("0", "(0, 0.5)", "[0.5, 1]")
+    rb = cal.DET_RANGE_EDGES
+    cells = [f"{lo:g}-{hi:g} m, {o}" for lo, hi in zip(rb[:-1], rb[1:], strict=True) for o in occ]
+    print("\nHeld-out detection rate per corner range x occluded fraction (pooled over folds; rows in brackets)\n")
+    print("| cell (rows) | real | " + " | ".join(f"{r[0]:g} {r[1]}" for r in rows) + " |")
+    print("|---" * (2 + len(rows)) + "|")
+    for i, lab in enumerate(cells):
+        n = int(real["n_occlusion_range"][i])
+        print(
+            f"| {lab} ({n}) | {real['det_occlusion_range'][i]:.3f} | "
+            + " | ".join(f"{r[4][i]:.3f}" for r in rows)
+            + " |"
+        )
     print(f"\n{time.perf_counter() - t0:.0f} s")
 
 

@@ -183,12 +183,13 @@ def main() -> None:
         raise SystemExit(2) from None
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    folds = []
+    folds, blocks = [], []
     for k in range(args.folds):  # one iteration per fold: its test rows
         tt = target_tuples(split_by_blocks(log, block=args.block, n_folds=args.folds, fold=k)[1])
         folds.append((tt.corner, tt.z))
+        blocks.append(tt.sequence)  # load_astyx: a sequence is one block of --block frames
     corner, z = np.concatenate([c for c, _ in folds]), np.concatenate([zz for _, zz in folds])
-    real = real_rates(corner, z)
+    real = real_rates(corner, z, np.concatenate(blocks), np.random.default_rng(98))
     logs: dict[str, RadarLog] = {}
     rep: dict[str, Any] = {"real": real, "candidates": {}, "args": vars(args)}
     for name in args.only or list(CANDIDATES):  # one iteration per candidate

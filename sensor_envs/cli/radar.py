@@ -136,6 +136,12 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         "(generalises worse across Astyx frames held out: benchmarks/real_radar_calibration_cv.py)",
     )
     cal.add_argument(
+        "--occlusion-by-range",
+        action="store_true",
+        help="fit the occlusion loss per range knot (a hidden box is lost more often near the sensor) with the "
+        "detection rate per range x occluded-fraction cell in the fit, instead of one loss for every range",
+    )
+    cal.add_argument(
         "--offset-law",
         choices=["reflection", "mixture"],
         default="reflection",
@@ -249,8 +255,13 @@ def _calibrate(args: argparse.Namespace) -> int:
         raise ValueError("--mixture-min-range: only with --offset-law mixture")
     if args.scene_only and not args.base:
         raise ValueError("--scene-only: needs --base (the rig whose sensor laws are kept)")
-    if args.scene_only and (args.azimuth_bias or args.signed_azimuth or args.offset_law != "reflection"):
-        raise ValueError("--scene-only: fits no sensor law; drop --azimuth-bias, --signed-azimuth and --offset-law")
+    if args.scene_only and (
+        args.azimuth_bias or args.signed_azimuth or args.occlusion_by_range or args.offset_law != "reflection"
+    ):
+        raise ValueError(
+            "--scene-only: fits no sensor law; drop --azimuth-bias, --signed-azimuth, --occlusion-by-range "
+            "and --offset-law"
+        )
     check_inputs(args.real_data, args.base)
     out = check_output(args.out, inputs=[args.real_data, args.base], force=args.force, suffix=".json")
     base, base_card = load_rig(args.base) if args.base else (None, {})
@@ -269,6 +280,7 @@ def _calibrate(args: argparse.Namespace) -> int:
             mixture_components=tuple(range(1, args.mixture_max_components + 1)),
             mixture_min_range=args.mixture_min_range or 0.0,
             azimuth_bias=args.azimuth_bias,
+            occlusion_by_range=args.occlusion_by_range,
             scene=args.scene,
             progress=sys.stderr.isatty(),
         )

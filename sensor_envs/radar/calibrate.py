@@ -11,6 +11,9 @@ data:
   frame's boxes: :func:`sensor_envs.geometry.occluded_fraction`; 0, (0, 0.5), [0.5, 1]);
 * ``det_cells``: detection rate per (corner range x signed azimuth) cell (:data:`CELL_AZIMUTH_EDGES`;
   the joint the marginals hide);
+* ``det_occlusion_range``: detection rate per (corner range x occluded-fraction) cell (added 2026-11-27: on
+  Astyx a mostly hidden box is detected 0.57 of the time within 15 m and 0.95 at 50-75 m, a joint the
+  ``det_occlusion`` marginal pools);
 * ``offset``: the radial and OUTWARD cross-range components of ``z = measured - closest corner``
   [m] of the detected rows per corner-range bin (their distribution: spread and shape; outward =
   away from the boresight, i.e. mirrored on the right, so a reflection displaced along the face
@@ -38,7 +41,9 @@ data:
 same draws :class:`~sensor_envs.radar.rig.SnapshotDraws` for every candidate parameter vector, so
 the discrepancy is a deterministic function of the parameters):
 
-1. detection tables and occlusion loss: ``scipy.optimize.least_squares`` on the detection terms'
+1. detection tables and occlusion loss (with ``occlusion_by_range=True`` a loss per range knot,
+   :data:`OCCLUSION_LOSS_KNOTS`, and the ``det_occlusion_range`` term joins the fit; else one loss, fitted
+   on the other detection terms as before): ``scipy.optimize.least_squares`` on the detection terms'
    residuals (the rig's detection PROBABILITY at the simulated reflection points, i.e. the exact
    expectation of its detection rate given the draws), plus a small ridge on second differences
    of the tables' probabilities (smoothness where data are thin). By default the azimuth table is
@@ -140,6 +145,8 @@ DETECT_AZIMUTH_KNOTS = tuple(np.deg2rad(np.arange(-90.0, 91.0, 15.0)).tolist())
 """Signed azimuth knots [rad] (left > 0) of the calibrated detection factor (1 at 0 by construction)."""
 _AZ0 = DETECT_AZIMUTH_KNOTS.index(0.0)
 """Index of the 0-deg knot (the fixed factor 1)."""
+OCCLUSION_LOSS_KNOTS = (7.5, 22.5, 40.0, 62.5, 97.5)
+"""Range knots [m] of the calibrated occlusion-loss table (``occlusion_by_range``): the detection bins' centres."""
 OFFSET_RANGE_KNOTS = (0.0, 20.0, 40.0, 70.0, 110.0)
 """Range knots [m] of the calibrated offset-spread tables."""
 
@@ -244,14 +251,23 @@ def _bins(frames: RealFrames) -> _Bins:
 
 
 _N_CELLS = (len(DET_RANGE_EDGES) - 1) * (len(CELL_AZIMUTH_EDGES) - 1)
+_N_OCC = len(OCCLUSION_EDGES) - 1
+_N_OCC_RANGE = (len(DET_RANGE_EDGES) - 1) * _N_OCC
+
+
+def _occlusion_range_bin(bins: _Bins) -> NDArray[np.int64]:
+    """Cell index ``range bin x occluded-fraction bin`` of each row (``-1`` outside the bins)."""
+    ok = (bins.range >= 0) & (bins.occlusion >= 0)
+    return np.where(ok, bins.range * _N_OCC + bins.occlusion, -1)
 
 
 def _detection_stats(det: NDArray, bins: _Bins) -> dict[str, NDArray[np.float64]]:
     return {
         "det_range": _rates(det, bins.range, len(DET_RANGE_EDGES) - 1),
         "det_azimuth": _rates(det, bins.azimuth, len(DET_AZIMUTH_EDGES) - 1),
-        "det_occlusion": _rates(det, bins.occlusion, len(OCCLUSION_EDGES) - 1),
+        "det_occlusion": _rates(det, bins.occlusion, _N_OCC),
         "det_cells": _rates(det, bins.cell, _N_CELLS),
+        "det_occlusion_range": _rates(det, _occlusion_range_bin(bins), _N_OCC_RANGE),
     }
 
 
@@ -342,6 +358,7 @@ def _clutter_stats(counts: NDArray, xy: NDArray) -> dict[str, NDArray[np.float64
 def real_statistics(frames: RealFrames) -> dict[str, NDArray[np.float64]]:
     """The calibration statistics of the real data (see the module docstring)."""
     bins = _bins(frames)
+    occ_range = _occlusion_range_bin(bins)
     det = np.isfinite(frames.meas[:, 0])
     return {
         **_detection_stats(det, bins),
@@ -353,6 +370,7 @@ def real_statistics(frames: RealFrames) -> dict[str, NDArray[np.float64]]:
             float
         ),
         "n_cells": np.bincount(bins.cell[bins.cell >= 0], minlength=_N_CELLS).astype(float),
+        "n_occlusion_range": np.bincount(occ_range[occ_range >= 0], minlength=_N_OCC_RANGE).astype(float),
         "n_offset": np.bincount(bins.range[det & (bins.range >= 0)], minlength=len(DET_RANGE_EDGES) - 1).astype(float),
     }
 
@@ -415,6 +433,7 @@ def discrepancy(sim: dict[str, NDArray], real: dict[str, NDArray]) -> dict[str, 
         ("det_azimuth", "n_azimuth"),
         ("det_occlusion", "n_occlusion"),
         ("det_cells", "n_cells"),
+        ("det_occlusion_range", "n_occlusion_range"),
     ):
         w = real[nkey] / max(real[nkey].sum(), 1.0)
         d = np.nan_to_num(sim[key] - real[key]) ** 2
@@ -450,32 +469,36 @@ def _az_knots(signed: bool) -> tuple[tuple[float, ...], int]:
 
 def _az_logits(x: NDArray, signed: bool) -> NDArray[np.float64]:
     """The azimuth table's logits at every knot, the fixed 0-deg knot included (factor ~1)."""
-    _, i0 = _az_knots(signed)
-    free = x[len(DETECT_RANGE_KNOTS) : -1]
+    knots, i0 = _az_knots(signed)
+    nr = len(DETECT_RANGE_KNOTS)
+    free = x[nr : nr + len(knots) - 1]
     return np.concatenate([free[:i0], [_logit(0.999)], free[i0:]])
 
 
-def _det_config(x: NDArray, base: RigConfig, signed: bool) -> RigConfig:
+def _det_config(x: NDArray, base: RigConfig, signed: bool, by_range: bool = False) -> RigConfig:
     """The detection law of parameters ``x``.
 
     ``x`` = logits of the range table, of the azimuth table without its 0-deg knot (fixed at 1), and
-    of the occlusion loss.
+    of the occlusion loss (``by_range``: of its table at :data:`OCCLUSION_LOSS_KNOTS`).
     """
     nr = len(DETECT_RANGE_KNOTS)
     knots, i0 = _az_knots(signed)
-    table = _sigmoid(x[nr:-1]).tolist()
-    return replace(
+    table = _sigmoid(x[nr : nr + len(knots) - 1]).tolist()
+    occ = _sigmoid(x[nr + len(knots) - 1 :])
+    cfg = replace(
         base,
         detect_range_knots=DETECT_RANGE_KNOTS,
         detect_range_table=tuple(_sigmoid(x[:nr]).tolist()),
         detect_azimuth_knots=knots,
         detect_azimuth_table=(*table[:i0], 1.0, *table[i0:]),
         detect_azimuth_signed=signed,
-        occlusion_loss=float(_sigmoid(x[-1])),
     )
+    if by_range:
+        return replace(cfg, occlusion_loss_knots=OCCLUSION_LOSS_KNOTS, occlusion_loss_table=tuple(occ.tolist()))
+    return replace(cfg, occlusion_loss=float(occ[0]), occlusion_loss_knots=None, occlusion_loss_table=None)
 
 
-def _det_x0(base: RigConfig, signed: bool) -> NDArray[np.float64]:
+def _det_x0(base: RigConfig, signed: bool, by_range: bool = False) -> NDArray[np.float64]:
     rig = RadarRig(base)
     pr = rig.detection_probability(
         np.asarray(DETECT_RANGE_KNOTS), np.zeros(len(DETECT_RANGE_KNOTS)), np.zeros(len(DETECT_RANGE_KNOTS))
@@ -484,42 +507,55 @@ def _det_x0(base: RigConfig, signed: bool) -> NDArray[np.float64]:
     na = len(knots)
     pa = rig.detection_probability(np.full(na, 20.0), np.asarray(knots), np.zeros(na))
     pa = np.delete(np.clip(pa / max(pa[i0], 1e-6), 0.05, 0.95), i0)
-    return np.concatenate(
-        [_logit(np.clip(pr, 0.05, 0.95)), _logit(pa), _logit(np.array([min(max(base.occlusion_loss, 0.05), 0.95)]))]
-    )
+    occ_at = np.asarray(OCCLUSION_LOSS_KNOTS if by_range else (20.0,))
+    occ = np.clip(np.broadcast_to(rig.occlusion_loss(occ_at), occ_at.shape), 0.05, 0.95)
+    return np.concatenate([_logit(np.clip(pr, 0.05, 0.95)), _logit(pa), _logit(occ)])
 
 
 def _fit_detection(
-    base: RigConfig, sim: _Sim, real: dict[str, NDArray], ridge: float, bar: Any, signed: bool = False
+    base: RigConfig,
+    sim: _Sim,
+    real: dict[str, NDArray],
+    ridge: float,
+    bar: Any,
+    signed: bool = False,
+    by_range: bool = False,
 ) -> RigConfig:
     """Stage 1/3: detection tables by least squares on the detection terms (expected rates).
 
     The ridge penalises second differences of the tables' PROBABILITIES (not logits: near 1 a logit
     ridge makes any dip prohibitively expensive and would pin the table to a straight logit line).
+    ``by_range``: the occlusion loss is a table over range, fitted with the ``det_occlusion_range`` term
+    too (and its second differences under the same ridge).
     """
     from scipy.optimize import least_squares
 
-    keys = (
+    keys = [
         ("det_range", "n_range"),
         ("det_azimuth", "n_azimuth"),
         ("det_occlusion", "n_occlusion"),
         ("det_cells", "n_cells"),
-    )
+    ]
+    if by_range:
+        keys.append(("det_occlusion_range", "n_occlusion_range"))
     weights = {k: np.sqrt(real[n] / max(real[n].sum(), 1.0)) for k, n in keys}
     nr = len(DETECT_RANGE_KNOTS)
+    n_occ = len(OCCLUSION_LOSS_KNOTS) if by_range else 1
 
     def residuals(x: NDArray) -> NDArray[np.float64]:
         bar.update(1)
-        cfg = _det_config(x, base, signed)
+        cfg = _det_config(x, base, signed, by_range)
         _, p = RadarRig(cfg).snapshot(sim.boxes, sim.occluded, sim.draws)
         st = _detection_stats(p, sim.bins)
         res = [weights[k] * np.nan_to_num(st[k] - real[k]) for k, _ in keys]
         res.append(np.sqrt(ridge) * np.diff(_sigmoid(x[:nr]), 2))
         res.append(np.sqrt(ridge) * np.diff(_sigmoid(_az_logits(x, signed)), 2))
+        if n_occ > 2:
+            res.append(np.sqrt(ridge) * np.diff(_sigmoid(x[-n_occ:]), 2))
         return np.concatenate(res)
 
-    fit = least_squares(residuals, _det_x0(base, signed), max_nfev=300, x_scale=1.0)
-    return _det_config(fit.x, base, signed)
+    fit = least_squares(residuals, _det_x0(base, signed, by_range), max_nfev=300, x_scale=1.0)
+    return _det_config(fit.x, base, signed, by_range)
 
 
 def _off_config(x: NDArray, base: RigConfig) -> RigConfig:
@@ -799,6 +835,7 @@ def calibrate_rig(
     mixture_components: tuple[int, ...] = MIXTURE_COMPONENTS,
     mixture_min_range: float = 0.0,
     azimuth_bias: bool = False,
+    occlusion_by_range: bool = False,
     scene: bool = False,
     progress: bool = False,
 ) -> tuple[RigConfig, dict[str, Any]]:
@@ -826,6 +863,8 @@ def calibrate_rig(
             twice: :func:`fit_azimuth_bias` with the current laws (first ``base``'s), then every stage
             above on the real frames de-rotated by it (:func:`rotate_frames`), so the laws describe the
             reflection alone; the rig then rotates its detections back. ``False``: the bias stays ``base``'s.
+        occlusion_by_range: the occlusion loss as a table over range (:data:`OCCLUSION_LOSS_KNOTS`), fitted
+            with the ``det_occlusion_range`` term too; ``False``: one loss for every range (as before).
         scene: also fit the scene the rig records to the real reference boxes
             (:func:`sensor_envs.radar.scene_law.fit_scene_law`; closed form). ``False``: ``base``'s scene.
         progress: show a tqdm bar over function evaluations.
@@ -857,6 +896,7 @@ def calibrate_rig(
                 offset_law=offset_law,
                 mixture_components=mixture_components,
                 mixture_min_range=mixture_min_range,
+                occlusion_by_range=occlusion_by_range,
                 bar=bar,
             )
             cfg = replace(cfg, azimuth_bias=bias)
@@ -875,7 +915,8 @@ def calibrate_rig(
             "clutter_per_frame": float(frames.clutter_counts.mean()),
         },
         "procedure": "sensor_envs.radar.calibrate (simulation at the real boxes, common random numbers; "
-        f"least_squares on detection terms ({'signed azimuth' if signed_azimuth else 'symmetric |azimuth|'} table), "
+        f"least_squares on detection terms ({'signed azimuth' if signed_azimuth else 'symmetric |azimuth|'} table"
+        f"{', occlusion loss per range knot' if occlusion_by_range else ''}), "
         f"{_offset_procedure(offset_law, mixture_min_range)}, closed-form clutter"
         f"{'; mounting yaw error by 1-D search on the signed offsets, 2 rounds' if azimuth_bias else ''})",
         "offset_law": offset_law,
@@ -883,6 +924,7 @@ def calibrate_rig(
         "replicates": replicates,
         "ridge": ridge,
         "signed_azimuth": signed_azimuth,
+        "occlusion_by_range": occlusion_by_range,
         "discrepancy_check": check,
         "discrepancy_before": before,
         "discrepancy_after": after,
@@ -920,15 +962,16 @@ def _fit_laws(
     mixture_components: tuple[int, ...],
     mixture_min_range: float,
     bar: Any,
+    occlusion_by_range: bool = False,
 ) -> tuple[RigConfig, dict[str, Any] | None]:
     """Stages 1-4 of :func:`calibrate_rig` on ``frames``: detection, offset law, detection again, clutter."""
     real = real_statistics(frames)
-    cfg = _fit_detection(replace(base, max_range=150.0), sim, real, ridge, bar, signed_azimuth)
+    cfg = _fit_detection(replace(base, max_range=150.0), sim, real, ridge, bar, signed_azimuth, occlusion_by_range)
     cfg, mixture = fit_offset_law(
         frames, cfg, sim, real, offset_law, seed, mixture_components, mixture_min_range, max_evals, bar
     )
     if _uses_reflection_law(offset_law, mixture_min_range):  # the reflection points moved
-        cfg = _fit_detection(cfg, sim, real, ridge, bar, signed_azimuth)
+        cfg = _fit_detection(cfg, sim, real, ridge, bar, signed_azimuth, occlusion_by_range)
     return _fit_clutter(cfg, frames), mixture
 
 

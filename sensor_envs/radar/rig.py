@@ -16,7 +16,8 @@ Used when no recording is at hand and for time series (Astyx has none). Per rada
 * **detection probability** vs range (logistic fall-off at ``max_range``), azimuth (zero outside the
   field of view, lower near its edge; a calibrated table of ``|azimuth|`` or, with
   ``detect_azimuth_signed``, of the signed azimuth: left and right may differ) and occlusion
-  (``geometry.occluded_fraction``): object loss;
+  (``geometry.occluded_fraction`` times a loss, constant or, with ``occlusion_loss_table``, a table over
+  range): object loss;
 * **clutter**: Poisson(``clutter_rate``) detections per cycle, uniform in range and azimuth.
 
 **Offset mixture law** (optional, ``offset_mixture_*``; what ``calibrate radar --offset-law mixture``
@@ -113,6 +114,10 @@ class RigConfig:
             before the first).
         detect_azimuth_signed: whether ``detect_azimuth_knots`` are signed azimuths (a lopsided
             sensor) instead of ``|azimuth|`` (``False``: what rig files without the field mean).
+        occlusion_loss_knots: range knots [m] (of the reflection point) of ``occlusion_loss_table``.
+        occlusion_loss_table: share of the detection probability lost by a wholly hidden box at each
+            range knot (replaces ``occlusion_loss``; the loss is this times the occluded fraction). On
+            Astyx a hidden box is lost far more often near the sensor than beyond 50 m.
         offset_range_knots: range knots [m] of the offset-spread tables.
         sigma_range_table: radial noise std [m] at each knot (replaces ``sigma_range``).
         sigma_cross_table: cross-range noise std [m] at each knot (replaces ``sigma_azimuth * range``
@@ -175,6 +180,8 @@ class RigConfig:
     detect_azimuth_knots: Table = None
     detect_azimuth_table: Table = None
     detect_azimuth_signed: bool = False
+    occlusion_loss_knots: Table = None
+    occlusion_loss_table: Table = None
     offset_range_knots: Table = None
     sigma_range_table: Table = None
     sigma_cross_table: Table = None
@@ -211,6 +218,7 @@ class RigConfig:
         pairs = (
             ("detect_range_knots", "detect_range_table"),
             ("detect_azimuth_knots", "detect_azimuth_table"),
+            ("occlusion_loss_knots", "occlusion_loss_table"),
             ("offset_range_knots", "sigma_range_table"),
             ("offset_range_knots", "sigma_cross_table"),
         )
@@ -322,6 +330,8 @@ RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
     "detect_azimuth_knots": [None, Numbers(Interval(-np.pi, np.pi), min_length=2, increasing=True)],
     "detect_azimuth_table": [None, Numbers(_PROB, min_length=2)],
     "detect_azimuth_signed": [Options(True, False)],
+    "occlusion_loss_knots": [None, Numbers(_NONNEG, min_length=2, increasing=True)],
+    "occlusion_loss_table": [None, Numbers(_PROB, min_length=2)],
     "offset_range_knots": [None, Numbers(_NONNEG, min_length=2, increasing=True)],
     "sigma_range_table": [None, Numbers(_NONNEG, min_length=2)],
     "sigma_cross_table": [None, Numbers(_NONNEG, min_length=2)],
@@ -611,7 +621,14 @@ class RadarRig:
             p_range = p_range * np.interp(rng_m, np.asarray(c.detect_range_knots), np.asarray(c.detect_range_table))
         else:
             p_range = c.p_detect * p_range
-        return p_range * self.azimuth_factor(az) * (1.0 - c.occlusion_loss * occluded)
+        return p_range * self.azimuth_factor(az) * (1.0 - self.occlusion_loss(rng_m) * occluded)
+
+    def occlusion_loss(self, rng_m: NDArray) -> NDArray[np.float64] | float:
+        """Share of the detection probability a wholly hidden box loses at range [m] (the table, or the scalar)."""
+        c = self.config
+        if c.occlusion_loss_table is not None and c.occlusion_loss_knots is not None:
+            return np.interp(rng_m, np.asarray(c.occlusion_loss_knots), np.asarray(c.occlusion_loss_table))
+        return c.occlusion_loss
 
     def azimuth_factor(self, az: NDArray) -> NDArray[np.float64]:
         """Azimuth factor ``(n,)`` in [0, 1] of the detection probability at azimuth [rad] (left > 0).

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,6 +31,10 @@ __all__ = [
     "RANGE_BINS",
     "split_by_blocks",
     "energy_distance_2d",
+    "RowEnergy",
+    "row_energy_terms",
+    "weighted_energy",
+    "block_multiplicities",
     "lag1_autocorr",
     "rollout",
     "detection_by_previous",
@@ -100,6 +104,81 @@ def energy_distance_2d(
     if unbiased and min(a.shape[0], b.shape[0]) < 2:
         return float("nan")
     return 2 * float(cdist(a, b).mean()) - mean_self(a) - mean_self(b)
+
+
+class RowEnergy(NamedTuple):
+    """Row-level sums of the energy distance's three terms, for re-weighting rows (block bootstrap).
+
+    Rows ``i, j`` of one bin; a model gives ``m`` draws per row (``NaN``: a miss), the data one output per
+    row (``NaN``: a miss). Attributes: ``cross (n, n)`` sum over row ``i``'s draws of ``|x - y_j|``;
+    ``model (n, n)`` sum over the pairs of draws of rows ``i`` and ``j`` of ``|x - x'|``; ``data (n, n)``
+    ``|y_i - y_j|``; ``n_draws (n,)`` valid draws per row; ``n_data (n,)`` 1 where the row was detected.
+    All distances in metres.
+    """
+
+    cross: NDArray[np.float64]
+    model: NDArray[np.float64]
+    data: NDArray[np.float64]
+    n_draws: NDArray[np.float64]
+    n_data: NDArray[np.float64]
+
+
+def row_energy_terms(draws: NDArray, data: NDArray, chunk: int = 64) -> RowEnergy:
+    """:class:`RowEnergy` of model ``draws (n, m, 2)`` and measured ``data (n, 2)`` [m] (``NaN`` rows: misses).
+
+    Memory is bounded by ``chunk`` rows' draws against all draws at a time.
+    """
+    from scipy.spatial.distance import cdist
+
+    draws = np.asarray(draws, dtype=np.float64)
+    data = np.asarray(data, dtype=np.float64)
+    n, m, _ = draws.shape
+    ok = np.isfinite(draws[..., 0])
+    det = np.isfinite(data[:, 0])
+    x = np.where(ok[..., None], draws, 0.0).reshape(n * m, 2)
+    y = np.where(det[:, None], data, 0.0)
+    okf, detf = ok.reshape(-1).astype(np.float64), det.astype(np.float64)
+    cross = (cdist(x, y) * okf[:, None] * detf[None, :]).reshape(n, m, n).sum(axis=1)
+    model = np.empty((n, n))
+    for i0 in range(0, n, chunk):  # one block of rows' draws against every draw
+        i1 = min(n, i0 + chunk)
+        d = cdist(x[i0 * m : i1 * m], x) * okf[i0 * m : i1 * m, None] * okf[None, :]
+        model[i0:i1] = d.reshape(i1 - i0, m, n, m).sum(axis=(1, 3))
+    dat = cdist(y, y) * detf[:, None] * detf[None, :]
+    return RowEnergy(cross, model, dat, ok.sum(axis=1).astype(np.float64), detf)
+
+
+def weighted_energy(terms: RowEnergy, weights: NDArray) -> NDArray[np.float64]:
+    """Energy distance [m] (U-statistic) of the rows taken ``weights (R, n)`` times each, ``(R,)``.
+
+    A row taken ``w`` times brings ``w`` copies of its draws and of its measured output; the self terms
+    average over pairs of DISTINCT draws (a copy is never paired with another copy of the same draw),
+    so at weights 1 this is :func:`energy_distance_2d` (``unbiased=True``) of the pooled draws and data.
+    ``NaN`` where a replicate has fewer than two draws or two measured outputs.
+    """
+    w = np.atleast_2d(np.asarray(weights, dtype=np.float64))
+
+    def quad(mat: NDArray) -> NDArray[np.float64]:
+        return np.asarray(((w @ mat) * w).sum(axis=1), dtype=np.float64)
+
+    wx, wy = w @ terms.n_draws, w @ terms.n_data
+    pairs_x = wx**2 - (w**2) @ terms.n_draws
+    pairs_y = wy**2 - (w**2) @ terms.n_data
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = 2 * quad(terms.cross) / (wx * wy) - quad(terms.model) / pairs_x - quad(terms.data) / pairs_y
+    return np.where((pairs_x > 0) & (pairs_y > 0), e, np.nan)
+
+
+def block_multiplicities(block: NDArray, n_boot: int, rng: np.random.Generator) -> NDArray[np.float64]:
+    """Row weights ``(n_boot, n)`` of a block bootstrap.
+
+    Whole blocks (``block``: each row's block id) are drawn with replacement, as many as there are blocks;
+    each row weighs its block's count.
+    """
+    _, blk = np.unique(np.asarray(block), return_inverse=True)
+    nb = int(blk.max()) + 1
+    counts = np.stack([np.bincount(rng.integers(0, nb, nb), minlength=nb) for _ in range(n_boot)])
+    return counts[:, blk].astype(np.float64)
 
 
 def lag1_autocorr(z: NDArray, z_prev: NDArray) -> NDArray[np.float64]:
