@@ -1090,6 +1090,38 @@ def snapshot(d: Path) -> dict[str, str]:
     return out
 
 
+RIG = "radar rig file"
+
+
+def _record_radar_rig(d: Path, params: dict) -> tuple[list[str], str]:
+    """``record radar --rig`` with a rig file of ``params``."""
+    rig = d / "rig.json"
+    rig.write_text(json.dumps({"kind": "radar_rig", "format_version": 1, "params": params}))
+    return ["record", "radar", "--rig", str(rig), "--out", str(d / "out.csv"), "--sequences", "1"], str(rig)
+
+
+CASES += [
+    C(
+        RIG,
+        "occlusion-loss-above-1",
+        lambda d: _record_radar_rig(d, {"occlusion_loss_knots": [10, 90], "occlusion_loss_table": [0.8, 1.2]}),
+        "'params.occlusion_loss_table'",
+    ),
+    C(
+        RIG,
+        "occlusion-loss-table-without-knots",
+        lambda d: _record_radar_rig(d, {"occlusion_loss_table": [0.8, 0.2]}),
+        "'params.occlusion_loss_table'",
+    ),
+    C(
+        RIG,
+        "occlusion-loss-knots-decreasing",
+        lambda d: _record_radar_rig(d, {"occlusion_loss_knots": [90, 10], "occlusion_loss_table": [0.8, 0.2]}),
+        "'params.occlusion_loss_knots'",
+    ),
+]
+
+
 @pytest.mark.parametrize("case", CASES, ids=[f"{c.cls.split()[0]}-{c.id}" for c in CASES])
 def test_bad_input_ends_in_one_line_and_exit_2_and_touches_nothing(case: Case, tmp_path: Path, capsys) -> None:
     argv, names = case.make(tmp_path)
@@ -1112,4 +1144,4 @@ def test_bad_input_ends_in_one_line_and_exit_2_and_touches_nothing(case: Case, t
 def test_the_suite_covers_more_than_100_bad_inputs_of_every_class() -> None:
     classes = {c.cls for c in CASES}
     assert len(CASES) >= 100
-    assert classes == {RADAR, KDE, GAUSS, LMODEL, LNPZ, CARMEN, BAG, MAP, ASTYX, OPTION, OUTPUT}
+    assert classes == {RADAR, KDE, GAUSS, LMODEL, LNPZ, CARMEN, BAG, MAP, ASTYX, OPTION, OUTPUT, RIG}

@@ -357,6 +357,27 @@ def test_shipped_rig_matches_real_astyx_detection_rates(real_data):
     assert np.max(gaps["generic"]) > 0.15, gaps
 
 
+def test_shipped_rig_loses_hidden_boxes_near_the_sensor_as_astyx_does(real_data):
+    """Detection per corner range x occluded fraction at the real boxes: the shipped rig's loss per range knot
+    follows the real cells (a hidden box lost often within 15 m, hardly beyond 50 m); one loss for every
+    range (the rig's own laws with the table replaced by its mean) cannot."""
+    from sensor_envs.radar.astyx import load_astyx
+
+    frames = frames_from_log(load_astyx(real_data / "astyx_hires2019"))
+    real = real_statistics(frames)
+    shipped = load_rig(SHIPPED_RIG)[0]
+    assert shipped.occlusion_loss_table is not None
+    flat = replace(shipped, occlusion_loss_knots=None, occlusion_loss_table=None,
+                   occlusion_loss=float(np.mean(shipped.occlusion_loss_table)))  # fmt: skip
+    ok = real["n_occlusion_range"] >= 80
+    gap = {}
+    for name, cfg in (("shipped", shipped), ("one loss", flat)):
+        sim = rig_statistics(cfg, frames, replicates=4, seed=9, expected=True)
+        gap[name] = np.abs(sim["det_occlusion_range"][ok] - real["det_occlusion_range"][ok])
+    assert np.max(gap["shipped"]) < 0.06, gap
+    assert np.max(gap["one loss"]) > 0.1, gap
+
+
 # ------------------------------------------------------------------------------ offset mixture law
 
 MIXTURE = replace(
@@ -674,3 +695,82 @@ def test_astyx_detections_carry_a_mounting_yaw_error_that_fit_azimuth_bias_finds
     with_bias = discrepancy(rig_statistics(cfg, frames, 4, seed=9), real)["offset_signed"]
     without = discrepancy(rig_statistics(replace(cfg, azimuth_bias=0.0), frames, 4, seed=9), real)["offset_signed"]
     assert with_bias < 0.8 * without, (with_bias, without)
+
+
+def test_occlusion_loss_per_range_knot_is_recovered_where_one_loss_cannot_fit():
+    """A rig that loses hidden boxes near the sensor only: calibrate's ``occlusion_by_range`` finds the table
+    (near loss high, far loss low) and fits the range x occlusion cells better than one loss for every range."""
+    from tqdm import tqdm
+
+    from sensor_envs.radar.calibrate import OCCLUSION_LOSS_KNOTS, _fit_detection
+
+    true = replace(TRUE, occlusion_loss_knots=(10.0, 50.0, 90.0), occlusion_loss_table=(0.95, 0.5, 0.0))
+    frames = synthetic_frames(true, n_frames=400, seed=2)
+    assert (frames.occluded > 0.5).sum() > 150  # enough hidden boxes to see the law
+    real = real_statistics(frames)
+    sim = _sim_setup(frames, 2, np.random.default_rng(3))
+    fits = {}
+    for by_range in (False, True):
+        with tqdm(disable=True) as bar:
+            fits[by_range] = _fit_detection(
+                replace(RigConfig(), max_range=150.0), sim, real, 0.002, bar, by_range=by_range
+            )
+    table = fits[True].occlusion_loss_table
+    assert fits[True].occlusion_loss_knots == OCCLUSION_LOSS_KNOTS and table is not None
+    assert table[0] > 0.7 and table[-1] < 0.3, table
+    assert fits[False].occlusion_loss_table is None
+    cells = {k: discrepancy(rig_statistics(c, frames, 4, seed=5, expected=True), real)["det_occlusion_range"]
+             for k, c in fits.items()}  # fmt: skip
+    assert cells[True] < 0.6 * cells[False], cells
+
+
+def test_occlusion_loss_table_reads_and_is_checked_at_load(tmp_path):
+    cfg = replace(TRUE, occlusion_loss_knots=(10.0, 90.0), occlusion_loss_table=(0.8, 0.2))
+    rig = RadarRig(cfg)
+    r = np.array([5.0, 50.0, 100.0])
+    np.testing.assert_allclose(rig.occlusion_loss(r), [0.8, 0.5, 0.2])
+    p_free = rig.detection_probability(r, np.zeros(3), np.zeros(3))
+    np.testing.assert_allclose(rig.detection_probability(r, np.zeros(3), np.ones(3)), p_free * [0.2, 0.5, 0.8])
+    assert load_rig(save_rig(tmp_path / "rig.json", cfg))[0] == cfg
+    for params, field in (
+        ({"occlusion_loss_knots": [10, 90], "occlusion_loss_table": [0.8, 1.2]}, "occlusion_loss_table"),
+        ({"occlusion_loss_knots": [10, 90], "occlusion_loss_table": [0.8]}, "occlusion_loss_table"),
+        ({"occlusion_loss_knots": [90, 10], "occlusion_loss_table": [0.8, 0.2]}, "occlusion_loss_knots"),
+        ({"occlusion_loss_table": [0.8, 0.2]}, "occlusion_loss_table"),
+    ):
+        path = tmp_path / "bad_rig.json"
+        path.write_text(json.dumps({"kind": "radar_rig", "format_version": 1, "params": params}))
+        with pytest.raises(ModelFileError, match=f"bad_rig.json: field 'params.{field}'"):
+            load_rig(path)
+
+
+def test_calibrate_cli_occlusion_by_range_writes_the_table(tmp_path):
+    real = _synthetic_csv(tmp_path)
+    rig = tmp_path / "rig.json"
+    argv = ["calibrate", "radar", str(real), "--out", str(rig), "--max-evals", "20", "--occlusion-by-range"]
+    assert main(argv) == 0
+    cfg, card = load_rig(rig)
+    assert card["occlusion_by_range"] is True and "occlusion loss per range knot" in card["procedure"]
+    assert cfg.occlusion_loss_knots is not None and len(cfg.occlusion_loss_table or ()) == len(cfg.occlusion_loss_knots)
+    assert "det_occlusion_range" in card["discrepancy_after"]
+    argv = ["calibrate", "radar", str(real), "--out", str(tmp_path / "r2.json"), "--scene-only", "--occlusion-by-range"]
+    assert main([*argv, "--base", str(rig)]) == 2  # --scene-only fits no sensor law
+
+
+def test_calibration_cv_benchmark_runs_on_a_log_and_scores_the_occlusion_cells(tmp_path, capsys, monkeypatch):
+    """benchmarks/real_radar_calibration_cv.py end to end on synthetic single frames (2 folds, one ridge)."""
+    import importlib.util
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "real_radar_calibration_cv.py"
+    spec = importlib.util.spec_from_file_location("real_radar_calibration_cv", script)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    real = _synthetic_csv(tmp_path)
+    argv = ["x", "--data", str(real), "--rig", str(SHIPPED_RIG), "--ridges", "0.002", "--folds", "2",
+            "--replicates", "1", "--kinds", "symmetric", "occlusion_by_range"]  # fmt: skip
+    monkeypatch.setattr(sys, "argv", argv)
+    mod.main()
+    out = capsys.readouterr().out
+    assert "ridge 0.002 occlusion_by_range:" in out and "det_occlusion_range" in out
+    assert "| 0-15 m, 0 (" in out  # the held-out range x occlusion table

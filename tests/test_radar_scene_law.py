@@ -14,7 +14,15 @@ from sensor_envs.cli.main import main
 from sensor_envs.modelio import ModelFileError
 from sensor_envs.radar.calibrate import frames_from_log, snapshot_log
 from sensor_envs.radar.log import REF_COLUMNS, RadarLog, read_log, write_log
-from sensor_envs.radar.rig import RigConfig, generate_scenario, load_rig, record_rig_log, save_rig, scene_boxes
+from sensor_envs.radar.rig import (
+    SCENE_TABLES,
+    RigConfig,
+    generate_scenario,
+    load_rig,
+    record_rig_log,
+    save_rig,
+    scene_boxes,
+)
 from sensor_envs.radar.scene_law import (
     SCENE_HEADING_EDGES,
     SCENE_X_EDGES,
@@ -39,6 +47,11 @@ LAW: dict[str, Any] = {  # a known scene: near boxes on the right and across, fa
 }
 
 
+def _without_scene(cfg: RigConfig) -> RigConfig:
+    """``cfg`` with its scene law removed: the generic lane traffic (every rig file before the scene law)."""
+    return replace(cfg, **dict.fromkeys(SCENE_TABLES))
+
+
 def _shares_in(values, edges):
     return np.histogram(values, bins=np.asarray(edges))[0] / len(values)
 
@@ -46,9 +59,9 @@ def _shares_in(values, edges):
 def test_rig_without_a_scene_law_records_the_generic_traffic_as_before():
     """Every older rig file (no scene fields) draws the same scenario, number for number, as before the law."""
     shipped = load_rig(SHIPPED_RIG)[0]
-    assert shipped.scene_x_edges is None
+    assert shipped.scene_x_edges is not None  # since 2026-11-27 the shipped rig records the real boxes' scene
     a = generate_scenario(8, 10, 1.0, np.random.default_rng(3))
-    b = generate_scenario(8, 10, 1.0, np.random.default_rng(3), shipped)
+    b = generate_scenario(8, 10, 1.0, np.random.default_rng(3), _without_scene(shipped))
     assert np.array_equal(a.boxes, b.boxes) and np.array_equal(a.velocity, b.velocity)
     expected_first = [5.1415579, 3.5, -0.0073068]  # the generic law's first box (stream of every older file)
     assert np.allclose(a.boxes[0, 0, :3], expected_first, atol=1e-5), a.boxes[0, 0, :3]
@@ -196,9 +209,10 @@ def test_scene_law_fitted_on_astyx_spreads_the_recorded_boxes_like_the_real_ones
     frames = load_real(real_data / "astyx_hires2019")
     shipped = load_rig(SHIPPED_RIG)[0]
     real = scene_stats(frames.boxes)
-    generic = scene_stats(recorded_boxes(shipped, np.random.default_rng(0)))
-    cfg, card = calibrate_scene(frames, shipped)
+    generic = scene_stats(recorded_boxes(_without_scene(shipped), np.random.default_rng(0)))
+    cfg, card = calibrate_scene(frames, _without_scene(shipped))
     assert card["real_boxes"] == real
+    assert cfg.scene_x_weights == shipped.scene_x_weights  # the shipped rig's law is this fit
     for want, old, new in zip(real, generic, card["recorded_boxes"], strict=True):
         if 30 <= want["x_low"] < 75:
             assert want["abs_y_q75"] - old["abs_y_q75"] > 3.0, (want, old)
