@@ -33,7 +33,9 @@ from sensor_envs.radar import calibrate as cal
 from sensor_envs.radar.rig import RigConfig, load_rig
 
 ROOT = Path(__file__).resolve().parents[1]
-TERMS = ("det_range", "det_azimuth", "det_occlusion", "det_cells", "det_occlusion_range")
+TERMS = tuple(key for key, _ in cal.DETECTION_TERMS)
+POOLED = ("det_azimuth", "det_occlusion_range")
+"""Statistics whose held-out rates are pooled over folds for the tables (row-weighted)."""
 KINDS = ("signed", "symmetric", "occlusion_by_range")
 
 
@@ -95,10 +97,7 @@ def main() -> None:
     for ridge in args.ridges:  # one iteration per candidate ridge weight
         for kind in args.kinds:
             terms = {t: [] for t in TERMS}
-            det_az = np.zeros(len(cal.DET_AZIMUTH_EDGES) - 1)
-            n_az = np.zeros_like(det_az)
-            det_or = np.zeros(cal._N_OCC_RANGE)
-            n_or = np.zeros_like(det_or)
+            pooled: dict[str, list[np.ndarray]] = {}
             for k in range(args.folds):  # one iteration per held-out fold
                 train, test = subset(frames, fold_of != k), subset(frames, fold_of == k)
                 real_tr, real_te = cal.real_statistics(train), cal.real_statistics(test)
@@ -108,26 +107,18 @@ def main() -> None:
                     base, sim, real_tr, ridge, _NoBar(), signed=kind == "signed", by_range=by_range
                 )
                 st = cal.rig_statistics(cfg, test, args.replicates, args.seed + 1, expected=True)
-                kept = (
-                    "offset",
-                    "offset_z",
-                    "offset_signed_z",
-                    "offset_bin",
-                    "clutter_count",
-                    "clutter_range",
-                    "clutter_azimuth",
-                )
-                d = cal.discrepancy({**st, **{c: real_te[c] for c in kept}}, real_te)
+                d = cal.detection_discrepancy(st, real_te)
                 for t in TERMS:
                     terms[t].append(d[t])
-                ok = np.isfinite(st["det_azimuth"])
-                det_az[ok] += st["det_azimuth"][ok] * real_te["n_azimuth"][ok]
-                n_az += real_te["n_azimuth"]
-                ok = np.isfinite(st["det_occlusion_range"])
-                det_or[ok] += st["det_occlusion_range"][ok] * real_te["n_occlusion_range"][ok]
-                n_or += real_te["n_occlusion_range"]
+                for key in POOLED:  # rate x real rows per bin, and the rows
+                    n = real_te[dict(cal.DETECTION_TERMS)[key]]
+                    ok = np.isfinite(st[key])
+                    acc = pooled.setdefault(key, [np.zeros(n.size), np.zeros(n.size)])
+                    acc[0][ok] += st[key][ok] * n[ok]
+                    acc[1] += n
             mean = {t: 1e4 * float(np.mean(v)) for t, v in terms.items()}
-            rows.append((ridge, kind, mean, det_az / np.maximum(n_az, 1), det_or / np.maximum(n_or, 1)))
+            det_az, det_or = (pooled[k][0] / np.maximum(pooled[k][1], 1) for k in POOLED)
+            rows.append((ridge, kind, mean, det_az, det_or))
             per_fold = 1e4 * np.sum([terms[t] for t in TERMS], axis=0)
             print(f"ridge {ridge:g} {kind}: " + ", ".join(f"{t} {v:.2f}" for t, v in mean.items())
                   + "; sum per fold " + " ".join(f"{v:.1f}" for v in per_fold), flush=True)  # fmt: skip

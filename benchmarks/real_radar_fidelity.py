@@ -66,7 +66,7 @@ whole 10-frame blocks (scenes) resampled, the same blocks weighing each model's 
 Per bin and model: the distance's interval, the ratio to the real-fitted KDE, and the interval of the
 target's margin ``E_model - 1.15 E_real_fitted`` [m]; a bin whose margin interval lies wholly above 0
 misses the 1.15x target beyond the scene-to-scene spread, one whose interval straddles 0 the data cannot
-judge (the detection rates' intervals, ``real_rates``, are of the same bootstrap).
+judge (the detection rates' intervals, ``real_rates``, are a bootstrap of the same kind, with its own draws).
 
     python benchmarks/real_radar_fidelity.py --data ../shared/data/real/astyx_hires2019 --out /tmp/radar_fidelity
 """

@@ -116,6 +116,8 @@ __all__ = [
     "load_real",
     "rig_statistics",
     "real_statistics",
+    "DETECTION_TERMS",
+    "detection_discrepancy",
     "discrepancy",
     "calibrate_rig",
     "fit_offset_law",
@@ -425,19 +427,32 @@ def rig_statistics(
     }
 
 
+DETECTION_TERMS = (
+    ("det_range", "n_range"),
+    ("det_azimuth", "n_azimuth"),
+    ("det_occlusion", "n_occlusion"),
+    ("det_cells", "n_cells"),
+    ("det_occlusion_range", "n_occlusion_range"),
+)
+"""The discrepancy's detection terms: (rate statistic per bin, the real row count per bin that weighs it)."""
+
+
+def _bin_weights(real: dict[str, NDArray], nkey: str) -> NDArray[np.float64]:
+    """Each bin's share of the real rows counted by ``nkey``: the weight of its squared rate gap."""
+    return np.asarray(real[nkey] / max(real[nkey].sum(), 1.0), dtype=np.float64)
+
+
+def detection_discrepancy(sim: dict[str, NDArray], real: dict[str, NDArray]) -> dict[str, float]:
+    """The discrepancy's detection terms (:data:`DETECTION_TERMS`): row-weighted squared rate gaps per bin."""
+    return {
+        key: float(np.sum(_bin_weights(real, nkey) * np.nan_to_num(sim[key] - real[key]) ** 2))
+        for key, nkey in DETECTION_TERMS
+    }
+
+
 def discrepancy(sim: dict[str, NDArray], real: dict[str, NDArray]) -> dict[str, float]:
     """The stated discrepancy, per term and ``total`` (see the module docstring)."""
-    out: dict[str, float] = {}
-    for key, nkey in (
-        ("det_range", "n_range"),
-        ("det_azimuth", "n_azimuth"),
-        ("det_occlusion", "n_occlusion"),
-        ("det_cells", "n_cells"),
-        ("det_occlusion_range", "n_occlusion_range"),
-    ):
-        w = real[nkey] / max(real[nkey].sum(), 1.0)
-        d = np.nan_to_num(sim[key] - real[key]) ** 2
-        out[key] = float(np.sum(w * d))
+    out = detection_discrepancy(sim, real)
     out["offset"] = _offset_term(sim["offset_z"], sim["offset_bin"], real["offset_z"], real)
     out["offset_signed"] = _offset_term(sim["offset_signed_z"], sim["offset_bin"], real["offset_signed_z"], real)
     m, s = real["clutter_count"]
@@ -530,15 +545,8 @@ def _fit_detection(
     """
     from scipy.optimize import least_squares
 
-    keys = [
-        ("det_range", "n_range"),
-        ("det_azimuth", "n_azimuth"),
-        ("det_occlusion", "n_occlusion"),
-        ("det_cells", "n_cells"),
-    ]
-    if by_range:
-        keys.append(("det_occlusion_range", "n_occlusion_range"))
-    weights = {k: np.sqrt(real[n] / max(real[n].sum(), 1.0)) for k, n in keys}
+    keys = [(k, n) for k, n in DETECTION_TERMS if by_range or k != "det_occlusion_range"]
+    weights = {k: np.sqrt(_bin_weights(real, n)) for k, n in keys}
     nr = len(DETECT_RANGE_KNOTS)
     n_occ = len(OCCLUSION_LOSS_KNOTS) if by_range else 1
 
