@@ -65,16 +65,18 @@ def main() -> None:
     except (FileNotFoundError, ValueError) as exc:
         print(f"{exc}: nothing to report", file=sys.stderr)
         raise SystemExit(2) from None
+    names = [Path(p).name for p in paths]
+    labels = [p if names.count(n) > 1 else n for p, n in zip(paths, names, strict=True)]  # rows must not collide
     st = cell_statistics(real, 6.0, split_spurious=True)
     has = st["n"] > 0
     rows = {"real": cell_summary(st["p_spur"][has])}
     repeats = real.ranges.shape[2]
-    for path, model in zip(paths, models, strict=True):
+    for label, model in zip(labels, models, strict=True):
         frac = []
         for seed in range(args.seeds):
             x = model.sample(real.poses, real.require_map(), np.random.default_rng(seed), n_repeats=repeats)
             frac.append((x > model.spur_above).mean(2)[has])
-        rows[f"{Path(path).name} (spur_rho {model.spur_rho_})"] = cell_summary(np.concatenate(frac))
+        rows[f"{label} (spur_rho {model.spur_rho_})"] = cell_summary(np.concatenate(frac))
     keys = list(rows["real"])
     print(f"{int(has.sum())} real cells x {repeats} readings; models sampled at the real poses, {args.seeds} seeds")
     print("| log | " + " | ".join(k.replace("_", " ") for k in keys) + " |")
@@ -92,8 +94,8 @@ def main() -> None:
             held.setdefault(k, np.zeros(te.shape + v.shape[1:]))[te] = v
     none = {**held, "p_spur": np.zeros(r.shape), "spur_rho": np.zeros(r.shape)}
     scores = {"real-fitted (held out)": table_one(real, held), "no spurious return": table_one(real, none)}
-    for path, model in zip(paths, models, strict=True):
-        scores[Path(path).name] = table_one(real, model.params_from_features(r, a))
+    for label, model in zip(labels, models, strict=True):
+        scores[label] = table_one(real, model.params_from_features(r, a))
     cols = ["mae_p_spur", "mse_p_spur", "ll_spur_counts_per_reading", "ll_spur_counts_per_reading_independent"]
     print(
         f"\nScores of p_spur on the real cells ({args.folds} leave-poses-out folds for the real fit, seed {args.seed})"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -19,6 +20,7 @@ ROOM = load_map("seed_room").segments
 
 
 def _rig_json(tmp_path, **params):
+    tmp_path.mkdir(exist_ok=True)
     path = tmp_path / "rig.json"
     path.write_text(json.dumps({"kind": "neato_rig", "format_version": 1, "params": params}))
     return path
@@ -415,3 +417,99 @@ def test_fit_bias_law_recovers_a_range_bias():
     shift = np.median(got - want)
     assert np.abs(got - want - shift)[:, 5:].max() < 0.01
     assert len(law["bias_range"]) == len(BIAS_RANGE_KNOTS)
+
+
+# ------------------------------------------------------- spurious-prone near cells (issue 12: MAE p_spur)
+def _near_law_cells(seed=0, p_=40, k=60, cut=0.6):
+    """Cells whose bearings 0-19 are always spurious nearer than ``cut``, 20-39 never, 40-59 half the time."""
+    rng = np.random.default_rng(seed)
+    r = rng.uniform(0.2, 3.0, (p_, k))
+    share = np.r_[np.ones(20), np.zeros(20), np.full(20, 0.5)]
+    prone = (r < cut) & (rng.random((p_, k)) < share[None])
+    frac = np.where(prone, rng.uniform(0.8, 1.0, (p_, k)), 0.0)
+    return r, frac, np.ones((p_, k), dtype=bool)
+
+
+def test_fit_spur_near_law_recovers_the_cut_and_the_bearings():
+    from sensor_envs.lidar.calibrate import SPUR_NEAR_CUTS, SPUR_NEAR_PRIORS, fit_spur_near_law
+
+    r, frac, used = _near_law_cells()
+    params, info = fit_spur_near_law(r, frac, used)
+    assert params["spur_near_range"] == info["cut_m"] == 0.6  # the planted cut, among the candidates
+    assert len(info["cv_mse"]) == len(SPUR_NEAR_CUTS) * len(SPUR_NEAR_PRIORS)
+    rate = params["spur_prone"] * np.asarray(params["spur_bearing_weight"])
+    assert rate[:20].min() > 0.85 and rate[20:40].max() < 0.15 and 0.3 < rate[40:].mean() < 0.7
+    assert params["spur_range_knots"] == () and abs(np.mean(rate) - params["spur_prone"]) < 0.05
+    # no spurious cell at all: a law that predicts none (weights 1, share 0), no division by zero
+    params, _ = fit_spur_near_law(r, np.zeros_like(frac), used)
+    assert params["spur_prone"] == 0 and set(params["spur_bearing_weight"]) == {1.0}
+
+
+def test_near_cut_keeps_spurious_cells_near_and_rig_files_without_it_unchanged(tmp_path):
+    quiet = {"pose_sd": (0.0, 0.0), "map_sd": 0.0}
+    near = NeatoRig(spur_prone=0.5, spur_bearing_weight=(1.0,) * 360, spur_near_range=0.7, **quiet)
+    r = np.array([0.3, 0.69, 0.71, 2.0, np.inf, np.nan])
+    assert near.spur_range_factor(r).tolist() == [1, 1, 0, 0, 0, 0] and near.has_spur_range_law()
+    log, truth = near.record(ROOM, np.random.default_rng(3), n_poses=8, repeats=2)
+    from sensor_envs.lidar.lwlr import lidar_features
+
+    rr, _ = lidar_features(truth["true_poses"], near.bearings, ROOM, near.max_range)
+    prone = truth["p_spur"] > 0
+    assert prone[rr < 0.7].mean() > 0.3 and not prone[~(rr < 0.7)].any()
+    assert NeatoRig.from_file(near.to_file(tmp_path / "near.json")).spur_near_range == 0.7
+    assert NeatoRig().spur_near_range == 0 and not NeatoRig().has_spur_range_law()
+    assert NeatoRig.from_file(OLD_RIG).spur_near_range == 0  # files before the cut: no cut
+
+
+@pytest.mark.parametrize("value", [-0.5, float("nan"), "near"])
+def test_bad_near_cut_names_file_and_field(tmp_path, value):
+    with pytest.raises(ModelFileError, match=r"rig\.json.*spur_near_range"):
+        NeatoRig.from_file(_rig_json(tmp_path, spur_near_range=value))
+
+
+def test_bearing_profile_rederives_the_near_law_from_the_given_poses():
+    from sensor_envs.lidar.calibrate import bearing_profile
+
+    truth = NeatoRig(
+        spur_prone=0.3,
+        spur_bearing_weight=tuple(np.r_[np.full(180, 3.0), np.zeros(180)]),
+        spur_near_range=1.0,
+        pose_sd=(0.0, 0.0),
+        map_sd=0.0,
+    )
+    log, _ = truth.record(ROOM, np.random.default_rng(0), n_poses=40, repeats=10)
+    start = dataclasses.replace(truth, spur_bearing_weight=(1.0,) * 360)
+    got = bearing_profile(start, log)
+    w = np.asarray(got.spur_bearing_weight)
+    assert got.spur_prone == start.spur_prone and got.spur_near_range > 0  # the scale is the rig's own
+    assert np.mean(w[:180]) > 5 * max(np.mean(w[180:]), 1e-3)
+
+
+def test_cli_calibrate_spurious_only_keeps_the_other_parameters(tmp_path, capsys):
+    truth = NeatoRig(
+        spur_prone=0.4, spur_near_range=0.8, spur_bearing_weight=tuple(np.r_[np.full(180, 2.0), np.zeros(180)])
+    )
+    log, _ = truth.record(ROOM, np.random.default_rng(1), n_poses=12, repeats=6)
+    real = save_log(log, tmp_path / "real.npz")
+    start = NeatoRig(null_cell_corr=0.9, spur_range_knots=(0.25, 0.75), spur_range_weight=(2.0, 1.0))
+    start_file = start.to_file(tmp_path / "start.json", {"note": "kept"})
+    out = tmp_path / "rig.json"
+    assert main(["calibrate", "lidar", str(real), "--out", str(out), "--spurious-only", str(start_file)]) == 0
+    assert "re-derived" in capsys.readouterr().out
+    got, card = NeatoRig.from_file(out), NeatoRig.card_of(out)
+    changed = {k for k, v in got.params().items() if v != start.params()[k]}
+    assert changed <= {"spur_near_range", "spur_prone", "spur_bearing_weight", "spur_range_knots", "spur_range_weight"}
+    assert got.spur_near_range > 0 and got.spur_range_knots == () and card["note"] == "kept"
+    refit = card["spurious_refit"]
+    assert refit["from_rig"] == str(start_file) and refit["after"]["per_statistic"] == card["after"]["per_statistic"]
+    # bad input: exit 2, one line naming the file, nothing written; an existing output is kept
+    bad = _rig_json(tmp_path / "bad", spur_prone=2.0)  # bad/rig.json
+    out2 = tmp_path / "rig2.json"
+    assert main(["calibrate", "lidar", str(real), "--out", str(out2), "--spurious-only", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "spur_prone" in err and len(err.strip().splitlines()) == 1 and not out2.exists()
+    assert main(["calibrate", "lidar", str(real), "--out", str(out2), "--spurious-only", str(tmp_path / "no")]) == 2
+    assert not out2.exists()
+    before = out.read_bytes()
+    assert main(["calibrate", "lidar", str(real), "--out", str(out), "--spurious-only", str(start_file)]) == 2
+    assert out.read_bytes() == before

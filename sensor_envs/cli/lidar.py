@@ -2,7 +2,7 @@
 
     sensor-envs record lidar --out LOG.npz [--rig RIG.json] [--map NAME] [--poses N] [--repeats R] [--seed S]
         [--unit-seed U]
-    sensor-envs calibrate lidar REAL_DATA --out RIG.json [--seed S] [--max-evals N]
+    sensor-envs calibrate lidar REAL_DATA --out RIG.json [--seed S] [--max-evals N] [--spurious-only RIG]
     sensor-envs fit lidar LOG --out MODEL [--variant seed|extended] [--folds 10] [--seed S] [LOG OPTIONS]
         [--max-range M] [--spur-above M] [--table-range-step M] [--max-readings N] [--cv-block-scans N]
     sensor-envs validate lidar MODEL LOG --out DIR [--card] [LOG OPTIONS]
@@ -59,6 +59,13 @@ def register(verbs: dict[str, argparse._SubParsersAction[OneLineParser]]) -> Non
     cal.add_argument("--seed", type=nonneg_int, default=0, help="seed of the common random numbers (default: 0)")
     cal.add_argument(
         "--max-evals", type=positive_int, default=200, help="most simulations of the search (default: 200)"
+    )
+    cal.add_argument(
+        "--spurious-only",
+        metavar="RIG",
+        default=None,
+        help="no search: RIG (a rig file) with only its spurious-prone law re-derived from REAL_DATA "
+        "(the near-cell law, cut and shrinkage by leave-poses-out CV); its other parameters are kept",
     )
     add_force(cal)
     cal.set_defaults(func=_calibrate)
@@ -143,21 +150,37 @@ def _record(args: argparse.Namespace) -> int:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    from sensor_envs.lidar.calibrate import calibrate_rig, load_real_log
+    from sensor_envs.lidar.calibrate import calibrate_rig, load_real_log, respurious_rig
+    from sensor_envs.lidar.rig import NeatoRig
 
-    check_inputs(args.real_data)
-    out = check_output(args.out, inputs=[args.real_data], force=args.force, suffix=".json")
+    check_inputs(args.real_data, args.spurious_only)
+    out = check_output(args.out, inputs=[args.real_data, args.spurious_only], force=args.force, suffix=".json")
     log = load_real_log(args.real_data)
-    rig, card = calibrate_rig(log, seed=args.seed, max_evals=args.max_evals)
+    if args.spurious_only is not None:
+        start = NeatoRig.from_file(args.spurious_only)
+        rig, card = respurious_rig(
+            log, start, args.spurious_only, seed=args.seed, card=NeatoRig.card_of(args.spurious_only)
+        )
+        b = card["spurious_refit"]["before"]["per_statistic"]
+        before = args.spurious_only
+    else:
+        rig, card = calibrate_rig(log, seed=args.seed, max_evals=args.max_evals)
+        b, before = card["before"]["per_statistic"], "NeatoRig defaults"
     card["command"] = _command()
     with OutputTransaction() as tx:
         rig.to_file(tx.file(out), card)
-    b, a = card["before"]["per_statistic"], card["after"]["per_statistic"]
-    print(f"discrepancy D before (NeatoRig defaults) {b['total']:.4g}, after {a['total']:.4g}")
+    a = card["after"]["per_statistic"]
+    print(f"discrepancy D before ({before}) {b['total']:.4g}, after {a['total']:.4g}")
     for k in b:
         if k != "total":
             print(f"  {k:20s} {b[k]:10.4g} -> {a[k]:10.4g}")
-    print(f"wrote {out} ({card['search']['evaluations']} simulations, {card['search']['seconds']} s)")
+    law = card["spurious_law"] if args.spurious_only is None else card["spurious_refit"]["law"]
+    cut, prior = law["cut_m"], law["prior_cells"]
+    print(f"spurious-prone law: cells nearer than {cut:g} m, per-bearing shares shrunk by {prior:g} cells")
+    if args.spurious_only is None:
+        print(f"wrote {out} ({card['search']['evaluations']} simulations, {card['search']['seconds']} s)")
+    else:
+        print(f"wrote {out} (spurious-prone law of {args.spurious_only} re-derived, no search)")
     return 0
 
 

@@ -54,6 +54,12 @@ Effects off by default, set by a calibrated rig file (``sensor-envs calibrate li
 * ``spur_range_knots`` / ``spur_range_weight``: a piecewise-linear factor [m -> 1] on the probability
   that a cell is spurious-prone, by its true range (the real spurious cells are all within 1 m; range
   ``inf``, no hit, takes the last weight);
+* ``spur_near_range``: the spurious-prone cells lie nearer than this true range [m] (0: no cut). The real
+  unit's spurious cells are all within 0.7 m but four of 329, and at a given bearing they are nearly all or none
+  of the near cells (a per-bearing rate on the near cells, chosen by leave-poses-out CV, predicts the real
+  held-out cells' spurious fractions as well as a model fitted on the real readings; a rate spread over
+  0.5 m range bins does not); with it, ``spur_bearing_weight`` is that per-bearing rate over
+  ``spur_prone`` (:func:`sensor_envs.lidar.calibrate.fit_spur_near_law`);
 * ``pose_sd_spread``: the pose error's standard deviations ``pose_sd`` are multiplied per pose by
   ``exp(pose_sd_spread * z)``, ``z`` a standard normal per pose (a log-normal scale mixture: the real
   poses are either precise or clearly off; median per-pose mean |cell mean - nominal| 0.03 m, 10 %
@@ -146,6 +152,7 @@ RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
     "null_bearing_range_slope": [Numbers(Interval(-50, 50), min_length=0)],
     "spur_range_knots": [Numbers(_NONNEG, min_length=0, increasing=True)],
     "spur_range_weight": [Numbers(Interval(0, 1e4), min_length=0)],
+    "spur_near_range": [_NONNEG],
     "pose_sd_spread": [Interval(0, 5)],
     "bias_range_knots": [Numbers(_NONNEG, min_length=0, increasing=True)],
     "bias_range": [Numbers(Interval(-1, 1), min_length=0)],
@@ -229,6 +236,7 @@ class NeatoRig:
     null_bearing_range_slope: tuple[float, ...] = ()
     spur_range_knots: tuple[float, ...] = ()
     spur_range_weight: tuple[float, ...] = ()
+    spur_near_range: float = 0.0
     pose_sd_spread: float = 0.0
     out_cell_rate: float = 0.0
     out_cell_arc: float = 0.0
@@ -332,12 +340,25 @@ class NeatoRig:
             return np.where(self.blocked_mask(), 0.0, np.minimum(self.spur_prone * w, 1.0))
         return np.asarray(self.near_posts() * self.spur_prone, dtype=np.float64)
 
+    def has_spur_range_law(self) -> bool:
+        """True when the spurious-prone probability depends on the range (a table or a near-range cut)."""
+        return bool(self.spur_range_knots) or self.spur_near_range > 0
+
     def spur_range_factor(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Factor [1] on the spurious-prone probability of a cell at true range ``r`` [m] (1 without a table)."""
-        if not self.spur_range_knots:
-            return np.ones(np.shape(r))
-        rr = np.where(np.isnan(r), np.inf, r)
-        return np.interp(np.minimum(rr, 1e9), self.spur_range_knots, self.spur_range_weight)
+        """Factor [1] on the spurious-prone probability of a cell at true range ``r`` [m].
+
+        The table ``spur_range_knots -> spur_range_weight`` (1 without one), times 0 at ``r >= spur_near_range``
+        when that cut is set; no hit (``inf`` / NaN) counts as infinitely far.
+        """
+        rr = np.minimum(np.where(np.isnan(r), np.inf, r), 1e9)
+        out = (
+            np.interp(rr, self.spur_range_knots, self.spur_range_weight)
+            if self.spur_range_knots
+            else np.ones(np.shape(r))
+        )
+        if self.spur_near_range > 0:
+            out = np.where(rr < self.spur_near_range, out, 0.0)
+        return out
 
     def bias_shape(self, r: NDArray[np.float64], alpha: NDArray[np.float64]) -> NDArray[np.float64]:
         """Range bias [m] shared by all bearings at true range ``r`` [m] and incidence ``alpha`` [rad] (tables)."""
@@ -439,7 +460,7 @@ class NeatoRig:
         """
         r = np.asarray(nominal_range, float)
         p_spur = self.spur_prone_per_bearing() * float(np.mean(self.spur_frac))
-        if self.spur_range_knots:
+        if self.has_spur_range_law():
             p_spur = np.minimum(p_spur * self.spur_range_factor(r), 1.0)
         a = np.asarray(incidence, float)
         pn = self.cell_p_null(r, a, rng) if self.null_cell_corr > 0 else None
@@ -484,7 +505,7 @@ class NeatoRig:
             r = np.where(np.isfinite(r) & (z < ndtri(self.out_cell_rate)), far, r)
         unit = np.random.default_rng([self.unit_seed, 2])  # prone cells belong to the unit and the place
         prone_p = self.spur_prone_per_bearing()[None]
-        if self.spur_range_knots:
+        if self.has_spur_range_law():
             prone_p = np.minimum(prone_p * self.spur_range_factor(r), 1.0)
         prone = rng.random(r.shape) < prone_p
         p_spur = np.where(prone, unit.uniform(*self.spur_frac, r.shape), 0.0)
