@@ -1122,6 +1122,45 @@ CASES += [
 ]
 
 
+LRIG = "lidar rig file"
+
+
+def _calibrate_lidar_spurious_only(d: Path, params: dict) -> tuple[list[str], str]:
+    """``calibrate lidar LOG --spurious-only RIG`` with a rig file of ``params`` and a valid static-pose log."""
+    rig = d / "neato_rig.json"
+    rig.write_text(json.dumps({"kind": "neato_rig", "format_version": 1, "params": params}))
+    argv = ["calibrate", "lidar", str(lidar_npz(d)), "--out", str(d / "out.json"), "--spurious-only", str(rig)]
+    return argv, str(rig)
+
+
+CASES += [
+    C(
+        LRIG,
+        "spur-near-range-negative",
+        lambda d: _calibrate_lidar_spurious_only(d, {"spur_near_range": -0.5}),
+        "'params.spur_near_range'",
+    ),
+    C(
+        LRIG,
+        "spur-near-range-nan",
+        lambda d: _calibrate_lidar_spurious_only(d, {"spur_near_range": float("nan")}),
+        "'params.spur_near_range'",
+    ),
+    C(
+        LRIG,
+        "spur-prone-above-1",
+        lambda d: _calibrate_lidar_spurious_only(d, {"spur_prone": 1.5}),
+        "'params.spur_prone'",
+    ),
+    C(
+        LRIG,
+        "spur-bearing-weight-wrong-length",
+        lambda d: _calibrate_lidar_spurious_only(d, {"spur_bearing_weight": [1.0, 2.0]}),
+        "spur_bearing_weight",
+    ),
+]
+
+
 @pytest.mark.parametrize("case", CASES, ids=[f"{c.cls.split()[0]}-{c.id}" for c in CASES])
 def test_bad_input_ends_in_one_line_and_exit_2_and_touches_nothing(case: Case, tmp_path: Path, capsys) -> None:
     argv, names = case.make(tmp_path)
@@ -1144,4 +1183,4 @@ def test_bad_input_ends_in_one_line_and_exit_2_and_touches_nothing(case: Case, t
 def test_the_suite_covers_more_than_100_bad_inputs_of_every_class() -> None:
     classes = {c.cls for c in CASES}
     assert len(CASES) >= 100
-    assert classes == {RADAR, KDE, GAUSS, LMODEL, LNPZ, CARMEN, BAG, MAP, ASTYX, OPTION, OUTPUT, RIG}
+    assert classes == {RADAR, KDE, GAUSS, LMODEL, LNPZ, CARMEN, BAG, MAP, ASTYX, OPTION, OUTPUT, RIG, LRIG}
