@@ -1153,6 +1153,12 @@ CASES += [
         "'params.spur_prone'",
     ),
     C(
+        OPTION,
+        "calibrate-lidar-max-evals-with-spurious-only",
+        lambda d: (_calibrate_lidar_spurious_only(d, {})[0] + ["--max-evals", "50"], "--max-evals"),
+        "no search",
+    ),
+    C(
         LRIG,
         "spur-bearing-weight-wrong-length",
         lambda d: _calibrate_lidar_spurious_only(d, {"spur_bearing_weight": [1.0, 2.0]}),

@@ -58,7 +58,7 @@ def register(verbs: dict[str, argparse._SubParsersAction[OneLineParser]]) -> Non
     cal.add_argument("--out", required=True, help="output rig file (.json)")
     cal.add_argument("--seed", type=nonneg_int, default=0, help="seed of the common random numbers (default: 0)")
     cal.add_argument(
-        "--max-evals", type=positive_int, default=200, help="most simulations of the search (default: 200)"
+        "--max-evals", type=positive_int, default=None, help="most simulations of the search (default: 200)"
     )
     cal.add_argument(
         "--spurious-only",
@@ -153,6 +153,8 @@ def _calibrate(args: argparse.Namespace) -> int:
     from sensor_envs.lidar.calibrate import calibrate_rig, load_real_log, respurious_rig
     from sensor_envs.lidar.rig import NeatoRig
 
+    if args.spurious_only is not None and args.max_evals is not None:
+        raise ValueError("--max-evals: --spurious-only runs no search; give one or the other")
     check_inputs(args.real_data, args.spurious_only)
     out = check_output(args.out, inputs=[args.real_data, args.spurious_only], force=args.force, suffix=".json")
     log = load_real_log(args.real_data)
@@ -164,7 +166,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         b = card["spurious_refit"]["before"]["per_statistic"]
         before = args.spurious_only
     else:
-        rig, card = calibrate_rig(log, seed=args.seed, max_evals=args.max_evals)
+        rig, card = calibrate_rig(log, seed=args.seed, max_evals=args.max_evals or 200)
         b, before = card["before"]["per_statistic"], "NeatoRig defaults"
     card["command"] = _command()
     with OutputTransaction() as tx:
