@@ -633,20 +633,22 @@ def fit_spur_near_law(
         ``(params, info)``: the rig parameters (``spur_near_range``, ``spur_bearing_weight`` = rate / pooled,
         ``spur_prone`` = pooled share, no range table) and the choice (cut, prior, CV MSE per candidate).
     """
-    prone = np.nan_to_num(p_spur) > SPUR_PRONE_CELL
+    ps = np.nan_to_num(p_spur)
+    prone = ps > SPUR_PRONE_CELL
     poses = np.flatnonzero(used.any(1))
     fold = np.full(used.shape[0], -1)
     fold[poses] = fold_ids(poses.size, min(SPUR_NEAR_CV_FOLDS, max(poses.size, 1)), random_state=0)
+    splits = []  # per fold: training cells, held-out cells, mean spurious fraction of the training prone cells
+    for f in range(int(fold.max()) + 1):
+        tr, te = used & (fold != f)[:, None], used & (fold == f)[:, None]
+        splits.append((tr, te, float(ps[tr & prone].mean()) if (tr & prone).any() else 0.0))
     mse: dict[tuple[float, float], float] = {}
     for cut in SPUR_NEAR_CUTS:
         for prior in SPUR_NEAR_PRIORS:
-            err = []
-            for f in range(int(fold.max()) + 1):
-                tr, te = used & (fold != f)[:, None], used & (fold == f)[:, None]
-                rate, _ = _near_rates(r, prone, tr, cut, prior)
-                frac = float(p_spur[tr & prone].mean()) if (tr & prone).any() else 0.0
-                pred = np.where(r < cut, rate[None] * frac, 0.0)
-                err.append((pred - np.nan_to_num(p_spur))[te])
+            err = [
+                (np.where(r < cut, _near_rates(r, prone, tr, cut, prior)[0][None] * frac, 0.0) - ps)[te]
+                for tr, te, frac in splits
+            ]
             e = np.concatenate(err) if err else np.zeros(0)
             mse[(cut, prior)] = float(np.mean(e**2)) if e.size else 0.0
     cut, prior = min(mse, key=lambda c: (mse[c], -c[1]))
@@ -697,15 +699,9 @@ def bearing_profile(rig: NeatoRig, log: LidarLog) -> NeatoRig:
     blocked = np.zeros(log.n_bearings, dtype=bool)
     blocked[stats["blocked"]] = True
     hit = np.isfinite(r) & ~blocked[None]
+    st = cell_statistics(log, 6.0, split_spurious=True)
     extra: dict[str, Any] = {}
-    if rig.spur_near_range > 0:
-        st = cell_statistics(log, 6.0, split_spurious=True)
-        extra = _null_law_params(r, a, hit & (st["n"] > 0), st["p_null"])
-        near = fit_spur_near_law(r, st["p_spur"], hit & (st["n"] > 0))[0]
-        near.pop("spur_prone")  # the rig's own scale; these poses give the per-bearing shares
-        return dataclasses.replace(rig, **extra, **near)
     if rig.null_range_knots or rig.null_incidence_knots:
-        st = cell_statistics(log, 6.0, split_spurious=True)
         extra = _null_law_params(r, a, hit & (st["n"] > 0), st["p_null"])
         if rig.spur_range_knots:
             extra.update(_spur_range(stats))
@@ -713,7 +709,12 @@ def bearing_profile(rig: NeatoRig, log: LidarLog) -> NeatoRig:
         target = np.asarray(stats["p_null_bearing"], dtype=np.float64)
         c0, off = _null_offsets(rig.null_shape(r, a), hit, target)
         extra = {"null_logit": (round(c0, 4), rig.null_logit[1], rig.null_logit[2]), "null_bearing_logit": off}
-    return dataclasses.replace(rig, spur_bearing_weight=_spur_weights(stats), **extra)
+    if rig.spur_near_range > 0:
+        extra.update(fit_spur_near_law(r, st["p_spur"], hit & (st["n"] > 0))[0])
+        extra.pop("spur_prone")  # the rig's own scale; these poses give the per-bearing shares
+    else:
+        extra["spur_bearing_weight"] = _spur_weights(stats)
+    return dataclasses.replace(rig, **extra)
 
 
 class _Problem:
@@ -783,14 +784,24 @@ class _Problem:
 
     def evaluate(self, rig: NeatoRig, seed: int | None = None) -> tuple[dict[str, float], dict[str, Any]]:
         """Discrepancy terms and statistics of ``rig`` recorded at the real poses (seed: the CRN seed)."""
-        log, _ = rig.record(
-            self.log.require_map(),
-            np.random.default_rng(self.seed if seed is None else seed),
-            poses=self.log.poses,
-            repeats=self.log.ranges.shape[2],
-        )
-        stats = log_summary(log, rig.max_range)
-        return discrepancy(stats, self.real), stats
+        return recorded_discrepancy(rig, self.log, self.real, self.seed if seed is None else seed)
+
+
+def recorded_discrepancy(
+    rig: NeatoRig, real_log: LidarLog, real: dict[str, Any], seed: int
+) -> tuple[dict[str, float], dict[str, Any]]:
+    """Discrepancy terms (vs the real statistics ``real``) and statistics of ``rig`` recorded at the real poses.
+
+    ``seed`` seeds the recording (common random numbers: the same seed, the same draws for every rig).
+    """
+    log, _ = rig.record(
+        real_log.require_map(),
+        np.random.default_rng(seed),
+        poses=real_log.poses,
+        repeats=real_log.ranges.shape[2],
+    )
+    stats = log_summary(log, rig.max_range)
+    return discrepancy(stats, real), stats
 
 
 SIGMA_REFINE_STEPS = 4
@@ -975,11 +986,10 @@ def respurious_rig(
         rig and a ``spurious_refit`` entry (the law's choice, the discrepancy before and after it).
     """
     real = log_summary(real_log, rig.max_range)
-    prob = _Problem(real_log, real, seed, rig)
-    before, _ = prob.evaluate(rig)
+    before, _ = recorded_discrepancy(rig, real_log, real, seed)
     new, law = with_spur_near_law(rig, real_log)
-    after, after_stats = prob.evaluate(new)
-    fresh, _ = prob.evaluate(new, seed=seed + 1)
+    after, after_stats = recorded_discrepancy(new, real_log, real, seed)
+    fresh, _ = recorded_discrepancy(new, real_log, real, seed + 1)
     out = dict(card or {})
     out.update(
         {
