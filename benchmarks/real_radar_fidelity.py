@@ -51,7 +51,10 @@ folds (every row is tested once): detection rate per corner-range and per corner
 (model: its detection probability; real: the measured share), NLL of outcomes and of ``z`` given a
 detection [nats] (mean over rows; per-fold means in the JSON), energy distance [m] between
 simulated and real detected ``z`` per corner-range bin. Targets (issue 12): detection rates within
-0.05 of the real per bin; other metrics within 15 % of the real-fitted KDE.
+0.05 per bin; other metrics within 15 % of the real-fitted KDE. The detection target is counted both
+ways the issue can be read: against the measured share of the test rows (``det_bins_within_0.05``; the
+real-fitted KDE itself misses two azimuth bins so) and against the real-fitted KDE, the comparator of
+every other metric (``det_bins_within_0.05_of_real_fitted``).
 
 **The energy distance's estimator** (since 2026-11-25): the U-statistic (unbiased) between EVERY
 chain's draw (``--chains`` per row, up to 4,000 per bin; a model without ``z_{t-1}`` draws as many
@@ -414,12 +417,16 @@ def targets(row: dict, real: dict, ref: dict) -> dict[str, Any]:
     """Worst gaps to the targets: detection |model - real| per bin, metric ratio to the real-fitted KDE."""
     gaps = [abs(a - b) for k in ("det_range", "det_azimuth") for a, b in zip(row[k], real[k], strict=True)
             if a is not None and b is not None]  # fmt: skip
+    ref_gaps = [abs(a - b) for k in ("det_range", "det_azimuth") for a, b in zip(row[k], ref[k], strict=True)
+                if a is not None and b is not None]  # fmt: skip
     inside = [lo <= a <= hi for k in ("det_range", "det_azimuth") for a, (lo, hi) in zip(row[k], real[f"{k}_ci"],
               strict=True) if a is not None]  # fmt: skip
     out: dict[str, Any] = {
         "max_det_gap": max(gaps),
         "det_bins_within_0.05": f"{sum(g <= 0.05 for g in gaps)}/{len(gaps)}",
         "det_bins_within_block_ci": f"{sum(inside)}/{len(inside)}",
+        "max_det_gap_to_real_fitted": max(ref_gaps),
+        "det_bins_within_0.05_of_real_fitted": f"{sum(g <= 0.05 for g in ref_gaps)}/{len(ref_gaps)}",
     }
     for k in ("nll_outcome", "nll_z_given_detected"):
         out[f"{k}_rel"] = None if row[k] is None else (row[k] - ref[k]) / abs(ref[k])
@@ -480,6 +487,9 @@ def markdown(rep: dict) -> str:
         lines.append(f"| {lab} | | " + " | ".join(tg[k][key] for k in names) + " |")
     cells = [f"{fmt(tg[k]['max_det_gap'])} ({tg[k]['det_bins_within_0.05']})" for k in names]
     lines.append("| max detection gap (bins within 0.05) | | " + " | ".join(cells) + " |")
+    cells = [f"{fmt(tg[k]['max_det_gap_to_real_fitted'])} ({tg[k]['det_bins_within_0.05_of_real_fitted']})"
+             for k in names]  # fmt: skip
+    lines.append("| max detection gap to the real-fitted KDE (bins within 0.05) | | " + " | ".join(cells) + " |")
     cells = [tg[k]["det_bins_within_block_ci"] for k in names]
     lines.append("| det. bins inside the real share's 95 % block-bootstrap interval | | " + " | ".join(cells) + " |")
     for key, lab in (("nll_outcome_rel", "NLL outcomes vs real-fitted"),
