@@ -415,10 +415,12 @@ def fmt(v: Any, nd: int = 3) -> str:
 
 def targets(row: dict, real: dict, ref: dict) -> dict[str, Any]:
     """Worst gaps to the targets: detection |model - real| per bin, metric ratio to the real-fitted KDE."""
-    gaps = [abs(a - b) for k in ("det_range", "det_azimuth") for a, b in zip(row[k], real[k], strict=True)
-            if a is not None and b is not None]  # fmt: skip
-    ref_gaps = [abs(a - b) for k in ("det_range", "det_azimuth") for a, b in zip(row[k], ref[k], strict=True)
+
+    def det_gaps(other: dict) -> list[float]:  # |model - other| per detection bin (range, then azimuth)
+        return [abs(a - b) for k in ("det_range", "det_azimuth") for a, b in zip(row[k], other[k], strict=True)
                 if a is not None and b is not None]  # fmt: skip
+
+    gaps, ref_gaps = det_gaps(real), det_gaps(ref)
     inside = [lo <= a <= hi for k in ("det_range", "det_azimuth") for a, (lo, hi) in zip(row[k], real[f"{k}_ci"],
               strict=True) if a is not None]  # fmt: skip
     out: dict[str, Any] = {

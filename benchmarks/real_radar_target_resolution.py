@@ -70,26 +70,25 @@ def half_split(train_blocks: NDArray, rng: np.random.Generator) -> NDArray[np.bo
     return np.isin(train_blocks, pick)
 
 
-def bin_energy(draws: NDArray, corner: NDArray, z: NDArray) -> list[float]:
+def bin_masks(corner: NDArray) -> tuple[list[NDArray], list[NDArray]]:
+    """Row masks of the fidelity benchmark's bins: per corner-range bin (``RANGE_BINS`` [m]), per azimuth bin
+    (``DET_AZIMUTH_EDGES`` [rad], sensor frame x forward / y left)."""
+
+    def masks(v: NDArray, edges: NDArray | tuple[float, ...]) -> list[NDArray]:
+        return [(v >= lo) & (v < hi) for lo, hi in zip(edges[:-1], edges[1:], strict=True)]
+
+    r, az = np.hypot(corner[:, 0], corner[:, 1]), np.arctan2(corner[:, 1], corner[:, 0])
+    return masks(r, RANGE_BINS), masks(az, DET_AZIMUTH_EDGES)
+
+
+def bin_energy(draws: NDArray, z: NDArray, range_masks: list[NDArray]) -> list[float]:
     """U-statistic energy distance [m] of ``draws (n, m, 2)`` against the real ``z (n, 2)`` per range bin."""
-    r = np.hypot(corner[:, 0], corner[:, 1])
-    out = []
-    for lo, hi in zip(RANGE_BINS[:-1], RANGE_BINS[1:], strict=True):
-        s = (r >= lo) & (r < hi)
-        out.append(float(weighted_energy(row_energy_terms(draws[s], z[s]), np.ones(int(s.sum())))[0]))
-    return out
+    return [float(weighted_energy(row_energy_terms(draws[s], z[s]), np.ones(int(s.sum())))[0]) for s in range_masks]
 
 
-def bin_detection(p_det: NDArray, corner: NDArray) -> list[float]:
-    """Mean detection probability per range bin, then per azimuth bin (the fidelity benchmark's 12 bins)."""
-    r = np.hypot(corner[:, 0], corner[:, 1])
-    az = np.arctan2(corner[:, 1], corner[:, 0])
-    out = []
-    for v, edges in ((r, RANGE_BINS), (az, DET_AZIMUTH_EDGES)):
-        for lo, hi in zip(edges[:-1], edges[1:], strict=True):
-            s = (v >= lo) & (v < hi)
-            out.append(float(p_det[s].mean()) if s.any() else float("nan"))
-    return out
+def bin_detection(p_det: NDArray, masks: list[NDArray]) -> list[float]:
+    """Mean detection probability per bin of ``masks`` (NaN: an empty bin)."""
+    return [float(p_det[s].mean()) if s.any() else float("nan") for s in masks]
 
 
 def ratio(a: float, b: float) -> float:
@@ -237,31 +236,27 @@ def main() -> None:
         zs.append(tt.z)
     bar.close()
     corner, z = np.concatenate(corners), np.concatenate(zs)
+    range_masks, az_masks = bin_masks(corner)
+    det_masks = range_masks + az_masks  # the 12 detection bins: range, then azimuth
 
     def pooled(parts: list[dict], key: str) -> NDArray:
         return np.concatenate([p[key] for p in parts])
 
-    e_draws = {n: [bin_energy(pooled(p, "samples"), corner, z) for p in per_seed] for n, per_seed in fixed.items()}
+    e_draws = {n: [bin_energy(pooled(p, "samples"), z, range_masks) for p in per_seed] for n, per_seed in fixed.items()}
     e_fixed = {name: np.mean(e, axis=0).tolist() for name, e in e_draws.items()}  # the model's expected distance
-    d_fixed = {name: bin_detection(pooled(per_seed[0], "p_det"), corner) for name, per_seed in fixed.items()}
-    e_half = {h: [bin_energy(pooled(halves[h][r], "samples"), corner, z) for r in range(args.splits)] for h in "AB"}
-    d_half = {h: [bin_detection(pooled(halves[h][r], "p_det"), corner) for r in range(args.splits)] for h in "AB"}
-    n_bins = len(RANGE_BINS) - 1
+    d_fixed = {name: bin_detection(pooled(per_seed[0], "p_det"), det_masks) for name, per_seed in fixed.items()}
+    e_half = {h: [bin_energy(pooled(part, "samples"), z, range_masks) for part in halves[h]] for h in "AB"}
+    d_half = {h: [bin_detection(pooled(part, "p_det"), det_masks) for part in halves[h]] for h in "AB"}
     energy: dict[str, list[dict[str, Any]]] = {"same_kind": [], "shipped": [], "gaussian": []}
-    raw: dict[str, list[list[float]]] = {"A": e_half["A"], "B": e_half["B"]}
-    for j in range(n_bins):  # one iteration per range bin
+    for j in range(len(range_masks)):  # one iteration per range bin
         ea, eb = [e[j] for e in e_half["A"]], [e[j] for e in e_half["B"]]
         energy["same_kind"].append(summary([ratio(a, b) for a, b in zip(ea, eb, strict=True)]
                                            + [ratio(b, a) for a, b in zip(ea, eb, strict=True)]))  # fmt: skip
         for name in ("shipped", "gaussian"):
             energy[name].append(summary([ratio(e_fixed[name][j], h) for h in ea + eb]))
-    r_all = np.hypot(corner[:, 0], corner[:, 1])
-    az_all = np.arctan2(corner[:, 1], corner[:, 0])
     det = np.isfinite(z[:, 0])
-    real_share = bin_detection(det.astype(np.float64), corner)
-    n_rows = [int(((r_all >= lo) & (r_all < hi)).sum()) for lo, hi in zip(RANGE_BINS[:-1], RANGE_BINS[1:], strict=True)]
-    n_rows += [int(((az_all >= lo) & (az_all < hi)).sum())
-               for lo, hi in zip(DET_AZIMUTH_EDGES[:-1], DET_AZIMUTH_EDGES[1:], strict=True)]  # fmt: skip
+    real_share = bin_detection(det.astype(np.float64), det_masks)
+    n_rows = [int(s.sum()) for s in det_masks]
     pa, pb = np.array(d_half["A"]), np.array(d_half["B"])  # (splits, bins)
     ab = np.abs(pa - pb)
     a_real = np.abs(np.concatenate([pa, pb]) - np.array(real_share))
@@ -283,10 +278,7 @@ def main() -> None:
         "model": str(args.model),
         "gaussian": str(args.gaussian),
         "n_rows": int(corner.shape[0]),
-        "n_detected_range": [
-            int(((r_all >= lo) & (r_all < hi) & det).sum())
-            for lo, hi in zip(RANGE_BINS[:-1], RANGE_BINS[1:], strict=True)
-        ],  # fmt: skip
+        "n_detected_range": [int((s & det).sum()) for s in range_masks],
         "splits": args.splits,
         "folds": args.folds,
         "chains": args.chains,
@@ -298,7 +290,7 @@ def main() -> None:
         "draw_seeds": args.draw_seeds,
         "energy_fixed": e_fixed,
         "energy_fixed_per_draw_seed": e_draws,
-        "energy_half": raw,
+        "energy_half": e_half,
         "detection": detection,
         "seconds": round(time.perf_counter() - t0, 1),
     }

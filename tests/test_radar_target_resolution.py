@@ -80,7 +80,8 @@ def test_bin_energy_is_near_zero_for_the_same_law_and_grows_with_a_shift(resolut
     n = 300
     corner = np.column_stack([np.full(n, 20.0), np.zeros(n)])  # all rows in the 15-30 m bin
     z = rng.normal(0, 0.5, (n, 2))
-    same = resolution.bin_energy(rng.normal(0, 0.5, (n, 4, 2)), corner, z)
-    shifted = resolution.bin_energy(rng.normal(0, 0.5, (n, 4, 2)) + [0.5, 0.0], corner, z)
+    range_masks, _ = resolution.bin_masks(corner)
+    same = resolution.bin_energy(rng.normal(0, 0.5, (n, 4, 2)), z, range_masks)
+    shifted = resolution.bin_energy(rng.normal(0, 0.5, (n, 4, 2)) + [0.5, 0.0], z, range_masks)
     assert abs(same[1]) < 0.01 < shifted[1]
     assert np.isnan(same[0])  # an empty bin has no distance
