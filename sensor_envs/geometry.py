@@ -20,6 +20,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sensor_envs.inputs import InputError
 from sensor_envs.jit import compiled
 from sensor_envs.trig import acos_unit
 
@@ -68,16 +69,16 @@ def as_segments(segments: ArrayLike, *, name: str = "segments") -> NDArray[np.fl
     if arr.ndim == 2 and arr.shape[1] == 4:
         arr = arr.reshape(-1, 2, 2)
     if arr.ndim != 3 or arr.shape[1:] != (2, 2):
-        raise ValueError(f"{name}: expected shape (M, 2, 2) or (M, 4), got {arr.shape}")
+        raise InputError(f"{name}: expected shape (M, 2, 2) or (M, 4), got {arr.shape}")
     if arr.shape[0] == 0:
-        raise ValueError(f"{name}: the map has no segments")
+        raise InputError(f"{name}: the map has no segments")
     bad = ~np.isfinite(arr).all(axis=(1, 2))
     if bad.any():
-        raise ValueError(f"{name}: segment {int(np.flatnonzero(bad)[0])} has a NaN or infinite coordinate")
+        raise InputError(f"{name}: segment {int(np.flatnonzero(bad)[0])} has a NaN or infinite coordinate")
     length = np.linalg.norm(arr[:, 1] - arr[:, 0], axis=1)
     zero = length <= 1e-12
     if zero.any():
-        raise ValueError(f"{name}: segment {int(np.flatnonzero(zero)[0])} has zero length")
+        raise InputError(f"{name}: segment {int(np.flatnonzero(zero)[0])} has zero length")
     return arr
 
 
@@ -444,7 +445,7 @@ def sample_free_poses(
         if len(out) >= n:
             xy = np.asarray(out[:n])
             return np.column_stack([xy, rng.uniform(-np.pi, np.pi, n)])
-    raise ValueError(f"map: found only {len(out)} of {n} free poses (clearance {clearance} m)")
+    raise InputError(f"map: found only {len(out)} of {n} free poses (clearance {clearance} m)")
 
 
 def rectangle_corners(

@@ -27,6 +27,7 @@ import yaml
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, from_frame
+from sensor_envs.inputs import InputError
 
 __all__ = ["SegmentMap", "load_map", "BUILTIN_MAPS", "read_ros_map", "occupancy_to_segments"]
 
@@ -103,7 +104,7 @@ def load_map(spec: str | os.PathLike[str] | ArrayLike | SegmentMap) -> SegmentMa
     if isinstance(spec, (str, os.PathLike)):
         path = Path(spec)
         if not path.is_file():
-            raise ValueError(f"map: {str(spec)!r} is neither a built-in map {sorted(BUILTIN_MAPS)} nor a readable file")
+            raise InputError(f"map: {str(spec)!r} is neither a built-in map {sorted(BUILTIN_MAPS)} nor a readable file")
         return _load_map_file(path)
     return SegmentMap(as_segments(spec, name="map"), name="array")
 
@@ -112,17 +113,17 @@ def _load_map_file(path: Path) -> SegmentMap:
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: cannot read map file ({exc})") from exc
+        raise InputError(f"{path}: cannot read map file ({exc})") from exc
     suffix = path.suffix.lower()
     if suffix in (".json", ".yaml", ".yml"):
         try:
             doc = json.loads(text) if suffix == ".json" else yaml.safe_load(text)
         except (json.JSONDecodeError, yaml.YAMLError) as exc:
-            raise ValueError(f"{path}: not valid {suffix[1:].upper()} ({exc})") from exc
+            raise InputError(f"{path}: not valid {suffix[1:].upper()} ({exc})") from exc
         if isinstance(doc, dict) and "image" in doc:
             return read_ros_map(path)
         if not isinstance(doc, dict) or "segments" not in doc:
-            raise ValueError(f"{path}: expected a mapping with a 'segments' list (or a ROS map_server 'image' key)")
+            raise InputError(f"{path}: expected a mapping with a 'segments' list (or a ROS map_server 'image' key)")
         rows = _segment_rows(doc["segments"], path)
         return SegmentMap(as_segments(rows, name=f"{path}: field 'segments'"), name=str(doc.get("name", path.stem)))
     text_rows: list[list[float]] = []
@@ -134,12 +135,12 @@ def _load_map_file(path: Path) -> SegmentMap:
         try:
             vals = [float(p) for p in parts]
         except ValueError:
-            raise ValueError(f"{path}:{lineno}: expected four numbers 'x1 y1 x2 y2', got {line!r}") from None
+            raise InputError(f"{path}:{lineno}: expected four numbers 'x1 y1 x2 y2', got {line!r}") from None
         if len(vals) != 4:
-            raise ValueError(f"{path}:{lineno}: expected four numbers 'x1 y1 x2 y2', got {len(vals)}")
+            raise InputError(f"{path}:{lineno}: expected four numbers 'x1 y1 x2 y2', got {len(vals)}")
         text_rows.append(vals)
     if not text_rows:
-        raise ValueError(f"{path}: the map has no segments")
+        raise InputError(f"{path}: the map has no segments")
     return SegmentMap(as_segments(text_rows, name=str(path)), name=path.stem)
 
 
@@ -147,9 +148,9 @@ def _segment_rows(raw: Any, path: Path) -> NDArray[np.float64]:
     try:
         arr = np.asarray(raw, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: field 'segments' must be a list of [x1, y1, x2, y2] numbers ({exc})") from None
+        raise InputError(f"{path}: field 'segments' must be a list of [x1, y1, x2, y2] numbers ({exc})") from None
     if arr.size == 0:
-        raise ValueError(f"{path}: field 'segments': the map has no segments")
+        raise InputError(f"{path}: field 'segments': the map has no segments")
     return arr
 
 
@@ -163,25 +164,25 @@ def read_ros_map(yaml_path: str | os.PathLike[str]) -> SegmentMap:
     try:
         meta = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (OSError, yaml.YAMLError) as exc:
-        raise ValueError(f"{path}: cannot read ROS map YAML ({exc})") from exc
+        raise InputError(f"{path}: cannot read ROS map YAML ({exc})") from exc
     for key in ("image", "resolution", "origin"):
         if not isinstance(meta, dict) or key not in meta:
-            raise ValueError(f"{path}: field {key!r} is missing (not a ROS map_server YAML)")
+            raise InputError(f"{path}: field {key!r} is missing (not a ROS map_server YAML)")
     res = _yaml_number(meta, "resolution", path)
     if not res > 0:
-        raise ValueError(f"{path}: field 'resolution' must be > 0, got {res}")
+        raise InputError(f"{path}: field 'resolution' must be > 0, got {res}")
     try:
         origin = np.asarray(meta["origin"], dtype=np.float64)
     except (TypeError, ValueError):
         origin = np.zeros(0)
     if origin.shape != (3,) or not np.isfinite(origin).all():
-        raise ValueError(f"{path}: field 'origin' must be [x, y, yaw], got {meta['origin']!r}")
+        raise InputError(f"{path}: field 'origin' must be [x, y, yaw], got {meta['origin']!r}")
     thresh = _yaml_number(meta, "occupied_thresh", path, 0.65)
     if not 0.0 <= thresh <= 1.0:
-        raise ValueError(f"{path}: field 'occupied_thresh' must be a probability in [0, 1], got {thresh}")
+        raise InputError(f"{path}: field 'occupied_thresh' must be a probability in [0, 1], got {thresh}")
     negate = _yaml_number(meta, "negate", path, 0)
     if negate not in (0, 1):
-        raise ValueError(f"{path}: field 'negate' must be 0 or 1, got {meta['negate']!r}")
+        raise InputError(f"{path}: field 'negate' must be 0 or 1, got {meta['negate']!r}")
     img = _read_image(path.parent / str(meta["image"]), path)
     p = img / 255.0 if negate else (255.0 - img) / 255.0
     occupied = p > thresh
@@ -197,7 +198,7 @@ def _yaml_number(meta: dict[str, Any], key: str, path: Path, default: float | No
     except (TypeError, ValueError):
         v = float("nan")
     if not np.isfinite(v):
-        raise ValueError(f"{path}: field {key!r} must be a finite number, got {value!r}")
+        raise InputError(f"{path}: field {key!r} must be a finite number, got {value!r}")
     return v
 
 
@@ -205,7 +206,7 @@ def _read_image(img_path: Path, yaml_path: Path) -> NDArray[np.float64]:
     try:
         raw = img_path.read_bytes()
     except OSError as exc:
-        raise ValueError(f"{yaml_path}: field 'image' points at an unreadable file {img_path} ({exc})") from exc
+        raise InputError(f"{yaml_path}: field 'image' points at an unreadable file {img_path} ({exc})") from exc
     if raw[:2] == b"P5":
         return _parse_pgm(raw, img_path)
     try:
@@ -214,7 +215,7 @@ def _read_image(img_path: Path, yaml_path: Path) -> NDArray[np.float64]:
         with Image.open(img_path) as im:
             return np.asarray(im.convert("L"), dtype=np.float64)
     except Exception as exc:
-        raise ValueError(f"{img_path}: cannot decode map image ({exc})") from exc
+        raise InputError(f"{img_path}: cannot decode map image ({exc})") from exc
 
 
 def _parse_pgm(raw: bytes, path: Path) -> NDArray[np.float64]:
@@ -228,7 +229,7 @@ def _parse_pgm(raw: bytes, path: Path) -> NDArray[np.float64]:
     except (ValueError, IndexError) as exc:
         if str(exc).startswith(str(path)):
             raise
-        raise ValueError(f"{path}: malformed PGM header or pixel data ({exc})") from None
+        raise InputError(f"{path}: malformed PGM header or pixel data ({exc})") from None
 
 
 def _parse_pgm_raw(raw: bytes, path: Path) -> NDArray[np.float64]:
@@ -247,13 +248,13 @@ def _parse_pgm_raw(raw: bytes, path: Path) -> NDArray[np.float64]:
     width, height, maxval = (int(t) for t in tokens)
     pos += 1
     if maxval > 255:
-        raise ValueError(f"{path}: 16-bit PGM is not supported (maxval {maxval})")
+        raise InputError(f"{path}: 16-bit PGM is not supported (maxval {maxval})")
     if maxval < 1:
-        raise ValueError(f"{path}: field 'maxval' of the PGM header must be in 1..255, got {maxval}")
+        raise InputError(f"{path}: field 'maxval' of the PGM header must be in 1..255, got {maxval}")
     if width < 1 or height < 1:
-        raise ValueError(f"{path}: fields 'width'/'height' of the PGM header must be >= 1, got {width} x {height}")
+        raise InputError(f"{path}: fields 'width'/'height' of the PGM header must be >= 1, got {width} x {height}")
     if len(raw) - pos < width * height:
-        raise ValueError(f"{path}: pixel data holds {len(raw) - pos} bytes, the header says {width} x {height}")
+        raise InputError(f"{path}: pixel data holds {len(raw) - pos} bytes, the header says {width} x {height}")
     data = np.frombuffer(raw, dtype=np.uint8, count=width * height, offset=pos)
     return data.reshape(height, width).astype(np.float64) * (255.0 / maxval)
 

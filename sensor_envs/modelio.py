@@ -17,6 +17,7 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from sensor_envs.inputs import InputError
 from sensor_envs.outputs import atomic_write, check_suffix
 
 __all__ = [
@@ -30,7 +31,7 @@ __all__ = [
 ]
 
 
-class ModelFileError(ValueError):
+class ModelFileError(InputError):
     """A model file is unreadable, of the wrong kind or version, or holds a malformed field."""
 
 
@@ -276,14 +277,14 @@ def validate_params(
             msg = f"unknown hyperparameter (known: {sorted(constraints)})"
             if source is not None:
                 raise ModelFileError(f"{source}: field 'params.{name}': {msg}")
-            raise ValueError(f"{name}: {msg}")
+            raise InputError(f"{name}: {msg}")
         forms = [_NoneConstraint() if c is None else c for c in constraints[name]]
         if any(c.accepts(value) for c in forms):
             continue
         msg = f"expected {' or '.join(str(c) for c in forms)}, got {_shown(value, forms)}"
         if source is not None:
             raise ModelFileError(f"{source}: field 'params.{name}' is invalid: {msg}")
-        raise ValueError(f"{name}: {msg}")
+        raise InputError(f"{name}: {msg}")
 
 
 SHOWN_ITEMS = 8
@@ -402,7 +403,7 @@ def default_model_path(file_name: str) -> Path:
     from importlib import resources
 
     if not file_name or Path(file_name).name != file_name:
-        raise ValueError(f"model: expected the bare file name of a shipped model, got {file_name!r}")
+        raise InputError(f"model: expected the bare file name of a shipped model, got {file_name!r}")
     return Path(str(resources.files("sensor_envs.models").joinpath(file_name)))
 
 
@@ -461,7 +462,7 @@ def optional_positive(path: str | os.PathLike[str] | None, field: str, value: An
         or not isinstance(value, (int, float, np.integer, np.floating))
         or not 0 < value < np.inf
     ):
-        raise ValueError(f"{field}: expected a finite number > 0 or None, got {value!r}")
+        raise InputError(f"{field}: expected a finite number > 0 or None, got {value!r}")
     return float(value)
 
 

@@ -10,11 +10,19 @@ Every command that writes files goes through this module:
   sibling with the same suffix; folders: a hidden sibling folder) and only on success renames them
   onto the targets with :func:`os.replace`; an existing target is replaced only after every output
   was written, so a failed or killed command leaves the old files intact and no half-written output.
-* :func:`atomic_write` is the one-file form used by the library's own writers.
+* :func:`atomic_write` is the one-file form used by the library's own writers (given a transaction's
+  temporary, it writes that file directly: one temporary per output, never a temporary of a temporary).
+* :func:`check_output` also **claims** the output for the rest of the command: the claim is the
+  output's temporary itself (``.<stem>.sensor-envs.tmp<suffix>``, or ``.<name>.sensor-envs.tmp`` for a
+  folder) held under an exclusive ``flock``. A second run writing the same output meanwhile is refused
+  (even with ``--force``); a temporary left by a killed run holds no lock and is taken over. Claims end
+  with :func:`release_claims` (the command line calls it on every exit path; also at interpreter exit).
 """
 
 from __future__ import annotations
 
+import atexit
+import fcntl
 import json
 import math
 import os
@@ -25,8 +33,11 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
+from sensor_envs.inputs import InputError
+
 __all__ = [
     "OutputError",
+    "release_claims",
     "check_inputs",
     "check_output",
     "check_suffix",
@@ -41,7 +52,7 @@ PathLike = str | os.PathLike[str]
 T = TypeVar("T")
 
 
-class OutputError(ValueError):
+class OutputError(InputError):
     """An output path is unsafe or unsuitable (the message names the option and the file)."""
 
 
@@ -118,15 +129,122 @@ def check_output(
             raise OutputError(f"{option}: {p} is also an input of this command; refusing to write over it")
         if folder and p.exists() and _inside(s, p):
             raise OutputError(f"{option}: {p} holds the input {s}; refusing to replace that folder")
+    fresh = _claim(p, folder, option)
+    try:
+        _check_existing(p, folder, force, option)
+    except BaseException:
+        if fresh:
+            _release(Path(os.path.abspath(p)))
+        raise
+    return p
+
+
+def _check_existing(p: Path, folder: bool, force: bool, option: str) -> None:
     if p.exists() or p.is_symlink():
         if folder and p.is_dir() and not p.is_symlink() and not any(p.iterdir()):
-            return p  # an empty folder: nothing to lose
+            return  # an empty folder: nothing to lose
         if folder != p.is_dir():
             what = "a folder" if p.is_dir() else "a file"
             raise OutputError(f"{option}: {p} exists and is {what}; choose another name")
         if not force:
             raise OutputError(f"{option}: {p} already exists; pass --force to replace it")
-    return p
+
+
+class _Claim:
+    """A claimed output: its temporary (file or folder), the locked descriptor, the parent folders made."""
+
+    def __init__(self, tmp: Path, fd: int, is_dir: bool, created: list[Path]) -> None:
+        self.tmp, self.fd, self.is_dir, self.created = tmp, fd, is_dir, created
+
+
+_CLAIMS: dict[Path, _Claim] = {}
+_TEMPORARIES: set[Path] = set()
+"""Absolute paths of the temporaries handed out by live transactions (written directly by atomic_write)."""
+
+
+def _claim_path(target: Path, folder: bool) -> Path:
+    if folder:
+        return target.parent / f".{target.name}.sensor-envs.tmp"
+    return target.parent / f".{target.stem}.sensor-envs.tmp{target.suffix}"
+
+
+def _claim(path: Path, folder: bool, option: str) -> bool:
+    """Claim ``path`` for this process (see the module docstring); returns whether the claim is new.
+
+    Raises:
+        OutputError: when another live run holds the claim.
+    """
+    key = Path(os.path.abspath(path))
+    if key in _CLAIMS:
+        return False
+    created: list[Path] = []
+    _make_parent(key, created)
+    tmp = _claim_path(key, folder)
+    for _ in range(5):  # the holder may remove its temporary between our open and our lock
+        if folder:
+            try:
+                tmp.mkdir()
+            except FileExistsError:
+                pass
+        fd = os.open(tmp, os.O_RDONLY if folder else os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            _remove_created(created)
+            raise OutputError(
+                f"{option}: {path} is being written by another sensor-envs run (its temporary {tmp.name} is "
+                "locked); wait for it to end or choose another name"
+            ) from None
+        try:
+            same = os.stat(tmp).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    else:  # pragma: no cover - a claim that keeps moving
+        _remove_created(created)
+        raise OutputError(f"{option}: {path}: could not claim the output (its temporary keeps changing)")
+    if folder:  # a temporary left by a killed run: start empty
+        for child in tmp.iterdir():
+            _remove(child, child.is_dir())
+    else:
+        os.ftruncate(fd, 0)
+    _CLAIMS[key] = _Claim(tmp, fd, folder, created)
+    return True
+
+
+def _remove_created(created: list[Path]) -> None:
+    for d in reversed(created):
+        try:
+            d.rmdir()
+        except OSError:
+            pass
+
+
+def _release(key: Path) -> None:
+    c = _CLAIMS.pop(key, None)
+    if c is None:
+        return
+    try:
+        if os.stat(c.tmp).st_ino == os.fstat(c.fd).st_ino:  # not renamed onto the target: unused or rolled back
+            _remove(c.tmp, c.is_dir)
+    except FileNotFoundError:
+        pass
+    finally:
+        os.close(c.fd)
+    _TEMPORARIES.discard(c.tmp)
+    _remove_created(c.created)
+
+
+def release_claims() -> None:
+    """End every claim of this process: unused temporaries are removed, the locks released."""
+    for key in list(_CLAIMS):
+        _release(key)
+
+
+atexit.register(release_claims)
 
 
 def _make_parent(path: Path, created: list[Path]) -> None:
@@ -159,18 +277,27 @@ class OutputTransaction:
     def file(self, target: PathLike) -> Path:
         """A temporary path beside ``target`` (same suffix) to write the file into."""
         t = Path(target)
-        _make_parent(t, self._created)
-        fd, tmp = tempfile.mkstemp(prefix=f".{t.stem}.", suffix=f".tmp{t.suffix}", dir=t.parent)
-        os.close(fd)
+        claim = _CLAIMS.get(Path(os.path.abspath(t)))
+        if claim is not None and not claim.is_dir:  # the claimed temporary is this output's one temporary
+            tmp = str(claim.tmp)
+        else:
+            _make_parent(t, self._created)
+            fd, tmp = tempfile.mkstemp(prefix=f".{t.stem}.", suffix=f".tmp{t.suffix}", dir=t.parent)
+            os.close(fd)
         os.chmod(tmp, _mode(t, 0o666))  # mkstemp makes 0600; give what a plain open() would (or the old mode)
         self._items.append((t, Path(tmp), False))
+        _TEMPORARIES.add(Path(os.path.abspath(tmp)))
         return Path(tmp)
 
     def folder(self, target: PathLike) -> Path:
         """A temporary folder beside ``target`` to build the output folder in."""
         t = Path(target)
-        _make_parent(t, self._created)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{t.name}.", suffix=".tmp", dir=t.parent))
+        claim = _CLAIMS.get(Path(os.path.abspath(t)))
+        if claim is not None and claim.is_dir:
+            tmp = claim.tmp
+        else:
+            _make_parent(t, self._created)
+            tmp = Path(tempfile.mkdtemp(prefix=f".{t.name}.", suffix=".tmp", dir=t.parent))
         os.chmod(tmp, _mode(t, 0o777))
         self._items.append((t, tmp, True))
         return tmp
@@ -188,6 +315,7 @@ class OutputTransaction:
         """Remove every temporary (and the parent folders this transaction created)."""
         for _, tmp, is_dir in self._items:
             _remove(tmp, is_dir)
+            _TEMPORARIES.discard(Path(os.path.abspath(tmp)))
         self._items.clear()
         for d in reversed(self._created):
             try:
@@ -227,6 +355,8 @@ class OutputTransaction:
         for _, aside, is_dir in kept:
             if aside is not None:
                 _remove(aside, is_dir)
+        for _, tmp, _ in self._items:
+            _TEMPORARIES.discard(Path(os.path.abspath(tmp)))
         self._items.clear()
         self._created.clear()
 
@@ -262,6 +392,8 @@ def atomic_write(path: PathLike, write: Callable[[Path], T]) -> T:
 
     A failure inside ``write`` leaves ``path`` as it was (old content or absent) and no temporary.
     """
+    if Path(os.path.abspath(path)) in _TEMPORARIES:  # already a transaction's temporary: no temporary of it
+        return write(Path(path))
     with _one(Path(path)) as tmp:
         return write(tmp)
 

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sensor_envs.inputs import InputError
 from sensor_envs.jit import compiled
 
 __all__ = ["sensor_rng", "fold_ids", "RowGenerators"]
@@ -43,7 +44,7 @@ def fold_ids(
         ``(n,)`` fold ids in ``[0, n_folds)``.
     """
     if int(n_folds) < 1:
-        raise ValueError(f"n_folds: must be >= 1, got {n_folds!r}")
+        raise InputError(f"n_folds: must be >= 1, got {n_folds!r}")
     if isinstance(groups, (int, np.integer)):
         rank: Any = np.arange(int(groups))
         n_groups = int(groups)

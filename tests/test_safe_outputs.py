@@ -150,10 +150,11 @@ def test_fit_lidar_writes_model_and_card_or_neither(tmp_path, monkeypatch):
     real_card = lv.model_card_markdown
 
     def broken_card(*a, **k):
-        raise ValueError("card template broken")
+        raise ValueError("card template broken")  # a bug: keeps its traceback (not an InputError)
 
     monkeypatch.setattr(lv, "model_card_markdown", broken_card)
-    assert main(["fit", "lidar", str(rec), "--out", str(tmp_path / "m.npz"), "--folds", "2"]) == 2
+    with pytest.raises(ValueError, match="card template broken"):
+        main(["fit", "lidar", str(rec), "--out", str(tmp_path / "m.npz"), "--folds", "2"])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.npz"]
     monkeypatch.setattr(lv, "model_card_markdown", real_card)
     assert main(["fit", "lidar", str(rec), "--out", str(tmp_path / "m.npz"), "--folds", "2"]) == 0

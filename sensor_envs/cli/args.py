@@ -9,7 +9,23 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import NoReturn
 
-__all__ = ["about", "OneLineParser", "positive_int", "nonneg_int", "positive_float", "float_between", "add_force"]
+from sensor_envs.inputs import InputError
+
+__all__ = [
+    "about",
+    "OneLineParser",
+    "positive_int",
+    "nonneg_int",
+    "bounded_int",
+    "positive_float",
+    "float_between",
+    "path_arg",
+    "add_force",
+    "MAX_SEED",
+]
+
+MAX_SEED = 2**63 - 1
+"""Largest accepted seed (numpy's ``SeedSequence`` takes any integer >= 0; larger ones are refused as typos)."""
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -36,8 +52,31 @@ def positive_int(text: str) -> int:
 
 
 def nonneg_int(text: str) -> int:
-    """An integer ``>= 0`` (argparse ``type=``), e.g. a seed."""
-    return _integer_at_least(text, 0, "an integer >= 0")
+    """An integer in ``[0, MAX_SEED]`` (argparse ``type=``), e.g. a seed."""
+    value = _integer_at_least(text, 0, "an integer >= 0")
+    if value > MAX_SEED:
+        raise argparse.ArgumentTypeError(f"expected an integer in [0, 2**63 - 1], got {text!r}")
+    return value
+
+
+def bounded_int(low: int, high: int) -> Callable[[str], int]:
+    """An argparse ``type=`` accepting an integer in ``[low, high]`` (counts: every count has an upper bound)."""
+    expected = f"{'a positive integer' if low == 1 else f'an integer >= {low}'} up to {high}"
+
+    def parse(text: str) -> int:
+        value = _integer_at_least(text, low, expected)
+        if value > high:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+        return value
+
+    return parse
+
+
+def path_arg(text: str) -> str:
+    """A path option (argparse ``type=``): a non-empty name without NUL bytes (``--rig ''`` is an error)."""
+    if not text.strip() or "\x00" in text:
+        raise argparse.ArgumentTypeError(f"expected a file name, got {text!r}")
+    return text
 
 
 def positive_float(text: str) -> float:
@@ -79,4 +118,4 @@ def about(path: str | Path) -> Iterator[None]:
     except ValueError as exc:
         if str(path) in str(exc):
             raise
-        raise ValueError(f"{path}: {exc}") from exc
+        raise InputError(f"{path}: {exc}") from exc

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from sensor_envs.cli.args import OneLineParser, add_force, nonneg_int, positive_int
+from sensor_envs.inputs import InputError
 from sensor_envs.outputs import check_inputs, check_output, output_folder
 
 
@@ -78,18 +79,18 @@ def write_folder_atomically(
 def _check_args(args: argparse.Namespace) -> None:
     """Reject bad numeric options naming the option."""
     if args.max_add < 1:
-        raise ValueError(f"--max-add: expected >= 1, got {args.max_add}")
+        raise InputError(f"--max-add: expected >= 1, got {args.max_add}")
     if args.permutations < 19:
-        raise ValueError(f"--permutations: expected >= 19, got {args.permutations}")
+        raise InputError(f"--permutations: expected >= 19, got {args.permutations}")
     if not 0.0 < args.alpha < 1.0:
-        raise ValueError(f"--alpha: expected a level in (0, 1), got {args.alpha}")
+        raise InputError(f"--alpha: expected a level in (0, 1), got {args.alpha}")
     if 1.0 / (args.permutations + 1) >= args.alpha:
-        raise ValueError(
+        raise InputError(
             f"--permutations: {args.permutations} cannot give p < --alpha {args.alpha}; use at least "
             f"{int(np.ceil(1.0 / args.alpha))}"
         )
     if args.block_frames < 1:
-        raise ValueError(f"--block-frames: expected >= 1, got {args.block_frames}")
+        raise InputError(f"--block-frames: expected >= 1, got {args.block_frames}")
 
 
 def load_radar_model(path: str) -> tuple[str, Any]:
@@ -163,12 +164,12 @@ def _diagnose_lidar(args: argparse.Namespace) -> int:
 
     _check_args(args)
     if not args.max_range > 0:
-        raise ValueError(f"--max-range: expected > 0, got {args.max_range}")
+        raise InputError(f"--max-range: expected > 0, got {args.max_range}")
     check_inputs(args.log, args.model, args.map)
     out = check_output(args.out, inputs=[args.log, args.model, args.map], force=args.force, folder=True)
     spur = args.max_range + 1.0 if args.spur_above is None else args.spur_above
     if not spur > args.max_range or not args.table_range_step > 0:
-        raise ValueError("--spur-above: expected > --max-range; --table-range-step: expected > 0")
+        raise InputError("--spur-above: expected > --max-range; --table-range-step: expected > 0")
     base_model, base_state = None, ()
     params: dict[str, Any] = {"max_range": args.max_range, "spur_above": spur, "progress": not args.quiet}
     params["table_range_step"] = args.table_range_step

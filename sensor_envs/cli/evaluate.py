@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from sensor_envs.cli.args import nonneg_int, positive_float, positive_int
+from sensor_envs.inputs import InputError
 from sensor_envs.outputs import output_folder
 
 __all__ = ["register"]
@@ -97,7 +98,7 @@ def _detection(args: argparse.Namespace) -> int:
     with output_folder(args.out, args.force, (args.real, model_file)) as tmp:
         log = load_log(args.real)
         if log.ranges.shape[2] < 2:
-            raise ValueError(f"{args.real}: field 'ranges' needs repeated readings at static poses (P, K, R >= 2)")
+            raise InputError(f"{args.real}: field 'ranges' needs repeated readings at static poses (P, K, R >= 2)")
         model = None if model_file is None else LidarLWLR.load(model_file)
         report = log_experiment(
             log,

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from sensor_envs.cli.args import OneLineParser, about, add_force, nonneg_int, positive_float, positive_int
+from sensor_envs.inputs import InputError
 from sensor_envs.modelio import read_model
 from sensor_envs.outputs import OutputTransaction, check_inputs, check_output, write_json
 
@@ -154,7 +155,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     from sensor_envs.lidar.rig import NeatoRig
 
     if args.spurious_only is not None and args.max_evals is not None:
-        raise ValueError("--max-evals: --spurious-only runs no search; give one or the other")
+        raise InputError("--max-evals: --spurious-only runs no search; give one or the other")
     check_inputs(args.real_data, args.spurious_only)
     out = check_output(args.out, inputs=[args.real_data, args.spurious_only], force=args.force, suffix=".json")
     log = load_real_log(args.real_data)
@@ -245,7 +246,7 @@ def _validate(args: argparse.Namespace) -> int:
     log, prep = _prepared_log(args, model.max_range)
     per_reading = log.ranges.shape[2] == 1
     if args.card and per_reading:
-        raise ValueError(f"{args.model}: --card needs a repeated log (Table I); {args.log} has one reading per scan")
+        raise InputError(f"{args.model}: --card needs a repeated log (Table I); {args.log} has one reading per scan")
     with OutputTransaction() as tx:  # report folder and card: all or nothing
         folder = tx.folder(out)
         with about(args.log):

@@ -6,6 +6,7 @@ Commands: ``demo``, ``record``, ``fit``, ``validate``, ``calibrate``, ``diagnose
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import threading
@@ -16,13 +17,15 @@ from sensor_envs.cli import diagnose as cli_diagnose
 from sensor_envs.cli import evaluate as cli_evaluate
 from sensor_envs.cli import lidar as cli_lidar
 from sensor_envs.cli import radar as cli_radar
-from sensor_envs.cli.args import OneLineParser, add_force, nonneg_int, positive_int
+from sensor_envs.cli.args import OneLineParser, add_force, bounded_int, nonneg_int
+from sensor_envs.inputs import InputError
 
-USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError, EOFError)
-"""Exceptions that mean bad input (a malformed file, an unsafe output, a missing file...): one line, exit 2.
+USER_ERRORS: tuple[type[BaseException], ...] = (InputError, OSError)
+"""Exceptions that mean bad input: one line naming the file and the field, exit status 2.
 
-The loaders turn their failures into these (``ModelFileError``, ``LidarLogError``, ``RadarLogError``,
-``OutputError`` are ``ValueError``s); anything else is a bug and keeps its traceback.
+:class:`~sensor_envs.inputs.InputError` (``ModelFileError``, ``LidarLogError``, ``RadarLogError``,
+``OutputError`` are subclasses) and an ``OSError`` from opening a user's path (shown with its file name);
+anything else, a plain ``ValueError`` from numpy or scipy included, is a bug and keeps its traceback.
 """
 
 
@@ -33,7 +36,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="the main job: drive every env with every sensor, write pictures and a report")
     demo.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
     demo.add_argument("--seed", type=nonneg_int, default=0)
-    demo.add_argument("--episodes", type=positive_int, default=10, help="episodes per env and sensor (default: 10)")
+    demo.add_argument(
+        "--episodes", type=bounded_int(1, 10_000), default=10, help="episodes per env and sensor (default: 10)"
+    )
     add_force(demo)
     demo.set_defaults(func=_run_demo)
     verbs = {}
@@ -63,34 +68,86 @@ def _run_demo(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``sensor-envs``; returns the process exit code."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    previous = _terminate_cleanly()
+    previous = _terminate_cleanly()  # first: a SIGTERM during parsing or the commands' imports rolls back too
+    quiet_bars = _bars_only_on_a_terminal()
     try:
-        return int(args.func(args) or 0)
-    except USER_ERRORS as exc:
-        print(f"sensor-envs {args.command}: error: {one_line(exc)}", file=sys.stderr)
-        return 2
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        try:
+            return int(args.func(args) or 0)
+        except USER_ERRORS as exc:
+            _close_bars()
+            print(f"sensor-envs {args.command}: error: {one_line(exc, getattr(args, 'out', None))}", file=sys.stderr)
+            return 2
     finally:
+        _close_bars()
+        from sensor_envs.outputs import release_claims
+
+        release_claims()
+        quiet_bars()
         if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+            signal.signal(signal.SIGTERM, previous[0])
+            sys.unraisablehook = previous[1]
 
 
-def _terminate_cleanly() -> Any:
-    """Turn SIGTERM into ``SystemExit(143)`` so that pending outputs are rolled back; returns the old handler."""
+def _terminate_cleanly() -> tuple[Any, Any] | None:
+    """Turn SIGTERM into ``SystemExit(143)`` so that pending outputs are rolled back.
+
+    Returns the old handler and ``sys.unraisablehook``. Python ignores an exception raised where it
+    cannot propagate (a weak-reference callback of the import machinery, a ``__del__``): the hook
+    installed here sees that ``SystemExit`` and sends the signal again, so that it lands where it can.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return None
 
     def handler(signum: int, frame: object) -> None:
         raise SystemExit(128 + signum)
 
-    if threading.current_thread() is not threading.main_thread():
-        return None
-    return signal.signal(signal.SIGTERM, handler)
+    old_hook = sys.unraisablehook
+
+    def hook(unraisable: Any) -> None:
+        if isinstance(unraisable.exc_value, SystemExit) and unraisable.exc_value.code == 128 + signal.SIGTERM:
+            os.kill(os.getpid(), signal.SIGTERM)  # delivered again at the next bytecode boundary
+            return
+        old_hook(unraisable)
+
+    sys.unraisablehook = hook
+    return signal.signal(signal.SIGTERM, handler), old_hook
 
 
-def one_line(exc: BaseException) -> str:
-    """The exception's message on one line (``EOFError`` etc. get their type name when the text is bare)."""
+def _bars_only_on_a_terminal() -> Any:
+    """Disable tqdm bars (``TQDM_DISABLE``) when stderr is not a terminal; returns the undo function."""
+    old = os.environ.get("TQDM_DISABLE")
+    if not sys.stderr.isatty():
+        os.environ["TQDM_DISABLE"] = "1"
+
+    def undo() -> None:
+        if old is None:
+            os.environ.pop("TQDM_DISABLE", None)
+        else:
+            os.environ["TQDM_DISABLE"] = old
+
+    return undo
+
+
+def _close_bars() -> None:
+    """Clear every open tqdm bar from the terminal (so that an error line is not drawn over)."""
+    tqdm_mod = sys.modules.get("tqdm")
+    if tqdm_mod is None:
+        return
+    for bar in list(getattr(tqdm_mod.tqdm, "_instances", ())):
+        bar.leave = False
+        bar.close()
+
+
+def one_line(exc: BaseException, out: object = None) -> str:
+    """The exception's message on one line; an ``OSError`` names its file (or ``out``, e.g. a full disk)."""
     text = " ".join(str(exc).split())
-    return text if text and not isinstance(exc, EOFError) else f"{type(exc).__name__}: {text or 'no detail'}"
+    if isinstance(exc, OSError) and exc.strerror:
+        name = exc.filename if exc.filename is not None else out
+        where = f"{name}: " if name is not None else ""
+        return f"{where}{exc.strerror}"
+    return text or f"{type(exc).__name__}: no detail"
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ from sensor_envs.cli.args import (
     positive_float,
     positive_int,
 )
+from sensor_envs.inputs import InputError
 from sensor_envs.modelio import read_model
 from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
 
@@ -217,9 +218,9 @@ def _record(args: argparse.Namespace) -> int:
     from sensor_envs.radar.log import write_log
 
     if args.astyx and args.rig:
-        raise ValueError("--rig: a rig file configures the simulated rig; it cannot be used with --astyx")
+        raise InputError("--rig: a rig file configures the simulated rig; it cannot be used with --astyx")
     if args.astyx and args.in_view_only:
-        raise ValueError("--in-view-only: filters the simulated rig's targets; it cannot be used with --astyx")
+        raise InputError("--in-view-only: filters the simulated rig's targets; it cannot be used with --astyx")
     check_inputs(args.astyx, args.rig)
     out = check_output(args.out, inputs=[args.astyx, args.rig], force=args.force, suffix=".csv")
     if args.astyx:
@@ -252,13 +253,13 @@ def _calibrate(args: argparse.Namespace) -> int:
     from sensor_envs.radar.rig import load_rig, save_rig
 
     if args.mixture_min_range is not None and args.offset_law != "mixture":
-        raise ValueError("--mixture-min-range: only with --offset-law mixture")
+        raise InputError("--mixture-min-range: only with --offset-law mixture")
     if args.scene_only and not args.base:
-        raise ValueError("--scene-only: needs --base (the rig whose sensor laws are kept)")
+        raise InputError("--scene-only: needs --base (the rig whose sensor laws are kept)")
     if args.scene_only and (
         args.azimuth_bias or args.signed_azimuth or args.occlusion_by_range or args.offset_law != "reflection"
     ):
-        raise ValueError(
+        raise InputError(
             "--scene-only: fits no sensor law; drop --azimuth-bias, --signed-azimuth, --occlusion-by-range "
             "and --offset-law"
         )

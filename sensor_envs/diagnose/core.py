@@ -48,6 +48,8 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
+from sensor_envs.inputs import InputError
+
 __all__ = [
     "Evaluation",
     "DiagnoseAdapter",
@@ -129,7 +131,7 @@ def block_split(blocks: NDArray, held_ranks: tuple[int, ...] = (2, 5, 8), period
     _, inv = np.unique(blocks, return_inverse=True)
     held = np.isin(inv.ravel() % period, held_ranks)
     if held.all() or not held.any():
-        raise ValueError(f"the log has {inv.max(initial=-1) + 1} blocks: too few to split into fit and held-out parts")
+        raise InputError(f"the log has {inv.max(initial=-1) + 1} blocks: too few to split into fit and held-out parts")
     return held
 
 

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.diagnose.core import Evaluation
+from sensor_envs.inputs import InputError
 from sensor_envs.lidar.extra_state import PREV, TIME, fit_extra_terms, scan_features
 from sensor_envs.lidar.log import LidarLog
 from sensor_envs.lidar.lwlr import LidarLWLR, lidar_features, mixture_log_prob
@@ -72,7 +73,7 @@ class LidarAdapter:
         max_readings: int | None = 300,
     ) -> None:
         if log.ranges.shape[2] != 1:
-            raise ValueError(f"{log.source}: field 'ranges': diagnose lidar needs a scan log (one reading per scan)")
+            raise InputError(f"{log.source}: field 'ranges': diagnose lidar needs a scan log (one reading per scan)")
         self.log = log
         self.held = np.asarray(held_out, dtype=bool)
         self.fit_log = log.subset(~self.held)
@@ -89,7 +90,7 @@ class LidarAdapter:
         self.scan_idx, self.bearing_idx = np.nonzero(sel)
         self.blocks = np.asarray(blocks)[self.scan_idx].astype(np.int64)
         if self.scan_idx.size == 0:
-            raise ValueError(f"{log.source}: no held-out reading lies on a ray that hits the map")
+            raise InputError(f"{log.source}: no held-out reading lies on a ray that hits the map")
         self._candidates = self._static_candidates()
 
     # -- candidates -------------------------------------------------------------------------------

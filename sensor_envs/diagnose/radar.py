@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.diagnose.core import Evaluation
+from sensor_envs.inputs import InputError
 from sensor_envs.radar.features import state_matrix, with_derived_columns
 from sensor_envs.radar.gaussian import GaussianRadar
 from sensor_envs.radar.kde import CV_RELEVANCE, KDERadarModel
@@ -76,11 +77,11 @@ class RadarAdapter:
         exclude: tuple[str, ...] = (),
     ) -> None:
         if model_kind not in ("kde", "gaussian"):
-            raise ValueError(f"model_kind must be 'kde' or 'gaussian', got {model_kind!r}")
+            raise InputError(f"model_kind must be 'kde' or 'gaussian', got {model_kind!r}")
         self.log = with_derived_columns(log)
         missing = [c for c in exclude if c not in self.log.columns]  # a derived feature may be excluded too
         if missing:
-            raise ValueError(f"{log.source}: excluded column {missing[0]!r} is not in the log")
+            raise InputError(f"{log.source}: excluded column {missing[0]!r} is not in the log")
         self.exclude = tuple(exclude)
         self.fit_log = self.log.select(~held_out)
         self.held_log = self.log.select(held_out)

@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.envs.neato_render import render_world
 from sensor_envs.geometry import nearest_wall_distance, raycast_pose, sample_free_poses, to_frame, wrap_angle
+from sensor_envs.inputs import InputError
 from sensor_envs.jit import compiled
 from sensor_envs.lidar.sensors import GaussianLidar, IdealLidar, LidarSensor, make_lidar
 from sensor_envs.maps import SegmentMap, load_map
@@ -82,9 +83,9 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         render_mode: str | None = None,
     ) -> None:
         if null_value not in NULL_VALUES:
-            raise ValueError(f"null_value: expected one of {NULL_VALUES}, got {null_value!r}")
+            raise InputError(f"null_value: expected one of {NULL_VALUES}, got {null_value!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
+            raise InputError(
                 f"render_mode: expected one of {self.metadata['render_modes']} or None, got {render_mode!r}"
             )
         for name, val in (
@@ -96,13 +97,13 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             ("robot_radius", robot_radius),
         ):
             if not val > 0:
-                raise ValueError(f"{name}: must be > 0, got {val!r}")
+                raise InputError(f"{name}: must be > 0, got {val!r}")
         self.world_map = load_map(map)
         self.lidar = make_lidar(lidar, model=model, **(lidar_kwargs or {}))
         self._extra_names = lidar_extra_state(self.lidar)
         missing = [n for n in self._extra_names if n not in WORLD_STATE]
         if missing:
-            raise ValueError(
+            raise InputError(
                 f"lidar: the learned model's state names {missing}, which Neato-v0 cannot supply "
                 f"(it supplies {list(WORLD_STATE)})"
             )
@@ -147,7 +148,7 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         options = dict(options or {})
         unknown = set(options) - {"start", "goal"}
         if unknown:
-            raise ValueError(f"options: unknown keys {sorted(unknown)}; expected 'start' and/or 'goal'")
+            raise InputError(f"options: unknown keys {sorted(unknown)}; expected 'start' and/or 'goal'")
         self.pose = self._pose_option(options, "start") if "start" in options else self._sample_free_pose()
         if "goal" in options:
             self.goal = self._pose_option(options, "goal")
@@ -166,9 +167,9 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         try:
             a = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError):
-            raise ValueError(f"action: expected two numbers (v, omega) in [-1, 1], got {action!r}") from None
+            raise InputError(f"action: expected two numbers (v, omega) in [-1, 1], got {action!r}") from None
         if a.size != 2 or not np.isfinite(a).all():
-            raise ValueError(f"action: expected two finite numbers (v, omega) in [-1, 1], got {action!r}")
+            raise InputError(f"action: expected two finite numbers (v, omega) in [-1, 1], got {action!r}")
         a = np.clip(a.reshape(2), -1.0, 1.0)
         self.pose = unicycle_step(self.pose, a[0] * self.v_max, a[1] * self.omega_max, self.dt)
         self._motion = np.array([a[0] * self.v_max, a[1] * self.omega_max, self._motion[2] + self.dt])
@@ -228,11 +229,11 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
     def _pose_option(self, options: dict[str, Any], key: str) -> NDArray[np.float64]:
         p = np.asarray(options[key], dtype=np.float64)
         if p.shape != (3,) or not np.isfinite(p).all():
-            raise ValueError(f"options[{key!r}]: expected a finite pose (x, y, theta), got {options[key]!r}")
+            raise InputError(f"options[{key!r}]: expected a finite pose (x, y, theta), got {options[key]!r}")
         if not self._enclosed(p):
-            raise ValueError(f"options[{key!r}]: {options[key]!r} lies outside map {self.world_map.name!r}")
+            raise InputError(f"options[{key!r}]: {options[key]!r} lies outside map {self.world_map.name!r}")
         if key == "start" and self._collides(p):
-            raise ValueError(
+            raise InputError(
                 f"options[{key!r}]: {options[key]!r} is within the robot radius {self.robot_radius} m of a wall"
             )
         return p
@@ -258,7 +259,7 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
                 max_tries=tries // 4,  # 4 candidates per try
             )[0]
         except ValueError:
-            raise ValueError(
+            raise InputError(
                 f"map {self.world_map.name!r}: found no free pose with {clearance:.2f} m clearance "
                 f"in {tries} tries; is the map enclosed and large enough for the robot?"
             ) from None

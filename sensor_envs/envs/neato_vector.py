@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 from sensor_envs.envs.neato import NeatoEnv, collides, observe_batch, step_reward, unicycle_step
 from sensor_envs.envs.neato_render import render_world
 from sensor_envs.heap import keep_freed_heap
+from sensor_envs.inputs import InputError
 from sensor_envs.rng import RowGenerators
 
 __all__ = ["NeatoVectorEnv"]
@@ -52,13 +53,13 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
         self, num_envs: int = 1, max_episode_steps: int = 500, render_mode: str | None = None, **kwargs: Any
     ) -> None:
         if int(num_envs) < 1:
-            raise ValueError(f"num_envs: must be >= 1, got {num_envs!r}")
+            raise InputError(f"num_envs: must be >= 1, got {num_envs!r}")
         if int(max_episode_steps) < 1:
-            raise ValueError(f"max_episode_steps: must be >= 1, got {max_episode_steps!r}")
+            raise InputError(f"max_episode_steps: must be >= 1, got {max_episode_steps!r}")
         first = NeatoEnv(render_mode=render_mode, **kwargs)
         keep_freed_heap()
         if first._extra_names:
-            raise ValueError(
+            raise InputError(
                 f"lidar: the vector Neato entry does not supply extra lidar state yet; the model's state names "
                 f"{list(first._extra_names)} (use Neato-v0)"
             )
@@ -91,13 +92,13 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
         options = dict(options or {})
         mask = np.asarray(options.pop("reset_mask", np.ones(self.num_envs, dtype=bool)))
         if mask.shape != (self.num_envs,) or mask.dtype != np.bool_:
-            raise ValueError(f"options['reset_mask']: expected a bool array of shape ({self.num_envs},)")
+            raise InputError(f"options['reset_mask']: expected a bool array of shape ({self.num_envs},)")
         if seed is None or isinstance(seed, (int, np.integer)):
             seeds = [None if seed is None else int(seed) + i for i in range(self.num_envs)]
         else:
             seeds = list(seed)
             if len(seeds) != self.num_envs:
-                raise ValueError(f"seed: expected {self.num_envs} seeds, got {len(seeds)}")
+                raise InputError(f"seed: expected {self.num_envs} seeds, got {len(seeds)}")
         rows = np.flatnonzero(mask)
         self._start_rows(rows, [seeds[i] for i in rows], options or None)
         rngs = self._row_generators()

@@ -33,6 +33,8 @@ from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvObs, VecEnvStepReturn
 
+from sensor_envs.inputs import InputError
+
 __all__ = ["SB3VecEnv", "make_sb3_vector_env", "unbatch_info"]
 
 
@@ -52,9 +54,9 @@ class SB3VecEnv(VecEnv):
     def __init__(self, venv: VectorEnv[Any, Any, Any]) -> None:
         mode = venv.metadata.get("autoreset_mode", AutoresetMode.NEXT_STEP)
         if mode not in (AutoresetMode.NEXT_STEP, AutoresetMode.DISABLED):
-            raise ValueError(f"venv: autoreset mode {mode!r} is not supported (NEXT_STEP or DISABLED)")
+            raise InputError(f"venv: autoreset mode {mode!r} is not supported (NEXT_STEP or DISABLED)")
         if isinstance(venv.single_observation_space, (spaces.Dict, spaces.Tuple)):
-            raise ValueError("venv: only array observation spaces are supported, not Dict or Tuple")
+            raise InputError("venv: only array observation spaces are supported, not Dict or Tuple")
         self.venv = venv
         self._actions: NDArray[Any] | None = None
         super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
@@ -65,7 +67,7 @@ class SB3VecEnv(VecEnv):
         seeds = list(self._seeds)
         options = self._options[0] if self._options else {}
         if any(not data_equivalence(o, options) for o in self._options):
-            raise ValueError("set_options: a gymnasium VectorEnv takes one options dict for all sub-envs")
+            raise InputError("set_options: a gymnasium VectorEnv takes one options dict for all sub-envs")
         seed: Any = None  # gymnasium: an int s seeds sub-env i with s + i; SyncVectorEnv also takes a list
         if any(s is not None for s in seeds):
             first = seeds[0]
@@ -140,7 +142,7 @@ class SB3VecEnv(VecEnv):
     def _all_indices(self, indices: VecEnvIndices, what: str) -> None:
         """Raise unless ``indices`` names every sub-env (a vector env's attributes are shared)."""
         if sorted(self._get_indices(indices)) != list(range(self.num_envs)):
-            raise ValueError(f"{what}: a gymnasium VectorEnv shares its attributes; use indices=None")
+            raise InputError(f"{what}: a gymnasium VectorEnv shares its attributes; use indices=None")
 
 
 def unbatch_info(info: dict[str, Any], num_envs: int) -> list[dict[str, Any]]:

@@ -42,6 +42,7 @@ from scipy.ndimage import median_filter
 
 from sensor_envs.evaluate.metrics import precision_recall
 from sensor_envs.geometry import as_segments, from_frame, raycast_pose
+from sensor_envs.inputs import InputError
 
 __all__ = [
     "DetectorParams",
@@ -86,11 +87,11 @@ class DetectorParams:
         for name in ("length", "length_tol", "gap_tol", "max_rms_dist", "max_range"):
             v = float(getattr(self, name))
             if not v > 0 or np.isnan(v):
-                raise ValueError(f"detector: {name} must be > 0, got {v}")
+                raise InputError(f"detector: {name} must be > 0, got {v}")
         if self.min_points < 0:
-            raise ValueError(f"detector: min_points must be >= 0, got {self.min_points}")
+            raise InputError(f"detector: min_points must be >= 0, got {self.min_points}")
         if self.median_window < 1 or self.median_window % 2 == 0:
-            raise ValueError(f"detector: median_window must be an odd number >= 1, got {self.median_window}")
+            raise InputError(f"detector: median_window must be an odd number >= 1, got {self.median_window}")
 
 
 def _points(ranges: NDArray[np.float64], bearings: NDArray[np.float64], p: DetectorParams) -> NDArray[np.float64]:
@@ -331,7 +332,7 @@ def run_trajectory(
     segs = as_segments(map_segments, name="map")
     tg = target_indices(segs, length) if targets is None else np.atleast_1d(np.asarray(targets, dtype=int))
     if not tg.size:
-        raise ValueError(f"map: no segment of the target length {length} m")
+        raise InputError(f"map: no segment of the target length {length} m")
     if present is None:
         present = present_targets(poses, bearings, segs, tg, max_range)
     out = []

@@ -31,6 +31,7 @@ from sensor_envs.evaluate.detection import (
 )
 from sensor_envs.evaluate.metrics import trajectory_distance
 from sensor_envs.geometry import raycast_pose
+from sensor_envs.inputs import InputError
 from sensor_envs.lidar.log import LidarLog
 from sensor_envs.lidar.lwlr import LidarLWLR
 from sensor_envs.lidar.sensors import GaussianLidar, IdealLidar
@@ -134,12 +135,12 @@ def log_experiment(
         The report dictionary (``trajectories``, ``distance_to_real``, ``steps``, ``data``).
     """
     if baseline != "gaussian":
-        raise ValueError(f"--baseline: only 'gaussian' is available, got {baseline!r}")
+        raise InputError(f"--baseline: only 'gaussian' is available, got {baseline!r}")
     segs = log.require_map()
     if not target_indices(segs, length).size:
-        raise ValueError(f"{log.source}: field 'map_segments' has no segment of the target length {length} m")
+        raise InputError(f"{log.source}: field 'map_segments' has no segment of the target length {length} m")
     if log.ranges.shape[2] < repeats:
-        raise ValueError(f"{log.source}: field 'ranges' has {log.ranges.shape[2]} repeats, fewer than {repeats}")
+        raise InputError(f"{log.source}: field 'ranges' has {log.ranges.shape[2]} repeats, fewer than {repeats}")
     rng = np.random.default_rng(seed)
     P = log.n_poses
     fold = rng.permutation(np.arange(P) % folds) if model is None else np.zeros(P, dtype=int)

@@ -53,6 +53,7 @@ from scipy.optimize import minimize
 from threadpoolctl import threadpool_limits
 from tqdm.auto import tqdm
 
+from sensor_envs.inputs import InputError
 from sensor_envs.lidar.log import LidarLog, load_log
 from sensor_envs.lidar.lwlr import cell_statistics, lidar_features
 from sensor_envs.lidar.rig import NULL_SLOPE_CENTRE, NeatoRig
@@ -174,17 +175,17 @@ def load_real_log(path: str | Path) -> LidarLog:
     if not p.exists():
         raise FileNotFoundError(f"{p}: real data not found (give the .npz or the folder holding {REAL_LOG_NAME})")
     if p.suffix != ".npz":
-        raise ValueError(f"{p}: not a static-pose lidar log (.npz with ranges of shape poses x bearings x repeats)")
+        raise InputError(f"{p}: not a static-pose lidar log (.npz with ranges of shape poses x bearings x repeats)")
     log = load_log(p)
     if log.ranges.shape[2] < 2:
-        raise ValueError(
+        raise InputError(
             f"{p}: field 'ranges' has one reading per pose and bearing; calibration needs repeated readings"
         )
     if log.map_segments is None:
-        raise ValueError(f"{p}: field 'map_segments' is missing; calibration needs the log's map")
+        raise InputError(f"{p}: field 'map_segments' is missing; calibration needs the log's map")
     k = log.n_bearings
     if not np.allclose(log.bearings, np.deg2rad(np.arange(k) * 360.0 / k), atol=1e-6):
-        raise ValueError(f"{p}: field 'bearings' is not the rig's regular full circle (j * 360 / K degrees)")
+        raise InputError(f"{p}: field 'bearings' is not the rig's regular full circle (j * 360 / K degrees)")
     return log
 
 

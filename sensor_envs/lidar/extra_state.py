@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.geometry import as_segments, raycast_pose
+from sensor_envs.inputs import InputError
 from sensor_envs.lidar.kernel import P_EPS
 from sensor_envs.lidar.log import LidarLog
 
@@ -49,9 +50,9 @@ _RIDGE = 1.0
 def check_extra_state(names: Any) -> tuple[str, ...]:
     """``names`` as a tuple of distinct non-empty strings, else a ``ValueError`` naming ``extra_state``."""
     if not isinstance(names, (tuple, list)) or not all(isinstance(n, str) and n for n in names):
-        raise ValueError(f"extra_state: expected a tuple of variable names, got {names!r}")
+        raise InputError(f"extra_state: expected a tuple of variable names, got {names!r}")
     if len(set(names)) != len(names):
-        raise ValueError(f"extra_state: duplicate names in {names!r}")
+        raise InputError(f"extra_state: duplicate names in {names!r}")
     return tuple(names)
 
 
@@ -88,11 +89,11 @@ def scan_features(log: LidarLog, names: tuple[str, ...], mu_table: NDArray[np.fl
     for i, n in enumerate(names):
         if n == TIME:
             if log.t is None:
-                raise ValueError(f"{log.source}: field 't' is missing, but the lidar's extra state names 't'")
+                raise InputError(f"{log.source}: field 't' is missing, but the lidar's extra state names 't'")
             out[:, :, i] = (log.t - log.t[0])[:, None]
         elif n == PREV:
             if mu_table is None:
-                raise ValueError("prev_residual needs the tables' mean")
+                raise InputError("prev_residual needs the tables' mean")
             x = log.ranges[:, :, 0]
             e = base_residual(x, mu_table, np.isfinite(mu_table))
             prev = np.zeros_like(e)
@@ -100,14 +101,14 @@ def scan_features(log: LidarLog, names: tuple[str, ...], mu_table: NDArray[np.fl
             out[:, :, i] = np.where(consecutive(log.t, s)[:, None], prev, 0.0)
         else:
             if n not in log.covariates:
-                raise ValueError(
+                raise InputError(
                     f"{log.source}: field 'cov_{n}' is missing, but the lidar's extra state names {n!r} "
                     f"(covariates: {sorted(log.covariates)})"
                 )
             out[:, :, i] = np.asarray(log.covariates[n], dtype=np.float64)[:, None]
     if not np.isfinite(out).all():
         bad = names[int(np.argmin(np.isfinite(out).all(axis=(0, 1))))]
-        raise ValueError(f"{log.source}: extra state variable {bad!r} holds NaN or infinite values")
+        raise InputError(f"{log.source}: extra state variable {bad!r} holds NaN or infinite values")
     return out
 
 
@@ -173,7 +174,7 @@ def fit_extra_terms(model: LidarLWLR, log: LidarLog) -> None:
     if not names:
         return
     if log.ranges.shape[2] != 1:
-        raise ValueError(f"{log.source}: extra_state needs a scan log (one reading per scan and bearing)")
+        raise InputError(f"{log.source}: extra_state needs a scan log (one reading per scan and bearing)")
     r, a, _ = raycast_pose(log.poses, model.bearings_, as_segments(log.require_map(), name="map"), model.max_range)
     p = model.params_from_features(r, a, extra=None, base_only=True)
     hit = np.isfinite(r)
@@ -213,10 +214,10 @@ def apply_extra(
     """
     names = model.extra_state_
     if extra is None:
-        raise ValueError(f"extra: this lidar model's state includes {list(names)}; pass their values")
+        raise InputError(f"extra: this lidar model's state includes {list(names)}; pass their values")
     ex = np.asarray(extra, dtype=np.float64)
     if ex.ndim == 0 or ex.shape[-1] != len(names):
-        raise ValueError(f"extra: expected a last axis of {len(names)} values ({list(names)}), got shape {ex.shape}")
+        raise InputError(f"extra: expected a last axis of {len(names)} values ({list(names)}), got shape {ex.shape}")
     xd = _design((np.broadcast_to(ex, hit.shape + (len(names),)) - model.extra_mean_) / model.extra_scale_)
     lin = xd @ model.extra_coef_.T  # (..., K, 3)
     q = np.clip(out["p_null"], 1e-12, 1 - 1e-12)

@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, quaternion_yaw
+from sensor_envs.inputs import InputError
 from sensor_envs.outputs import atomic_write, check_suffix
 
 __all__ = [
@@ -44,7 +45,7 @@ __all__ = [
 PathLike = str | os.PathLike[str]
 
 
-class LidarLogError(ValueError):
+class LidarLogError(InputError):
     """A lidar log is malformed; the message names the file and the field at fault."""
 
 
@@ -253,7 +254,7 @@ def _parse_flaser(tok: list[str]) -> tuple[NDArray[np.float64], NDArray[np.float
     r = np.asarray(tok[2 : 2 + n], dtype=np.float64)
     pose = np.asarray(tok[2 + n : 5 + n], dtype=np.float64)
     if n < 2:
-        raise ValueError(f"{n} readings; FLASER needs at least 2")
+        raise InputError(f"{n} readings; FLASER needs at least 2")
     b = -np.pi / 2 + np.arange(n) * np.pi / (n - 1)  # n beams over [-pi/2, pi/2], both ends included
     return r, b, pose, float(tok[8 + n]), 80.0
 

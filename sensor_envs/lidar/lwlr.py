@@ -68,6 +68,7 @@ from sklearn.utils.validation import check_is_fitted
 from tqdm.auto import tqdm
 
 from sensor_envs.geometry import as_segments, raycast_pose
+from sensor_envs.inputs import InputError
 from sensor_envs.jit import compiled
 from sensor_envs.lidar.extra_state import MAX_COEF, apply_extra, check_extra_state, fit_extra_terms
 from sensor_envs.lidar.kernel import (
@@ -351,7 +352,7 @@ class LidarLWLR(BaseEstimator):
         n = int(pose_fold_groups(log.poses).max(initial=-1)) + 1
         if not 2 <= self.n_folds <= n:
             what = "number of poses" if n == log.n_poses else "number of distinct poses"
-            raise ValueError(f"n_folds: must be in [2, {what} = {n}], got {self.n_folds}")
+            raise InputError(f"n_folds: must be in [2, {what} = {n}], got {self.n_folds}")
 
     def fit(self, log: LidarLog, *, per_reading: bool | None = None, **reading_options: Any) -> LidarLWLR:
         """Fit the model to a log (approximate poses + nominal map), choosing kernel widths by CV.
@@ -382,7 +383,7 @@ class LidarLWLR(BaseEstimator):
             raise TypeError(f"fit: options {sorted(reading_options)} apply to the per-reading fit only")
         self._check_hyper(log)
         if self.extra_state:
-            raise ValueError(f"{log.source}: extra_state needs a scan log (one reading per scan and bearing)")
+            raise InputError(f"{log.source}: extra_state needs a scan log (one reading per scan and bearing)")
         segs = log.require_map()
         r_ap, a_ap = lidar_features(log.poses, log.bearings, segs, self.max_range)
         stats = cell_statistics(log, self.spur_above, split_spurious=self.variant == "extended")

@@ -25,6 +25,7 @@ import yaml
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, quaternion_yaw, raycast_pose
+from sensor_envs.inputs import InputError
 from sensor_envs.lidar.log import LidarLog, LidarLogError
 from sensor_envs.maps import occupancy_to_segments
 
@@ -143,7 +144,7 @@ def read_occupancy(yaml_path: str | os.PathLike[str]) -> tuple[NDArray[np.bool_]
         img = _read_image(path.parent / str(meta["image"]), path)
         res, origin = float(meta["resolution"]), np.asarray(meta["origin"], dtype=np.float64)
     except (OSError, yaml.YAMLError, KeyError, TypeError) as exc:
-        raise ValueError(f"{path}: not a readable ROS map_server YAML ({exc})") from None
+        raise InputError(f"{path}: not a readable ROS map_server YAML ({exc})") from None
     p = img / 255.0 if int(meta.get("negate", 0)) else (255.0 - img) / 255.0
     return (p > float(meta.get("occupied_thresh", 0.65)))[::-1], res, origin
 
@@ -282,7 +283,7 @@ def split_parts(n_scans: int, block_scans: int, test_every: int) -> tuple[NDArra
     Block ``b`` (scans ``b * block_scans ..``) is held out when ``b mod test_every == test_every - 1``.
     """
     if block_scans < 1 or test_every < 2:
-        raise ValueError(f"split: block_scans must be >= 1 and test_every >= 2, got {block_scans}, {test_every}")
+        raise InputError(f"split: block_scans must be >= 1 and test_every >= 2, got {block_scans}, {test_every}")
     test = (np.arange(n_scans) // block_scans) % test_every == test_every - 1
     return ~test, test
 
@@ -322,7 +323,7 @@ def prepare_log(
     from sensor_envs.maps import load_map
 
     if part not in ("all", "train", "test"):
-        raise ValueError(f"part: expected 'all', 'train' or 'test', got {part!r}")
+        raise InputError(f"part: expected 'all', 'train' or 'test', got {part!r}")
     if not np.isfinite(log.poses).any():
         raise LidarLogError(f"{log.source}: field 'poses' holds no finite pose")
     train, test = split_parts(log.n_poses, block_scans, test_every)
@@ -338,7 +339,7 @@ def prepare_log(
     segs = log.map_segments
     if align:
         if map is None or Path(str(map)).suffix.lower() not in (".yaml", ".yml"):
-            raise ValueError("align: needs --map pointing at a ROS map_server YAML (an occupancy grid)")
+            raise InputError("align: needs --map pointing at a ROS map_server YAML (an occupancy grid)")
         occ, res, origin = read_occupancy(map)
         src = Path(log.source)
         offset = laser_offset_from_bag(src) if src.suffix == ".bag" or src.is_dir() else np.zeros(3)

@@ -54,6 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm.auto import tqdm
 
+from sensor_envs.inputs import InputError
 from sensor_envs.lidar.kernel import (
     P_EPS,
     SIGMA_FLOOR,
@@ -285,7 +286,7 @@ def fit_per_reading(
     """
     model._check_hyper(log)
     if model.pose_correction:
-        raise ValueError(f"{log.source}: pose_correction needs a static log with repeats (the per-cell fit)")
+        raise InputError(f"{log.source}: pose_correction needs a static log with repeats (the per-cell fit)")
     segs = log.require_map()
     r, a = map_features(log.poses, log.bearings, segs, model.max_range)
     coverage = check_map_covers(log, r, model.max_range)
@@ -297,7 +298,7 @@ def fit_per_reading(
     pose, x = reading_rows(log, max_readings)
     fold = block_folds(log.n_poses, n_folds, block)[pose]
     if np.unique(fold).size < 2:
-        raise ValueError(f"{log.source}: only {np.unique(fold).size} CV fold has readings; use fewer or shorter blocks")
+        raise InputError(f"{log.source}: only {np.unique(fold).size} CV fold has readings; use fewer or shorter blocks")
     ext = model.variant == "extended"
     hit = np.isfinite(r[pose])
     tr_r, tr_a = np.where(hit, r[pose], 0.0), np.where(hit, np.nan_to_num(a[pose]), 0.0)

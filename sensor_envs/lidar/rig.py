@@ -88,6 +88,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, raycast_pose, sample_free_poses
+from sensor_envs.inputs import InputError
 from sensor_envs.lidar.log import LidarLog, log_from_arrays
 from sensor_envs.modelio import (
     Constraint,
@@ -249,7 +250,7 @@ class NeatoRig:
     def __post_init__(self) -> None:
         validate_params(self.params(), RIG_CONSTRAINTS)
         for name, msg in self._relation_errors():
-            raise ValueError(f"{name}: {msg}")
+            raise InputError(f"{name}: {msg}")
         object.__setattr__(self, "bearings", np.deg2rad(np.arange(self.n_bearings) * 360.0 / self.n_bearings))
 
     def _relation_errors(self) -> list[tuple[str, str]]:

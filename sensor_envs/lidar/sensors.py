@@ -18,6 +18,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from sensor_envs.inputs import InputError
 from sensor_envs.jit import compiled
 from sensor_envs.modelio import default_model_path, model_file_key
 from sensor_envs.trig import tan_half_pi
@@ -90,13 +91,13 @@ class GaussianLidar:
         for name in ("sigma0", "k_range", "k_incidence", "alpha_max", "p_null_floor"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
-                raise ValueError(f"GaussianLidar: {name} must be a number, got {v!r}")
+                raise InputError(f"GaussianLidar: {name} must be a number, got {v!r}")
             if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"GaussianLidar: {name} must be finite and >= 0, got {v!r}")
+                raise InputError(f"GaussianLidar: {name} must be finite and >= 0, got {v!r}")
         if not self.alpha_max < np.pi / 2:
-            raise ValueError(f"GaussianLidar: alpha_max must be < pi/2 [rad], got {self.alpha_max!r}")
+            raise InputError(f"GaussianLidar: alpha_max must be < pi/2 [rad], got {self.alpha_max!r}")
         if not self.p_null_floor <= 1:
-            raise ValueError(f"GaussianLidar: p_null_floor must be a probability in [0, 1], got {self.p_null_floor!r}")
+            raise InputError(f"GaussianLidar: p_null_floor must be a probability in [0, 1], got {self.p_null_floor!r}")
 
     def sigma(self, nominal_range: NDArray[np.float64], incidence: NDArray[np.float64]) -> NDArray[np.float64]:
         """Noise standard deviation [m] per bearing (``NaN`` where no hit)."""
@@ -203,12 +204,12 @@ def make_lidar(name: str | LidarSensor, model: str | PathLike[str] | None = None
             raise TypeError(f"lidar: expected a name in {LIDAR_NAMES} or a LidarSensor, got {type(name).__name__}")
         return name
     if name not in LIDAR_NAMES:
-        raise ValueError(f"lidar: unknown lidar {name!r}; choose one of {LIDAR_NAMES}")
+        raise InputError(f"lidar: unknown lidar {name!r}; choose one of {LIDAR_NAMES}")
     if name != "learned" and model is not None:
-        raise ValueError(f"lidar: 'model' applies to lidar='learned' only, not {name!r}")
+        raise InputError(f"lidar: 'model' applies to lidar='learned' only, not {name!r}")
     if name == "ideal":
         if kwargs:
-            raise ValueError(f"lidar: the ideal lidar takes no parameters, got {sorted(kwargs)}")
+            raise InputError(f"lidar: the ideal lidar takes no parameters, got {sorted(kwargs)}")
         return IdealLidar()
     if name == "gaussian":
         return GaussianLidar(**kwargs)

@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 from scipy import stats as sps
 from scipy.optimize import nnls
 
+from sensor_envs.inputs import InputError
 from sensor_envs.lidar.log import LidarLog
 from sensor_envs.lidar.lwlr import P_EPS, SIGMA_FLOOR, LidarLWLR, mixture_log_prob
 from sensor_envs.lidar.mapping import map_features
@@ -59,7 +60,7 @@ def baseline_params(
         p_null = np.where(hit, np.clip(g.p_null_floor, P_EPS, 1 - P_EPS), 1 - P_EPS)
         sigma = np.maximum(np.nan_to_num(g.sigma(r, a), nan=1.0), SIGMA_FLOOR)
     else:
-        raise ValueError(f"baseline: expected 'ideal' or 'gaussian', got {name!r}")
+        raise InputError(f"baseline: expected 'ideal' or 'gaussian', got {name!r}")
     return {"p_null": p_null, "p_spur": np.zeros(r.shape), "mu": mu, "sigma": sigma, "tau": np.zeros(r.shape)}
 
 

@@ -44,6 +44,7 @@ from sklearn.cluster import DBSCAN
 from tqdm import tqdm
 
 from sensor_envs.geometry import quaternion_yaw, to_frame
+from sensor_envs.inputs import InputError
 from sensor_envs.radar.features import aspect_angle
 from sensor_envs.radar.log import REQUIRED_COLUMNS, RadarLog
 
@@ -68,19 +69,19 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
             warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
             pts = np.loadtxt(pc_path, skiprows=2, ndmin=2)
     except ValueError as exc:
-        raise ValueError(f"{pc_path}: not a table of 5 numbers per row ({exc})") from exc
+        raise InputError(f"{pc_path}: not a table of 5 numbers per row ({exc})") from exc
     if pts.size and pts.shape[1] != 5:
-        raise ValueError(f"{pc_path}: expected 5 columns X Y Z V_r Mag, got {pts.shape[1]}")
+        raise InputError(f"{pc_path}: expected 5 columns X Y Z V_r Mag, got {pts.shape[1]}")
     if not np.isfinite(pts).all():
-        raise ValueError(f"{pc_path}: field 'X Y Z V_r Mag' holds NaN or infinite values")
+        raise InputError(f"{pc_path}: field 'X Y Z V_r Mag' holds NaN or infinite values")
     gt_path = root / "groundtruth_obj3d" / f"{name}.json"
     try:
         doc = json.loads(gt_path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{gt_path}: not valid UTF-8 JSON ({' '.join(str(exc).split())})") from None
+        raise InputError(f"{gt_path}: not valid UTF-8 JSON ({' '.join(str(exc).split())})") from None
     objs = doc.get("objects", []) if isinstance(doc, dict) else None
     if not isinstance(objs, list):
-        raise ValueError(f"{gt_path}: field 'objects' must be a list of objects, got {type(objs).__name__}")
+        raise InputError(f"{gt_path}: field 'objects' must be a list of objects, got {type(objs).__name__}")
     boxes, names = [], []
     for k, o in enumerate(objs):
         try:
@@ -97,11 +98,11 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
             ]
             names.append(str(o["classname"]))
         except (KeyError, IndexError) as exc:
-            raise ValueError(f"{gt_path}: object {k} lacks field {exc}") from None
+            raise InputError(f"{gt_path}: object {k} lacks field {exc}") from None
         except (TypeError, ValueError, AttributeError) as exc:
-            raise ValueError(f"{gt_path}: object {k}: a field is malformed ({exc})") from None
+            raise InputError(f"{gt_path}: object {k}: a field is malformed ({exc})") from None
         if not np.isfinite(box[:6]).all():
-            raise ValueError(
+            raise InputError(
                 f"{gt_path}: object {k}: field 'center3d', 'dimension3d' or 'orientation_quat' is not finite"
             )
         boxes.append(box)
@@ -189,12 +190,12 @@ def load_astyx(
     if not (root / "radar_6455").is_dir():
         raise FileNotFoundError(f"{root}: no 'radar_6455' folder (expected the Astyx HiRes2019 layout)")
     if cluster_args.get("position", "nearest") not in ("nearest", "centroid"):
-        raise ValueError(f"position must be 'nearest' or 'centroid', got {cluster_args['position']!r}")
+        raise InputError(f"position must be 'nearest' or 'centroid', got {cluster_args['position']!r}")
     if frames is None:
         files = sorted((root / "radar_6455").glob("*.txt"))
         stray = [p for p in files if not p.stem.isdigit()]
         if stray:
-            raise ValueError(f"{stray[0]}: not an Astyx frame file (expected radar_6455/NNNNNN.txt)")
+            raise InputError(f"{stray[0]}: not an Astyx frame file (expected radar_6455/NNNNNN.txt)")
         frames = [int(p.stem) for p in files]
     out = []
     for f in tqdm(frames, disable=not progress, desc="astyx"):

@@ -100,6 +100,7 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from sensor_envs.geometry import closest_corner, from_frame, rectangle_corners, to_polar_frame
+from sensor_envs.inputs import InputError
 from sensor_envs.radar.features import occluded_column
 from sensor_envs.radar.log import REF_COLUMNS, RadarLog, clutter_counts
 from sensor_envs.radar.rig import RadarRig, RigConfig, SnapshotDraws
@@ -191,7 +192,7 @@ def frames_from_log(log: RadarLog, source: str | None = None) -> RealFrames:
     """
     tgt = ~log.is_clutter
     if not tgt.any():
-        raise ValueError("no target rows (reference boxes) to calibrate against")
+        raise InputError("no target rows (reference boxes) to calibrate against")
     keys = np.stack([log["sequence"], log["frame"]], axis=1)
     uniq, inv = np.unique(keys, axis=0, return_inverse=True)
     inv = inv.ravel()
@@ -688,7 +689,7 @@ def fit_offset_mixture(
     for k in range(len(DET_RANGE_EDGES) - 1):  # one iteration per range bin
         sel = b == k
         if sel.sum() < 10:
-            raise ValueError(f"offsets: only {int(sel.sum())} detected rows in range bin {k}; a mixture needs 10")
+            raise InputError(f"offsets: only {int(sel.sum())} detected rows in range bin {k}; a mixture needs 10")
         scores = _choose_components(z[sel], fold[sel], seed, components)
         top = max(scores.values())
         best = min(c for c, v in scores.items() if v >= top - MIXTURE_TOLERANCE)
@@ -878,11 +879,11 @@ def calibrate_rig(
         progress: show a tqdm bar over function evaluations.
     """
     if offset_law not in OFFSET_LAWS:
-        raise ValueError(f"offset_law: must be one of {OFFSET_LAWS}, got {offset_law!r}")
+        raise InputError(f"offset_law: must be one of {OFFSET_LAWS}, got {offset_law!r}")
     if not (np.isfinite(mixture_min_range) and mixture_min_range >= 0):
-        raise ValueError(f"mixture_min_range: must be a finite range >= 0 m, got {mixture_min_range!r}")
+        raise InputError(f"mixture_min_range: must be a finite range >= 0 m, got {mixture_min_range!r}")
     if mixture_min_range > 0 and offset_law != "mixture":
-        raise ValueError("mixture_min_range: only with offset_law 'mixture'")
+        raise InputError("mixture_min_range: only with offset_law 'mixture'")
     base = base or RigConfig()
     sim = _sim_setup(frames, replicates, np.random.default_rng([seed, 7]))
     rounds = 2 if azimuth_bias else 1

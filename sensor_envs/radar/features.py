@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.geometry import occluded_fraction, rectangle_corners, wrap_angle
+from sensor_envs.inputs import InputError
 from sensor_envs.radar.log import REF_COLUMNS, RadarLog
 
 __all__ = [
@@ -131,7 +132,7 @@ def state_matrix(log: RadarLog, names: tuple[str, ...], rows: NDArray[np.int64])
     log = with_state_columns(log, names)
     for name in names:
         if name not in log.columns:
-            raise ValueError(f"{log.source}: column {name!r} (a state variable of the model) is missing from the log")
+            raise InputError(f"{log.source}: column {name!r} (a state variable of the model) is missing from the log")
     if not names:
         return np.zeros((len(rows), 0))
     return np.stack([np.asarray(log[n], dtype=np.float64)[rows] for n in names], axis=1)

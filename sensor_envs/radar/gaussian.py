@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 from sklearn.base import BaseEstimator
 from sklearn.utils.validation import check_is_fitted
 
+from sensor_envs.inputs import InputError
 from sensor_envs.modelio import (
     Constraint,
     InstanceOf,
@@ -96,7 +97,7 @@ class GaussianRadar(BaseEstimator):
         tt = target_tuples(log)
         det = ~np.isnan(tt.z[:, 0])
         if det.sum() < 3:
-            raise ValueError(f"{log.source}: fewer than 3 detected target rows; cannot fit a Gaussian")
+            raise InputError(f"{log.source}: fewer than 3 detected target rows; cannot fit a Gaussian")
         b = self._bin(tt.corner, edges)
         nb = edges.size - 1
         x = self._fit_extra_scaling(state_matrix(log, tuple(self.extra_state), tt.row))
@@ -143,10 +144,10 @@ class GaussianRadar(BaseEstimator):
         if not names:
             return np.zeros((n, 0))
         if extra is None:
-            raise ValueError(f"extra: this model's state includes {list(names)}; pass their values")
+            raise InputError(f"extra: this model's state includes {list(names)}; pass their values")
         x = np.asarray(extra, dtype=np.float64)
         if x.size != n * len(names):
-            raise ValueError(f"extra: expected ({n}, {len(names)}) values of {list(names)}, got shape {x.shape}")
+            raise InputError(f"extra: expected ({n}, {len(names)}) values of {list(names)}, got shape {x.shape}")
         return np.nan_to_num((x.reshape(n, len(names)) - self.extra_mean_) / self.extra_std_)
 
     def _mean_pd(self, corners: NDArray, extra: NDArray | None) -> tuple[NDArray, NDArray, NDArray]:

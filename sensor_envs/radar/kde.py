@@ -106,6 +106,7 @@ from sklearn.base import BaseEstimator
 from sklearn.utils.validation import check_is_fitted
 
 from sensor_envs.geometry import from_polar_frame, to_polar_frame
+from sensor_envs.inputs import InputError
 from sensor_envs.modelio import (
     RANDOM_STATE,
     Constraint,
@@ -315,7 +316,7 @@ def cv_bandwidth_table(
         log_h[n] = np.log([cand[a], cand[b]])
     good = ~np.isnan(log_h[:, 0])
     if not good.any():
-        raise ValueError(f"no grid node has {min_tuples} tuples within reach; lower cv_min_tuples")
+        raise InputError(f"no grid node has {min_tuples} tuples within reach; lower cv_min_tuples")
     _, near = cKDTree(nodes[good]).query(nodes[~good], k=1)
     log_h[~good] = log_h[good][near]
     return log_h.reshape(grid_x.size, grid_y.size, 2), counts.reshape(grid_x.size, grid_y.size)
@@ -535,7 +536,7 @@ class KDERadarModel(BaseEstimator):
         tt = target_tuples(log)
         det = ~np.isnan(tt.z[:, 0])
         if det.sum() < 2:
-            raise ValueError(f"{log.source}: fewer than 2 detected target rows; cannot fit a KDE")
+            raise InputError(f"{log.source}: fewer than 2 detected target rows; cannot fit a KDE")
         self.azimuth_bias_ = (
             estimate_azimuth_bias(tt.corner, tt.z) if self.azimuth_bias == "fit" else float(self.azimuth_bias)
         )
@@ -618,7 +619,7 @@ class KDERadarModel(BaseEstimator):
         fill = np.nanmedian(x, axis=0) if x.shape[1] and np.isfinite(x).any(axis=0).all() else np.zeros(x.shape[1])
         if x.shape[1] and not np.isfinite(x).any(axis=0).all():
             bad = self.extra_state_[int(np.argmin(np.isfinite(x).any(axis=0)))]
-            raise ValueError(f"{log.source}: column {bad!r} has no value on any target row")
+            raise InputError(f"{log.source}: column {bad!r} has no value on any target row")
         self.extra_fill_ = np.asarray(fill, dtype=np.float64)
         self.extra_ = np.where(np.isnan(x), self.extra_fill_, x)
         self.extra_scores_ = np.zeros((0, 0))
@@ -677,10 +678,10 @@ class KDERadarModel(BaseEstimator):
         if e == 0:
             return np.zeros((n, 0))
         if extra is None:
-            raise ValueError(f"extra: this model's state includes {list(self.extra_state_)}; pass their values")
+            raise InputError(f"extra: this model's state includes {list(self.extra_state_)}; pass their values")
         x = np.asarray(extra, dtype=np.float64)
         if x.size != n * e:
-            raise ValueError(f"extra: expected ({n}, {e}) values of {list(self.extra_state_)}, got shape {x.shape}")
+            raise InputError(f"extra: expected ({n}, {e}) values of {list(self.extra_state_)}, got shape {x.shape}")
         x = x.reshape(n, e)
         return np.where(np.isnan(x), self.extra_fill_, x)
 
@@ -772,11 +773,11 @@ class KDERadarModel(BaseEstimator):
             return grp
         flag = np.asarray(new_track)
         if flag.dtype != np.bool_ or flag.shape not in ((n,), ()):
-            raise ValueError(f"new_track: expected None or ({n},) booleans, got {flag.dtype} of shape {flag.shape}")
+            raise InputError(f"new_track: expected None or ({n},) booleans, got {flag.dtype} of shape {flag.shape}")
         flag = np.broadcast_to(flag, (n,))
         if (flag & has).any():
             r = int(np.flatnonzero(flag & has)[0])
-            raise ValueError(f"new_track: row {r} is flagged new but has a previous output (prev_z is finite)")
+            raise InputError(f"new_track: row {r} is flagged new but has a previous output (prev_z is finite)")
         if not self.use_prev:
             return grp
         start = grp == GROUP_START
@@ -832,9 +833,9 @@ class KDERadarModel(BaseEstimator):
         ex = self._extra_query(extra, n)
         prev = np.atleast_2d(np.asarray(prev_z, dtype=np.float64)) if prev_z is not None else np.full((n, 2), np.nan)
         if prev.shape != (n, 2) or corners.shape != (n, 2):
-            raise ValueError(f"corners and prev_z must both be (n, 2); got {corners.shape} and {prev.shape}")
+            raise InputError(f"corners and prev_z must both be (n, 2); got {corners.shape} and {prev.shape}")
         if not np.isfinite(corners).all():
-            raise ValueError(
+            raise InputError(
                 f"corners: row {int(np.flatnonzero(~np.isfinite(corners).all(axis=1))[0])} is NaN or infinite"
             )
         grp = self._route(prev, None) if grp is None else grp
@@ -1370,18 +1371,18 @@ def _load_new_track(
 def _check_extra_params(names: Any, variance: Any, candidates: Any) -> None:
     """Validate the ``extra_*`` hyperparameters (raises ValueError naming the parameter)."""
     if isinstance(names, str) or not all(isinstance(n, str) and n for n in names):
-        raise ValueError(f"extra_state must be a tuple of column names, got {names!r}")
+        raise InputError(f"extra_state must be a tuple of column names, got {names!r}")
     if len(set(names)) != len(names):
-        raise ValueError(f"extra_state has duplicate names: {names!r}")
+        raise InputError(f"extra_state has duplicate names: {names!r}")
     if variance is not None:
         v = np.asarray(variance, dtype=np.float64)
         if v.shape != (len(names),) or not (np.isnan(v) | (np.isfinite(v) & (v > 0))).all():
-            raise ValueError(
+            raise InputError(
                 f"extra_variance must be {len(names)} positive variances (NaN = by CV) or None, got {variance!r}"
             )
     c = np.asarray(candidates, dtype=np.float64)
     if c.ndim != 1 or c.size == 0 or not (np.isfinite(c).all() and (c > 0).all()):
-        raise ValueError(f"extra_candidates must be positive factors, got {candidates!r}")
+        raise InputError(f"extra_candidates must be positive factors, got {candidates!r}")
 
 
 def _load_extra(model: KDERadarModel, header: dict[str, Any], a: dict[str, NDArray], path: Any) -> None:
@@ -1410,7 +1411,7 @@ def _as_prev(prev_z: NDArray | None, n: int) -> NDArray[np.float64]:
         return np.full((n, 2), np.nan)
     prev = np.atleast_2d(np.asarray(prev_z, dtype=np.float64))
     if prev.shape != (n, 2):
-        raise ValueError(f"prev_z must be ({n}, 2) like corners; got {prev.shape}")
+        raise InputError(f"prev_z must be ({n}, 2) like corners; got {prev.shape}")
     return prev
 
 

@@ -43,6 +43,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import closest_corner, rectangle_corners
+from sensor_envs.inputs import InputError
 from sensor_envs.outputs import atomic_write
 
 __all__ = [
@@ -69,7 +70,7 @@ MEAS_COLUMNS = ("meas_x", "meas_y")
 REQUIRED_COLUMNS = ("sequence", "frame", "t", "target", *REF_COLUMNS, *MEAS_COLUMNS)
 
 
-class RadarLogError(ValueError):
+class RadarLogError(InputError):
     """A radar log is malformed; the message names the file, the column and the row."""
 
 

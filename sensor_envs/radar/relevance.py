@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from sklearn.base import clone
 from tqdm import tqdm
 
+from sensor_envs.inputs import InputError
 from sensor_envs.radar.features import state_matrix
 from sensor_envs.radar.log import RadarLog, target_tuples
 from sensor_envs.rng import fold_ids
@@ -202,7 +203,7 @@ def heldout_scores(
     """
     fold = inner_folds(log, n_folds)
     if np.unique(fold).size < n_folds:
-        raise ValueError(f"{log.source}: relevance CV needs at least {n_folds} sequences or frame blocks")
+        raise InputError(f"{log.source}: relevance CV needs at least {n_folds} sequences or frame blocks")
     total = np.zeros(len(overrides))
     n_rows = 0
     bar = tqdm(total=len(overrides) * n_folds, disable=not progress, desc=desc)

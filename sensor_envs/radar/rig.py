@@ -63,6 +63,7 @@ from sensor_envs.geometry import (
     occluded_fraction,
     rectangle_corners,
 )
+from sensor_envs.inputs import InputError
 from sensor_envs.modelio import (
     Constraint,
     Interval,
@@ -225,13 +226,13 @@ class RigConfig:
         for knots, table in pairs:
             k, t = getattr(self, knots), getattr(self, table)
             if (k is None) != (t is None) or (k is not None and t is not None and len(k) != len(t)):
-                raise ValueError(f"{table}: must be given with {knots!r} and have one value per knot")
+                raise InputError(f"{table}: must be given with {knots!r} and have one value per knot")
         if (
             not self.detect_azimuth_signed
             and self.detect_azimuth_knots is not None
             and self.detect_azimuth_knots[0] < 0
         ):
-            raise ValueError(
+            raise InputError(
                 "detect_azimuth_knots: |azimuth| knots must be >= 0 (signed knots need 'detect_azimuth_signed': true)"
             )
         for edges, weights in (
@@ -241,9 +242,9 @@ class RigConfig:
         ):
             e, w = getattr(self, edges), getattr(self, weights)
             if (e is None) != (w is None) or (e is not None and w is not None and len(e) != len(w) + 1):
-                raise ValueError(f"{weights}: must be given with {edges!r} and have one value per bin")
+                raise InputError(f"{weights}: must be given with {edges!r} and have one value per bin")
             if w is not None and not sum(w) > 0:
-                raise ValueError(f"{weights}: the shares must not all be 0")
+                raise InputError(f"{weights}: the shares must not all be 0")
         self._check_offset_mixture()
         self._check_scene()
 
@@ -257,19 +258,19 @@ class RigConfig:
             return
         for n, v in given.items():
             if v is None:
-                raise ValueError(f"{n}: the scene law's fields must be given together (with 'scene_x_edges')")
+                raise InputError(f"{n}: the scene law's fields must be given together (with 'scene_x_edges')")
         n_x = len(given["scene_x_edges"]) - 1
         for edges, weights in (("scene_y_edges", "scene_y_weights"), ("scene_heading_edges", "scene_heading_weights")):
             n_b = len(given[edges]) - 1
             w = np.asarray(given[weights], dtype=np.float64)
             if w.size != n_x * n_b:
-                raise ValueError(f"{weights}: must have {n_x * n_b} values ({n_x} x bins x {n_b} bins of {edges!r})")
+                raise InputError(f"{weights}: must have {n_x * n_b} values ({n_x} x bins x {n_b} bins of {edges!r})")
             if not np.all(w.reshape(n_x, n_b).sum(axis=1) > 0):
-                raise ValueError(f"{weights}: each x bin's shares must not all be 0")
+                raise InputError(f"{weights}: each x bin's shares must not all be 0")
         for n in ("scene_length_range", "scene_width_range"):
             lo, hi = given[n]
             if not lo <= hi:
-                raise ValueError(f"{n}: must be (low, high) with low <= high")
+                raise InputError(f"{n}: must be (low, high) with low <= high")
 
     def _check_offset_mixture(self) -> None:
         """The offset mixture's tables agree in size, each bin's weights sum to 1, scales are positive."""
@@ -278,29 +279,29 @@ class RigConfig:
         if e is None:
             for n, v in zip(names, given, strict=True):
                 if v is not None:
-                    raise ValueError(f"{n}: must be given with 'offset_mixture_edges'")
+                    raise InputError(f"{n}: must be given with 'offset_mixture_edges'")
             if self.offset_mixture_min_range:
-                raise ValueError("offset_mixture_min_range: must be given with 'offset_mixture_edges'")
+                raise InputError("offset_mixture_min_range: must be given with 'offset_mixture_edges'")
             return
         n_bins = len(e) - 1
         for n, v in zip(names, given, strict=True):
             if v is None:
-                raise ValueError(f"{n}: must be given with 'offset_mixture_edges'")
+                raise InputError(f"{n}: must be given with 'offset_mixture_edges'")
         w = np.asarray(given[0], dtype=np.float64)
         if w.size % n_bins:
-            raise ValueError(f"offset_mixture_weights: {w.size} values is not a multiple of {n_bins} bins")
+            raise InputError(f"offset_mixture_weights: {w.size} values is not a multiple of {n_bins} bins")
         k = w.size // n_bins
         for n, v, per in zip(names[1:], given[1:], (2, 3), strict=True):
             if len(v) != n_bins * k * per:
-                raise ValueError(f"{n}: must have {n_bins * k * per} values ({n_bins} bins x {k} components x {per})")
+                raise InputError(f"{n}: must have {n_bins * k * per} values ({n_bins} bins x {k} components x {per})")
         sums = w.reshape(n_bins, k).sum(axis=1)
         if not np.all(np.abs(sums - 1.0) <= 1e-6):
-            raise ValueError(
+            raise InputError(
                 f"offset_mixture_weights: each bin's weights must sum to 1 (sums {sums.round(6).tolist()})"
             )
         diag = np.asarray(given[2], dtype=np.float64).reshape(-1, 3)[:, [0, 2]]
         if not np.all(diag > 0):
-            raise ValueError("offset_mixture_scales: the Cholesky diagonals (l_rr, l_oo) must be > 0")
+            raise InputError("offset_mixture_scales: the Cholesky diagonals (l_rr, l_oo) must be > 0")
 
     def to_params(self) -> dict[str, Any]:
         """The parameters as plain JSON values (tuples as lists)."""
@@ -453,7 +454,7 @@ def scene_boxes(config: RigConfig, n: int, rng: np.random.Generator) -> NDArray[
     """
     c = config
     if c.scene_x_edges is None:
-        raise ValueError("scene_x_edges: the rig has no scene law (calibrate radar --scene fits one)")
+        raise InputError("scene_x_edges: the rig has no scene law (calibrate radar --scene fits one)")
     x_edges = np.asarray(c.scene_x_edges, dtype=np.float64)
     n_x = x_edges.size - 1
     x_weights = np.asarray(c.scene_x_weights, dtype=np.float64)

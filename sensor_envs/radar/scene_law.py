@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sensor_envs.inputs import InputError
 from sensor_envs.radar.rig import RadarRig, RigConfig, generate_scenario
 
 __all__ = [
@@ -90,9 +91,9 @@ def fit_scene_law(
     """
     boxes = np.asarray(boxes, dtype=np.float64)
     if boxes.ndim != 2 or boxes.shape[1] != 5 or boxes.shape[0] < 10:
-        raise ValueError(f"boxes: need at least 10 reference boxes (n, 5), got shape {boxes.shape}")
+        raise InputError(f"boxes: need at least 10 reference boxes (n, 5), got shape {boxes.shape}")
     if not np.all(np.isfinite(boxes)):
-        raise ValueError("boxes: reference boxes must be finite")
+        raise InputError("boxes: reference boxes must be finite")
     x, y, h, length, width = boxes.T
     bx = _bin_clipped(x, x_edges)
     y_w, h_w = [], []

@@ -22,6 +22,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from sensor_envs.inputs import InputError
 from sensor_envs.modelio import default_model_path, model_file_key
 
 __all__ = [
@@ -125,10 +126,10 @@ def make_radar(name: str, model: str | os.PathLike[str] | None = None) -> RadarS
         ValueError: naming ``name`` when it is unknown, or when ``"ideal"`` is given a model file.
     """
     if name not in RADAR_NAMES:
-        raise ValueError(f"unknown radar {name!r}; expected one of {list(RADAR_NAMES)}")
+        raise InputError(f"unknown radar {name!r}; expected one of {list(RADAR_NAMES)}")
     if name == "ideal":
         if model is not None:
-            raise ValueError(f"radar 'ideal' takes no model file (got {model!r})")
+            raise InputError(f"radar 'ideal' takes no model file (got {model!r})")
         return _load_radar(name, None, 0)
     return _load_radar(name, *model_file_key(default_model_path(DEFAULT_MODEL_FILES[name]) if model is None else model))
 

@@ -22,6 +22,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from sensor_envs.inputs import InputError
 from sensor_envs.outputs import write_json
 from sensor_envs.radar.features import model_extra
 from sensor_envs.radar.log import RadarLog, TargetTuples, target_tuples
@@ -65,7 +66,7 @@ def split_by_blocks(log: RadarLog, block: int, n_folds: int, fold: int) -> tuple
     Block ``b`` (numbered over all sequences) goes to the test part when ``b % n_folds == fold``.
     """
     if not 0 <= fold < n_folds:
-        raise ValueError(f"fold must be in [0, {n_folds}), got {fold}")
+        raise InputError(f"fold must be in [0, {n_folds}), got {fold}")
     seq, frame = log["sequence"], log["frame"]
     test = fold_ids(np.stack([seq, frame // block], axis=1), n_folds) == fold
     return log.select(~test), log.select(test)

@@ -1,0 +1,322 @@
+"""The input layer: one exception for bad input and bounded readers that every loader goes through.
+
+Contract (see ``docs/howto/inputs.md``):
+
+* :class:`InputError` (a ``ValueError``) is the one exception for bad input: a malformed file, an
+  option out of range, an unsafe output. Its message names the file (or option) and the field. The
+  command line turns it, and an ``OSError`` from opening a user's path, into exit status 2 and one
+  line; every other exception is a bug and keeps its traceback.
+* Every file is read through :func:`read_bytes` / :func:`read_text` / :func:`open_gzip_lines` /
+  :func:`load_npz`: only regular files (a FIFO, a device or a socket is refused before it is opened,
+  so ``/dev/zero`` or a pipe cannot hang or fill memory), at most :data:`LIMITS` ``.file_bytes`` bytes,
+  a compressed file's inflated size checked before (npz) or while (gzip) inflating, lines of at most
+  ``.line_bytes``.
+* Structured text goes through :func:`parse_json` / :func:`parse_yaml`: at most ``.depth`` levels of
+  nesting and ``.nodes`` values; YAML aliases (``*name``) are refused (no alias bombs).
+* Images: :func:`check_pixels` before any decoding (at most ``.pixels`` pixels).
+* Numbers: :func:`check_number` / :func:`check_count` for scalars (finite, declared range).
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import math
+import os
+import stat
+import zipfile
+import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+__all__ = [
+    "InputError",
+    "Limits",
+    "LIMITS",
+    "check_regular_file",
+    "read_bytes",
+    "read_text",
+    "open_gzip_lines",
+    "load_npz",
+    "parse_json",
+    "parse_yaml",
+    "check_pixels",
+    "check_number",
+    "check_count",
+]
+
+PathLike = str | os.PathLike[str]
+
+
+class InputError(ValueError):
+    """Bad input (a file, an option, an argument): the message names the file or option and the field.
+
+    The one exception the command line shows as one line with exit status 2 (subclasses:
+    ``ModelFileError``, ``LidarLogError``, ``RadarLogError``, ``OutputError``).
+    """
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Bounds of every read (module-wide; tests may replace :data:`LIMITS` fields with ``dataclasses.replace``).
+
+    Attributes:
+        file_bytes: largest file read [bytes] (the real logs are at most a few MB; 512 MiB leaves room).
+        inflated_bytes: largest inflated content of a compressed file (gzip, npz) [bytes].
+        line_bytes: longest text line [bytes].
+        depth: deepest nesting of JSON/YAML containers.
+        nodes: most values in one JSON/YAML document.
+        pixels: largest map image [pixels] (a 10 000 x 10 000 grid at 5 cm is a 500 m square).
+    """
+
+    file_bytes: int = 512 * 2**20
+    inflated_bytes: int = 1024 * 2**20
+    line_bytes: int = 16 * 2**20
+    depth: int = 64
+    nodes: int = 2_000_000
+    pixels: int = 100_000_000
+
+
+LIMITS = Limits()
+
+
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device")):
+        if test(mode):
+            return name
+    for test, name in ((stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a folder")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def check_regular_file(path: PathLike, field: str = "file", limit: int | None = None) -> int:
+    """The size [bytes] of ``path``, a regular file of at most ``limit`` bytes (default ``LIMITS.file_bytes``).
+
+    Raises:
+        InputError: for a FIFO, device, socket or folder (checked before opening: no blocking read),
+            or a file over the limit, naming the file and ``field``.
+        FileNotFoundError: when ``path`` does not exist (the message names it).
+    """
+    p = Path(path)
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{p}: {field}: file not found") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{p}: {field}: is {_kind(st.st_mode)}, expected a regular file")
+    cap = LIMITS.file_bytes if limit is None else limit
+    if st.st_size > cap:
+        raise InputError(f"{p}: {field}: the file has {st.st_size} bytes, more than the limit of {cap}")
+    return int(st.st_size)
+
+
+def read_bytes(path: PathLike, field: str = "file", limit: int | None = None) -> bytes:
+    """The bytes of a regular file of at most ``limit`` bytes (see :func:`check_regular_file`)."""
+    cap = LIMITS.file_bytes if limit is None else limit
+    check_regular_file(path, field, cap)
+    with open(path, "rb") as fh:
+        data = fh.read(cap + 1)  # the file may have grown since the check
+    if len(data) > cap:
+        raise InputError(f"{path}: {field}: the file has more than the limit of {cap} bytes")
+    return data
+
+
+def read_text(path: PathLike, field: str = "file", limit: int | None = None, encoding: str = "utf-8") -> str:
+    """The text of a regular file of at most ``limit`` bytes; bytes that are not ``encoding`` are an InputError."""
+    raw = read_bytes(path, field, limit)
+    try:
+        return raw.decode(encoding)
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise InputError(
+            f"{path}: {field}: line {line}: byte {raw[exc.start : exc.start + 1]!r} is not {encoding.upper()} text"
+        ) from None
+
+
+def open_gzip_lines(path: PathLike, field: str = "file") -> Iterator[tuple[int, str]]:
+    """``(line number, text)`` of a gzip (or, without the gzip magic, plain) UTF-8 text file, bounded.
+
+    The compressed file is checked like any other (:func:`check_regular_file`); the inflated text may
+    not exceed ``LIMITS.inflated_bytes`` and no line ``LIMITS.line_bytes`` (checked while inflating, a
+    piece at a time: a gzip of one 4 GB line is refused after reading ``line_bytes``).
+
+    Raises:
+        InputError: naming the file and ``field`` (truncated or damaged gzip, not UTF-8, over a limit).
+    """
+    check_regular_file(path, field)
+    with open(path, "rb") as raw:
+        gz = raw.read(2) == b"\x1f\x8b"
+    total = 0
+    try:
+        with gzip.open(path, "rb") if gz else open(path, "rb") as fh:
+            for lineno in range(1, 2**62):
+                line = fh.readline(LIMITS.line_bytes + 1)
+                if not line:
+                    return
+                total += len(line)
+                if len(line) > LIMITS.line_bytes:
+                    raise InputError(f"{path}: {field}: line {lineno} is longer than {LIMITS.line_bytes} bytes")
+                if total > LIMITS.inflated_bytes:
+                    raise InputError(f"{path}: {field}: the inflated text exceeds {LIMITS.inflated_bytes} bytes")
+                try:
+                    yield lineno, line.decode("utf-8")
+                except UnicodeDecodeError as exc:
+                    raise InputError(f"{path}: {field}: line {lineno} is not UTF-8 text ({exc.reason})") from None
+    except (EOFError, OSError, zlib.error) as exc:  # gzip: truncated stream, bad header or CRC
+        detail = "truncated" if isinstance(exc, EOFError) else " ".join(str(exc).split())
+        raise InputError(f"{path}: {field}: the file is not readable as gzip ({detail})") from None
+
+
+def load_npz(path: PathLike, what: str = "npz file") -> dict[str, NDArray[Any]]:
+    """Every array of a ``.npz`` (no pickle), its inflated size checked before anything is inflated.
+
+    Raises:
+        InputError: naming the file: not a zip/npz, pickled (object) content, an inflated size over
+            ``LIMITS.inflated_bytes``, or damaged content.
+    """
+    check_regular_file(path, what)
+    try:
+        with zipfile.ZipFile(path) as zf:
+            inflated = sum(i.file_size for i in zf.infolist())
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+        raise InputError(f"{path}: not a readable {what} ({' '.join(str(exc).split())})") from None
+    if inflated > LIMITS.inflated_bytes:
+        raise InputError(
+            f"{path}: not a readable {what}: its arrays inflate to {inflated} bytes, more than the limit of "
+            f"{LIMITS.inflated_bytes}"
+        )
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except MemoryError:
+        raise InputError(f"{path}: not a readable {what} (an array is too large)") from None
+    except Exception as exc:  # zip/npy damage, pickled content, ...: all the file's fault
+        raise InputError(f"{path}: not a readable {what} ({' '.join(str(exc).split())})") from None
+
+
+def _check_tree(doc: Any, source: str) -> Any:
+    """``doc`` if it nests at most ``LIMITS.depth`` levels and holds at most ``LIMITS.nodes`` values."""
+    stack: list[tuple[Any, int]] = [(doc, 1)]
+    nodes = 0
+    while stack:
+        x, d = stack.pop()
+        nodes += 1
+        if nodes > LIMITS.nodes:
+            raise InputError(f"{source}: holds more than {LIMITS.nodes} values")
+        if isinstance(x, (dict, list)):
+            if d > LIMITS.depth:
+                raise InputError(f"{source}: nested deeper than {LIMITS.depth} levels")
+            items = x.values() if isinstance(x, dict) else x
+            stack.extend((v, d + 1) for v in items)
+    return doc
+
+
+def parse_json(text: str | bytes, source: str) -> Any:
+    """JSON text as Python data, bounded in depth and size; ``NaN``/``Infinity`` literals are refused.
+
+    Args:
+        text: the JSON text.
+        source: the file and field, for messages (e.g. ``"model.npz: field '__header__'"``).
+
+    Raises:
+        InputError: ``"<source>: not valid JSON (...)"`` or a depth / size limit.
+    """
+
+    def no_constant(name: str) -> Any:
+        raise InputError(f"{source}: not valid JSON ({name} is not a JSON number)")
+
+    try:
+        doc = json.loads(text, parse_constant=no_constant)
+    except RecursionError:
+        raise InputError(f"{source}: nested deeper than {LIMITS.depth} levels") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{source}: not valid JSON ({' '.join(str(exc).split())})") from None
+    return _check_tree(doc, source)
+
+
+class _BoundedLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses aliases and containers nested deeper than ``LIMITS.depth``."""
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise yaml.composer.ComposerError(
+                None, None, "aliases (*name) are not accepted in input files", event.start_mark
+            )
+        depth = getattr(self, "_depth", 0) + 1
+        if depth > LIMITS.depth:
+            raise yaml.composer.ComposerError(
+                None, None, f"nested deeper than {LIMITS.depth} levels", self.peek_event().start_mark
+            )
+        self._depth = depth
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth = depth - 1
+
+
+def parse_yaml(text: str, source: str) -> Any:
+    """YAML text (safe tags only) as Python data: no aliases, bounded depth and size.
+
+    Raises:
+        InputError: ``"<source>: not valid YAML (...)"``, an alias, or a depth / size limit.
+    """
+    try:
+        doc = yaml.load(text, Loader=_BoundedLoader)
+    except RecursionError:
+        raise InputError(f"{source}: nested deeper than {LIMITS.depth} levels") from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"{source}: not valid YAML ({' '.join(str(exc).split())})") from None
+    except (ValueError, TypeError, OverflowError) as exc:  # e.g. a timestamp out of range
+        raise InputError(f"{source}: not valid YAML ({' '.join(str(exc).split())})") from None
+    return _check_tree(doc, source)
+
+
+def check_pixels(width: int, height: int, source: str) -> None:
+    """Refuse an image of more than ``LIMITS.pixels`` pixels (checked from its header, before decoding)."""
+    if width < 1 or height < 1:
+        raise InputError(f"{source}: fields 'width'/'height' must be >= 1, got {width} x {height}")
+    if width * height > LIMITS.pixels:
+        raise InputError(f"{source}: the image has {width} x {height} pixels, more than the limit of {LIMITS.pixels}")
+
+
+def check_number(
+    value: Any,
+    name: str,
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    open_low: bool = False,
+    integer: bool = False,
+) -> float:
+    """``value`` as a float: a real (not bool) finite number in ``[low, high]`` (``(low, high]`` if ``open_low``).
+
+    Raises:
+        InputError: ``"<name>: expected ..., got ..."``.
+    """
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+    if integer:
+        ok = ok and isinstance(value, (int, np.integer))
+    v = float(value) if ok else math.nan
+    if ok and math.isfinite(v):
+        ok = (low is None or v > low or (v == low and not open_low)) and (high is None or v <= high)
+    else:
+        ok = False
+    if not ok:
+        lo = "-inf" if low is None else f"{low:g}"
+        hi = "inf" if high is None else f"{high:g}"
+        kind = "an integer" if integer else "a finite number"
+        raise InputError(f"{name}: expected {kind} in {'(' if open_low else '['}{lo}, {hi}], got {value!r}")
+    return v
+
+
+def check_count(value: Any, name: str, low: int = 1, high: int = 10**9) -> int:
+    """``value`` as an int in ``[low, high]`` (booleans and floats are refused)."""
+    return int(check_number(value, name, low, high, integer=True))
