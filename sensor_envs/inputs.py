@@ -140,8 +140,8 @@ def read_text(path: PathLike, field: str = "file", limit: int | None = None, enc
         ) from None
 
 
-def open_gzip_lines(path: PathLike, field: str = "file") -> Iterator[tuple[int, str]]:
-    """``(line number, text)`` of a gzip (or, without the gzip magic, plain) UTF-8 text file, bounded.
+def open_gzip_lines(path: PathLike, field: str = "file", gzipped: bool | None = None) -> Iterator[tuple[int, str]]:
+    """``(line number, text)`` of a gzip (``gzipped``; ``None``: by its magic bytes) or plain UTF-8 text file, bounded.
 
     The compressed file is checked like any other (:func:`check_regular_file`); the inflated text may
     not exceed ``LIMITS.inflated_bytes`` and no line ``LIMITS.line_bytes`` (checked while inflating, a
@@ -153,6 +153,8 @@ def open_gzip_lines(path: PathLike, field: str = "file") -> Iterator[tuple[int, 
     check_regular_file(path, field)
     with open(path, "rb") as raw:
         gz = raw.read(2) == b"\x1f\x8b"
+    if gzipped and not gz:
+        raise InputError(f"{path}: {field}: the file is not readable as gzip (no gzip header)")
     total = 0
     try:
         with gzip.open(path, "rb") if gz else open(path, "rb") as fh:

@@ -390,7 +390,7 @@ CASES: list[Case] = [
     ),
     C(RADAR, "only-clutter", lambda d: fit_radar(radar_csv(d, rows=[RADAR_ROWS[3]])), "no target rows"),
     C(RADAR, "one-detection", lambda d: fit_radar(radar_csv(d, rows=RADAR_ROWS[:1])), "fewer than"),
-    C(RADAR, "log-is-a-folder", lambda d: fit_radar(_mkdir(d / "log.csv")), "directory"),
+    C(RADAR, "log-is-a-folder", lambda d: fit_radar(_mkdir(d / "log.csv")), "is a folder"),
     C(RADAR, "log-missing", lambda d: fit_radar(d / "nope.csv"), "not found"),
     C(
         RADAR,

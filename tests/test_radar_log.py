@@ -81,4 +81,4 @@ def test_neither_ref_nor_meas_and_duplicates():
     with pytest.raises(RadarLogError, match="neither ref nor meas"):
         RadarLog(_cols(meas_x=[8.5, np.nan, 10.3, np.nan], meas_y=[1.2, np.nan, -0.9, np.nan]))
     with pytest.raises(RadarLogError, match="repeats"):
-        target_tuples(RadarLog(_cols(frame=[0, 0, 2, 2])))
+        target_tuples(RadarLog(_cols(frame=[0, 0, 2, 2], t=[0.0, 0.0, 2.0, 2.0])))

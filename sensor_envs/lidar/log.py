@@ -9,16 +9,20 @@ Log format (``.npz``, loaded with ``allow_pickle=False``):
 * ``map_segments`` ``(M, 2, 2)`` nominal map ``[[x1, y1], [x2, y2]]`` [m].
 * optional ``t`` ``(S or P,)`` time [s]; optional per-scan covariates ``cov_<name>`` ``(S or P,)``.
 
+Declared values (checked by :func:`log_from_arrays`, which every loader goes through): real numeric
+dtypes only (no bool, complex or object); ``0 <= ranges <=`` :data:`MAX_RANGE`; bearings finite,
+distinct, within ``+-2 pi``; poses and covariates finite within :data:`MAX_COORD`; ``t`` finite and
+non-decreasing; covariate names non-empty. Files are read through :mod:`sensor_envs.inputs`
+(regular files only, size limits, the inflated size of an ``.npz`` checked before inflating).
+
 Other arrays in the file are ignored. In memory a log is a :class:`LidarLog` whose ``ranges`` are
 always ``(P, K, R)`` float64 (a scan log has ``R = 1``).
 """
 
 from __future__ import annotations
 
-import gzip
 import os
 import struct
-import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, quaternion_yaw
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, check_regular_file, load_npz, open_gzip_lines
 from sensor_envs.outputs import atomic_write, check_suffix
 
 __all__ = [
@@ -43,6 +47,12 @@ __all__ = [
 ]
 
 PathLike = str | os.PathLike[str]
+
+
+MAX_RANGE = 1000.0
+"""Largest accepted reading [m] (long-range lidars reach ~300 m)."""
+MAX_COORD = 1e6
+"""Largest accepted ``|pose|`` coordinate [m] and ``|covariate|``."""
 
 
 class LidarLogError(InputError):
@@ -108,6 +118,9 @@ def _err(source: str, name: str, msg: str) -> LidarLogError:
 def _float_array(source: str, name: str, value: Any) -> NDArray[np.float64]:
     if np.iscomplexobj(value):  # never drop an imaginary part silently
         raise _err(source, name, "holds complex numbers; expected real values")
+    kind = getattr(getattr(value, "dtype", None), "kind", None)
+    if kind is not None and kind not in "fiu":
+        raise _err(source, name, f"has dtype {value.dtype}; expected real numbers")
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -134,6 +147,9 @@ def _check_ranges(source: str, value: Any) -> NDArray[np.float64]:
         )
     if np.isnan(r).all():
         raise _err(source, "ranges", "holds no readings (all NaN)")
+    far = r > MAX_RANGE
+    if far.any():
+        raise _err(source, "ranges", f"holds {int(far.sum())} readings beyond the sanity limit {MAX_RANGE:g} m")
     return r
 
 
@@ -144,7 +160,20 @@ def _check_per_pose(source: str, name: str, value: Any, n: int, width: int | Non
         raise _err(source, name, f"must have shape {want} to match 'ranges', got {a.shape}")
     if not np.isfinite(a).all():
         raise _err(source, name, "holds NaN or infinite values")
+    big = np.abs(a) > MAX_COORD
+    if big.any():
+        raise _err(source, name, f"holds {a[big].ravel()[0]:g}, beyond the sanity limit {MAX_COORD:g}")
     return a
+
+
+def _check_bearings(source: str, b: NDArray[np.float64]) -> None:
+    if not np.isfinite(b).all():
+        raise _err(source, "bearings", "holds NaN or infinite values")
+    if (np.abs(b) > 2 * np.pi + 1e-9).any():
+        raise _err(source, "bearings", "holds values beyond +-2 pi rad")
+    wrapped = np.round(np.mod(b, 2 * np.pi), 9) % np.round(2 * np.pi, 9)
+    if np.unique(wrapped).size != b.size:
+        raise _err(source, "bearings", "holds repeated bearings (every beam needs its own direction)")
 
 
 def log_from_arrays(
@@ -166,8 +195,7 @@ def log_from_arrays(
     b = _float_array(source, "bearings", bearings)
     if b.shape != (k,):
         raise _err(source, "bearings", f"must have shape ({k},) to match 'ranges', got {b.shape}")
-    if not np.isfinite(b).all():
-        raise _err(source, "bearings", "holds NaN or infinite values")
+    _check_bearings(source, b)
     ps = _check_per_pose(source, "poses", poses, p, 3)
     segs = None
     if map_segments is not None:
@@ -176,6 +204,12 @@ def log_from_arrays(
         except ValueError as exc:
             raise LidarLogError(str(exc)) from None
     tt = None if t is None else _check_per_pose(source, "t", t, p, None)
+    if tt is not None and (np.diff(tt) < 0).any():
+        i = int(np.flatnonzero(np.diff(tt) < 0)[0])
+        raise _err(source, "t", f"decreases at scan {i + 1} ({tt[i]:g} then {tt[i + 1]:g} s)")
+    empty = [k2 for k2 in (covariates or {}) if not str(k2).strip()]
+    if empty:
+        raise _err(source, "cov_", "is a covariate without a name")
     cov = {k2: _check_per_pose(source, f"cov_{k2}", v, p, None) for k2, v in (covariates or {}).items()}
     return LidarLog(r, b, ps, segs, tt, cov, source)
 
@@ -205,10 +239,9 @@ def load_log(path: PathLike, **kwargs: Any) -> LidarLog:
 
 def _read_npz(p: Path) -> LidarLog:
     try:
-        with np.load(p, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
-    except Exception as exc:
-        raise LidarLogError(f"{p}: not a readable .npz lidar log ({exc})") from exc
+        data = load_npz(p, ".npz lidar log")
+    except InputError as exc:
+        raise LidarLogError(str(exc)) from None
     for name in ("ranges", "bearings", "poses", "map_segments"):
         if name not in data:
             raise _err(str(p), name, "is missing")
@@ -251,10 +284,10 @@ def _map_or_none(map: Any) -> NDArray[np.float64] | None:
 # ---------------------------------------------------------------------------------------------- CARMEN
 def _parse_flaser(tok: list[str]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float, float]:
     n = int(tok[1])
+    if n < 2 or len(tok) < 9 + n:
+        raise InputError(f"{n} readings in a line of {len(tok)} fields; FLASER needs at least 2 and all its fields")
     r = np.asarray(tok[2 : 2 + n], dtype=np.float64)
     pose = np.asarray(tok[2 + n : 5 + n], dtype=np.float64)
-    if n < 2:
-        raise InputError(f"{n} readings; FLASER needs at least 2")
     b = -np.pi / 2 + np.arange(n) * np.pi / (n - 1)  # n beams over [-pi/2, pi/2], both ends included
     return r, b, pose, float(tok[8 + n]), 80.0
 
@@ -264,8 +297,14 @@ def _parse_robotlaser1(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float, float]:
     start, res, max_r = float(tok[2]), float(tok[4]), float(tok[5])
     n = int(tok[8])
+    if not 2 <= n <= len(tok) - 10:
+        raise InputError(f"{n} readings in a line of {len(tok)} fields")
     r = np.asarray(tok[9 : 9 + n], dtype=np.float64)
     m = int(tok[9 + n])
+    if not 0 <= m <= len(tok) - 10 - n - 12:
+        raise InputError(f"{m} remission values in a line of {len(tok)} fields")
+    if not (np.isfinite([start, res, max_r]).all() and res != 0 and max_r > 0):
+        raise InputError(f"start angle {start:g}, resolution {res:g} and maximum range {max_r:g} are not a scan")
     rest = tok[10 + n + m :]
     pose = np.asarray(rest[0:3], dtype=np.float64)  # laser pose
     return r, np.asarray(start + np.arange(n) * res, dtype=np.float64), pose, float(rest[11]), max_r
@@ -292,10 +331,8 @@ def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = No
     p = Path(path)
     try:
         scans, poses, times, bearings = _read_carmen_lines(p, max_range)
-    except (EOFError, OSError, UnicodeDecodeError, zlib.error) as exc:
-        what = "a gzip file" if p.suffix == ".gz" else "UTF-8 text"
-        detail = "truncated" if isinstance(exc, EOFError) else " ".join(str(exc).split())
-        raise LidarLogError(f"{p}: field 'ranges': the file is not readable as {what} ({detail})") from None
+    except InputError as exc:
+        raise LidarLogError(str(exc)) from None
     if not scans:
         raise LidarLogError(f"{p}: field 'ranges': no FLASER or ROBOTLASER1 line found")
     ps, ts = np.stack(poses), np.asarray(times)
@@ -306,35 +343,63 @@ def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = No
 
 def _read_carmen_lines(p: Path, max_range: float | None) -> tuple[list[Any], list[Any], list[float], Any]:
     """Scans (nulls as 0), poses, times and bearings of the laser lines of CARMEN log ``p``."""
-    opener = gzip.open if p.suffix == ".gz" else open
     scans, poses, times, bearings = [], [], [], None
-    with opener(p, "rt", encoding="utf-8") as f:
-        for lineno, line in enumerate(f, 1):
-            tok = line.split()
-            if not tok or tok[0] not in ("FLASER", "ROBOTLASER1"):
-                continue
-            try:
-                r, b, pose, ts, mx = (_parse_flaser if tok[0] == "FLASER" else _parse_robotlaser1)(tok)
-            except (IndexError, ValueError) as exc:
-                raise LidarLogError(f"{p}:{lineno}: field 'ranges': malformed {tok[0]} line ({exc})") from None
-            if bearings is None:
-                bearings = b
-            elif b.shape != bearings.shape:
-                raise LidarLogError(f"{p}:{lineno}: field 'ranges': {b.size} readings, expected {bearings.size}")
-            thr = mx if max_range is None else max_range
-            scans.append(np.where((r >= thr) | (r <= 0), 0.0, r))
-            poses.append(pose)
-            times.append(ts)
+    # bounded: regular file, size, inflated size and line length (sensor_envs.inputs)
+    for lineno, line in open_gzip_lines(p, "field 'ranges'", gzipped=p.suffix == ".gz"):
+        tok = line.split()
+        if not tok or tok[0] not in ("FLASER", "ROBOTLASER1"):
+            continue
+        try:
+            r, b, pose, ts, mx = (_parse_flaser if tok[0] == "FLASER" else _parse_robotlaser1)(tok)
+        except (IndexError, ValueError) as exc:
+            raise LidarLogError(f"{p}:{lineno}: field 'ranges': malformed {tok[0]} line ({exc})") from None
+        if bearings is None:
+            bearings = b
+        elif b.shape != bearings.shape:
+            raise LidarLogError(f"{p}:{lineno}: field 'ranges': {b.size} readings, expected {bearings.size}")
+        thr = mx if max_range is None else max_range
+        scans.append(np.where((r >= thr) | (r <= 0), 0.0, r))
+        poses.append(pose)
+        times.append(ts)
     return scans, poses, times, bearings
 
 
 # ---------------------------------------------------------------------------------------------- ROS bags
-def _pose_of(msg: Any) -> NDArray[np.float64]:
+_SCAN_TYPES = frozenset({"sensor_msgs/msg/LaserScan"})
+_POSE_TYPES = frozenset(
+    {"nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped"}
+)
+
+
+def _deserialize(reader: Any, raw: bytes, conn: Any, p: Path) -> Any:
+    """One message; a damaged one is a :class:`LidarLogError` naming the bag and the topic."""
+    try:
+        return reader.deserialize(raw, conn.msgtype)
+    except Exception as exc:  # rosbags raises AssertionError/IndexError/struct.error... on damaged bytes
+        raise LidarLogError(
+            f"{p}: topic {conn.topic!r}: a damaged {conn.msgtype} message ({type(exc).__name__})"
+        ) from None
+
+
+def _check_scan_header(msg: Any, p: Path, topic: str, i: int) -> None:
+    """A LaserScan's angles and limits: finite, a non-zero increment, ``0 <= range_min < range_max``."""
+    vals = [msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max]
+    if not (np.isfinite(vals).all() and msg.angle_increment != 0 and 0 <= msg.range_min < msg.range_max):
+        raise LidarLogError(
+            f"{p}: field 'bearings': {topic} scan {i} has angle_min {msg.angle_min:g}, angle_increment "
+            f"{msg.angle_increment:g}, range_min {msg.range_min:g}, range_max {msg.range_max:g}"
+        )
+
+
+def _pose_of(msg: Any, p: Path | None = None, i: int = 0) -> NDArray[np.float64]:
     """x, y, yaw of a nav_msgs/Odometry, geometry_msgs/PoseStamped or PoseWithCovarianceStamped."""
     pose = msg.pose
     if hasattr(pose, "pose"):
         pose = pose.pose
     q = pose.orientation
+    norm = np.sqrt(q.w**2 + q.x**2 + q.y**2 + q.z**2)
+    if not (np.isfinite(norm) and abs(norm - 1.0) < 0.1):
+        raise LidarLogError(f"{p}: field 'poses': pose {i} has a quaternion of norm {norm:g}, expected 1")
     return np.array([pose.position.x, pose.position.y, quaternion_yaw(q.w, q.x, q.y, q.z)])
 
 
@@ -361,11 +426,17 @@ def read_rosbag(
         LidarLogError: naming the bag and topic when a topic is absent or scans differ in size, or when
             the bag is empty, truncated or damaged.
     """
-    from rosbags.highlevel import AnyReaderError  # optional dependency
-    from rosbags.rosbag1 import ReaderError as Ros1Error
-    from rosbags.rosbag2 import ReaderError as Ros2Error
-
     p = Path(path)
+    try:
+        from rosbags.highlevel import AnyReaderError  # optional dependency
+        from rosbags.rosbag1 import ReaderError as Ros1Error
+        from rosbags.rosbag2 import ReaderError as Ros2Error
+    except ImportError:
+        raise LidarLogError(
+            f"{p}: reading a ROS bag needs the optional package rosbags: pip install 'sensor_envs[ros]'"
+        ) from None
+    if not p.is_dir():  # a ROS2 bag may be a folder; a FIFO or device is refused before rosbags opens it
+        check_regular_file(p, "ROS bag")
     try:
         scans, st, pts, pt, twists, bearings = _read_bag_messages(p, scan_topic, pose_topic)
     except (AnyReaderError, Ros1Error, Ros2Error, EOFError, OSError, struct.error) as exc:  # empty/truncated bag
@@ -409,16 +480,24 @@ def _read_bag_messages(
             if topic not in topics:
                 raise LidarLogError(f"{p}: topic {topic!r} not in the bag (topics: {sorted(topics)})")
         conns = [c for c in reader.connections if c.topic in (scan_topic, pose_topic)]
+        for conn in conns:
+            want = _SCAN_TYPES if conn.topic == scan_topic else _POSE_TYPES
+            if conn.msgtype not in want:
+                field = "ranges" if conn.topic == scan_topic else "poses"
+                raise LidarLogError(
+                    f"{p}: field {field!r}: topic {conn.topic!r} carries {conn.msgtype}, expected one of {sorted(want)}"
+                )
         for conn, t, raw in reader.messages(connections=conns):
-            msg: Any = reader.deserialize(raw, conn.msgtype)  # a ROS message class generated at run time
+            msg: Any = _deserialize(reader, raw, conn, p)  # a ROS message class generated at run time
             if conn.topic == pose_topic:
-                pts.append(_pose_of(msg))
+                pts.append(_pose_of(msg, p, len(pts)))
                 pt.append(t * 1e-9)
                 if hasattr(msg, "twist"):  # nav_msgs/Odometry: v [m/s] and omega [rad/s] in the base frame
                     tw = msg.twist.twist
                     twists.append((tw.linear.x, tw.angular.z))
                 continue
             r = np.asarray(msg.ranges, dtype=np.float64)
+            _check_scan_header(msg, p, scan_topic, len(scans))
             b = msg.angle_min + np.arange(r.size) * msg.angle_increment
             if bearings is None:
                 bearings = b

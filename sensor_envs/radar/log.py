@@ -24,7 +24,13 @@ meas_x, meas_y m     the radar's reported object position, sensor frame
 * sanity ranges (checked before any model allocates grids over the log): positions ``ref_x``,
   ``ref_y``, ``meas_x``, ``meas_y`` within :data:`MAX_POSITION` (1 km) of the sensor, box sizes
   ``ref_length``/``ref_width`` at most :data:`MAX_SIZE` (100 m), integer ids below ``2**53``.
-* the file is UTF-8 (a byte-order mark, as Excel writes, is accepted) and comma-separated.
+* the file is UTF-8 (a byte-order mark, as Excel writes, is accepted) and comma-separated, at most
+  :data:`sensor_envs.inputs.LIMITS` ``.file_bytes`` long; a field over the csv module's field limit or
+  an unclosed quote is an error naming the line. Numbers are plain decimal text (``1_0.5`` is refused).
+* consistency: every column name is non-empty; clutter rows have ``target`` -1; rows of one cycle
+  ``(sequence, frame)`` share one ``t``, and ``t`` increases with ``frame`` within a sequence;
+  ``|ref_heading|`` at most :data:`MAX_HEADING`, box sizes at least :data:`MIN_SIZE`, ``|t|`` and
+  covariates within :data:`MAX_VALUE`.
 
 The model tuples of Hirsenkorn et al. (2016) are derived by :func:`target_tuples`: the closest
 corner of each reference box (sensor at the origin), the output ``z = meas - corner`` and the
@@ -36,14 +42,16 @@ from __future__ import annotations
 import csv
 import io
 import os
+import re
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import closest_corner, rectangle_corners
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, read_bytes
 from sensor_envs.outputs import atomic_write
 
 __all__ = [
@@ -63,6 +71,12 @@ MAX_POSITION = 1000.0
 """Largest accepted ``|ref_x|``, ``|ref_y|``, ``|meas_x|``, ``|meas_y|`` [m] (automotive radars reach ~300 m)."""
 MAX_SIZE = 100.0
 """Largest accepted ``ref_length``/``ref_width`` [m]."""
+MIN_SIZE = 0.01
+"""Smallest accepted ``ref_length``/``ref_width`` [m] (1 cm: anything smaller is a unit or parsing error)."""
+MAX_HEADING = 4 * np.pi
+"""Largest accepted ``|ref_heading|`` [rad] (any heading can be written within +-2 pi)."""
+MAX_VALUE = 1e12
+"""Largest accepted ``|t|`` [s] and ``|covariate|`` (a Unix time in seconds is ~2e9)."""
 MAX_ID = 2.0**53
 """Integer columns must stay below this in magnitude (exact in float64, no int64 wrap-around)."""
 REF_COLUMNS = ("ref_x", "ref_y", "ref_heading", "ref_length", "ref_width")
@@ -179,9 +193,9 @@ def _validate(columns: dict[str, NDArray], source: str) -> dict[str, NDArray]:
         raise RadarLogError(f"{source}: row {_first(clutter & meas_nan)} has neither ref nor meas columns set")
     target_rows = ~clutter
     for c in ("ref_length", "ref_width"):
-        bad = target_rows & ~(out[c] > 0)
+        bad = target_rows & ~(out[c] >= MIN_SIZE)
         if bad.any():
-            raise RadarLogError(f"{source}: column {c!r} row {_first(bad)} must be > 0")
+            raise RadarLogError(f"{source}: column {c!r} row {_first(bad)} must be >= {MIN_SIZE:g} m")
         bad = target_rows & (out[c] > MAX_SIZE)
         if bad.any():
             r = _first(bad)
@@ -200,7 +214,40 @@ def _validate(columns: dict[str, NDArray], source: str) -> dict[str, NDArray]:
         raise RadarLogError(
             f"{source}: column 'target' row {_first(target_rows & (out['target'] < 0))} is negative on a target row"
         )
+    _check_consistency(out, clutter, source)
     return out
+
+
+def _check_consistency(out: dict[str, NDArray], clutter: NDArray[np.bool_], source: str) -> None:
+    """Magnitudes of heading, time and covariates; clutter ids; one ``t`` per cycle, increasing with frame."""
+    empty = [i for i, name in enumerate(out) if not name.strip()]
+    if empty:
+        raise RadarLogError(f"{source}: a column name is empty (header field {empty[0] + 1})")
+    bad = np.abs(out["ref_heading"]) > MAX_HEADING
+    if bad.any():
+        raise RadarLogError(f"{source}: column 'ref_heading' row {_first(bad)} is beyond +-{MAX_HEADING:g} rad")
+    for name in ["t", *(c for c in out if c not in REQUIRED_COLUMNS)]:
+        bad = np.abs(out[name]) > MAX_VALUE
+        if bad.any():
+            raise RadarLogError(f"{source}: column {name!r} row {_first(bad)} is beyond +-{MAX_VALUE:g}")
+    bad = clutter & (out["target"] != -1)
+    if bad.any():
+        raise RadarLogError(f"{source}: column 'target' row {_first(bad)} is a clutter row (no ref) but not -1")
+    seq, frame, t = out["sequence"], out["frame"], out["t"]
+    order = np.lexsort((frame, seq))
+    same_seq = seq[order][1:] == seq[order][:-1]
+    d_frame, d_t = np.diff(frame[order]), np.diff(t[order])
+    bad = same_seq & (((d_frame == 0) & (d_t != 0)) | ((d_frame > 0) & (d_t <= 0)))
+    if bad.any():
+        r = int(order[1:][bad][0])
+        raise RadarLogError(
+            f"{source}: column 't' row {r} does not increase with 'frame' within sequence {int(seq[r])} "
+            "(each cycle has one time, later frames later times)"
+        )
+
+
+_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|[+-]?(nan|inf|infinity)", re.IGNORECASE)
+"""Plain decimal text (``float`` would also take ``1_0.5`` as 10.5)."""
 
 
 def _parse_cell(text: str, name: str, row: int, source: str, required: bool) -> float:
@@ -209,6 +256,8 @@ def _parse_cell(text: str, name: str, row: int, source: str, required: bool) -> 
     if s == "":
         return np.nan
     try:
+        if not _NUMBER.fullmatch(s):
+            raise ValueError(s)
         v = float(s)
     except ValueError:
         raise RadarLogError(f"{source}: column {name!r} row {row} holds {s!r}, which is not a number") from None
@@ -228,7 +277,10 @@ def read_log(path: str | os.PathLike[str]) -> RadarLog:
     """
     path = Path(path)
     src = str(path)
-    raw = path.read_bytes()
+    if path.is_dir():
+        hint = " (convert an Astyx folder with: sensor-envs record radar --astyx FOLDER --out LOG.csv)"
+        raise RadarLogError(f"{src}: is a folder; a radar log is a CSV file{hint}")
+    raw = read_bytes(path, "radar log")
     try:
         text = raw.decode("utf-8-sig")  # Excel writes a byte-order mark
     except UnicodeDecodeError as exc:
@@ -236,7 +288,15 @@ def read_log(path: str | os.PathLike[str]) -> RadarLog:
         raise RadarLogError(
             f"{src}: line {line}: byte {raw[exc.start : exc.start + 1]!r} is not UTF-8 text (save the CSV as UTF-8)"
         ) from None
-    reader = csv.reader(io.StringIO(text, newline=""))
+    reader = csv.reader(io.StringIO(text, newline=""), strict=True)
+    try:
+        return _read_rows(reader, src)
+    except csv.Error as exc:  # a field over csv.field_size_limit(), an unclosed quote, a stray quote
+        raise RadarLogError(f"{src}: line {reader.line_num}: not valid CSV ({exc})") from None
+
+
+def _read_rows(reader: Any, src: str) -> RadarLog:
+    """The log from a ``csv.reader`` over its text (``csv.Error`` passes to the caller)."""
     try:
         header = [h.strip() for h in next(reader)]
     except StopIteration:
