@@ -75,6 +75,9 @@ def as_segments(segments: ArrayLike, *, name: str = "segments") -> NDArray[np.fl
     bad = ~np.isfinite(arr).all(axis=(1, 2))
     if bad.any():
         raise InputError(f"{name}: segment {int(np.flatnonzero(bad)[0])} has a NaN or infinite coordinate")
+    far = (np.abs(arr) > 1e6).any(axis=(1, 2))
+    if far.any():
+        raise InputError(f"{name}: segment {int(np.flatnonzero(far)[0])} has a coordinate beyond +-1e6 m")
     length = np.linalg.norm(arr[:, 1] - arr[:, 0], axis=1)
     zero = length <= 1e-12
     if zero.any():

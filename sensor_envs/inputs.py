@@ -49,6 +49,8 @@ __all__ = [
     "check_pixels",
     "check_number",
     "check_count",
+    "check_rng",
+    "check_array",
 ]
 
 PathLike = str | os.PathLike[str]
@@ -221,7 +223,7 @@ def _check_tree(doc: Any, source: str) -> Any:
 
 
 def parse_json(text: str | bytes, source: str) -> Any:
-    """JSON text as Python data, bounded in depth and size; ``NaN``/``Infinity`` literals are refused.
+    """JSON text as Python data, bounded in depth and size (``NaN`` literals pass: the caller checks values).
 
     Args:
         text: the JSON text.
@@ -230,12 +232,8 @@ def parse_json(text: str | bytes, source: str) -> Any:
     Raises:
         InputError: ``"<source>: not valid JSON (...)"`` or a depth / size limit.
     """
-
-    def no_constant(name: str) -> Any:
-        raise InputError(f"{source}: not valid JSON ({name} is not a JSON number)")
-
     try:
-        doc = json.loads(text, parse_constant=no_constant)
+        doc = json.loads(text)
     except RecursionError:
         raise InputError(f"{source}: nested deeper than {LIMITS.depth} levels") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
@@ -322,3 +320,53 @@ def check_number(
 def check_count(value: Any, name: str, low: int = 1, high: int = 10**9) -> int:
     """``value`` as an int in ``[low, high]`` (booleans and floats are refused)."""
     return int(check_number(value, name, low, high, integer=True))
+
+
+def check_rng(rng: Any, name: str = "rng") -> np.random.Generator:
+    """``rng`` if it is a ``numpy.random.Generator`` (a seed or ``RandomState`` is refused: pass ``default_rng``)."""
+    if not isinstance(rng, np.random.Generator):
+        raise InputError(f"{name}: expected a numpy.random.Generator (np.random.default_rng(seed)), got {rng!r:.60}")
+    return rng
+
+
+def check_array(
+    value: Any,
+    name: str,
+    shape: tuple[int | tuple[int, ...] | None, ...],
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    nan: bool = False,
+) -> NDArray[np.float64]:
+    """``value`` as a float64 array of a declared shape and range.
+
+    Args:
+        value: array-like of real numbers (bool, complex, object and strings are refused).
+        name: the argument, for messages.
+        shape: per axis ``None`` (any length), a length, or a tuple of accepted lengths.
+        low: lower bound of every (non-NaN) entry.
+        high: upper bound of every (non-NaN) entry.
+        nan: whether NaN entries (missing values) are accepted; infinities never are.
+
+    Raises:
+        InputError: ``"<name>: ..."`` naming the first offending entry.
+    """
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "fiu":
+        raise InputError(f"{name}: expected real numbers, got dtype {arr.dtype}")
+    arr = arr.astype(np.float64, copy=False)
+    ok = arr.ndim == len(shape) and all(
+        s is None or (d in s if isinstance(s, tuple) else d == s) for d, s in zip(arr.shape, shape, strict=False)
+    )
+    if not ok:
+        want = ", ".join("n" if s is None else "|".join(map(str, s)) if isinstance(s, tuple) else str(s) for s in shape)
+        raise InputError(f"{name}: expected shape ({want}), got {arr.shape}")
+    bad = np.isinf(arr) if nan else ~np.isfinite(arr)
+    if bad.any():
+        raise InputError(f"{name}: entry {tuple(int(i) for i in np.argwhere(bad)[0])} is {arr[bad][0]}, not finite")
+    with np.errstate(invalid="ignore"):
+        out = (arr < low if low is not None else False) | (arr > high if high is not None else False)
+    if np.any(out):
+        i = tuple(int(j) for j in np.argwhere(out)[0])
+        raise InputError(f"{name}: entry {i} is {arr[i]:g}, outside [{low}, {high}]")
+    return arr

@@ -16,20 +16,18 @@ with boxes and a pillar).
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, from_frame
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, check_pixels, parse_json, parse_yaml, read_bytes, read_text
 
-__all__ = ["SegmentMap", "load_map", "BUILTIN_MAPS", "read_ros_map", "occupancy_to_segments"]
+__all__ = ["SegmentMap", "load_map", "BUILTIN_MAPS", "read_ros_map", "ros_occupancy", "occupancy_to_segments"]
 
 
 @dataclass(frozen=True)
@@ -110,16 +108,10 @@ def load_map(spec: str | os.PathLike[str] | ArrayLike | SegmentMap) -> SegmentMa
 
 
 def _load_map_file(path: Path) -> SegmentMap:
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read map file ({exc})") from exc
+    text = read_text(path, "cannot read map file")
     suffix = path.suffix.lower()
     if suffix in (".json", ".yaml", ".yml"):
-        try:
-            doc = json.loads(text) if suffix == ".json" else yaml.safe_load(text)
-        except (json.JSONDecodeError, yaml.YAMLError) as exc:
-            raise InputError(f"{path}: not valid {suffix[1:].upper()} ({exc})") from exc
+        doc = parse_json(text, str(path)) if suffix == ".json" else parse_yaml(text, str(path))
         if isinstance(doc, dict) and "image" in doc:
             return read_ros_map(path)
         if not isinstance(doc, dict) or "segments" not in doc:
@@ -159,35 +151,58 @@ def read_ros_map(yaml_path: str | os.PathLike[str]) -> SegmentMap:
 
     Cells with occupancy probability ``> occupied_thresh`` are obstacles (``p = (255 - v) / 255``,
     or ``v / 255`` with ``negate: 1``). Unknown cells are treated as free space for raycasting.
+
+    Raises:
+        InputError: naming the YAML (or image) file and the field at fault.
     """
     path = Path(yaml_path)
-    try:
-        meta = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise InputError(f"{path}: cannot read ROS map YAML ({exc})") from exc
+    occupied, res, origin = ros_occupancy(path)
+    segs = occupancy_to_segments(occupied, res, origin)
+    return SegmentMap(as_segments(segs, name=f"{path}: occupied cells"), name=path.stem)
+
+
+MAX_RESOLUTION = 100.0
+"""Largest accepted map cell [m] (``resolution``); the smallest is :data:`MIN_RESOLUTION`."""
+MIN_RESOLUTION = 1e-4
+MAX_ORIGIN = 1e6
+"""Largest accepted ``|origin|`` coordinate [m]."""
+
+
+def ros_occupancy(yaml_path: str | os.PathLike[str]) -> tuple[NDArray[np.bool_], float, NDArray[np.float64]]:
+    """Occupied cells ``(H, W)`` (row 0 at the smallest y), resolution [m], origin ``(x, y, yaw)`` of a ROS map.
+
+    Every field is checked: ``image`` a file name beside the YAML (a regular file within the size and
+    pixel limits), ``resolution`` in ``[1e-4, 100]`` m, ``origin`` three finite numbers, ``occupied_thresh``
+    a probability, ``negate`` 0 or 1.
+
+    Raises:
+        InputError: naming the file and the field.
+    """
+    path = Path(yaml_path)
+    meta = parse_yaml(read_text(path, "ROS map YAML"), str(path))
     for key in ("image", "resolution", "origin"):
         if not isinstance(meta, dict) or key not in meta:
             raise InputError(f"{path}: field {key!r} is missing (not a ROS map_server YAML)")
     res = _yaml_number(meta, "resolution", path)
-    if not res > 0:
-        raise InputError(f"{path}: field 'resolution' must be > 0, got {res}")
+    if not MIN_RESOLUTION <= res <= MAX_RESOLUTION:
+        raise InputError(f"{path}: field 'resolution' must be in [{MIN_RESOLUTION:g}, {MAX_RESOLUTION:g}] m, got {res}")
     try:
         origin = np.asarray(meta["origin"], dtype=np.float64)
     except (TypeError, ValueError):
         origin = np.zeros(0)
-    if origin.shape != (3,) or not np.isfinite(origin).all():
-        raise InputError(f"{path}: field 'origin' must be [x, y, yaw], got {meta['origin']!r}")
+    if origin.shape != (3,) or not np.isfinite(origin).all() or (np.abs(origin) > MAX_ORIGIN).any():
+        raise InputError(f"{path}: field 'origin' must be [x, y, yaw] (finite, within 1e6), got {meta['origin']!r}")
     thresh = _yaml_number(meta, "occupied_thresh", path, 0.65)
     if not 0.0 <= thresh <= 1.0:
         raise InputError(f"{path}: field 'occupied_thresh' must be a probability in [0, 1], got {thresh}")
     negate = _yaml_number(meta, "negate", path, 0)
     if negate not in (0, 1):
         raise InputError(f"{path}: field 'negate' must be 0 or 1, got {meta['negate']!r}")
-    img = _read_image(path.parent / str(meta["image"]), path)
+    if not isinstance(meta["image"], str) or not meta["image"].strip():
+        raise InputError(f"{path}: field 'image' must be a file name, got {meta['image']!r}")
+    img = _read_image(path.parent / meta["image"], path)
     p = img / 255.0 if negate else (255.0 - img) / 255.0
-    occupied = p > thresh
-    segs = occupancy_to_segments(occupied[::-1], res, origin)  # image row 0 is the top (largest y)
-    return SegmentMap(as_segments(segs, name=f"{path}: occupied cells"), name=path.stem)
+    return (p > thresh)[::-1], res, origin  # image row 0 is the top (largest y)
 
 
 def _yaml_number(meta: dict[str, Any], key: str, path: Path, default: float | None = None) -> float:
@@ -204,18 +219,28 @@ def _yaml_number(meta: dict[str, Any], key: str, path: Path, default: float | No
 
 def _read_image(img_path: Path, yaml_path: Path) -> NDArray[np.float64]:
     try:
-        raw = img_path.read_bytes()
+        raw = read_bytes(img_path, f"field 'image' of {yaml_path}")
+    except FileNotFoundError:
+        raise InputError(f"{yaml_path}: field 'image' points at a missing file {img_path}") from None
     except OSError as exc:
-        raise InputError(f"{yaml_path}: field 'image' points at an unreadable file {img_path} ({exc})") from exc
+        raise InputError(f"{yaml_path}: field 'image' points at an unreadable file {img_path} ({exc})") from None
     if raw[:2] == b"P5":
         return _parse_pgm(raw, img_path)
-    try:
-        from PIL import Image  # only for non-PGM images
+    import io
+    import warnings
 
-        with Image.open(img_path) as im:
-            return np.asarray(im.convert("L"), dtype=np.float64)
-    except Exception as exc:
-        raise InputError(f"{img_path}: cannot decode map image ({exc})") from exc
+    from PIL import Image  # only for non-PGM images
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            with Image.open(io.BytesIO(raw)) as im:
+                check_pixels(im.size[0], im.size[1], f"{img_path}: map image")  # from the header, before decoding
+                return np.asarray(im.convert("L"), dtype=np.float64)
+    except InputError:
+        raise
+    except Exception as exc:  # PIL: unidentified or damaged image, decompression bomb
+        raise InputError(f"{img_path}: cannot decode map image ({' '.join(str(exc).split())})") from None
 
 
 def _parse_pgm(raw: bytes, path: Path) -> NDArray[np.float64]:
@@ -247,6 +272,7 @@ def _parse_pgm_raw(raw: bytes, path: Path) -> NDArray[np.float64]:
         tokens.append(raw[start:pos])
     width, height, maxval = (int(t) for t in tokens)
     pos += 1
+    check_pixels(width, height, f"{path}: PGM header")
     if maxval > 255:
         raise InputError(f"{path}: 16-bit PGM is not supported (maxval {maxval})")
     if maxval < 1:

@@ -17,7 +17,7 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, load_npz, parse_json, read_text
 from sensor_envs.outputs import atomic_write, check_suffix
 
 __all__ = [
@@ -101,24 +101,31 @@ def load_model_file(
         ModelFileError: naming the file and the field at fault.
     """
     path = Path(path)
+    if path.is_dir():
+        raise ModelFileError(f"{path}: is a folder, expected a model file (.npz)")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
+        data = load_npz(path, "model file")  # bounded: regular file, size, inflated size before inflating
     except FileNotFoundError:
         raise ModelFileError(f"{path}: model file not found") from None
-    except Exception as exc:  # zip/npz damage, pickled content, ...
-        raise ModelFileError(f"{path}: not a readable model file ({exc})") from exc
+    except InputError as exc:
+        raise ModelFileError(str(exc)) from None
     if "__header__" not in data:
         raise ModelFileError(f"{path}: field '__header__' is missing (not a sensor_envs model file)")
+    blob = data.pop("__header__")
+    if blob.dtype != np.uint8 or blob.ndim != 1:
+        raise ModelFileError(f"{path}: field '__header__' must be 1-D uint8 (UTF-8 JSON bytes), got {blob.dtype}")
     try:
-        header = json.loads(data.pop("__header__").tobytes().decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError, ValueError) as exc:
+        header = parse_json(blob.tobytes().decode("utf-8"), f"{path}: field '__header__'")
+    except UnicodeDecodeError as exc:
         raise ModelFileError(f"{path}: field '__header__' is not valid JSON ({exc})") from None
+    except InputError as exc:
+        raise ModelFileError(str(exc)) from None
     if not isinstance(header, dict):
         raise ModelFileError(f"{path}: field '__header__' must be a JSON object, got a JSON {type(header).__name__}")
     if header.get("kind") != kind:
         raise ModelFileError(f"{path}: field 'kind' is {header.get('kind')!r}, expected {kind!r}")
-    if header.get("format_version") not in supported_versions:
+    version = header.get("format_version")
+    if isinstance(version, bool) or not isinstance(version, int) or version not in supported_versions:
         raise ModelFileError(
             f"{path}: field 'format_version' is {header.get('format_version')!r}; this version of sensor_envs "
             f"reads {list(supported_versions)}"
@@ -507,16 +514,16 @@ def load_rig_file(
     """
     path = Path(path)
     try:
-        blob = json.loads(path.read_text(encoding="utf-8"))
+        blob = parse_json(read_text(path, "rig file", limit=64 * 2**20), f"{path}: not a JSON rig file")
     except FileNotFoundError:
         raise ModelFileError(f"{path}: rig file not found") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ModelFileError(f"{path}: not a JSON rig file ({exc})") from None
+    except InputError as exc:
+        raise ModelFileError(str(exc)) from None
     if not isinstance(blob, dict):
         raise ModelFileError(f"{path}: a rig file must hold a JSON object")
     if blob.get("kind") != kind:
         raise ModelFileError(f"{path}: field 'kind' is {blob.get('kind')!r}, expected {kind!r}")
-    if blob.get("format_version") != RIG_FORMAT_VERSION:
+    if isinstance(blob.get("format_version"), bool) or blob.get("format_version") != RIG_FORMAT_VERSION:
         raise ModelFileError(
             f"{path}: field 'format_version' is {blob.get('format_version')!r}; this version reads "
             f"[{RIG_FORMAT_VERSION}]"

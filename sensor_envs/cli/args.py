@@ -20,6 +20,10 @@ __all__ = [
     "positive_float",
     "float_between",
     "path_arg",
+    "bounded_float",
+    "declare_ranges",
+    "INT_RANGES",
+    "FLOAT_RANGES",
     "add_force",
     "MAX_SEED",
 ]
@@ -119,3 +123,77 @@ def about(path: str | Path) -> Iterator[None]:
         if str(path) in str(exc):
             raise
         raise InputError(f"{path}: {exc}") from exc
+
+
+def bounded_float(low: float, high: float) -> Callable[[str], float]:
+    """An argparse ``type=`` accepting a finite number in ``[low, high]`` (``nan``, ``inf``, ``1e300`` refused)."""
+    parse = float_between(low, high)
+    parse.__name__ = f"bounded_float({low:g}, {high:g})"
+    return parse
+
+
+INT_RANGES: dict[str, tuple[int, int]] = {
+    "repeats": (1, 10_000),
+    "poses": (1, 100_000),
+    "targets": (1, 1_000),
+    "sequences": (1, 100_000),
+    "cycles": (1, 100_000),
+    "permutations": (1, 100_000),
+    "max_add": (1, 50),
+    "block_frames": (1, 1_000_000),
+    "block_scans": (1, 1_000_000),
+    "test_every": (1, 1_000),
+    "folds": (1, 1_000),
+    "max_readings": (1, 1_000_000),
+    "cv_block_scans": (1, 1_000_000),
+    "max_evals": (1, 1_000_000),
+    "mixture_max_components": (1, 50),
+    "episodes": (1, 10_000),
+    "steps": (1, 100_000),
+    "configs": (1, 100_000),
+    "draws": (1, 10_000),
+}
+"""Declared range of every integer option (by ``dest``): counts have upper bounds (``--repeats 1e9`` is refused)."""
+FLOAT_RANGES: dict[str, tuple[float, float]] = {
+    "cycle_time": (1e-3, 3600.0),
+    "max_range": (0.01, 1000.0),
+    "spur_above": (0.01, 1000.0),
+    "table_range_step": (1e-3, 10.0),
+    "alpha": (1e-12, 0.5),
+    "min_score": (0.0, 1.0),
+    "length": (1e-3, 100.0),
+    "mixture_min_range": (0.0, 1000.0),
+    "relevance_candidates": (1e-6, 1e6),
+    "relevance_candidates_prev": (1e-6, 1e6),
+}
+"""Declared range of every real-valued option (by ``dest``): finite, sane magnitudes."""
+PATH_OPTIONS = frozenset(
+    {"out", "log", "model", "map", "real_data", "real", "rig", "baseline", "baseline_out", "astyx", "base"}
+    | {"spurious_only"}
+)
+"""Options naming files: an empty name (``--rig ''``) is an error, never a silent fall-back to the default."""
+_UNBOUNDED = {positive_int, nonneg_int, positive_float, float, int}
+
+
+def declare_ranges(parser: argparse.ArgumentParser) -> None:
+    """Give every numeric option of ``parser`` (and its sub-commands) its declared range, every path a check.
+
+    An option of type ``int``/``float``/``positive_int``/``positive_float`` gets the range of
+    :data:`INT_RANGES`/:data:`FLOAT_RANGES` for its ``dest``; a numeric option without a declared range
+    is a programming error (``KeyError`` at start-up, caught by the tests). Seeds (``nonneg_int``) keep
+    their ``[0, 2**63 - 1]``.
+    """
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                declare_ranges(sub)
+            continue
+        if action.dest in PATH_OPTIONS and action.type is None and action.choices is None:
+            if not (action.dest == "model" and action.default == "fit"):
+                action.type = path_arg
+        if action.type not in _UNBOUNDED or action.type is nonneg_int:
+            continue
+        if action.type in (positive_int, int):
+            action.type = bounded_int(*INT_RANGES[action.dest])
+        else:
+            action.type = bounded_float(*FLOAT_RANGES[action.dest])

@@ -47,7 +47,9 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     q.add_argument("--model", default=None, help="a fitted lidar model file (.npz) whose tables are diagnosed")
     q.add_argument("--map", default=None, help="map file for the log (segments, JSON/YAML, ROS map_server YAML)")
     q.add_argument("--align", action="store_true", help="scan-match the odometry poses onto the --map grid")
-    q.add_argument("--max-range", type=float, default=5.0, help="sensor's maximum range [m] (default 5)")
+    q.add_argument(
+        "--max-range", type=float, default=None, help="sensor's maximum range [m] (default: 5 for a .npz log)"
+    )
     q.add_argument("--max-readings", type=positive_int, default=300, help="scans used by the table fit (default 300)")
     q.add_argument("--spur-above", type=float, default=None, help="spurious returns beyond [m] (default max-range + 1)")
     q.add_argument("--table-range-step", type=float, default=0.125, help="range step of the tables [m] (default 0.125)")
@@ -155,6 +157,7 @@ def _diagnose_radar(args: argparse.Namespace) -> int:
 
 
 def _diagnose_lidar(args: argparse.Namespace) -> int:
+    from sensor_envs.cli.lidar import range_options
     from sensor_envs.diagnose.core import block_split, run_diagnose
     from sensor_envs.diagnose.lidar import LidarAdapter, lidar_blocks
     from sensor_envs.diagnose.report import write_report
@@ -163,15 +166,15 @@ def _diagnose_lidar(args: argparse.Namespace) -> int:
     from sensor_envs.lidar.mapping import prepare_log
 
     _check_args(args)
-    if not args.max_range > 0:
-        raise InputError(f"--max-range: expected > 0, got {args.max_range}")
+    max_range, spur = (
+        range_options(args.log, args.max_range, args.spur_above, args.table_range_step)
+        if args.model is None
+        else (0.0, 0.0)  # the model's own
+    )
     check_inputs(args.log, args.model, args.map)
     out = check_output(args.out, inputs=[args.log, args.model, args.map], force=args.force, folder=True)
-    spur = args.max_range + 1.0 if args.spur_above is None else args.spur_above
-    if not spur > args.max_range or not args.table_range_step > 0:
-        raise InputError("--spur-above: expected > --max-range; --table-range-step: expected > 0")
     base_model, base_state = None, ()
-    params: dict[str, Any] = {"max_range": args.max_range, "spur_above": spur, "progress": not args.quiet}
+    params: dict[str, Any] = {"max_range": max_range, "spur_above": spur, "progress": not args.quiet}
     params["table_range_step"] = args.table_range_step
     if args.model is not None:
         base_model = LidarLWLR.load(args.model)

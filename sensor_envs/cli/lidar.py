@@ -78,9 +78,17 @@ def register(verbs: dict[str, argparse._SubParsersAction[OneLineParser]]) -> Non
     fit.add_argument("--seed", type=nonneg_int, default=0, help="seed of the fold assignment (default: 0)")
     add_force(fit)
     fit.add_argument("--note", action="append", default=[], help="a line for the model card (e.g. how LOG was made)")
-    fit.add_argument("--max-range", type=positive_float, default=5.0, help="sensor's maximum range [m] (default: 5)")
     fit.add_argument(
-        "--spur-above", type=positive_float, default=6.0, help="spurious far returns beyond this [m] (default: 6)"
+        "--max-range",
+        type=positive_float,
+        default=None,
+        help="sensor's maximum range [m] (default: the Neato's 5 for a .npz log; required for CARMEN logs, ROS bags)",
+    )
+    fit.add_argument(
+        "--spur-above",
+        type=positive_float,
+        default=None,
+        help="spurious far returns beyond this [m] (default: max range + 1)",
     )
     fit.add_argument("--table-range-step", type=positive_float, default=0.125, help="range step of the tables [m]")
     fit.add_argument(
@@ -126,6 +134,43 @@ def _prepared_log(args: argparse.Namespace, max_range: float):
     )
 
 
+NEATO_MAX_RANGE = 5.0
+"""The Neato XV-11's maximum range [m]: the default of ``--max-range`` for the project's ``.npz`` logs only."""
+MAX_TABLE_CELLS = 4000
+"""Most range cells of a table: ``spur_above / table_range_step`` (``--table-range-step 1e-9`` would need 37 GiB)."""
+
+
+def range_options(log: str, max_range: float | None, spur_above: float | None, step: float) -> tuple[float, float]:
+    """``(max_range, spur_above)`` for a lidar fit on ``log``, checked against each other and the table step.
+
+    The Neato's 5 m is the default only for the project's ``.npz`` logs: a CARMEN log or a ROS bag comes
+    from another sensor (intel's SICK reaches 80 m), so ``--max-range`` must then be given.
+
+    Raises:
+        InputError: naming the option.
+    """
+    if max_range is None:
+        if Path(log).suffix != ".npz":
+            raise InputError(
+                f"--max-range: required for {log} (a CARMEN log or ROS bag): the default {NEATO_MAX_RANGE:g} m is "
+                "the Neato's; give this sensor's maximum range"
+            )
+        max_range = NEATO_MAX_RANGE
+    spur = max_range + 1.0 if spur_above is None else spur_above
+    if not spur > max_range:
+        raise InputError(f"--spur-above: expected more than --max-range {max_range:g} m, got {spur:g}")
+    if spur / step > MAX_TABLE_CELLS:
+        raise InputError(
+            f"--table-range-step: {step:g} m gives {spur / step:.0f} range cells up to {spur:g} m, more than "
+            f"{MAX_TABLE_CELLS}; use a step of at least {spur / MAX_TABLE_CELLS:.3g} m"
+        )
+    return max_range, spur
+
+
+MAX_RECORD_READINGS = 500_000
+"""Most ``--poses x --repeats`` of ``record lidar`` (x 360 bearings: ~1.4 GB of float64 readings)."""
+
+
 def _command() -> str:
     return "sensor-envs " + " ".join(shlex.quote(a) for a in sys.argv[1:])
 
@@ -135,6 +180,10 @@ def _record(args: argparse.Namespace) -> int:
     from sensor_envs.lidar.rig import NeatoRig
     from sensor_envs.maps import load_map
 
+    if args.poses * args.repeats > MAX_RECORD_READINGS:
+        raise InputError(
+            f"--poses x --repeats: {args.poses} x {args.repeats} readings per bearing, more than {MAX_RECORD_READINGS}"
+        )
     check_inputs(args.rig)
     out = check_output(args.out, inputs=[args.map, args.rig], force=args.force, suffix=".npz")
     rig = NeatoRig.from_file(args.rig)
@@ -191,19 +240,20 @@ def _fit(args: argparse.Namespace) -> int:
     from sensor_envs.lidar.lwlr import LidarLWLR
     from sensor_envs.lidar.validate import fit_gaussian_lidar, model_card_markdown
 
+    max_range, spur_above = range_options(args.log, args.max_range, args.spur_above, args.table_range_step)
     check_inputs(args.log, args.map)
     out = check_output(args.out, inputs=[args.log, args.map], force=args.force, suffix=".npz")
     card_out = check_output(
         out.with_suffix(".md"), inputs=[args.log, args.map], force=args.force, option="--out (model card)"
     )
-    log, prep = _prepared_log(args, args.max_range)
+    log, prep = _prepared_log(args, max_range)
     t0 = time.perf_counter()
     model = LidarLWLR(
         variant=args.variant,
         n_folds=args.folds,
         random_state=args.seed,
-        max_range=args.max_range,
-        spur_above=args.spur_above,
+        max_range=max_range,
+        spur_above=spur_above,
         table_range_step=args.table_range_step,
     )
     with about(args.log):

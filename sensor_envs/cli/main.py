@@ -17,7 +17,7 @@ from sensor_envs.cli import diagnose as cli_diagnose
 from sensor_envs.cli import evaluate as cli_evaluate
 from sensor_envs.cli import lidar as cli_lidar
 from sensor_envs.cli import radar as cli_radar
-from sensor_envs.cli.args import OneLineParser, add_force, bounded_int, nonneg_int
+from sensor_envs.cli.args import OneLineParser, add_force, bounded_int, declare_ranges, nonneg_int
 from sensor_envs.inputs import InputError
 
 USER_ERRORS: tuple[type[BaseException], ...] = (InputError, OSError)
@@ -56,6 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     cli_evaluate.register(
         sub.add_parser("evaluate", help="does the simulator predict an algorithm's performance on the real sensor?")
     )
+    declare_ranges(parser)  # every numeric option its declared range, every path option non-empty
     return parser
 
 

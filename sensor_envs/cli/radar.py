@@ -214,6 +214,10 @@ def _baseline_path(model: str) -> Path:
     return next((c for c in candidates if c.exists()), candidates[0])
 
 
+MAX_RECORD_ROWS = 10_000_000
+"""Most target rows of ``record radar`` (``--sequences x --cycles x --targets``)."""
+
+
 def _record(args: argparse.Namespace) -> int:
     from sensor_envs.radar.log import write_log
 
@@ -221,6 +225,12 @@ def _record(args: argparse.Namespace) -> int:
         raise InputError("--rig: a rig file configures the simulated rig; it cannot be used with --astyx")
     if args.astyx and args.in_view_only:
         raise InputError("--in-view-only: filters the simulated rig's targets; it cannot be used with --astyx")
+    rows = args.sequences * args.cycles * args.targets
+    if not args.astyx and rows > MAX_RECORD_ROWS:
+        raise InputError(
+            f"--sequences x --cycles x --targets: {args.sequences} x {args.cycles} x {args.targets} = {rows} target "
+            f"rows, more than {MAX_RECORD_ROWS}"
+        )
     check_inputs(args.astyx, args.rig)
     out = check_output(args.out, inputs=[args.astyx, args.rig], force=args.force, suffix=".csv")
     if args.astyx:

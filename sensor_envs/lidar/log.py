@@ -43,6 +43,7 @@ __all__ = [
     "read_carmen",
     "read_rosbag",
     "log_from_arrays",
+    "check_model_call",
     "motion_covariates",
 ]
 
@@ -174,6 +175,35 @@ def _check_bearings(source: str, b: NDArray[np.float64]) -> None:
     wrapped = np.round(np.mod(b, 2 * np.pi), 9) % np.round(2 * np.pi, 9)
     if np.unique(wrapped).size != b.size:
         raise _err(source, "bearings", "holds repeated bearings (every beam needs its own direction)")
+
+
+def check_model_call(
+    poses: Any, map_segments: Any = None, rng: Any = None, ranges: Any = None, log: Any = "unset"
+) -> None:
+    """The checked arguments of a lidar model's ``fit``/``sample``/``log_prob`` (a validation line at their top).
+
+    ``poses`` ``(3,)`` or ``(S, 3)`` finite within :data:`MAX_COORD`; ``map_segments`` valid segments;
+    ``rng`` a Generator; ``ranges`` readings ``>= 0`` (NaN = missing) up to :data:`MAX_RANGE` with ``S``
+    leading; ``log`` (for ``fit``) a :class:`LidarLog`.
+
+    Raises:
+        InputError: naming the argument.
+    """
+    from sensor_envs.inputs import check_array, check_rng
+
+    if log != "unset" and not isinstance(log, LidarLog):
+        raise InputError(f"log: expected a LidarLog (sensor_envs.lidar.log.load_log), got {type(log).__name__}")
+    if rng is not None:
+        check_rng(rng)
+    if poses is not None:
+        ps = check_array(np.atleast_2d(poses), "poses", (None, 3), low=-MAX_COORD, high=MAX_COORD)
+        if ranges is not None:
+            r = np.asarray(ranges)
+            check_array(
+                r, "ranges", (ps.shape[0], None) + ((None,) if r.ndim == 3 else ()), low=0, high=MAX_RANGE, nan=True
+            )
+    if map_segments is not None:
+        as_segments(map_segments, name="map_segments")
 
 
 def log_from_arrays(

@@ -68,7 +68,7 @@ from sklearn.utils.validation import check_is_fitted
 from tqdm.auto import tqdm
 
 from sensor_envs.geometry import as_segments, raycast_pose
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, load_npz
 from sensor_envs.jit import compiled
 from sensor_envs.lidar.extra_state import MAX_COEF, apply_extra, check_extra_state, fit_extra_terms
 from sensor_envs.lidar.kernel import (
@@ -82,7 +82,7 @@ from sensor_envs.lidar.kernel import (
     choose_shrinkage,
     lwlr,
 )
-from sensor_envs.lidar.log import LidarLog
+from sensor_envs.lidar.log import LidarLog, check_model_call
 from sensor_envs.lidar.pose_correction import correct_poses
 from sensor_envs.modelio import (
     RANDOM_STATE,
@@ -373,6 +373,7 @@ class LidarLWLR(BaseEstimator):
         Raises:
             ValueError: for bad hyperparameters or a log without map.
         """
+        check_model_call(None, log=log)  # a LidarLog (fit(None) is an InputError, not an AttributeError)
         if per_reading or (per_reading is None and log.ranges.shape[2] < 2):
             from sensor_envs.lidar.readings import fit_per_reading
 
@@ -843,6 +844,7 @@ class LidarLWLR(BaseEstimator):
         :func:`null_count_log_prob`, while each reading's marginal null probability stays ``p_null``.
         """
         self._check_fitted()
+        check_model_call(poses, map_segments, rng)
         p = self.params_full(poses, map_segments, extra)
         if n_repeats is None:
             return self.sample_from_params(p, rng, pose_uncertainty=True)
@@ -864,6 +866,7 @@ class LidarLWLR(BaseEstimator):
             Same shape as ``ranges``; ``NaN`` where missing.
         """
         self._check_fitted()
+        check_model_call(poses, map_segments, ranges=ranges)
         x = np.asarray(ranges, dtype=np.float64)
         p = self.params_full(poses, map_segments, extra)
         if x.ndim == 3:
@@ -968,8 +971,7 @@ class LidarLWLR(BaseEstimator):
 def _peek_version(path: str | os.PathLike[str]) -> int:
     """The file's ``format_version`` (0 when unreadable: :func:`load_model_file` then names the fault)."""
     try:
-        with np.load(path, allow_pickle=False) as z:
-            v = json.loads(z["__header__"].tobytes().decode("utf-8")).get("format_version", 0)
+        v = json.loads(load_npz(path)["__header__"].tobytes().decode("utf-8")).get("format_version", 0)
         return int(v) if isinstance(v, int) else 0
     except Exception:
         return 0

@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, quaternion_yaw, raycast_pose
@@ -135,18 +134,13 @@ def with_poses(log: LidarLog, poses: NDArray[np.float64], segments: NDArray[np.f
 
 # --------------------------------------------------------------------------------------------- alignment
 def read_occupancy(yaml_path: str | os.PathLike[str]) -> tuple[NDArray[np.bool_], float, NDArray[np.float64]]:
-    """Occupied cells ``(H, W)`` (row 0 at the smallest y), resolution [m], origin ``(x, y, yaw)`` of a ROS map."""
-    from sensor_envs.maps import _read_image
+    """Occupied cells ``(H, W)`` (row 0 at the smallest y), resolution [m], origin ``(x, y, yaw)`` of a ROS map.
 
-    path = Path(yaml_path)
-    try:
-        meta = yaml.safe_load(path.read_text(encoding="utf-8"))
-        img = _read_image(path.parent / str(meta["image"]), path)
-        res, origin = float(meta["resolution"]), np.asarray(meta["origin"], dtype=np.float64)
-    except (OSError, yaml.YAMLError, KeyError, TypeError) as exc:
-        raise InputError(f"{path}: not a readable ROS map_server YAML ({exc})") from None
-    p = img / 255.0 if int(meta.get("negate", 0)) else (255.0 - img) / 255.0
-    return (p > float(meta.get("occupied_thresh", 0.65)))[::-1], res, origin
+    The same checked reader as :func:`sensor_envs.maps.read_ros_map` (every field validated).
+    """
+    from sensor_envs.maps import ros_occupancy
+
+    return ros_occupancy(yaml_path)
 
 
 def compose(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:

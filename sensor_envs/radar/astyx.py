@@ -31,7 +31,7 @@ consecutive frames (used to split the data into train/test by blocks). Covariate
 
 from __future__ import annotations
 
-import json
+import io
 import os
 import warnings
 from collections.abc import Sequence
@@ -44,12 +44,14 @@ from sklearn.cluster import DBSCAN
 from tqdm import tqdm
 
 from sensor_envs.geometry import quaternion_yaw, to_frame
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, parse_json, read_text
 from sensor_envs.radar.features import aspect_angle
 from sensor_envs.radar.log import REQUIRED_COLUMNS, RadarLog
 
 __all__ = ["CLASS_CODES", "read_frame", "frame_rows", "load_astyx", "detection_statistics"]
 
+MAX_FRAME = 999_999_999
+"""Largest frame index (nine digits: ``f * 1000 + box`` ids stay exact)."""
 CLASS_CODES = ("Car", "Truck", "Bus", "Person", "Trailer", "Other Vehicle", "Towed Object", "Cyclist")
 """``class_code`` covariate: index into this tuple (-1 for other names)."""
 
@@ -62,23 +64,27 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
     Raises:
         ValueError: naming the file and the field when a file is malformed.
     """
+    if not 0 <= index <= MAX_FRAME:
+        raise InputError(f"{root}: frame index {index} is outside [0, {MAX_FRAME}] (radar_6455/NNNNNN.txt)")
     name = f"{index:06d}"
     pc_path = root / "radar_6455" / f"{name}.txt"
+    text = read_text(pc_path, "field 'X Y Z V_r Mag'")
     try:
         with warnings.catch_warnings():  # a frame without detections is valid; loadtxt warns about it
             warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
-            pts = np.loadtxt(pc_path, skiprows=2, ndmin=2)
+            pts = np.loadtxt(io.StringIO(text), skiprows=2, ndmin=2)
     except ValueError as exc:
-        raise InputError(f"{pc_path}: not a table of 5 numbers per row ({exc})") from exc
+        raise InputError(f"{pc_path}: not a table of 5 numbers per row ({' '.join(str(exc).split())})") from None
     if pts.size and pts.shape[1] != 5:
         raise InputError(f"{pc_path}: expected 5 columns X Y Z V_r Mag, got {pts.shape[1]}")
     if not np.isfinite(pts).all():
         raise InputError(f"{pc_path}: field 'X Y Z V_r Mag' holds NaN or infinite values")
     gt_path = root / "groundtruth_obj3d" / f"{name}.json"
     try:
-        doc = json.loads(gt_path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{gt_path}: not valid UTF-8 JSON ({' '.join(str(exc).split())})") from None
+        doc = parse_json(read_text(gt_path, "field 'objects'"), f"{gt_path}: not valid UTF-8 JSON")
+    except InputError as exc:
+        msg = str(exc) if "UTF-8" in str(exc) else f"{gt_path}: not valid UTF-8 JSON ({exc})"
+        raise InputError(msg) from None
     objs = doc.get("objects", []) if isinstance(doc, dict) else None
     if not isinstance(objs, list):
         raise InputError(f"{gt_path}: field 'objects' must be a list of objects, got {type(objs).__name__}")
@@ -101,7 +107,7 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
             raise InputError(f"{gt_path}: object {k} lacks field {exc}") from None
         except (TypeError, ValueError, AttributeError) as exc:
             raise InputError(f"{gt_path}: object {k}: a field is malformed ({exc})") from None
-        if not np.isfinite(box[:6]).all():
+        if not (np.isfinite(box[:6]).all() and (np.abs(box[:2] + box[5:6]) <= 1000).all()):
             raise InputError(
                 f"{gt_path}: object {k}: field 'center3d', 'dimension3d' or 'orientation_quat' is not finite"
             )
@@ -193,7 +199,7 @@ def load_astyx(
         raise InputError(f"position must be 'nearest' or 'centroid', got {cluster_args['position']!r}")
     if frames is None:
         files = sorted((root / "radar_6455").glob("*.txt"))
-        stray = [p for p in files if not p.stem.isdigit()]
+        stray = [p for p in files if not (p.stem.isascii() and p.stem.isdigit() and len(p.stem) <= 9)]
         if stray:
             raise InputError(f"{stray[0]}: not an Astyx frame file (expected radar_6455/NNNNNN.txt)")
         frames = [int(p.stem) for p in files]

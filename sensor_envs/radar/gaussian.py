@@ -46,7 +46,7 @@ from sensor_envs.modelio import (
     validate_params,
 )
 from sensor_envs.radar.features import state_matrix
-from sensor_envs.radar.log import RadarLog, clutter_counts, target_tuples
+from sensor_envs.radar.log import RadarLog, check_states, clutter_counts, fit_cycle_time, target_tuples
 
 __all__ = ["GaussianRadar"]
 
@@ -91,8 +91,8 @@ class GaussianRadar(BaseEstimator):
 
     def fit(self, log: RadarLog, cycle_time: float | None = None) -> GaussianRadar:
         """Fit means, covariances, detection probabilities and clutter on ``log``; returns self."""
+        cycle = fit_cycle_time(log, cycle_time)  # a RadarLog; the cycle time consistent with its t column
         validate_params(self.get_params(), self._hyperparameter_constraints)
-        cycle = optional_positive(None, "cycle_time", cycle_time)
         edges = np.asarray(self.range_edges, dtype=np.float64)
         tt = target_tuples(log)
         det = ~np.isnan(tt.z[:, 0])
@@ -198,6 +198,7 @@ class GaussianRadar(BaseEstimator):
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """``RadarSensor.sample_cycle``; ``prev_z`` and ``new_track`` are ignored; ``source`` is always -1."""
         self._check_fitted()
+        check_states(corners if prev_z is None else np.column_stack([np.atleast_2d(corners), prev_z]), rng=rng)
         corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
         n = corners.shape[0]
         b, mu, pd = self._mean_pd(corners, extra)
@@ -211,6 +212,7 @@ class GaussianRadar(BaseEstimator):
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """Sample for ``(n, 2)`` or ``(n, 4)`` states (only the corner is used) and the extra state."""
         self._check_fitted()
+        check_states(state, rng=rng)
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         return self.sample_cycle(st[:, :2], None, rng, extra=extra)
 
@@ -228,6 +230,7 @@ class GaussianRadar(BaseEstimator):
         ``new_track`` is accepted for the common radar API and ignored (no start state).
         """
         self._check_fitted()
+        check_states(state, z)
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))
         b, mu, pd = self._mean_pd(st[:, :2], extra)

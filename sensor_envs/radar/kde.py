@@ -129,7 +129,14 @@ from sensor_envs.modelio import (
 from sensor_envs.radar.alignment import MAX_AZIMUTH_BIAS, derotate_offsets, estimate_azimuth_bias, rotate_offsets
 from sensor_envs.radar.buckets import build_buckets, sample_proportional
 from sensor_envs.radar.features import state_matrix, with_state_columns
-from sensor_envs.radar.log import RadarLog, TargetTuples, clutter_counts, target_tuples
+from sensor_envs.radar.log import (
+    RadarLog,
+    TargetTuples,
+    check_states,
+    clutter_counts,
+    fit_cycle_time,
+    target_tuples,
+)
 from sensor_envs.radar.relevance import (
     select_corner_variance,
     select_corner_variances,
@@ -530,8 +537,8 @@ class KDERadarModel(BaseEstimator):
         Returns:
             self.
         """
+        cycle = fit_cycle_time(log, cycle_time)  # a RadarLog; the cycle time consistent with its t column
         self._check_params()
-        cycle = optional_positive(None, "cycle_time", cycle_time)
         rng = np.random.default_rng(self.random_state)
         tt = target_tuples(log)
         det = ~np.isnan(tt.z[:, 0])
@@ -885,6 +892,7 @@ class KDERadarModel(BaseEstimator):
             ``z (n, 2)`` [m] (``NaN`` rows = missed) and ``source (n,)`` the picked tuple's index.
         """
         self._check_fitted()
+        check_states(state, rng=rng)
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
         return self.sample_cycle(st[:, :2], prev, rng, extra=extra, new_track=new_track)
@@ -949,6 +957,7 @@ class KDERadarModel(BaseEstimator):
         tuple is in reach). Identical states in a large batch share one neighbour/bucket search.
         """
         self._check_fitted()
+        check_states(corners if prev_z is None else np.column_stack([np.atleast_2d(corners), prev_z]), rng=rng)
         corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
         n = corners.shape[0]
         if n == 0:
@@ -1070,6 +1079,7 @@ class KDERadarModel(BaseEstimator):
             ``log P(miss | x)`` for misses.
         """
         self._check_fitted()
+        check_states(state, z)
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))
         n = st.shape[0]

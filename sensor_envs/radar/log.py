@@ -397,6 +397,63 @@ def target_tuples(log: RadarLog) -> TargetTuples:
     return TargetTuples(corner, z, z_prev, has_prev, rows.astype(np.int64), c["sequence"], c["frame"], c["target"])
 
 
+def check_states(state: Any, z: Any = None, rng: Any = None) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+    """The checked arguments of a radar model's ``sample``/``log_prob``: states ``(n, 2|4)`` and outputs ``(n, 2)``.
+
+    Corners (columns 0-1) finite within :data:`MAX_POSITION`; previous outputs (columns 2-3) and ``z``
+    finite or NaN (missing / a miss, both columns alike) within the same bound; ``rng`` a Generator.
+
+    Raises:
+        InputError: naming the argument and the first offending entry.
+    """
+    from sensor_envs.inputs import check_array, check_rng
+
+    if rng is not None:
+        check_rng(rng)
+    st = check_array(np.atleast_2d(state), "state", (None, (2, 4)), low=-MAX_POSITION, high=MAX_POSITION, nan=True)
+    if np.isnan(st[:, :2]).any():
+        raise InputError(f"state: row {_first(np.isnan(st[:, :2]).any(axis=1))} has a NaN corner")
+    zz = None
+    if z is not None:
+        zz = check_array(np.atleast_2d(z), "z", (st.shape[0], 2), low=-MAX_POSITION, high=MAX_POSITION, nan=True)
+        if (np.isnan(zz[:, 0]) != np.isnan(zz[:, 1])).any():
+            raise InputError(f"z: row {_first(np.isnan(zz[:, 0]) != np.isnan(zz[:, 1]))} is half NaN")
+    return st, zz
+
+
+CYCLE_TIME_TOLERANCE = 0.05
+"""Relative difference allowed between a given cycle time and the log's median frame interval."""
+
+
+def fit_cycle_time(log: Any, cycle_time: float | None) -> float:
+    """The cycle time [s] a model fit on ``log`` stores: ``cycle_time`` checked against the log, NaN if ``None``.
+
+    A fit's first check: ``log`` must be a :class:`RadarLog`; a given cycle time must be a finite number
+    ``> 0`` within 5 % of the log's median interval between consecutive frames of a sequence (when the log
+    has consecutive frames: ``--cycle-time 7.5`` on a log whose frames are 1 s apart is refused).
+
+    Raises:
+        InputError: naming ``log`` or ``cycle_time``.
+    """
+    from sensor_envs.modelio import optional_positive
+
+    if not isinstance(log, RadarLog):
+        raise InputError(f"log: expected a RadarLog (sensor_envs.radar.log.read_log), got {type(log).__name__}")
+    cycle = optional_positive(None, "cycle_time", cycle_time)
+    if np.isnan(cycle):
+        return cycle
+    seq, frame, t = log["sequence"], log["frame"], log["t"]
+    order = np.lexsort((frame, seq))
+    step = (np.diff(seq[order]) == 0) & (np.diff(frame[order]) == 1)
+    if step.any():
+        interval = float(np.median(np.diff(t[order])[step]))
+        if abs(interval - cycle) > CYCLE_TIME_TOLERANCE * cycle:
+            raise InputError(
+                f"cycle_time: {cycle:g} s, but consecutive frames of {log.source} are {interval:g} s apart (column 't')"
+            )
+    return cycle
+
+
 def clutter_counts(log: RadarLog) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """Clutter detections per cycle and their positions.
 
