@@ -351,7 +351,10 @@ def check_array(
     Raises:
         InputError: ``"<name>: ..."`` naming the first offending entry.
     """
-    arr = np.asarray(value)
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError) as exc:  # ragged nesting, unconvertible objects
+        raise InputError(f"{name}: expected an array of real numbers ({' '.join(str(exc).split())})") from None
     if arr.dtype.kind not in "fiu":
         raise InputError(f"{name}: expected real numbers, got dtype {arr.dtype}")
     arr = arr.astype(np.float64, copy=False)

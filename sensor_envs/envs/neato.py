@@ -38,10 +38,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.envs.neato_render import render_world
 from sensor_envs.geometry import nearest_wall_distance, raycast_pose, sample_free_poses, to_frame, wrap_angle
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, check_array
 from sensor_envs.jit import compiled
 from sensor_envs.lidar.sensors import GaussianLidar, IdealLidar, LidarSensor, make_lidar
 from sensor_envs.maps import SegmentMap, load_map
+from sensor_envs.modelio import Constraint, Interval, validate_params
 from sensor_envs.rng import RowGenerators, sensor_rng
 
 __all__ = ["NeatoEnv", "NULL_VALUES", "unicycle_step", "apply_null", "collides", "step_reward", "observe_batch"]
@@ -52,6 +53,24 @@ WORLD_STATE = ("v", "omega", "t", "prev_residual")
 """Extra lidar state variables Neato-v0 supplies: the commanded speed [m/s] and turn rate [rad/s] of the last
 action (0 after reset), the time since reset [s] and each bearing's previous residual (from the model's tables)."""
 _BATCHED_LIDARS = (IdealLidar, GaussianLidar)  # and LearnedLidar: measure() broadcasts over leading axes
+
+
+NEATO_CONSTRAINTS: dict[str, list[Constraint]] = {
+    "n_bearings": [Interval(1, 3600, integer=True)],
+    "max_range": [Interval(0, 1000, open_low=True)],
+    "dt": [Interval(0, 10, open_low=True)],
+    "v_max": [Interval(0, 10, open_low=True)],
+    "omega_max": [Interval(0, 20, open_low=True)],
+    "robot_radius": [Interval(0, 10, open_low=True)],
+    "goal_tolerance": [Interval(0, 100, open_low=True)],
+    "goal_heading_tolerance": [None, Interval(0, np.pi, open_low=True)],
+    "min_goal_distance": [Interval(0, 1000)],
+    "progress_reward": [Interval(-1e6, 1e6)],
+    "step_penalty": [Interval(-1e6, 1e6)],
+    "goal_reward": [Interval(-1e6, 1e6)],
+    "collision_penalty": [Interval(-1e6, 1e6)],
+}
+"""Declared ranges of ``NeatoEnv``'s numeric arguments [m, s, m/s, rad/s, reward units] (finite, sane magnitudes)."""
 
 
 class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
@@ -88,16 +107,24 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             raise InputError(
                 f"render_mode: expected one of {self.metadata['render_modes']} or None, got {render_mode!r}"
             )
-        for name, val in (
-            ("n_bearings", n_bearings),
-            ("max_range", max_range),
-            ("dt", dt),
-            ("v_max", v_max),
-            ("omega_max", omega_max),
-            ("robot_radius", robot_radius),
-        ):
-            if not val > 0:
-                raise InputError(f"{name}: must be > 0, got {val!r}")
+        validate_params(
+            {
+                "n_bearings": n_bearings,
+                "max_range": max_range,
+                "dt": dt,
+                "v_max": v_max,
+                "omega_max": omega_max,
+                "robot_radius": robot_radius,
+                "goal_tolerance": goal_tolerance,
+                "goal_heading_tolerance": goal_heading_tolerance,
+                "min_goal_distance": min_goal_distance,
+                "progress_reward": progress_reward,
+                "step_penalty": step_penalty,
+                "goal_reward": goal_reward,
+                "collision_penalty": collision_penalty,
+            },
+            NEATO_CONSTRAINTS,
+        )
         self.world_map = load_map(map)
         self.lidar = make_lidar(lidar, model=model, **(lidar_kwargs or {}))
         self._extra_names = lidar_extra_state(self.lidar)
@@ -156,21 +183,16 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
             self.goal = self._sample_free_pose(away_from=self.pose[:2])
 
     def step(self, action: NDArray[np.float32]) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
-        """Drive with normalised ``(v, omega)`` (clipped to ``[-1, 1]``) for ``dt`` seconds.
+        """Drive with normalised ``(v, omega)``, each in ``[-1, 1]`` (the action space), for ``dt`` seconds.
 
         Raises:
             gymnasium.error.ResetNeeded: when called before :meth:`reset`.
-            ValueError: for an action that is not two finite numbers (NaN cannot be clipped).
+            InputError: for an action outside the action space: not two finite numbers in ``[-1, 1]`` (never
+                clipped silently; SB3 clips its policies' actions to the space before ``step``).
         """
         if self._sensor_rng is None:
             raise gym.error.ResetNeeded("Neato-v0: call reset() before step()")
-        try:
-            a = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InputError(f"action: expected two numbers (v, omega) in [-1, 1], got {action!r}") from None
-        if a.size != 2 or not np.isfinite(a).all():
-            raise InputError(f"action: expected two finite numbers (v, omega) in [-1, 1], got {action!r}")
-        a = np.clip(a.reshape(2), -1.0, 1.0)
+        a = check_array(np.ravel(action) if np.ndim(action) == 2 else action, "action", (2,), low=-1.0, high=1.0)
         self.pose = unicycle_step(self.pose, a[0] * self.v_max, a[1] * self.omega_max, self.dt)
         self._motion = np.array([a[0] * self.v_max, a[1] * self.omega_max, self._motion[2] + self.dt])
         collision = self._collides(self.pose)

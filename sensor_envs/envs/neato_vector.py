@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from sensor_envs.envs.neato import NeatoEnv, collides, observe_batch, step_reward, unicycle_step
 from sensor_envs.envs.neato_render import render_world
 from sensor_envs.heap import keep_freed_heap
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, check_array, check_count
 from sensor_envs.rng import RowGenerators
 
 __all__ = ["NeatoVectorEnv"]
@@ -52,10 +52,8 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
     def __init__(
         self, num_envs: int = 1, max_episode_steps: int = 500, render_mode: str | None = None, **kwargs: Any
     ) -> None:
-        if int(num_envs) < 1:
-            raise InputError(f"num_envs: must be >= 1, got {num_envs!r}")
-        if int(max_episode_steps) < 1:
-            raise InputError(f"max_episode_steps: must be >= 1, got {max_episode_steps!r}")
+        check_count(num_envs, "num_envs", 1, 4096)
+        check_count(max_episode_steps, "max_episode_steps", 1, 10**7)
         first = NeatoEnv(render_mode=render_mode, **kwargs)
         keep_freed_heap()
         if first._extra_names:
@@ -120,10 +118,17 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
     def step(
         self, actions: NDArray[np.float32]
     ) -> tuple[NDArray[np.float32], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], dict[str, Any]]:
-        """Drive every robot with its normalised ``(v, omega)`` row of ``actions`` (clipped to [-1, 1])."""
+        """Drive every robot with its normalised ``(v, omega)`` row of ``actions``, each in ``[-1, 1]``.
+
+        Raises:
+            InputError: for actions outside the action space (not ``(num_envs, 2)`` finite numbers in
+                ``[-1, 1]``; never clipped silently), as ``Neato-v0``'s ``step``.
+        """
         if not self._started:
             raise RuntimeError("NeatoVectorEnv: call reset() before step()")
-        a = np.clip(np.asarray(actions, dtype=np.float64).reshape(self.num_envs, 2), -1.0, 1.0)
+        flat = np.ndim(actions) == 1 and np.size(actions) == 2 * self.num_envs  # a flat batch, as before
+        batch = np.reshape(actions, (-1, 2)) if flat else actions
+        a = check_array(batch, "actions", (self.num_envs, 2), low=-1.0, high=1.0)
         env = self.envs[0]
         restart = self._autoreset  # these robots start a new episode this step (NEXT_STEP autoreset)
         # every robot moves (numpy's elementwise arithmetic: a row's result does not depend on the others);

@@ -114,6 +114,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
+from sensor_envs.envs.checks import check_action, check_highway_config
 from sensor_envs.envs.highway.frame import RadarFrame, Truth
 from sensor_envs.envs.highway.observation import (
     KinematicsLayout,
@@ -304,6 +305,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         Once when highway-env observes (``radar_rate="policy"``) or after every simulation sub-step
         (``"simulation"``).
         """
+        action = check_action(self.action_space, action)  # outside the space: InputError, as in Neato-v0
         self._last_obs = None
         self._cycles = 0
         _, reward, terminated, truncated, info = self.env.step(action)
@@ -596,6 +598,8 @@ def make_highway(
         ValueError: naming an unknown ``config`` key or a bad sensor argument.
     """
     import highway_env  # noqa: F401  (registers highway-env's ids)
+
+    check_highway_config(config)  # declared ranges (policy_frequency 0 would divide by zero)
 
     with warnings.catch_warnings():  # the sensor_envs id is current even when its base id has newer versions
         warnings.filterwarnings("ignore", message=".*is out of date.*", category=DeprecationWarning)
