@@ -137,6 +137,13 @@ def _load_map_file(path: Path) -> SegmentMap:
 
 
 def _segment_rows(raw: Any, path: Path) -> NDArray[np.float64]:
+    stack = [raw]
+    while stack:  # every leaf a JSON/YAML number (true, "1" and null are no coordinates)
+        x = stack.pop()
+        if isinstance(x, list):
+            stack.extend(x)
+        elif isinstance(x, bool) or not isinstance(x, (int, float)):
+            raise InputError(f"{path}: field 'segments' holds {x!r}; expected lists of [x1, y1, x2, y2] numbers")
     try:
         arr = np.asarray(raw, dtype=np.float64)
     except (TypeError, ValueError) as exc:

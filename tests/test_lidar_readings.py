@@ -288,7 +288,7 @@ def test_bag_without_scan_topic(tmp_path):
         w.write(conn, 1_000_000_000, ts.serialize_ros1(msg, "std_msgs/msg/String"))
     with pytest.raises(LidarLogError, match="noscan.bag: topic '/scan' not in the bag"):
         load_log(path)
-    out = _cli("fit", "lidar", str(path), "--out", str(tmp_path / "m.npz"))
+    out = _cli("fit", "lidar", str(path), "--out", str(tmp_path / "m.npz"), "--max-range", "5")
     assert out.returncode == 2 and "noscan.bag" in out.stderr and "/scan" in out.stderr
 
 

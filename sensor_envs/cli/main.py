@@ -117,16 +117,30 @@ def _terminate_cleanly() -> tuple[Any, Any] | None:
 
 
 def _bars_only_on_a_terminal() -> Any:
-    """Disable tqdm bars (``TQDM_DISABLE``) when stderr is not a terminal; returns the undo function."""
-    old = os.environ.get("TQDM_DISABLE")
-    if not sys.stderr.isatty():
-        os.environ["TQDM_DISABLE"] = "1"
+    """Disable every tqdm bar when stderr is not a terminal (a log file, a pipe); returns the undo function.
+
+    ``TQDM_DISABLE`` covers bars created without ``disable=``; bars created with ``disable=False`` (a
+    library's ``progress=True`` default) are disabled by wrapping ``tqdm``'s constructor for this command.
+    """
+    if sys.stderr.isatty():
+        return lambda: None
+    import tqdm.std
+
+    old_env, old_init = os.environ.get("TQDM_DISABLE"), tqdm.std.tqdm.__init__
+    os.environ["TQDM_DISABLE"] = "1"
+
+    def quiet_init(self: Any, *args: Any, **kwargs: Any) -> None:
+        kwargs["disable"] = True
+        old_init(self, *args, **kwargs)
+
+    tqdm.std.tqdm.__init__ = quiet_init  # type: ignore[method-assign]
 
     def undo() -> None:
-        if old is None:
+        tqdm.std.tqdm.__init__ = old_init  # type: ignore[method-assign]
+        if old_env is None:
             os.environ.pop("TQDM_DISABLE", None)
         else:
-            os.environ["TQDM_DISABLE"] = old
+            os.environ["TQDM_DISABLE"] = old_env
 
     return undo
 

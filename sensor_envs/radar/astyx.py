@@ -92,6 +92,12 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
     for k, o in enumerate(objs):
         try:
             c, d = o["center3d"], o["dimension3d"]
+            q = o["orientation_quat"]
+            _numbers(c, d, q, o.get("occlusion", 0.0), o.get("label_certainty", 0.0))
+            if not (isinstance(c, list) and len(c) == 3 and isinstance(d, list) and len(d) == 3):
+                raise ValueError("'center3d' and 'dimension3d' must be lists of 3 numbers")
+            if not (isinstance(q, list) and len(q) == 4 and abs(np.linalg.norm(q) - 1.0) < 0.1):
+                raise ValueError(f"'orientation_quat' must be a unit quaternion [w, x, y, z], got {q!r:.60}")
             box = [
                 float(c[0]),
                 float(c[1]),
@@ -113,6 +119,14 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
             )
         boxes.append(box)
     return pts.reshape(-1, 5), np.asarray(boxes, dtype=np.float64).reshape(-1, 8), names
+
+
+def _numbers(*values: Any) -> None:
+    """Refuse booleans, strings and nulls where a label holds numbers (``float(True)`` would be 1.0)."""
+    for v in values:
+        for x in v if isinstance(v, list) else [v]:
+            if isinstance(x, bool) or not isinstance(x, (int, float)):
+                raise TypeError(f"expected numbers, got {x!r:.40}")
 
 
 def _points_in_boxes(xy: NDArray, boxes: NDArray, margin: float) -> NDArray[np.bool_]:

@@ -1,0 +1,154 @@
+"""Generated malformed inputs across every reader and option, each run in a child process under limits.
+
+    PYTHONPATH=. nice -n 10 python benchmarks/fuzz_inputs.py --examples 2000 [--seed 0] [--timeout 20]
+        [--memory-gb 8] [--family "map file"] [--show 5]
+
+For each case (``tests/fuzz_cases.py``: a valid piece, one generated mutation, the command that reads
+it and the loader behind it), a forked child process (the package imported once in the parent) with
+an address-space limit (``RLIMIT_AS``, ``ulimit -v``) of ``--memory-gb`` and a wall-clock limit of
+``--timeout`` seconds runs the loader and then ``sensor-envs`` in-process, and reports its class:
+
+* ``clean error``: exit 2, one line naming the file or option, no traceback, nothing written;
+* ``vague message``: exit 2, one line that names neither;
+* ``traceback``: the loader or the command raised anything but an input error;
+* ``accepted nonsense``: an input that breaks the format taken by the loader or the command;
+* ``accepted``: a mutation that may well be valid (a truncation at a line end, a duplicated line...) taken;
+* ``hang``: killed at the time limit; ``memory``: ``MemoryError`` or killed under the memory limit;
+* ``files changed``: an input changed, or a file left behind by a failed command.
+
+Prints a table of counts per family and class, then the first ``--show`` cases of every bad class.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import random
+import resource
+import signal
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import fuzz_cases as fc
+
+BAD = ("traceback", "accepted nonsense", "hang", "memory", "files changed", "vague message", "exit")
+
+
+class Seeded:
+    """A chooser over ``random.Random(seed)``."""
+
+    def __init__(self, seed: int) -> None:
+        self.r = random.Random(seed)
+
+    def integers(self, lo: int, hi: int) -> int:
+        return self.r.randint(lo, hi)
+
+    def choice(self, seq):
+        return self.r.choice(list(seq))
+
+
+def run_one(family: str, seed: int, timeout: float, memory_gb: float) -> tuple[str, str]:
+    """``(class, mutation)`` of one generated case, run in a forked child."""
+    with tempfile.TemporaryDirectory(prefix="fuzz.") as tmp:
+        d = Path(tmp)
+        case = fc.make_case(family, Seeded(seed), d)
+        r, w = os.pipe()
+        pid = os.fork()
+        if pid == 0:  # child
+            os.close(r)
+            try:
+                limit = int(memory_gb * 2**30)
+                resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+                warnings.simplefilter("ignore")
+                try:
+                    kind = fc.classify(case, d)
+                except MemoryError:
+                    kind = "memory"
+                os.write(w, kind.encode())
+            finally:
+                os._exit(0)
+        os.close(w)
+        deadline = time.monotonic() + timeout
+        status = None
+        while time.monotonic() < deadline:
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                break
+            time.sleep(0.02)
+        else:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            os.close(r)
+            return "hang", case.mutation
+        out = os.read(r, 4096).decode()
+        os.close(r)
+        if not out:
+            sig = os.WTERMSIG(status) if status is not None and os.WIFSIGNALED(status) else None
+            return ("memory" if sig in (signal.SIGKILL, signal.SIGSEGV, None) else f"killed {sig}"), case.mutation
+        if "MemoryError" in out:
+            out = "memory"
+        return out, case.mutation
+
+
+def main() -> None:
+    """Run the cases and print the table."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--examples", type=int, default=200, help="generated cases in all (split over the families)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--timeout", type=float, default=20.0, help="seconds per case (the issue's bound is 120)")
+    ap.add_argument("--memory-gb", type=float, default=8.0)
+    ap.add_argument("--family", action="append", default=None, help="only these families (repeatable)")
+    ap.add_argument("--show", type=int, default=5, help="bad cases listed per class")
+    ap.add_argument("--json", default=None, help="also write the counts to this file")
+    args = ap.parse_args()
+    families = args.family or list(fc.FAMILIES)
+    import sensor_envs.cli.main
+    import sensor_envs.lidar.lwlr
+    import sensor_envs.radar.astyx
+    import sensor_envs.radar.kde  # noqa: F401
+
+    fc.npz_bomb()
+    table: dict[str, collections.Counter[str]] = collections.defaultdict(collections.Counter)
+    shown: dict[str, list[str]] = collections.defaultdict(list)
+    t0 = time.perf_counter()
+    for i in range(args.examples):
+        family = families[i % len(families)]
+        kind, mutation = run_one(family, args.seed * 1_000_003 + i, args.timeout, args.memory_gb)
+        cls = kind.split(" (")[0]
+        cls = "exit" if cls.startswith("exit") or cls.startswith("killed") else cls
+        table[family][cls] += 1
+        if cls in BAD and len(shown[cls]) < args.show:
+            shown[cls].append(f"{family}: {mutation!r} -> {kind}")
+        if (i + 1) % 50 == 0:
+            print(f"[{i + 1}/{args.examples} cases, {time.perf_counter() - t0:.0f} s]", file=sys.stderr, flush=True)
+    classes = ["clean error", "accepted", *BAD]
+    print(
+        f"{args.examples} generated cases, seed {args.seed}, {args.timeout:g} s and {args.memory_gb:g} GB per case, "
+        f"{time.perf_counter() - t0:.0f} s\n"
+    )
+    print("| family | cases | " + " | ".join(classes) + " |")
+    print("|---|---:|" + "---:|" * len(classes))
+    total: collections.Counter[str] = collections.Counter()
+    for family, counts in table.items():
+        total.update(counts)
+        print(f"| {family} | {sum(counts.values())} | " + " | ".join(str(counts[c]) for c in classes) + " |")
+    print(f"| all | {sum(total.values())} | " + " | ".join(str(total[c]) for c in classes) + " |")
+    for cls, items in shown.items():
+        print(f"\n{cls}:")
+        for item in items:
+            print("  " + item)
+    if args.json:
+        Path(args.json).write_text(json.dumps({f: dict(c) for f, c in table.items()}, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,579 @@
+"""Generated malformed inputs for every reader and option: valid pieces and the mutations applied to them.
+
+Shared by ``tests/test_input_properties.py`` (hypothesis draws the choices, small budget, in-process) and
+``benchmarks/fuzz_inputs.py`` (a seeded ``random.Random`` draws them, each case in a subprocess under a
+memory and a time limit). A case is built in a fresh folder by :func:`make_case`; it carries the command
+line, the loader call behind it and whether the mutation certainly breaks the format (``must_refuse``: a
+loader or command accepting it is "accepted nonsense").
+
+A *chooser* is anything with ``integers(lo, hi)`` (inclusive) and ``choice(seq)``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import zipfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+SHIPPED = Path(__file__).resolve().parents[1] / "models"
+
+
+class Chooser(Protocol):
+    def integers(self, lo: int, hi: int) -> int: ...
+
+    def choice(self, seq: Sequence[Any]) -> Any: ...
+
+
+@dataclass
+class Case:
+    family: str
+    mutation: str
+    argv: list[str]
+    load: Callable[[], Any] | None  # the reader behind the command (None: options only)
+    must_refuse: bool
+    inputs: list[Path]
+    command_when_loaded: bool = True  # False: an input the loader takes is not also run through the command
+
+
+# ------------------------------------------------------------------------------------------- valid pieces
+RADAR_HEADER = "sequence,frame,t,target,ref_x,ref_y,ref_heading,ref_length,ref_width,meas_x,meas_y,rcs"
+
+
+def radar_rows(n_seq: int = 3, n_frames: int = 6) -> list[str]:
+    rows = []
+    for s in range(n_seq):
+        for f in range(n_frames):
+            x = 10.0 + 2 * s + 0.5 * f
+            meas = f"{x - 2.2:.2f},{0.4 + 0.1 * s:.2f}" if f % 4 != 3 else ","
+            rows.append(f"{s},{f},{f * 1.0:.1f},{s},{x:.2f},1.0,0.1,4.5,1.8,{meas},{1.0 + f}")
+        rows.append(f"{s},0,0.0,-1,,,,,,25.0,-3.0,")
+    return rows
+
+
+def write_radar_csv(d: Path) -> Path:
+    p = d / "log.csv"
+    p.write_text("\n".join([RADAR_HEADER, *radar_rows()]) + "\n", encoding="utf-8")
+    return p
+
+
+SEGS = np.array([[[0, 0], [4, 0]], [[4, 0], [4, 3]], [[4, 3], [0, 3]], [[0, 3], [0, 0]]], dtype=float)
+
+
+def lidar_arrays() -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(0)
+    return {
+        "ranges": rng.uniform(0.5, 2.0, (4, 8, 3)),
+        "bearings": np.linspace(0, 2 * np.pi, 8, endpoint=False),
+        "poses": np.array([[2.0, 1.5, 0.1], [2.2, 1.4, 0.3], [1.8, 1.6, -0.2], [2.0, 1.2, 1.0]]),
+        "map_segments": SEGS,
+        "t": np.array([0.0, 1.0, 2.0, 3.0]),
+    }
+
+
+def write_npz(p: Path, arrays: dict[str, Any]) -> Path:
+    np.savez(p, **arrays)
+    return p
+
+
+def carmen_text(n: int = 5) -> str:
+    lines = []
+    for i in range(n):
+        r = " ".join(f"{1.0 + 0.1 * ((i + k) % 7):.2f}" for k in range(8))
+        lines.append(f"FLASER 8 {r} {1.0 + 0.1 * i} 1.5 0.1 {1.0 + 0.1 * i} 1.5 0.1 {10.0 + i} host {10.0 + i}")
+    return "# a CARMEN log\n" + "\n".join(lines) + "\n"
+
+
+MAP_TXT = "0 0 4 0\n4 0 4 3\n4 3 0 3\n0 3 0 0\n1 1 2 1\n"
+MAP_JSON = json.dumps({"name": "box", "segments": [[0, 0, 4, 0], [4, 0, 4, 3], [4, 3, 0, 3], [0, 3, 0, 0]]})
+MAP_YAML = "name: box\nsegments:\n  - [0, 0, 4, 0]\n  - [4, 0, 4, 3]\n  - [4, 3, 0, 3]\n  - [0, 3, 0, 0]\n"
+ROS_YAML = "image: map.pgm\nresolution: 0.5\norigin: [0.0, 0.0, 0.0]\nnegate: 0\noccupied_thresh: 0.65\n"
+
+
+def pgm_bytes() -> bytes:
+    img = np.full((8, 10), 254, dtype=np.uint8)
+    img[0, :] = img[-1, :] = img[:, 0] = img[:, -1] = 0
+    return b"P5\n10 8\n255\n" + img.tobytes()
+
+
+def write_astyx(d: Path, pc: str | None = None, gt: str | None = None, name: str = "000000") -> Path:
+    root = d / "astyx"
+    (root / "radar_6455").mkdir(parents=True, exist_ok=True)
+    (root / "groundtruth_obj3d").mkdir(exist_ok=True)
+    write_text_bytes(
+        root / "radar_6455" / f"{name}.txt",
+        pc if pc is not None else "\nX Y Z V_r Mag\n10.0 1.0 0.0 0.0 50.0\n10.5 1.2 0.0 0.0 40.0\n",
+    )
+    obj = {"center3d": [12.0, 1.0, 0.5], "dimension3d": [4.5, 1.8, 1.5], "orientation_quat": [1, 0, 0, 0]}
+    obj["classname"] = "Car"
+    write_text_bytes(
+        root / "groundtruth_obj3d" / f"{name}.json", gt if gt is not None else json.dumps({"objects": [obj]})
+    )
+    return root
+
+
+# ----------------------------------------------------------------------------------------------- mutations
+NASTY_TOKENS = ["nan", "inf", "-inf", "abc", "1_0.5", "1e300", "-1e300", "0x10", "--1", "1e", "١", "\x00", "�"]
+"""Tokens that are no valid value of any numeric field (a field holding one must be refused)."""
+NASTY_JSON: list[Any] = [True, None, "x", [], {}, 1e308, -1, [[[[[[[[1]]]]]]]], "NaN", 10**30]
+"""JSON values that are no valid hyperparameter / format field."""
+
+
+def deep(k: int, open_: str = "[", close: str = "]") -> str:
+    return open_ * k + close * k
+
+
+def text_mutation(c: Chooser, text: str, numeric_tokens: bool) -> tuple[str, str, bool]:
+    """A mutated ``text`` (name, new text, must_refuse)."""
+    kind = c.choice(["truncate", "token", "nul", "long", "quote", "nonutf8", "dupline", "delline", "deep"])
+    if kind == "truncate":
+        k = c.integers(0, max(len(text) - 1, 0))
+        return "truncate", text[:k], False
+    lines = text.splitlines(keepends=True)
+    i = c.integers(0, max(len(lines) - 1, 0))
+    if kind == "dupline":
+        return "duplicate line", "".join(lines[: i + 1] + [lines[i]] * c.integers(1, 3) + lines[i + 1 :]), False
+    if kind == "delline":
+        return "delete line", "".join(lines[:i] + lines[i + 1 :]), False
+    if kind == "token":
+        tokens = text.replace(",", " , ").split(" ")
+        numeric = [j for j, t in enumerate(tokens) if _is_number(t.strip())]
+        if not numeric:
+            return "token", text + c.choice(NASTY_TOKENS), False
+        j = c.choice(numeric)
+        tok = c.choice(NASTY_TOKENS)
+        tokens[j] = tok + ("\n" if tokens[j].endswith("\n") else "")
+        return f"token {tok!r}", " ".join(tokens).replace(" , ", ","), numeric_tokens
+    pos = c.integers(0, len(text))
+    insert = {
+        "nul": "\x00",
+        "long": "9" * 200_000,
+        "quote": '"',
+        "nonutf8": "\udcff",
+        "deep": deep(c.choice([50, 1000, 100_000])),
+    }[kind]
+    must = kind in ("nul", "nonutf8", "deep") or (kind == "long" and numeric_tokens)
+    return kind, text[:pos] + insert + text[pos:], must
+
+
+def _is_number(t: str) -> bool:
+    try:
+        float(t)
+    except ValueError:
+        return False
+    return bool(t)
+
+
+def write_text_bytes(p: Path, text: str) -> Path:
+    p.write_bytes(text.encode("utf-8", errors="surrogateescape"))
+    return p
+
+
+def array_mutation(c: Chooser, arrays: dict[str, Any], required: Sequence[str]) -> tuple[str, bool]:
+    """Mutate ``arrays`` in place; returns (name, must_refuse)."""
+    key = c.choice(list(required))
+    a = np.asarray(arrays[key])
+    kind = c.choice(["drop", "bool", "complex", "str", "float16", "shape", "nan", "inf", "huge", "neg", "const", "rev"])
+    if kind == "drop":
+        arrays.pop(key)
+        return f"drop {key}", True
+    if kind == "bool":
+        arrays[key] = a.astype(bool)
+        return f"{key} as bool", True
+    if kind == "complex":
+        arrays[key] = a.astype(complex) + 1j
+        return f"{key} as complex", True
+    if kind == "str":
+        arrays[key] = a.astype(str)
+        return f"{key} as str", True
+    if kind == "float16":
+        arrays[key] = a.astype(np.float16)
+        return f"{key} as float16", False
+    if kind == "shape":
+        arrays[key] = c.choice(
+            [a[None], a.reshape(-1), a[..., :1] if a.ndim else a[None], np.zeros((0,) + a.shape[1:])]
+        )
+        return f"{key} reshaped", a.ndim > 0 and a.size > 1
+    flat = a.astype(np.float64).copy().reshape(-1)
+    if flat.size == 0:
+        return "noop", False
+    j = c.integers(0, flat.size - 1)
+    if kind == "const":
+        flat[:] = flat[0]
+        arrays[key] = flat.reshape(a.shape)
+        return f"{key} constant", False
+    if kind == "rev":
+        arrays[key] = flat[::-1].reshape(a.shape)
+        return f"{key} reversed", False
+    flat[j] = {"nan": np.nan, "inf": np.inf, "huge": 1e300, "neg": -1e9}[kind]
+    arrays[key] = flat.reshape(a.shape)
+    return f"{key}[{j}] = {kind}", kind in ("inf", "huge", "neg") or key != "ranges"
+
+
+_BOMB: bytes | None = None
+
+
+def npz_bomb() -> bytes:
+    """A 2 MB ``.npz`` whose one array inflates to 2 GiB (zeros), built once per process."""
+    global _BOMB
+    if _BOMB is None:
+        header = io.BytesIO()
+        np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (2**28,)})
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+            with zf.open("ranges.npy", "w", force_zip64=True) as fh:
+                fh.write(header.getvalue())
+                chunk = bytes(2**24)
+                for _ in range(2**31 // 2**24):
+                    fh.write(chunk)
+        _BOMB = buf.getvalue()
+    return _BOMB
+
+
+def special_path(c: Chooser, d: Path) -> tuple[str, Path]:
+    """A path that is not a regular file: a FIFO, ``/dev/zero``, a folder."""
+    kind = c.choice(["fifo", "devzero", "folder"])
+    if kind == "fifo":
+        p = d / "pipe.csv"
+        os.mkfifo(p)
+        return "FIFO", p
+    if kind == "devzero":
+        return "/dev/zero", Path("/dev/zero")
+    p = d / "folder.npz"
+    p.mkdir()
+    return "folder", p
+
+
+# --------------------------------------------------------------------------------------------- families
+def _radar(c: Chooser, d: Path) -> Case:
+    from sensor_envs.radar.log import read_log, target_tuples
+
+    p = write_radar_csv(d)
+    if c.integers(0, 9) == 0:
+        name, p = special_path(c, d)
+        must = True
+    else:
+        name, text, must = text_mutation(c, p.read_text(), numeric_tokens=True)
+        write_text_bytes(p, text)
+    argv = ["fit", "radar", str(p), "--out", str(d / "k.npz"), "--relevance", "paper"]
+    return Case("radar log CSV", name, argv, lambda: target_tuples(read_log(p)), must, [p])
+
+
+def _lidar_npz(c: Chooser, d: Path) -> Case:
+    from sensor_envs.lidar.log import load_log
+
+    arrays = lidar_arrays()
+    p = d / "log.npz"
+    roll = c.integers(0, 19)
+    if roll == 0:
+        p.write_bytes(npz_bomb())
+        name, must = "npz bomb (2 GiB inflated)", True
+    elif roll == 1:
+        raw = write_npz(p, arrays).read_bytes()
+        k = c.integers(0, len(raw) - 1)
+        p.write_bytes(raw[:k])
+        name, must = f"truncated at {k}", True
+    elif roll == 2:
+        name, p = special_path(c, d)
+        must = True
+    else:
+        name, must = array_mutation(c, arrays, ("ranges", "bearings", "poses", "map_segments", "t"))
+        write_npz(p, arrays)
+    argv = ["fit", "lidar", str(p), "--out", str(d / "m.npz"), "--folds", "2", "--variant", "seed"]
+    return Case("lidar log npz", name, argv, lambda: load_log(p), must, [p])
+
+
+def _carmen(c: Chooser, d: Path) -> Case:
+    import gzip
+
+    from sensor_envs.lidar.log import load_log
+
+    text = carmen_text()
+    name, text, must = text_mutation(c, text, numeric_tokens=False)
+    gz = c.integers(0, 2) == 0
+    p = d / ("log.log.gz" if gz else "log.log")
+    raw = text.encode("utf-8", errors="surrogateescape")
+    p.write_bytes(gzip.compress(raw) if gz else raw)
+    if gz and c.integers(0, 3) == 0:
+        b = p.read_bytes()
+        p.write_bytes(b[: c.integers(0, len(b) - 1)])
+        name, must = name + " + gzip truncated", True
+    m = write_text_bytes(d / "m.txt", MAP_TXT)
+    argv = ["fit", "lidar", str(p), "--out", str(d / "m.npz"), "--max-range", "5", "--map", str(m), "--folds", "2"]
+    return Case("CARMEN log", name, argv, lambda: load_log(p), must, [p, m])
+
+
+def _map(c: Chooser, d: Path) -> Case:
+    from sensor_envs.maps import load_map
+
+    kind = c.choice(["txt", "json", "yaml", "ros_yaml", "pgm", "alias"])
+    pgm = d / "map.pgm"
+    pgm.write_bytes(pgm_bytes())
+    if kind == "txt":
+        name, text, must = text_mutation(c, MAP_TXT, numeric_tokens=True)
+        p = write_text_bytes(d / "map.txt", text)
+    elif kind == "json":
+        doc = json.loads(MAP_JSON)
+        i, j = c.integers(0, 3), c.integers(0, 3)
+        v = c.choice(NASTY_JSON + ["deep"])
+        if v == "deep":
+            text = MAP_JSON.replace("[0, 0, 4, 0]", deep(c.choice([100, 10_000])))
+        else:
+            doc["segments"][i][j] = v
+            text = json.dumps(doc)
+        name, must = f"segments[{i}][{j}] = {str(v)[:20]}", v not in (-1, 10**30)
+        p = write_text_bytes(d / "map.json", text)
+    elif kind == "yaml":
+        name, text, must = text_mutation(c, MAP_YAML, numeric_tokens=True)
+        p = write_text_bytes(d / "map.yaml", text)
+    elif kind == "alias":
+        bomb = 'a: &a ["x", "x", "x", "x", "x", "x", "x", "x", "x", "x"]\n'
+        for k in range(1, 9):
+            prev = chr(ord("a") + k - 1)
+            cur = chr(ord("a") + k)
+            bomb += f"{cur}: &{cur} [*{prev}, *{prev}, *{prev}, *{prev}, *{prev}, *{prev}, *{prev}, *{prev}, *{prev}]\n"
+        p = write_text_bytes(d / "map.yaml", bomb + "segments: *i\n")
+        name, must = "YAML alias bomb", True
+    elif kind == "ros_yaml":
+        field = c.choice(["image", "resolution", "origin", "negate", "occupied_thresh"])
+        value = c.choice(["[1, 2]", "0", "-1", ".nan", "1e300", "true", "''", "/dev/zero", "{a: 1}", "*x", deep(200)])
+        text = ROS_YAML.replace(ROS_YAML.split(field + ": ")[1].split("\n")[0], value, 1)
+        p = write_text_bytes(d / "map.yaml", text)
+        plausible = (field, value) in {("negate", "0"), ("negate", "true")}
+        name, must = f"ROS {field}: {value}", not plausible
+        if field == "image" and value == "/dev/zero":
+            must = True
+    else:
+        raw = pgm_bytes()
+        v = c.choice(["w", "h", "maxval", "trunc", "bomb"])
+        if v == "trunc":
+            raw = raw[: c.integers(0, len(raw) - 1)]
+        elif v == "bomb":
+            raw = b"P5\n100000 100000\n255\n" + raw[13:]
+        else:
+            raw = raw.replace(b"10 8\n255", {"w": b"0 8\n255", "h": b"10 99999\n255", "maxval": b"10 8\n0"}[v])
+        pgm.write_bytes(raw)
+        p = write_text_bytes(d / "map.yaml", ROS_YAML)
+        name, must = f"PGM {v}", v != "trunc" or len(raw) < len(pgm_bytes())
+    argv = ["record", "lidar", "--map", str(p), "--out", str(d / "r.npz"), "--poses", "2", "--repeats", "2"]
+    return Case("map file", name, argv, lambda: load_map(p), must, [p, pgm])
+
+
+def _model(c: Chooser, d: Path) -> Case:
+    from sensor_envs.lidar.lwlr import LidarLWLR
+    from sensor_envs.modelio import read_model
+    from sensor_envs.radar.gaussian import GaussianRadar
+    from sensor_envs.radar.kde import KDERadarModel
+
+    which = c.choice(["radar_kde.npz", "radar_gaussian.npz", "neato_lidar.npz"])
+    cls = {"radar_kde.npz": KDERadarModel, "radar_gaussian.npz": GaussianRadar, "neato_lidar.npz": LidarLWLR}[which]
+    with np.load(SHIPPED / which, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    header = json.loads(data["__header__"].tobytes().decode("utf-8"))
+    if c.integers(0, 1) == 0:
+        where = c.choice(["kind", "format_version", "params", *[f"params.{k}" for k in header.get("params", {})]])
+        value = c.choice(NASTY_JSON)
+        if "." in where:
+            old = header["params"][where.split(".", 1)[1]]
+            header["params"][where.split(".", 1)[1]] = value
+            must = type(old) is not type(value) or old != value
+        else:
+            old = header[where]
+            header[where] = value
+            must = old != value
+        if c.integers(0, 4) == 0:
+            text = json.dumps(header).replace('"kind"', '"x": ' + deep(100_000) + ', "kind"', 1)
+            name, must = "header nested 100000 deep", True
+        else:
+            text = json.dumps(header)
+            name = f"header {where} = {str(value)[:20]}"
+        data["__header__"] = np.frombuffer(text.encode(), dtype=np.uint8)
+    else:
+        arrays = {k: v for k, v in data.items() if k != "__header__"}
+        keys = [k for k in arrays if np.asarray(arrays[k]).size > 0]
+        name, must = array_mutation(c, arrays, keys)
+        data = {"__header__": data["__header__"], **arrays}
+    p = d / which
+    np.savez(p, **data)
+    log = write_radar_csv(d) if cls is not LidarLWLR else write_npz(d / "log.npz", lidar_arrays())
+    kind = "radar" if cls is not LidarLWLR else "lidar"
+    argv = ["validate", kind, str(p), str(log), "--out", str(d / "report")]
+    if which == "radar_kde.npz":
+        shutil.copy(SHIPPED / "radar_gaussian.npz", d / "radar_gaussian.npz")
+    return Case("model file", name, argv, lambda: read_model(cls, p), must, [p, log], command_when_loaded=False)
+
+
+def _rig(c: Chooser, d: Path) -> Case:
+    from sensor_envs.lidar.rig import NeatoRig
+    from sensor_envs.radar.rig import load_rig
+
+    which = c.choice(["radar_rig.json", "neato_rig.json"])
+    blob = json.loads((SHIPPED / which).read_text())
+    keys = ["kind", "format_version", *[f"params.{k}" for k in blob["params"]]]
+    where = c.choice(keys)
+    value = c.choice(NASTY_JSON)
+    if "." in where:
+        k = where.split(".", 1)[1]
+        must = type(blob["params"][k]) is not type(value) or blob["params"][k] != value
+        blob["params"][k] = value
+    else:
+        must = blob[where] != value
+        blob[where] = value
+    p = d / which
+    text = json.dumps(blob)
+    if c.integers(0, 5) == 0:
+        text, where, must = '{"kind": ' + deep(100_000) + "}", "nesting", True
+    p.write_text(text)
+    if which == "radar_rig.json":
+        argv = ["record", "radar", "--rig", str(p), "--out", str(d / "r.csv"), "--sequences", "1", "--cycles", "2"]
+        load: Callable[[], Any] = lambda: load_rig(p)  # noqa: E731
+    else:
+        argv = ["record", "lidar", "--rig", str(p), "--out", str(d / "r.npz"), "--poses", "2", "--repeats", "2"]
+        load = lambda: NeatoRig.from_file(p)  # noqa: E731
+    return Case("rig file", f"{which} {where} = {str(value)[:20]}", argv, load, must, [p])
+
+
+def _astyx(c: Chooser, d: Path) -> Case:
+    from sensor_envs.radar.astyx import load_astyx
+
+    kind = c.choice(["pc", "gt", "name", "gtvalue"])
+    pc = gt = None
+    name = "000000"
+    if kind == "pc":
+        what, pc, must = text_mutation(c, "\nX Y Z V_r Mag\n10.0 1.0 0.0 0.0 50.0\n10.5 1.2 0.0 0.0 40.0\n", True)
+    elif kind == "gt":
+        base = json.dumps({"objects": [{"center3d": [12.0, 1.0, 0.5], "dimension3d": [4.5, 1.8, 1.5]}]})
+        what, gt, must = text_mutation(c, base, True)
+        must = True  # no orientation_quat/classname: the base itself is incomplete
+    elif kind == "gtvalue":
+        field = c.choice(["center3d", "dimension3d", "orientation_quat", "classname"])
+        value = c.choice(NASTY_JSON + [[0, 0, 0, 0], [1e300, 0, 0]])
+        obj = {"center3d": [12.0, 1.0, 0.5], "dimension3d": [4.5, 1.8, 1.5], "orientation_quat": [1, 0, 0, 0]}
+        obj["classname"] = "Car"
+        obj[field] = value
+        gt = json.dumps({"objects": [obj]})
+        what, must = f"{field} = {str(value)[:20]}", not (field == "classname" and isinstance(value, str))
+    else:
+        name = c.choice(["9" * 20, "-1", "0x10", "١٢", "00000a"])
+        what, must = f"frame file {name}.txt", True
+    root = write_astyx(d, pc, gt, name)
+    argv = ["record", "radar", "--astyx", str(root), "--out", str(d / "r.csv")]
+    return Case("Astyx folder", f"{kind}: {what}", argv, lambda: load_astyx(root), must, [root])
+
+
+OPTIONS: dict[str, list[str]] = {
+    "record lidar": ["--poses", "--repeats", "--seed", "--unit-seed", "--map", "--rig", "--out"],
+    "record radar": ["--sequences", "--cycles", "--targets", "--cycle-time", "--seed", "--rig", "--out"],
+    "fit lidar": ["--folds", "--max-range", "--spur-above", "--table-range-step", "--max-readings", "--block-scans"],
+    "fit radar": ["--cycle-time", "--bandwidth-scale", "--relevance-candidates", "--azimuth-bias", "--seed"],
+    "diagnose radar": ["--permutations", "--alpha", "--min-score", "--max-add", "--block-frames"],
+    "diagnose lidar": ["--permutations", "--max-range", "--table-range-step", "--min-score", "--alpha"],
+    "calibrate radar": ["--max-evals", "--mixture-max-components", "--mixture-min-range", "--seed"],
+    "evaluate aeb": ["--episodes", "--steps", "--seed"],
+    "demo": ["--episodes", "--seed"],
+}
+BAD_OPTION_VALUES = ["nan", "inf", "-inf", "-1", "-0.5", "1e300", "1e12", "", " ", "abc", "1_0", "0x1A", "١", "+-1"]
+"""Values no numeric or path option may take (every declared range lies within +-1e6)."""
+
+
+def _option(c: Chooser, d: Path) -> Case:
+    cmd = c.choice(sorted(OPTIONS))
+    opt = c.choice(OPTIONS[cmd])
+    value = c.choice(BAD_OPTION_VALUES)
+    if opt in ("--map", "--rig", "--out") and value.strip():
+        value = c.choice(["", " "])
+    log = write_radar_csv(d) if "radar" in cmd else write_npz(d / "log.npz", lidar_arrays())
+    argv = cmd.split()
+    if cmd in ("fit lidar", "fit radar", "diagnose radar", "diagnose lidar", "calibrate radar"):
+        argv.append(str(log))
+    if opt != "--out":
+        argv += ["--out", str(d / ("o.npz" if cmd.startswith("fit") or cmd == "record lidar" else "o.csv"))]
+    if cmd.startswith(("diagnose", "evaluate", "demo")):
+        argv[-1] = str(d / "o")
+    argv += [f"{opt}={value}"]
+    return Case("command-line option", f"{cmd} {opt}={value!r}", argv, None, True, [log])
+
+
+FAMILIES: dict[str, Callable[[Chooser, Path], Case]] = {
+    "radar log CSV": _radar,
+    "lidar log npz": _lidar_npz,
+    "CARMEN log": _carmen,
+    "map file": _map,
+    "model file": _model,
+    "rig file": _rig,
+    "Astyx folder": _astyx,
+    "command-line option": _option,
+}
+
+
+def make_case(family: str, c: Chooser, d: Path) -> Case:
+    """Build one generated case of ``family`` in the empty folder ``d``."""
+    return FAMILIES[family](c, d)
+
+
+def snapshot(d: Path) -> dict[str, str]:
+    """``relative path -> content digest`` of every regular file under ``d`` (FIFOs by name only)."""
+    import hashlib
+    import stat
+
+    out = {}
+    for p in sorted(d.rglob("*")):
+        st = p.lstat()
+        if stat.S_ISREG(st.st_mode):
+            out[str(p.relative_to(d))] = hashlib.sha1(p.read_bytes()).hexdigest()
+        elif not stat.S_ISDIR(st.st_mode):
+            out[str(p.relative_to(d))] = "special"
+    return out
+
+
+def classify(case: Case, d: Path) -> str:
+    """How ``case`` (built in ``d``) ends, in-process: the loader behind it, then the command line.
+
+    Classes: ``clean error`` (exit 2, one line naming the file or option, no traceback, nothing written),
+    ``vague message`` (exit 2 and one line that names neither), ``traceback`` (loader or command raised
+    anything but an input error), ``accepted nonsense`` (a must-refuse input taken by the loader or the
+    command), ``accepted`` (a plausible input taken), ``files changed`` (an input changed, or a file
+    left after a failure), ``exit N`` (any other ending).
+    """
+    import contextlib
+
+    from sensor_envs.cli.main import main
+    from sensor_envs.inputs import InputError
+
+    before = snapshot(d)
+    loaded = None
+    if case.load is not None:
+        try:
+            case.load()
+            loaded = True
+        except (InputError, FileNotFoundError):
+            loaded = False
+        except Exception as exc:
+            return f"traceback (loader {type(exc).__name__})"
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            try:
+                code = main(case.argv)
+            except SystemExit as exc:
+                code = exc.code
+    except Exception as exc:
+        return f"traceback ({type(exc).__name__})"
+    after = snapshot(d)
+    if any(after.get(k) != v for k, v in before.items()) or (code != 0 and after != before):
+        return "files changed"
+    if code == 0 or (loaded and case.must_refuse):
+        return "accepted nonsense" if case.must_refuse else "accepted"
+    lines = err.getvalue().strip().splitlines()
+    if code != 2 or len(lines) != 1 or "Traceback" in err.getvalue():
+        return f"exit {code}, {len(lines)} lines"
+    names = [str(p) for p in case.inputs] + [p.name for p in case.inputs] + ["/dev/zero", str(d)]
+    names += [a.split("=")[0] for a in case.argv if a.startswith("--")]
+    return "clean error" if any(n and n in lines[0] for n in names) else "vague message"

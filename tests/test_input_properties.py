@@ -1,0 +1,223 @@
+"""Bad input as a property: generated mutations of valid inputs, each accepted sanely or refused cleanly.
+
+Files and options (``tests/fuzz_cases.py``): hypothesis draws the mutation of a valid piece for every
+reader family; the case must end as a clean error (exit 2, one line naming the file or option, nothing
+written) or, for a mutation that may be valid, be accepted. Python API: generated constructor arguments,
+actions, states and poses for the envs and models must either raise :class:`InputError` or give finite,
+in-space results. Small example budgets here; ``benchmarks/fuzz_inputs.py --examples N`` runs thousands
+of file/option cases in subprocesses under memory and time limits.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import warnings
+from pathlib import Path
+
+import fuzz_cases as fc
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from sensor_envs.inputs import InputError
+
+FAST = settings(max_examples=6, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+
+
+class Drawn:
+    """A ``fuzz_cases`` chooser whose choices hypothesis draws (and shrinks)."""
+
+    def __init__(self, data: st.DataObject) -> None:
+        self.data = data
+
+    def integers(self, lo: int, hi: int) -> int:
+        return self.data.draw(st.integers(lo, hi))
+
+    def choice(self, seq):
+        return self.data.draw(st.sampled_from(list(seq)))
+
+
+@pytest.mark.parametrize("family", list(fc.FAMILIES))
+@FAST
+@given(data=st.data())
+def test_every_reader_and_option_refuses_a_mutation_cleanly_or_accepts_it_sanely(family, data) -> None:
+    warnings.simplefilter("ignore")
+    with tempfile.TemporaryDirectory() as tmp:
+        case = fc.make_case(family, Drawn(data), Path(tmp))
+        outcome = fc.classify(case, Path(tmp))
+    assert outcome in ("clean error", "accepted"), f"{family}: {case.mutation!r} -> {outcome}"
+
+
+# ------------------------------------------------------------------------------------------------ Python API
+ANY_SCALAR = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.integers(-(10**12), 10**12),
+    st.booleans(),
+    st.none(),
+    st.text(max_size=3),
+    st.just([1.0]),
+)
+
+
+@pytest.fixture(scope="module")
+def radar_models():
+    from sensor_envs.modelio import default_model_path
+    from sensor_envs.radar.gaussian import GaussianRadar
+    from sensor_envs.radar.kde import KDERadarModel
+
+    return [
+        GaussianRadar.load(default_model_path("radar_gaussian.npz")),
+        KDERadarModel.load(default_model_path("radar_kde.npz")),
+    ]
+
+
+@pytest.fixture(scope="module")
+def lidar_model():
+    from sensor_envs.lidar.lwlr import LidarLWLR
+    from sensor_envs.modelio import default_model_path
+
+    return LidarLWLR.load(default_model_path("neato_lidar.npz"))
+
+
+def _neato_arg_names():
+    from sensor_envs.envs.neato import NEATO_CONSTRAINTS
+
+    return sorted(NEATO_CONSTRAINTS)
+
+
+@FAST
+@given(name=st.sampled_from(_neato_arg_names()), value=ANY_SCALAR)
+def test_neato_arguments_are_refused_or_give_finite_in_space_steps(name, value) -> None:
+    from sensor_envs.envs.neato import NeatoEnv
+
+    try:
+        env = NeatoEnv(**{name: value})
+    except InputError as exc:
+        assert name in str(exc)
+        return
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    obs, reward, *_ = env.step(np.array([0.5, 0.2], dtype=np.float32))
+    assert env.observation_space.contains(obs) and np.isfinite(reward)
+
+
+ACTIONS = st.one_of(
+    hnp.arrays(np.float64, st.sampled_from([(2,), (3,), (1, 2), (0,)]), elements=st.floats(allow_nan=True)),
+    st.lists(ANY_SCALAR, max_size=3),
+    ANY_SCALAR,
+)
+
+
+@FAST
+@given(action=ACTIONS)
+def test_neato_actions_outside_the_space_are_refused_never_clipped(action) -> None:
+    from sensor_envs.envs.neato import NeatoEnv
+
+    env = NeatoEnv()
+    env.reset(seed=0)
+    try:
+        obs, reward, *_ = env.step(action)
+    except InputError as exc:
+        assert "action" in str(exc)
+        return
+    a = np.asarray(action, dtype=np.float64).ravel()
+    assert a.shape == (2,) and np.all(np.abs(a) <= 1.0)  # only in-space actions pass
+    assert env.observation_space.contains(obs) and np.isfinite(reward)
+
+
+@pytest.fixture(scope="module")
+def highway():
+    from sensor_envs.envs.highway.wrapper import make_highway
+
+    env = make_highway("highway-fast-v0", radar="gaussian")
+    env.reset(seed=0)
+    return env
+
+
+@FAST
+@given(action=st.one_of(st.integers(-(10**6), 10**6), st.floats(allow_nan=True), st.booleans(), ACTIONS))
+def test_highway_actions_outside_the_space_are_refused(highway, action) -> None:
+    try:
+        obs, reward, *_ = highway.step(action)
+    except InputError as exc:
+        assert "action" in str(exc)
+        return
+    assert highway.action_space.contains(int(np.asarray(action).reshape(())))
+    assert highway.observation_space.contains(obs) and np.isfinite(reward)
+
+
+@FAST
+@given(key=st.sampled_from(["policy_frequency", "simulation_frequency", "duration", "lanes_count"]), value=ANY_SCALAR)
+def test_highway_config_values_are_checked_at_construction(key, value) -> None:
+    from sensor_envs.envs.checks import check_highway_config
+
+    try:
+        check_highway_config({key: value})
+    except InputError as exc:
+        assert key in str(exc)
+        return
+    assert isinstance(value, (int, float)) and not isinstance(value, bool) and 0 < value <= 1e5
+
+
+STATES = hnp.arrays(
+    np.float64,
+    st.tuples(st.integers(0, 3), st.sampled_from([1, 2, 3, 4, 5])),
+    elements=st.one_of(st.floats(-50, 50), st.just(np.nan), st.just(np.inf), st.just(1e300)),
+)
+
+
+@FAST
+@given(state=STATES, seed=st.integers(0, 3))
+def test_radar_models_sample_and_score_or_refuse(radar_models, state, seed) -> None:
+    for model in radar_models:
+        try:
+            z, _ = model.sample(state, np.random.default_rng(seed))
+        except InputError:
+            continue
+        assert state.shape[1] in (2, 4) and np.isfinite(state[:, :2]).all()
+        assert z.shape == (state.shape[0], 2) and (np.isfinite(z).all(axis=1) | np.isnan(z).all(axis=1)).all()
+        lp = model.log_prob(z, state)
+        assert not np.isnan(lp).any() and (lp < np.inf).all()
+
+
+@FAST
+@given(rng=ANY_SCALAR)
+def test_radar_models_refuse_a_seed_or_none_as_rng(radar_models, rng) -> None:
+    for model in radar_models:
+        with pytest.raises(InputError, match="rng"):
+            model.sample(np.array([[10.0, 1.0]]), rng)
+
+
+@FAST
+@given(log=st.one_of(ANY_SCALAR, st.dictionaries(st.text(max_size=3), st.integers(), max_size=2)))
+def test_fit_on_anything_but_a_log_is_an_input_error(radar_models, lidar_model, log) -> None:
+    from sensor_envs.lidar.lwlr import LidarLWLR
+    from sensor_envs.radar.gaussian import GaussianRadar
+    from sensor_envs.radar.kde import KDERadarModel
+
+    for model in (GaussianRadar(), KDERadarModel(), LidarLWLR()):
+        with pytest.raises(InputError, match="log"):
+            model.fit(log)
+
+
+POSES = hnp.arrays(
+    np.float64,
+    st.tuples(st.integers(1, 2), st.sampled_from([2, 3, 4])),
+    elements=st.one_of(st.floats(0.2, 3.5), st.just(np.nan), st.just(-np.inf), st.just(1e300)),
+)
+
+
+@FAST
+@given(poses=POSES, seed=st.integers(0, 3))
+def test_lidar_model_samples_and_scores_or_refuses(lidar_model, poses, seed) -> None:
+    segs = fc.SEGS
+    try:
+        r = lidar_model.sample(poses, segs, np.random.default_rng(seed))
+    except InputError:
+        assert poses.shape[1] != 3 or not (np.abs(poses) < 1e6).all()
+        return
+    assert r.shape == (poses.shape[0], lidar_model.bearings_.size) and np.isfinite(r).all() and (r >= 0).all()
+    lp = lidar_model.log_prob(r, poses, segs)
+    assert not np.isnan(lp).any()
