@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -32,6 +33,11 @@ MAX_SEED = 2**63 - 1
 """Largest accepted seed (numpy's ``SeedSequence`` takes any integer >= 0; larger ones are refused as typos)."""
 
 
+_INTEGER = re.compile(r"\s*\+?[0-9]+\s*")
+_DECIMAL = re.compile(r"\s*[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?\s*")
+"""Plain ASCII integers and decimals (``float``/``int`` would also take ``1_0``, ``nan`` and other scripts' digits)."""
+
+
 class OneLineParser(argparse.ArgumentParser):
     """An ``ArgumentParser`` whose usage errors are one line (exit status 2), naming the option."""
 
@@ -41,10 +47,9 @@ class OneLineParser(argparse.ArgumentParser):
 
 def _integer_at_least(text: str, low: int, expected: str) -> int:
     """``text`` as an integer ``>= low``; ``"1e3"`` and ``"2.5"`` are refused, not truncated."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+    if not _INTEGER.fullmatch(text):  # int() would take "1_0" as 10 and Arabic-Indic digits
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+    value = int(text)
     if value < low:
         raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
     return value
@@ -85,10 +90,7 @@ def path_arg(text: str) -> str:
 
 def positive_float(text: str) -> float:
     """A finite number ``> 0`` (argparse ``type=``); ``nan``, ``inf``, ``0`` and negatives are refused."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}") from None
+    value = float(text) if _DECIMAL.fullmatch(text) else math.nan
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
     return value
@@ -98,10 +100,7 @@ def float_between(low: float, high: float) -> Callable[[str], float]:
     """An argparse ``type=`` accepting a finite number in ``[low, high]`` (e.g. a model's accepted range)."""
 
     def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
+        value = float(text) if _DECIMAL.fullmatch(text) else math.nan
         if not (math.isfinite(value) and low <= value <= high):
             raise argparse.ArgumentTypeError(f"expected a number in [{low:g}, {high:g}], got {text!r}")
         return value

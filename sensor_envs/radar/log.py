@@ -246,7 +246,7 @@ def _check_consistency(out: dict[str, NDArray], clutter: NDArray[np.bool_], sour
         )
 
 
-_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|[+-]?(nan|inf|infinity)", re.IGNORECASE)
+_NUMBER = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?|[+-]?(nan|inf|infinity)", re.IGNORECASE)
 """Plain decimal text (``float`` would also take ``1_0.5`` as 10.5)."""
 
 
@@ -397,7 +397,12 @@ def target_tuples(log: RadarLog) -> TargetTuples:
     return TargetTuples(corner, z, z_prev, has_prev, rows.astype(np.int64), c["sequence"], c["frame"], c["target"])
 
 
-def check_states(state: Any, z: Any = None, rng: Any = None) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+_UNSET = object()
+
+
+def check_states(
+    state: Any, z: Any = None, rng: Any = _UNSET
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
     """The checked arguments of a radar model's ``sample``/``log_prob``: states ``(n, 2|4)`` and outputs ``(n, 2)``.
 
     Corners (columns 0-1) finite within :data:`MAX_POSITION`; previous outputs (columns 2-3) and ``z``
@@ -408,7 +413,7 @@ def check_states(state: Any, z: Any = None, rng: Any = None) -> tuple[NDArray[np
     """
     from sensor_envs.inputs import check_array, check_rng
 
-    if rng is not None:
+    if rng is not _UNSET:
         check_rng(rng)
     st = check_array(np.atleast_2d(state), "state", (None, (2, 4)), low=-MAX_POSITION, high=MAX_POSITION, nan=True)
     if np.isnan(st[:, :2]).any():
