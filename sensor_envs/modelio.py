@@ -165,8 +165,12 @@ class Options:
         return f"one of {self.values}"
 
 
+MAX_MAGNITUDE = 1e9
+"""Largest ``|value|`` of a real hyperparameter even where its interval is unbounded (sane magnitudes)."""
+
+
 class Interval:
-    """Constraint: a real (or, with ``integer``, a whole) number in ``[low, high]`` (``None`` = unbounded).
+    """Constraint: a real (or, with ``integer``, a whole) number in ``[low, high]`` (``None``: up to 1e9 in size).
 
     ``open_low``/``open_high`` exclude the bound. Booleans are not numbers here.
     """
@@ -190,7 +194,7 @@ class Interval:
         if self.integer and not isinstance(value, (int, np.integer)):
             return False
         v = float(value)
-        if not np.isfinite(v):
+        if not np.isfinite(v) or (not self.integer and abs(v) > MAX_MAGNITUDE):
             return False
         if self.low is not None and (v < self.low or (self.open_low and v == self.low)):
             return False

@@ -248,7 +248,9 @@ def fit_radar(p: Path) -> tuple[list[str], str]:
 
 
 def fit_lidar(p: Path) -> tuple[list[str], str]:
-    return ["fit", "lidar", str(p), "--out", str(p.parent / "m.npz")], str(p)
+    """``fit lidar``; a CARMEN log or ROS bag needs its sensor's ``--max-range`` (no Neato default)."""
+    rng = [] if p.suffix == ".npz" else ["--max-range", "5"]
+    return ["fit", "lidar", str(p), "--out", str(p.parent / "m.npz"), *rng], str(p)
 
 
 def validate_radar(model: Path, log: Path | None = None, baseline: Path | None = None) -> tuple[list[str], str]:
@@ -785,7 +787,7 @@ CASES += [
         ),
         "object 0",
     ),
-    C(ASTYX, "center3d-1e12", lambda d: record_astyx(astyx_obj(d, center3d=[1e12, 1.0, 0.5])), "'ref_x'"),
+    C(ASTYX, "center3d-1e12", lambda d: record_astyx(astyx_obj(d, center3d=[1e12, 1.0, 0.5])), "'center3d'"),
     C(ASTYX, "dimension3d-1e9", lambda d: record_astyx(astyx_obj(d, dimension3d=[1e9, 1.8, 1.5])), "'ref_length'"),
     C(
         ASTYX,
@@ -815,7 +817,7 @@ CASES += [
             astyx(d, extra={"radar_6455/000001.txt": "\nX Y Z V_r Mag\n"}),
             d / "astyx" / "groundtruth_obj3d" / "000001.json",
         ),
-        "No such file",
+        "not found",
     ),
 ]
 
@@ -825,25 +827,25 @@ CASES += [
         OPTION,
         "record-radar-cycle-time-minus-1",
         opt(["record", "radar", "--out", "{d}/r.csv", "--cycle-time", "-1"], "--cycle-time"),
-        "> 0",
+        "expected a number in",
     ),
     C(
         OPTION,
         "record-radar-cycle-time-0",
         opt(["record", "radar", "--out", "{d}/r.csv", "--cycle-time", "0"], "--cycle-time"),
-        "> 0",
+        "expected a number in",
     ),
     C(
         OPTION,
         "record-radar-cycle-time-nan",
         opt(["record", "radar", "--out", "{d}/r.csv", "--cycle-time", "nan"], "--cycle-time"),
-        "> 0",
+        "expected a number in",
     ),
     C(
         OPTION,
         "fit-radar-cycle-time-nan",
         opt(["fit", "radar", "{d}/x.csv", "--out", "{d}/m.npz", "--cycle-time", "nan"], "--cycle-time"),
-        "> 0",
+        "expected a number in",
     ),
     C(
         OPTION,
@@ -868,13 +870,13 @@ CASES += [
             ],
             "--mixture-min-range",
         ),
-        "> 0",
+        "expected a number in",
     ),  # fmt: skip
     C(
         OPTION,
         "fit-radar-cycle-time-inf",
         opt(["fit", "radar", "{d}/x.csv", "--out", "{d}/m.npz", "--cycle-time", "inf"], "--cycle-time"),
-        "> 0",
+        "expected a number in",
     ),
     C(
         OPTION,

@@ -220,7 +220,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--sensor", default=None, help="the env's radar (highway ids) or lidar (Neato) name")
     parser.add_argument("--device", default=None, help="torch device: auto (default), cpu, cuda, cuda:1, ...")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config entry")
+    parser.add_argument("--force", action="store_true", help="write into an --out folder that holds files")
     args = parser.parse_args(argv)
+    if args.out.exists() and (not args.out.is_dir() or (any(args.out.iterdir()) and not args.force)):
+        _fail(f"--out: {args.out} already exists and is not empty; pass --force or choose another folder")
     if args.env not in gym.registry:
         _fail(f"--env: {args.env!r} is not a registered env id")
     try:

@@ -189,9 +189,10 @@ def _record(args: argparse.Namespace) -> int:
     rig = NeatoRig.from_file(args.rig)
     if args.unit_seed is not None:
         rig = dataclasses.replace(rig, unit_seed=args.unit_seed)
-    log, _ = rig.record(
-        load_map(args.map).segments, np.random.default_rng(args.seed), n_poses=args.poses, repeats=args.repeats
-    )
+    with about(args.map):  # e.g. a map without room for the poses names the map file
+        log, _ = rig.record(
+            load_map(args.map).segments, np.random.default_rng(args.seed), n_poses=args.poses, repeats=args.repeats
+        )
     with OutputTransaction() as tx:
         save_log(log, tx.file(out))
     path = out

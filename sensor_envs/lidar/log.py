@@ -250,7 +250,9 @@ def log_from_arrays(
     segs = None
     if map_segments is not None:
         try:
-            segs = as_segments(map_segments, name=f"{source}: field 'map_segments'")
+            segs = as_segments(
+                _float_array(source, "map_segments", map_segments), name=f"{source}: field 'map_segments'"
+            )
         except ValueError as exc:
             raise LidarLogError(str(exc)) from None
     tt = None if t is None else _check_per_pose(source, "t", t, p, None)

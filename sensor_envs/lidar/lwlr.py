@@ -299,8 +299,8 @@ class LidarLWLR(BaseEstimator):
         "h_bearing_grid": [Numbers(Interval(0, None))],
         "degree_grid": [Numbers(Interval(0, 1, integer=True))],
         "max_range": [Interval(0, MAX_SIGMA, open_low=True)],
-        "spur_above": [Interval(0, None, open_low=True)],
-        "table_range_step": [Interval(0, None, open_low=True)],
+        "spur_above": [Interval(0, 1000, open_low=True)],  # MAX_RANGE of a lidar log [m]
+        "table_range_step": [Interval(1e-3, 10)],  # at most spur_above / 1e-3 table cells
         "table_alpha_steps": [Interval(2, None, integer=True)],
         "random_state": RANDOM_STATE,
         "progress": [InstanceOf(bool)],

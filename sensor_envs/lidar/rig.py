@@ -127,7 +127,7 @@ def _logistic(z: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 _FINITE = Interval(-1e6, 1e6)
-_NONNEG = Interval(0, None)
+_NONNEG = Interval(0, 1e4)  # rig values are metres, rates and knots: 1e4 bounds them all (sane magnitudes)
 RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
     "unit_seed": [Interval(0, None, integer=True)],
     "n_bearings": [Interval(1, 100_000, integer=True)],

@@ -81,7 +81,7 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
         raise InputError(f"{pc_path}: field 'X Y Z V_r Mag' holds NaN or infinite values")
     gt_path = root / "groundtruth_obj3d" / f"{name}.json"
     try:
-        doc = parse_json(read_text(gt_path, "field 'objects'"), f"{gt_path}: not valid UTF-8 JSON")
+        doc = parse_json(read_text(gt_path, "not valid UTF-8 JSON"), f"{gt_path}: not valid UTF-8 JSON")
     except InputError as exc:
         msg = str(exc) if "UTF-8" in str(exc) else f"{gt_path}: not valid UTF-8 JSON ({exc})"
         raise InputError(msg) from None
@@ -115,7 +115,8 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
             raise InputError(f"{gt_path}: object {k}: a field is malformed ({exc})") from None
         if not (np.isfinite(box[:6]).all() and (np.abs(box[:2] + box[5:6]) <= 1000).all()):
             raise InputError(
-                f"{gt_path}: object {k}: field 'center3d', 'dimension3d' or 'orientation_quat' is not finite"
+                f"{gt_path}: object {k}: field 'center3d', 'dimension3d' or 'orientation_quat' is not finite "
+                "(or 'center3d' lies beyond 1000 m)"
             )
         boxes.append(box)
     return pts.reshape(-1, 5), np.asarray(boxes, dtype=np.float64).reshape(-1, 8), names
