@@ -41,6 +41,7 @@ class Case:
     must_refuse: bool
     inputs: list[Path]
     command_when_loaded: bool = True  # False: an input the loader takes is not also run through the command
+    kind: str = ""  # Python API cases: "env", "radar" or "lidar" (how a result is judged); "" for files/options
 
 
 # ------------------------------------------------------------------------------------------- valid pieces
@@ -518,6 +519,125 @@ def _option(c: Chooser, d: Path) -> Case:
     return Case("command-line option", f"{cmd} {opt}={value!r}", argv, None, True, [log])
 
 
+NASTY_NUMBERS: list[Any] = [np.nan, np.inf, -np.inf, 1e300, -1e300, -1.0, 0.0, 5e-324, 10**30, True, None, "1", [1.0]]
+"""Argument values that are no valid value of a bounded positive real parameter (0 and -1 included)."""
+
+
+def _api_result_ok(kind: str, result: Any) -> bool:
+    """Whether an accepted API call's result is sane: finite (or NaN rows for misses) and in its space."""
+    if kind == "env":
+        env, obs, reward = result
+        return bool(env.observation_space.contains(obs) and np.isfinite(reward))
+    z = np.asarray(result, dtype=np.float64)
+    if kind == "radar":
+        return bool((np.isfinite(z).all(axis=1) | np.isnan(z).all(axis=1)).all())
+    return bool(np.isfinite(z).all() and (z >= 0).all())
+
+
+def _api(c: Chooser, d: Path) -> Case:
+    """A Python API call with one generated bad argument: env constructor or step, model sample or fit."""
+    what = c.choice(["neato arg", "neato action", "highway action", "highway config", "radar sample", "lidar sample"])
+    value = c.choice(NASTY_NUMBERS)
+    if what == "neato arg":
+        from sensor_envs.envs.neato import NEATO_CONSTRAINTS, NeatoEnv
+
+        name = c.choice(sorted(NEATO_CONSTRAINTS))
+        number = isinstance(value, float) and np.isfinite(value) and abs(value) <= 1e6
+        must = not (
+            (name.endswith(("reward", "penalty")) and number)
+            or (name == "min_goal_distance" and number and value >= 0)
+            or (name == "goal_heading_tolerance" and value is None)
+        )
+
+        def call() -> Any:
+            env = NeatoEnv(**{name: value})
+            obs, _ = env.reset(seed=0)
+            obs, reward, *_ = env.step(np.array([0.5, 0.2], dtype=np.float32))
+            return env, obs, reward
+
+        return Case("Python API", f"NeatoEnv({name}={value!r})", [], call, must, [], kind="env")
+    if what == "neato action":
+        from sensor_envs.envs.neato import NeatoEnv
+
+        action = c.choice([[value, 0.0], [0.0, value], [100.0, 100.0], [1.5, 0.0], value, [0.1, 0.1, 0.1]])
+
+        def call() -> Any:
+            env = NeatoEnv()
+            env.reset(seed=0)
+            obs, reward, *_ = env.step(action)
+            return env, obs, reward
+
+        try:
+            a = np.asarray(action, dtype=np.float64)
+            in_space = a.shape == (2,) and bool(np.all(np.abs(a) <= 1.0))
+        except (TypeError, ValueError):
+            in_space = False
+        return Case("Python API", f"Neato step({action!r})", [], call, not in_space, [], kind="env")
+    if what.startswith("highway"):
+        from sensor_envs.envs.highway.wrapper import make_highway
+
+        action = c.choice([99, -1, 5, 1.5, np.nan, True, "1", [1, 2], value])
+        key = c.choice(["policy_frequency", "simulation_frequency", "duration"])
+
+        def call() -> Any:
+            config = {key: value} if what == "highway config" else None
+            env = make_highway("highway-fast-v0", radar="ideal", config=config)
+            env.reset(seed=0)
+            obs, reward, *_ = env.step(1 if what == "highway config" else action)
+            return env, obs, reward
+
+        name = f"highway config {key}={value!r}" if what == "highway config" else f"highway step({action!r})"
+        return Case("Python API", name, [], call, True, [], kind="env")
+    if what == "radar sample":
+        from sensor_envs.modelio import default_model_path
+        from sensor_envs.radar.gaussian import GaussianRadar
+
+        state = np.array([[10.0, 1.0]])
+        j = c.integers(0, 1)
+        bad = value if isinstance(value, float) else np.nan
+        state[0, j] = bad
+        rng_bad = c.integers(0, 3) == 0
+
+        def call() -> Any:
+            model = GaussianRadar.load(default_model_path("radar_gaussian.npz"))
+            rng = 0 if rng_bad else np.random.default_rng(0)
+            return model.sample(state, rng)[0]
+
+        must = rng_bad or not (isinstance(bad, float) and np.isfinite(bad) and abs(bad) <= 1000)
+        return Case(
+            "Python API",
+            f"GaussianRadar.sample(corner {state[0].tolist()}, rng 0: {rng_bad})",
+            [],
+            call,
+            must,
+            [],
+            kind="radar",
+        )
+    from sensor_envs.lidar.lwlr import LidarLWLR
+    from sensor_envs.modelio import default_model_path
+
+    pose = np.array([[2.0, 1.5, 0.0]])
+    pose[0, c.integers(0, 2)] = value if isinstance(value, float) else np.nan
+    fit_none = c.integers(0, 3) == 0
+
+    def call() -> Any:
+        model = LidarLWLR.load(default_model_path("neato_lidar.npz"))
+        if fit_none:
+            return model.fit(value)
+        return model.sample(pose, SEGS, np.random.default_rng(0))
+
+    must = fit_none or not (np.isfinite(pose).all() and (np.abs(pose) <= 1e6).all())
+    return Case(
+        "Python API",
+        f"LidarLWLR {'fit' if fit_none else 'sample'}({pose[0].tolist()})",
+        [],
+        call,
+        must,
+        [],
+        kind="lidar",
+    )
+
+
 FAMILIES: dict[str, Callable[[Chooser, Path], Case]] = {
     "radar log CSV": _radar,
     "lidar log npz": _lidar_npz,
@@ -527,6 +647,7 @@ FAMILIES: dict[str, Callable[[Chooser, Path], Case]] = {
     "rig file": _rig,
     "Astyx folder": _astyx,
     "command-line option": _option,
+    "Python API": _api,
 }
 
 
@@ -564,6 +685,16 @@ def classify(case: Case, d: Path) -> str:
     from sensor_envs.cli.main import main
     from sensor_envs.inputs import InputError
 
+    if case.kind:  # a Python API call
+        try:
+            result = case.load()  # type: ignore[misc]
+        except InputError:
+            return "clean error"
+        except Exception as exc:
+            return f"traceback ({type(exc).__name__})"
+        if case.must_refuse or not _api_result_ok(case.kind, result):
+            return "accepted nonsense"
+        return "accepted"
     before = snapshot(d)
     loaded = None
     if case.load is not None:

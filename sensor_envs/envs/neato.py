@@ -57,12 +57,12 @@ _BATCHED_LIDARS = (IdealLidar, GaussianLidar)  # and LearnedLidar: measure() bro
 
 NEATO_CONSTRAINTS: dict[str, list[Constraint]] = {
     "n_bearings": [Interval(1, 3600, integer=True)],
-    "max_range": [Interval(0, 1000, open_low=True)],
-    "dt": [Interval(0, 10, open_low=True)],
-    "v_max": [Interval(0, 10, open_low=True)],
-    "omega_max": [Interval(0, 20, open_low=True)],
-    "robot_radius": [Interval(0, 10, open_low=True)],
-    "goal_tolerance": [Interval(0, 100, open_low=True)],
+    "max_range": [Interval(0.01, 1000)],
+    "dt": [Interval(1e-3, 10)],
+    "v_max": [Interval(1e-3, 10)],
+    "omega_max": [Interval(1e-3, 20)],
+    "robot_radius": [Interval(1e-3, 10)],
+    "goal_tolerance": [Interval(1e-3, 100)],
     "goal_heading_tolerance": [None, Interval(0, np.pi, open_low=True)],
     "min_goal_distance": [Interval(0, 1000)],
     "progress_reward": [Interval(-1e6, 1e6)],
