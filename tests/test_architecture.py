@@ -22,6 +22,7 @@ LAYERS = {
     "trig": 0,
     "heap": 0,
     "outputs": 0,
+    "inputs": 0,
     "lidar": 1,
     "radar": 1,
     "envs": 2,

@@ -115,13 +115,16 @@ def add_force(parser: argparse.ArgumentParser) -> None:
 
 @contextmanager
 def about(path: str | Path) -> Iterator[None]:
-    """Prefix ``path`` to a ``ValueError`` raised inside (e.g. a log too small to fit) unless it names it."""
+    """Prefix ``path`` to an :class:`InputError` raised inside (e.g. a log too small to fit) unless it names it.
+
+    Only input errors: any other exception (a ``ValueError`` from numpy included) is a bug and passes unchanged.
+    """
     try:
         yield
-    except ValueError as exc:
+    except InputError as exc:
         if str(path) in str(exc):
             raise
-        raise InputError(f"{path}: {exc}") from exc
+        raise type(exc)(f"{path}: {exc}") from exc
 
 
 def bounded_float(low: float, high: float) -> Callable[[str], float]:
