@@ -133,10 +133,10 @@ def _bars_only_on_a_terminal() -> Any:
         kwargs["disable"] = True
         old_init(self, *args, **kwargs)
 
-    tqdm.std.tqdm.__init__ = quiet_init  # type: ignore[method-assign]
+    tqdm.std.tqdm.__init__ = quiet_init
 
     def undo() -> None:
-        tqdm.std.tqdm.__init__ = old_init  # type: ignore[method-assign]
+        tqdm.std.tqdm.__init__ = old_init
         if old_env is None:
             os.environ.pop("TQDM_DISABLE", None)
         else:

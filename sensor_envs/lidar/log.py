@@ -530,7 +530,11 @@ def _read_bag_messages(
     """
     from rosbags.highlevel import AnyReader
 
-    scans, st, pts, pt, bearings = [], [], [], [], None
+    scans: list[NDArray[np.float64]] = []
+    pts: list[NDArray[np.float64]] = []
+    st: list[float] = []
+    pt: list[float] = []
+    bearings = None
     twists: list[tuple[float, float]] = []
     with AnyReader([p]) as reader:
         topics = {c.topic for c in reader.connections}
