@@ -189,3 +189,17 @@ def test_model_header_true_is_not_format_version_1(tmp_path):
     np.savez(tmp_path / "g.npz", **data)
     with pytest.raises(ModelFileError, match="'format_version' is True"):
         read_model(GaussianRadar, tmp_path / "g.npz")
+
+
+def test_a_log_whose_name_is_not_utf8_is_fitted_and_carded(tmp_path):
+    import subprocess
+
+    name = os.fsencode(tmp_path) + b"/log\xe9.npz"
+    fc.write_npz(fc.Path(os.fsdecode(name)), fc.lidar_arrays())
+    cli = [sys.executable, "-m", "sensor_envs.cli.main", "fit", "lidar"]
+    out = os.fsencode(tmp_path / "m.npz")
+    r = subprocess.run(
+        [*cli, name, "--out", out, "--folds", "2", "--variant", "seed"], capture_output=True, timeout=600
+    )
+    assert r.returncode == 0, r.stderr[-400:]
+    assert "log\ufffd.npz" in (tmp_path / "m.md").read_text(encoding="utf-8")

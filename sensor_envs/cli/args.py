@@ -26,6 +26,7 @@ __all__ = [
     "INT_RANGES",
     "FLOAT_RANGES",
     "add_force",
+    "printable",
     "MAX_SEED",
 ]
 
@@ -106,6 +107,15 @@ def float_between(low: float, high: float) -> Callable[[str], float]:
         return value
 
     return parse
+
+
+def printable(text: str) -> str:
+    """``text`` as valid UTF-8: a file name that is not UTF-8 (surrogate escapes in ``sys.argv``) shown with U+FFFD.
+
+    For model cards and reports that quote the command line: a log with such a name is valid input and
+    must not fail when the card is written after the whole fit.
+    """
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
 
 
 def add_force(parser: argparse.ArgumentParser) -> None:

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from sensor_envs.cli.args import nonneg_int, positive_float, positive_int
+from sensor_envs.cli.args import nonneg_int, positive_float, positive_int, printable
 from sensor_envs.inputs import InputError
 from sensor_envs.outputs import output_folder
 
@@ -27,7 +27,7 @@ __all__ = ["register"]
 
 
 def _command() -> str:
-    return "sensor-envs " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    return printable("sensor-envs " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
 
 
 def register(parser: argparse.ArgumentParser) -> None:

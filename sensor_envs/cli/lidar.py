@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sensor_envs.cli.args import OneLineParser, about, add_force, nonneg_int, positive_float, positive_int
+from sensor_envs.cli.args import OneLineParser, about, add_force, nonneg_int, positive_float, positive_int, printable
 from sensor_envs.inputs import InputError
 from sensor_envs.modelio import read_model
 from sensor_envs.outputs import OutputTransaction, check_inputs, check_output, write_json
@@ -172,7 +172,7 @@ MAX_RECORD_READINGS = 500_000
 
 
 def _command() -> str:
-    return "sensor-envs " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    return printable("sensor-envs " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
 
 
 def _record(args: argparse.Namespace) -> int:
@@ -272,11 +272,13 @@ def _fit(args: argparse.Namespace) -> int:
         "log_preparation": prep,
         "gaussian_baseline": {k: float(v) for k, v in vars(g).items()},
         "fit_seconds": time.perf_counter() - t0,
-        "commands": [*args.note, _command()],
+        "commands": [*(printable(n) for n in args.note), _command()],
     }
     with OutputTransaction() as tx:  # model and card: both or neither
         model.save(tx.file(out))
-        tx.file(card_out).write_text(model_card_markdown(model, model.card_extra_["commands"]), encoding="utf-8")
+        tx.file(card_out).write_text(
+            printable(model_card_markdown(model, model.card_extra_["commands"])), encoding="utf-8"
+        )
     path = out
     print(f"wrote {path} and {path.with_suffix('.md')} in {time.perf_counter() - t0:.1f} s; kernel widths {model.h_}")
     return 0
@@ -310,7 +312,7 @@ def _validate(args: argparse.Namespace) -> int:
             print(metrics_markdown(report["metrics"]))
         if args.card:
             cmds = [*model.card_extra_.get("commands", ["sensor-envs fit lidar ..."]), _command()]
-            tx.file(card).write_text(model_card_markdown(model, cmds, report), encoding="utf-8")
+            tx.file(card).write_text(printable(model_card_markdown(model, cmds, report)), encoding="utf-8")
     if args.card:
         print(f"rewrote {card}")
     print(f"wrote {Path(args.out) / 'report.json'}")
