@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from sensor_envs.cli.args import OneLineParser, add_force, nonneg_int, positive_int
+from sensor_envs.cli.args import OneLineParser, about, add_force, nonneg_int, positive_int
 from sensor_envs.inputs import InputError
 from sensor_envs.outputs import check_inputs, check_output, output_folder
 
@@ -40,7 +40,7 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     p.add_argument("--exclude", action="append", default=[], help="a log column that is not a candidate (repeatable)")
     p.add_argument("--seed", type=nonneg_int, default=0)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=_diagnose_radar)
+    p.set_defaults(func=_naming_the_log(_diagnose_radar))
     q = kinds.add_parser("lidar", help="diagnose the learned lidar on a scan log (.npz, CARMEN log, ROS bag)")
     q.add_argument("log", help="lidar scan log (.npz, CARMEN log or ROS bag)")
     q.add_argument("--out", required=True, help="output folder (report.json, report.md, figures)")
@@ -63,7 +63,17 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     )
     q.add_argument("--seed", type=nonneg_int, default=0)
     q.add_argument("--quiet", action="store_true", help="no progress bars")
-    q.set_defaults(func=_diagnose_lidar)
+    q.set_defaults(func=_naming_the_log(_diagnose_lidar))
+
+
+def _naming_the_log(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """``run`` with every input error it raises prefixed by the log's name (e.g. "the log has 2 blocks")."""
+
+    def wrapped(args: argparse.Namespace) -> int:
+        with about(args.log):
+            return run(args)
+
+    return wrapped
 
 
 def write_folder_atomically(
