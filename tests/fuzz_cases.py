@@ -519,6 +519,89 @@ def _option(c: Chooser, d: Path) -> Case:
     return Case("command-line option", f"{cmd} {opt}={value!r}", argv, None, True, [log])
 
 
+def write_bag(d: Path, scan: dict[str, Any] | None = None, quat: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0)) -> Path:
+    """A small ROS1 bag: LaserScan on /scan (``scan`` overrides its fields) and Odometry on /odom."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    t_ = ts.types
+    scan_t, odom_t = t_["sensor_msgs/msg/LaserScan"], t_["nav_msgs/msg/Odometry"]
+    vec = t_["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    p = d / "log.bag"
+    with Writer(p) as w:
+        c_scan = w.add_connection("/scan", scan_t.__msgtype__, typestore=ts)
+        c_odom = w.add_connection("/odom", odom_t.__msgtype__, typestore=ts)
+        for i in range(4):
+            stamp = int((1 + i) * 1e9)
+            hdr = t_["std_msgs/msg/Header"](
+                seq=i, stamp=t_["builtin_interfaces/msg/Time"](sec=1 + i, nanosec=0), frame_id="b"
+            )
+            x, y, z, qw = quat[1], quat[2], quat[3], quat[0]
+            pose = t_["geometry_msgs/msg/Pose"](
+                position=t_["geometry_msgs/msg/Point"](x=1.0 + 0.1 * i, y=1.0, z=0.0),
+                orientation=t_["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=qw),
+            )
+            odom = odom_t(
+                header=hdr,
+                child_frame_id="b",
+                pose=t_["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+                twist=t_["geometry_msgs/msg/TwistWithCovariance"](
+                    twist=t_["geometry_msgs/msg/Twist"](linear=vec, angular=vec), covariance=np.zeros(36)
+                ),
+            )
+            w.write(c_odom, stamp, ts.serialize_ros1(odom, odom_t.__msgtype__))
+            fields = {
+                "angle_min": 0.0,
+                "angle_max": np.pi,
+                "angle_increment": np.pi / 3,
+                "time_increment": 0.0,
+                "scan_time": 0.1,
+                "range_min": 0.1,
+                "range_max": 5.0,
+                "ranges": np.array([1.0, 2.0, 0.0, 3.0], dtype=np.float32),
+                "intensities": np.zeros(4, dtype=np.float32),
+            }
+            fields.update(scan or {})
+            w.write(c_scan, stamp + 1000, ts.serialize_ros1(scan_t(header=hdr, **fields), scan_t.__msgtype__))
+    return p
+
+
+def _bag(c: Chooser, d: Path) -> Case:
+    from sensor_envs.lidar.log import load_log
+
+    kind = c.choice(["bytes", "truncate", "field", "quaternion"])
+    must = True
+    if kind == "field":
+        field = c.choice(["angle_increment", "angle_min", "range_min", "range_max", "ranges"])
+        value = c.choice([0.0, np.nan, np.inf, -1.0, 1e30])
+        if field == "ranges":
+            value = np.array([1.0, value, 0.0, 3.0], dtype=np.float32)
+            must = False  # NaN = missing, inf/<=0/>max = null: all valid LaserScan conventions
+        elif (field == "angle_min" and value in (0.0, -1.0)) or (field == "angle_increment" and value == -1.0):
+            must = False  # a scan may start anywhere and turn clockwise
+        p = write_bag(d, scan={field: value})
+        name = f"LaserScan {field} = {value!r}"[:60]
+    elif kind == "quaternion":
+        q = c.choice([(0.0, 0.0, 0.0, 0.0), (np.nan, 0.0, 0.0, 1.0), (2.0, 0.0, 0.0, 0.0), (1e30, 0.0, 0.0, 0.0)])
+        p, name = write_bag(d, quat=q), f"odometry quaternion {q}"
+    else:
+        p = write_bag(d)
+        raw = bytearray(p.read_bytes())
+        if kind == "truncate":
+            k = c.integers(0, len(raw) - 1)
+            raw = raw[:k]
+            name = f"truncated at {k} of {p.stat().st_size}"
+        else:
+            for _ in range(c.integers(1, 8)):
+                raw[c.integers(0, len(raw) - 1)] = c.integers(0, 255)
+            name, must = "bytes overwritten", False  # may hit padding or a value that stays valid
+        p.write_bytes(bytes(raw))
+    m = write_text_bytes(d / "m.txt", MAP_TXT)
+    argv = ["fit", "lidar", str(p), "--out", str(d / "m.npz"), "--max-range", "5", "--map", str(m), "--folds", "2"]
+    return Case("ROS bag", name, argv, lambda: load_log(p), must, [p, m])
+
+
 NASTY_NUMBERS: list[Any] = [np.nan, np.inf, -np.inf, 1e300, -1e300, -1.0, 0.0, 5e-324, 10**30, True, None, "1", [1.0]]
 """Argument values that are no valid value of a bounded positive real parameter (0 and -1 included)."""
 
@@ -642,6 +725,7 @@ FAMILIES: dict[str, Callable[[Chooser, Path], Case]] = {
     "radar log CSV": _radar,
     "lidar log npz": _lidar_npz,
     "CARMEN log": _carmen,
+    "ROS bag": _bag,
     "map file": _map,
     "model file": _model,
     "rig file": _rig,

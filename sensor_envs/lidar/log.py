@@ -442,7 +442,8 @@ def _deserialize(reader: Any, raw: bytes, conn: Any, p: Path) -> Any:
 def _check_scan_header(msg: Any, p: Path, topic: str, i: int) -> None:
     """A LaserScan's angles and limits: finite, a non-zero increment, ``0 <= range_min < range_max``."""
     vals = [msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max]
-    if not (np.isfinite(vals).all() and msg.angle_increment != 0 and 0 <= msg.range_min < msg.range_max):
+    ok = np.isfinite(vals).all() and msg.angle_increment != 0 and 0 <= msg.range_min < msg.range_max <= 10 * MAX_RANGE
+    if not ok:
         raise LidarLogError(
             f"{p}: field 'bearings': {topic} scan {i} has angle_min {msg.angle_min:g}, angle_increment "
             f"{msg.angle_increment:g}, range_min {msg.range_min:g}, range_max {msg.range_max:g}"
