@@ -23,6 +23,7 @@ import gzip
 import json
 import math
 import os
+import re
 import stat
 import zipfile
 import zlib
@@ -236,8 +237,8 @@ def parse_json(text: str | bytes, source: str) -> Any:
         doc = json.loads(text)
     except RecursionError:
         raise InputError(f"{source}: nested deeper than {LIMITS.depth} levels") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{source}: not valid JSON ({' '.join(str(exc).split())})") from None
+    except ValueError as exc:  # JSONDecodeError, bad UTF-8, an integer of more than 4300 digits
+        raise InputError(f"{source}: not valid JSON ({' '.join(str(exc).split())[:200]})") from None
     return _check_tree(doc, source)
 
 
@@ -260,6 +261,21 @@ class _BoundedLoader(yaml.SafeLoader):
             return super().compose_node(parent, index)
         finally:
             self._depth = depth - 1
+
+
+_INT = "tag:yaml.org,2002:int"
+_FLOAT = "tag:yaml.org,2002:float"
+_BoundedLoader.yaml_implicit_resolvers = {
+    first: [(tag, rx) for tag, rx in resolvers if tag not in (_INT, _FLOAT)]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+_BoundedLoader.add_implicit_resolver(_INT, re.compile(r"^[-+]?[0-9]+$"), list("-+0123456789"))
+_BoundedLoader.add_implicit_resolver(
+    _FLOAT,
+    re.compile(r"^(?:[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"),
+    list("-+0123456789."),
+)
+"""Plain decimal numbers only (YAML 1.1 would read ``1_0.5`` as 10.5, ``0x10`` as 16 and ``1:30`` as 90)."""
 
 
 def parse_yaml(text: str, source: str) -> Any:

@@ -52,15 +52,15 @@ def check_action(space: spaces.Space[Any], action: Any, name: str = "action") ->
 
 
 HIGHWAY_CONFIG_CONSTRAINTS: dict[str, list[Constraint]] = {
-    "policy_frequency": [Interval(0, 1000, open_low=True)],
-    "simulation_frequency": [Interval(0, 1000, open_low=True)],
-    "duration": [Interval(0, 1e5, open_low=True)],
+    "policy_frequency": [Interval(0.01, 1000)],
+    "simulation_frequency": [Interval(0.01, 1000)],
+    "duration": [Interval(0.01, 1e5)],
     "vehicles_count": [Interval(0, 1000, integer=True)],
     "lanes_count": [Interval(1, 100, integer=True)],
     "controlled_vehicles": [Interval(1, 100, integer=True)],
-    "vehicles_density": [Interval(0, 100, open_low=True)],
-    "initial_spacing": [Interval(0, 1000, open_low=True)],
-    "ego_spacing": [Interval(0, 1000, open_low=True)],
+    "vehicles_density": [Interval(0.01, 100)],
+    "initial_spacing": [Interval(0.01, 1000)],
+    "ego_spacing": [Interval(0.01, 1000)],
 }
 """Declared ranges of the numeric highway-env configuration keys (``policy_frequency: 0`` divides by zero)."""
 

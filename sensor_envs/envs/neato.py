@@ -55,6 +55,14 @@ action (0 after reset), the time since reset [s] and each bearing's previous res
 _BATCHED_LIDARS = (IdealLidar, GaussianLidar)  # and LearnedLidar: measure() broadcasts over leading axes
 
 
+def _one_row(action: Any) -> Any:
+    """A ``(1, 2)`` action as ``(2,)`` (a batch of one, as SB3 passes it); anything else unchanged."""
+    try:
+        return np.ravel(action) if np.ndim(action) == 2 and np.size(action) == 2 else action
+    except ValueError:  # ragged nesting: check_array names it
+        return action
+
+
 NEATO_CONSTRAINTS: dict[str, list[Constraint]] = {
     "n_bearings": [Interval(1, 3600, integer=True)],
     "max_range": [Interval(0.01, 1000)],
@@ -192,7 +200,7 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         """
         if self._sensor_rng is None:
             raise gym.error.ResetNeeded("Neato-v0: call reset() before step()")
-        a = check_array(np.ravel(action) if np.ndim(action) == 2 else action, "action", (2,), low=-1.0, high=1.0)
+        a = check_array(_one_row(action), "action", (2,), low=-1.0, high=1.0)
         self.pose = unicycle_step(self.pose, a[0] * self.v_max, a[1] * self.omega_max, self.dt)
         self._motion = np.array([a[0] * self.v_max, a[1] * self.omega_max, self._motion[2] + self.dt])
         collision = self._collides(self.pose)

@@ -85,7 +85,9 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
     except InputError as exc:
         msg = str(exc) if "UTF-8" in str(exc) else f"{gt_path}: not valid UTF-8 JSON ({exc})"
         raise InputError(msg) from None
-    objs = doc.get("objects", []) if isinstance(doc, dict) else None
+    if isinstance(doc, dict) and "objects" not in doc:
+        raise InputError(f"{gt_path}: field 'objects' is missing (an Astyx label file lists its objects there)")
+    objs = doc.get("objects") if isinstance(doc, dict) else None
     if not isinstance(objs, list):
         raise InputError(f"{gt_path}: field 'objects' must be a list of objects, got {type(objs).__name__}")
     boxes, names = [], []
@@ -165,7 +167,8 @@ def frame_rows(
     n_cl = int(labels.max(initial=-1)) + 1
     inside = _points_in_boxes(xy, boxes, margin)
     votes = np.zeros((n_cl, boxes.shape[0] + 1))
-    np.add.at(votes, (labels, np.where(inside.any(axis=1), inside.argmax(axis=1), boxes.shape[0])), 1.0)
+    box_of = inside.argmax(axis=1) if boxes.shape[0] else np.zeros(len(xy), dtype=int)  # no boxes: all clutter
+    np.add.at(votes, (labels, np.where(inside.any(axis=1), box_of, boxes.shape[0])), 1.0)
     owner = votes.argmax(axis=1)  # == boxes.shape[0]: no box -> clutter
     point_owner = owner[labels]
     r = np.hypot(xy[:, 0], xy[:, 1])
