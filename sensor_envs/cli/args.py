@@ -35,7 +35,7 @@ MAX_SEED = 2**63 - 1
 
 
 _INTEGER = re.compile(r"\s*\+?[0-9]+\s*")
-_DECIMAL = re.compile(r"\s*[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?\s*")
+_DECIMAL = re.compile(r"\s*[+-]?([0-9]+(?:\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)?\s*")
 """Plain ASCII integers and decimals (``float``/``int`` would also take ``1_0``, ``nan`` and other scripts' digits)."""
 
 

@@ -392,7 +392,7 @@ def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = No
     )
 
 
-_CARMEN_TOKEN = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?|[+-]?(nan|inf)|[A-Za-z_][\w.-]*")
+_CARMEN_TOKEN = re.compile(r"[+-]?([0-9]+(?:\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)?|[+-]?(nan|inf)|[A-Za-z_][\w.-]*")
 """A field of a CARMEN laser line: a plain decimal number (not ``1_0``) or a word (the host name)."""
 
 

@@ -246,7 +246,7 @@ def _check_consistency(out: dict[str, NDArray], clutter: NDArray[np.bool_], sour
         )
 
 
-_NUMBER = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?|[+-]?(nan|inf|infinity)", re.IGNORECASE)
+_NUMBER = re.compile(r"[+-]?([0-9]+(?:\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)?|[+-]?(nan|inf|infinity)", re.IGNORECASE)
 """Plain decimal text (``float`` would also take ``1_0.5`` as 10.5)."""
 
 
