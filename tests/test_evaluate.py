@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from sensor_envs.cli.main import main
-from sensor_envs.evaluate.aeb import NNTracker, gospa
-from sensor_envs.evaluate.detection import (
+from sensor_envs.evaluate.lidar_detection import (
     TRAJECTORY_STEPS,
     DetectorParams,
     detect_lines,
@@ -18,6 +17,7 @@ from sensor_envs.evaluate.detection import (
     target_indices,
 )
 from sensor_envs.evaluate.metrics import precision_recall, trajectory_distance, wilson_interval
+from sensor_envs.evaluate.radar_aeb import NNTracker, gospa
 from sensor_envs.geometry import raycast_pose
 from sensor_envs.lidar.log import save_log
 
@@ -184,7 +184,7 @@ def test_cli_detection_bad_input_exit_2(tmp_path, capsys):
 
 
 def test_aeb_small():
-    from sensor_envs.evaluate.aeb import aeb_experiment
+    from sensor_envs.evaluate.radar_aeb import aeb_experiment
 
     rep = aeb_experiment(episodes=2, max_steps=4, radars=("ideal", "kde"))
     for v in rep["radars"].values():
@@ -232,7 +232,7 @@ def test_real_astyx_trigger(real_data):
 
 
 def test_scan_matcher_converges_and_registration_small():
-    from sensor_envs.evaluate.registration import match_scan, registration_experiment
+    from sensor_envs.evaluate.lidar_registration import match_scan, registration_experiment
     from sensor_envs.maps import load_map
 
     segs = load_map("corridor").segments

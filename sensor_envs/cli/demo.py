@@ -153,8 +153,8 @@ def _evaluation(seed: int, out: Path) -> dict[str, Any]:
     trajectory) for the ideal, Gaussian and learned lidars, and the forward-collision warning on
     highway-fast for each radar (false alarms, missed warnings).
     """
-    from sensor_envs.evaluate.aeb import aeb_experiment
     from sensor_envs.evaluate.lidar_experiments import boxworld_experiment
+    from sensor_envs.evaluate.radar_aeb import aeb_experiment
     from sensor_envs.evaluate.report import plot_trajectories
     from sensor_envs.lidar.lwlr import DEFAULT_MODEL_FILE, LidarLWLR
     from sensor_envs.modelio import default_model_path

@@ -149,7 +149,7 @@ def _radar_detection(args: argparse.Namespace) -> int:
 
 
 def _aeb(args: argparse.Namespace) -> int:
-    from sensor_envs.evaluate.aeb import aeb_experiment, write_aeb_report
+    from sensor_envs.evaluate.radar_aeb import aeb_experiment, write_aeb_report
 
     with output_folder(args.out, args.force) as tmp:
         report = aeb_experiment(episodes=args.episodes, max_steps=args.steps, seed=args.seed)
@@ -161,7 +161,7 @@ def _aeb(args: argparse.Namespace) -> int:
 
 
 def _registration(args: argparse.Namespace) -> int:
-    from sensor_envs.evaluate.registration import registration_experiment, write_registration_report
+    from sensor_envs.evaluate.lidar_registration import registration_experiment, write_registration_report
 
     with output_folder(args.out, args.force, (args.model,)) as tmp:
         report = registration_experiment(args.model, n_poses=args.poses, seed=args.seed)

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm.auto import tqdm
 
-from sensor_envs.evaluate.detection import (
+from sensor_envs.evaluate.lidar_detection import (
     TRAJECTORY_STEPS,
     flatten_repeats,
     present_targets,
