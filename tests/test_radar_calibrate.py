@@ -755,22 +755,3 @@ def test_calibrate_cli_occlusion_by_range_writes_the_table(tmp_path):
     assert "det_occlusion_range" in card["discrepancy_after"]
     argv = ["calibrate", "radar", str(real), "--out", str(tmp_path / "r2.json"), "--scene-only", "--occlusion-by-range"]
     assert main([*argv, "--base", str(rig)]) == 2  # --scene-only fits no sensor law
-
-
-def test_calibration_cv_benchmark_runs_on_a_log_and_scores_the_occlusion_cells(tmp_path, capsys, monkeypatch):
-    """benchmarks/real_radar_calibration_cv.py end to end on synthetic single frames (2 folds, one ridge)."""
-    import importlib.util
-    import sys
-
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "real_radar_calibration_cv.py"
-    spec = importlib.util.spec_from_file_location("real_radar_calibration_cv", script)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    real = _synthetic_csv(tmp_path)
-    argv = ["x", "--data", str(real), "--rig", str(SHIPPED_RIG), "--ridges", "0.002", "--folds", "2",
-            "--replicates", "1", "--kinds", "symmetric", "occlusion_by_range"]  # fmt: skip
-    monkeypatch.setattr(sys, "argv", argv)
-    mod.main()
-    out = capsys.readouterr().out
-    assert "ridge 0.002 occlusion_by_range:" in out and "det_occlusion_range" in out
-    assert "| 0-15 m, 0 (" in out  # the held-out range x occlusion table

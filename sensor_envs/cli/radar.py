@@ -133,7 +133,7 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         "--signed-azimuth",
         action="store_true",
         help="fit a signed (left/right) azimuth detection table instead of the symmetric |azimuth| one "
-        "(generalises worse across Astyx frames held out: benchmarks/real_radar_calibration_cv.py)",
+        "(generalises worse across Astyx frames held out: docs/history/scripts/real_radar_calibration_cv.py)",
     )
     cal.add_argument(
         "--occlusion-by-range",

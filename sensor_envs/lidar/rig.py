@@ -50,7 +50,7 @@ Effects off by default, set by a calibrated rig file (``sensor-envs calibrate li
 * ``null_bearing_range_slope`` ``(K,)``: per-bearing slopes [logit / m] of logit ``p_null`` versus the range
   about :data:`NULL_SLOPE_CENTRE` (added to the shared range table): how fast the null rate rises with the
   range differs between the real unit's bearings (leave-poses-out MAE of the rig's null law on the real
-  cells 0.117 without them, 0.098 with them at the default ridge; ``benchmarks/real_lidar_null_law_cv.py``);
+  cells 0.117 without them, 0.098 with them at the default ridge; ``docs/history/scripts/real_lidar_null_law_cv.py``);
 * ``spur_range_knots`` / ``spur_range_weight``: a piecewise-linear factor [m -> 1] on the probability
   that a cell is spurious-prone, by its true range (the real spurious cells are all within 1 m; range
   ``inf``, no hit, takes the last weight);

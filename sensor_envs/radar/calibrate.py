@@ -51,7 +51,7 @@ the discrepancy is a deterministic function of the parameters):
    ``signed_azimuth=True`` it is SIGNED (:data:`DETECT_AZIMUTH_KNOTS` over ``[-90, 90]`` deg,
    ``detect_azimuth_signed``): left and right of the boresight fitted apart. The signed table is not
    the default because it generalises worse across frames on Astyx HiRes2019: held out on 10-frame
-   blocks (``benchmarks/real_radar_calibration_cv.py``, 5 folds, ridge 0.002) its detection
+   blocks (``docs/history/scripts/real_radar_calibration_cv.py``, 5 folds, ridge 0.002) its detection
    discrepancy is 252.9e-4 vs the symmetric table's 238.2e-4 (worse in 4 of 5 folds): the pooled
    left-right difference comes from a few scenes, not from the sensor;
 2. offset parameters (radial/cross-range spread per range knot, radial bias, outlier share and
