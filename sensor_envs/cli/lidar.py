@@ -27,6 +27,7 @@ import shlex
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -186,8 +187,21 @@ def _calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fit(args: argparse.Namespace) -> int:
+def lwlr_from_args(args: argparse.Namespace) -> Any:
+    """The unfitted :class:`~sensor_envs.lidar.lwlr.LidarLWLR` that ``fit lidar`` with ``args`` fits."""
     from sensor_envs.lidar.lwlr import LidarLWLR
+
+    return LidarLWLR(
+        variant=args.variant,
+        n_folds=args.folds,
+        random_state=args.seed,
+        max_range=args.max_range,
+        spur_above=args.spur_above,
+        table_range_step=args.table_range_step,
+    )
+
+
+def _fit(args: argparse.Namespace) -> int:
     from sensor_envs.lidar.validate import fit_gaussian_lidar, model_card_markdown
 
     check_inputs(args.log, args.map)
@@ -197,14 +211,7 @@ def _fit(args: argparse.Namespace) -> int:
     )
     log, prep = _prepared_log(args, args.max_range)
     t0 = time.perf_counter()
-    model = LidarLWLR(
-        variant=args.variant,
-        n_folds=args.folds,
-        random_state=args.seed,
-        max_range=args.max_range,
-        spur_above=args.spur_above,
-        table_range_step=args.table_range_step,
-    )
+    model = lwlr_from_args(args)
     with about(args.log):
         if log.ranges.shape[2] == 1:
             from sensor_envs.lidar.mapping import map_features

@@ -16,6 +16,7 @@ from sensor_envs.cli import diagnose as cli_diagnose
 from sensor_envs.cli import evaluate as cli_evaluate
 from sensor_envs.cli import lidar as cli_lidar
 from sensor_envs.cli import radar as cli_radar
+from sensor_envs.cli import rebuild as cli_rebuild
 from sensor_envs.cli.args import OneLineParser, add_force, nonneg_int, positive_int
 
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError, EOFError)
@@ -51,6 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     cli_evaluate.register(
         sub.add_parser("evaluate", help="does the simulator predict an algorithm's performance on the real sensor?")
     )
+    cli_rebuild.register(sub)
     return parser
 
 

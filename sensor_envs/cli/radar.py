@@ -330,22 +330,10 @@ def _azimuth_bias(text: str) -> float | str:
         ) from None
 
 
-def _fit(args: argparse.Namespace) -> int:
-    from sensor_envs.radar.gaussian import GaussianRadar
+def kde_from_args(args: argparse.Namespace) -> Any:
+    """The unfitted :class:`~sensor_envs.radar.kde.KDERadarModel` that ``fit radar`` with ``args`` fits."""
     from sensor_envs.radar.kde import KDERadarModel
-    from sensor_envs.radar.log import read_log
 
-    check_inputs(args.log)
-    out = check_output(args.out, inputs=[args.log], force=args.force, suffix=".npz")
-    base_out = check_output(
-        args.baseline_out or _baseline_path(str(out)),
-        inputs=[args.log, out],
-        force=args.force,
-        suffix=".npz",
-        option="--baseline-out",
-    )
-    log = read_log(args.log)
-    t0 = time.perf_counter()
     extra: dict[str, Any] = {}
     if args.relevance_candidates is not None:
         extra["relevance_candidates"] = tuple(args.relevance_candidates)
@@ -364,6 +352,31 @@ def _fit(args: argparse.Namespace) -> int:
         extra_state=tuple(args.extra_state),
         **extra,
     )
+    return model
+
+
+def gaussian_from_args(args: argparse.Namespace) -> Any:
+    """The unfitted Gaussian baseline that ``fit radar`` with ``args`` fits beside the KDE."""
+    from sensor_envs.radar.gaussian import GaussianRadar
+
+    return GaussianRadar(extra_state=tuple(args.extra_state))
+
+
+def _fit(args: argparse.Namespace) -> int:
+    from sensor_envs.radar.log import read_log
+
+    check_inputs(args.log)
+    out = check_output(args.out, inputs=[args.log], force=args.force, suffix=".npz")
+    base_out = check_output(
+        args.baseline_out or _baseline_path(str(out)),
+        inputs=[args.log, out],
+        force=args.force,
+        suffix=".npz",
+        option="--baseline-out",
+    )
+    log = read_log(args.log)
+    t0 = time.perf_counter()
+    model = kde_from_args(args)
     with about(args.log):
         model.fit(log, cycle_time=args.cycle_time, progress=args.relevance != "paper")
     fit_s = time.perf_counter() - t0
@@ -384,7 +397,7 @@ def _fit(args: argparse.Namespace) -> int:
         "extra_variance_fitted": list(model.extra_variance_),
     }
     with about(args.log):  # like with like: the baseline has the same extra state
-        baseline = GaussianRadar(extra_state=tuple(args.extra_state)).fit(log, cycle_time=args.cycle_time)
+        baseline = gaussian_from_args(args).fit(log, cycle_time=args.cycle_time)
     with OutputTransaction() as tx:  # model and baseline: both or neither
         model.save(tx.file(out), card=card)
         baseline.save(tx.file(base_out), card=card)
