@@ -130,7 +130,7 @@ def _boxworld(args: argparse.Namespace) -> int:
         )
         report["command"] = _command()
         write_report(report, tmp)
-    _print_distances(report)
+    _print_distances(report, key="distance_to_rig")
     print(f"wrote {Path(args.out) / 'report.json'}")
     return 0
 
