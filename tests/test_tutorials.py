@@ -59,7 +59,10 @@ TUTORIALS: dict[str, Tutorial] = {
             "--configs 50": "--configs 2",
         },
     ),
-    "robustness-matrix.md": Tutorial(needs=("stable_baselines3", "ray")),
+    "robustness-matrix.md": Tutorial(
+        shrink={"--preset short --workers 2": "--preset short --sensors ideal gaussian --seeds 1 --workers 2"},
+        needs=("stable_baselines3", "ray"),
+    ),
 }
 
 
