@@ -141,8 +141,9 @@ def test_boxworld_small():
         LidarLWLR.load(default_model_path(DEFAULT_MODEL_FILE)), n_configs=2, poses_per_config=1, repeats=2
     )
     assert rep["data"]["scans_per_source"] == 4
-    assert rep["trajectories"]["real"][0]["scans"] == 4
-    assert all(np.isfinite(v) for v in rep["distance_to_real"].values())
+    assert rep["trajectories"]["rig"][0]["scans"] == 4  # the rig plays reality and is named so
+    assert "real" not in rep["trajectories"] and "distance_to_real" not in rep
+    assert all(np.isfinite(v) for v in rep["distance_to_rig"].values())
 
 
 def test_cli_detection_writes_report_refuses_existing_out(tmp_path, capsys):

@@ -37,7 +37,9 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     p.add_argument("--block-frames", type=positive_int, default=25, help="frames per contiguous block (default 25)")
     p.add_argument("--no-prev", action="store_true", help="do not condition the KDE on z_{t-1}")
     p.add_argument("--exclude", action="append", default=[], help="a log column that is not a candidate (repeatable)")
-    p.add_argument("--seed", type=nonneg_int, default=0)
+    p.add_argument(
+        "--seed", type=nonneg_int, default=0, help="seed of the block split, fits and permutations (default: 0)"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_diagnose_radar)
     q = kinds.add_parser("lidar", help="diagnose the learned lidar on a scan log (.npz, CARMEN log, ROS bag)")
@@ -58,7 +60,9 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     q.add_argument(
         "--block-scans", dest="block_frames", type=positive_int, default=5, help="scans per block (default 5)"
     )
-    q.add_argument("--seed", type=nonneg_int, default=0)
+    q.add_argument(
+        "--seed", type=nonneg_int, default=0, help="seed of the block split, fits and permutations (default: 0)"
+    )
     q.add_argument("--quiet", action="store_true", help="no progress bars")
     q.set_defaults(func=_diagnose_lidar)
 

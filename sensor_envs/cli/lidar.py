@@ -73,7 +73,12 @@ def register(verbs: dict[str, argparse._SubParsersAction[OneLineParser]]) -> Non
     fit = verbs["fit"].add_parser("lidar", help="fit the per-bearing LWLR lidar model to a log")
     fit.add_argument("log", help="lidar log (.npz, CARMEN log or ROS bag)")
     fit.add_argument("--out", required=True, help="output model file (.npz); the card goes to MODEL.md")
-    fit.add_argument("--variant", choices=("seed", "extended"), default="extended")
+    fit.add_argument(
+        "--variant",
+        choices=("seed", "extended"),
+        default="extended",
+        help="seed: the paper's model; extended: + spurious returns, pooling, persistence (default)",
+    )
     fit.add_argument("--folds", type=positive_int, default=10, help="cross-validation folds (default: 10)")
     fit.add_argument("--seed", type=nonneg_int, default=0, help="seed of the fold assignment (default: 0)")
     add_force(fit)

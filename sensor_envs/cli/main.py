@@ -1,6 +1,6 @@
-"""The ``sensor-envs`` command line.
+"""The sensor-envs command line.
 
-Commands: ``demo``, ``record``, ``fit``, ``validate``, ``calibrate``, ``diagnose``, ``evaluate``.
+Commands: demo, record, fit, validate, calibrate, diagnose, evaluate, card.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="the main job: drive every env with every sensor, write pictures and a report")
     demo.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
-    demo.add_argument("--seed", type=nonneg_int, default=0)
+    demo.add_argument("--seed", type=nonneg_int, default=0, help="seed of the first episode of every run (default: 0)")
     demo.add_argument("--episodes", type=positive_int, default=10, help="episodes per env and sensor (default: 10)")
     add_force(demo)
     demo.set_defaults(func=_run_demo)
@@ -53,7 +53,26 @@ def build_parser() -> argparse.ArgumentParser:
         sub.add_parser("evaluate", help="does the simulator predict an algorithm's performance on the real sensor?")
     )
     cli_rebuild.register(sub)
+    card = sub.add_parser(
+        "card",
+        help="write the one-page model card of a model file (from its header and a measured-metrics JSON)",
+        description="Write the one-page Markdown card of a model file, generated from the file's own header and "
+        "a measured-metrics JSON (schema: sensor_envs/cards.py).",
+    )
+    card.add_argument("model", help="model file (.npz)")
+    card.add_argument("--metrics", default=None, help="measured-metrics JSON (default: none; the card says so)")
+    card.add_argument("--out", required=True, help="output card (.md)")
+    add_force(card)
+    card.set_defaults(func=_run_card)
     return parser
+
+
+def _run_card(args: argparse.Namespace) -> int:
+    from sensor_envs.cards import write_card
+
+    path = write_card(args.model, args.out, metrics=args.metrics, force=args.force)
+    print(f"wrote {path}")
+    return 0
 
 
 def _run_demo(args: argparse.Namespace) -> int:

@@ -20,7 +20,7 @@ from sensor_envs.cli.args import (
     positive_float,
     positive_int,
 )
-from sensor_envs.modelio import read_model
+from sensor_envs.modelio import data_reference, read_model
 from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
 
 
@@ -28,7 +28,7 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     """Add the ``radar`` sub-commands under each verb parser in ``verbs``."""
     rec = verbs["record"].add_parser("radar", help="record a radar object log from the reference rig (or Astyx)")
     rec.add_argument("--out", required=True, help="output CSV log")
-    rec.add_argument("--seed", type=nonneg_int, default=0)
+    rec.add_argument("--seed", type=nonneg_int, default=0, help="seed of the rig's scenes and draws (default 0)")
     rec.add_argument("--sequences", type=positive_int, default=50, help="rig scenarios (default 50)")
     rec.add_argument("--cycles", type=positive_int, default=40, help="radar cycles per scenario (default 40)")
     rec.add_argument("--targets", type=positive_int, default=8, help="target boxes per scenario (default 8)")
@@ -53,7 +53,12 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     fit.add_argument("--baseline-out", default=None, help="Gaussian baseline file (default <out>_gaussian.npz)")
     fit.add_argument("--no-prev", action="store_true", help="do not condition on z_{t-1} (for non-time-series logs)")
     fit.add_argument("--cycle-time", type=positive_float, default=None, help="seconds between frames of the log")
-    fit.add_argument("--cv-group", default="track", choices=("track", "sequence", "row"))
+    fit.add_argument(
+        "--cv-group",
+        default="track",
+        choices=("track", "sequence", "row"),
+        help="what the relevance CV holds out together (default track)",
+    )
     fit.add_argument(
         "--relevance",
         default="paper",
@@ -117,7 +122,7 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         help="extra state variables of both models: numeric log columns or derived features (occluded, aspect, "
         "range, azimuth, rel_speed); the KDE's variances by CV, the Gaussian's linear terms (default: none)",
     )
-    fit.add_argument("--seed", type=nonneg_int, default=0)
+    fit.add_argument("--seed", type=nonneg_int, default=0, help="seed of the CV folds and the model (default 0)")
     add_force(fit)
     fit.set_defaults(func=_fit)
     cal = verbs["calibrate"].add_parser(
@@ -195,7 +200,7 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         default=None,
         help="Gaussian baseline (default <model>_gaussian.npz; <name>_gaussian.npz for <name>_kde.npz)",
     )
-    val.add_argument("--seed", type=nonneg_int, default=0)
+    val.add_argument("--seed", type=nonneg_int, default=0, help="seed of the rollouts and draws (default 0)")
     add_force(val)
     val.set_defaults(func=_validate)
 
@@ -380,8 +385,9 @@ def _fit(args: argparse.Namespace) -> int:
     with about(args.log):
         model.fit(log, cycle_time=args.cycle_time, progress=args.relevance != "paper")
     fit_s = time.perf_counter() - t0
+    data = data_reference(args.log)  # the log's name and sha256, never the path of the machine that fitted it
     card = {
-        "log": str(args.log),
+        "log": data,
         "rows": len(log),
         "fit_seconds": round(fit_s, 2),
         "cv_group": args.cv_group,
@@ -396,11 +402,19 @@ def _fit(args: argparse.Namespace) -> int:
         "extra_state": list(model.extra_state_),
         "extra_variance_fitted": list(model.extra_variance_),
     }
+    t0 = time.perf_counter()
     with about(args.log):  # like with like: the baseline has the same extra state
         baseline = gaussian_from_args(args).fit(log, cycle_time=args.cycle_time)
+    base_card = {  # its own card: the KDE's choices (relevance, bandwidths, fit time) are not the baseline's
+        "log": data,
+        "rows": len(log),
+        "fit_seconds": round(time.perf_counter() - t0, 2),
+        "extra_state": list(args.extra_state),
+        "fitted_with": Path(out).name,
+    }
     with OutputTransaction() as tx:  # model and baseline: both or neither
         model.save(tx.file(out), card=card)
-        baseline.save(tx.file(base_out), card=card)
+        baseline.save(tx.file(base_out), card=base_card)
     print(f"fitted {model.states_.shape[0]} tuples in {fit_s:.1f} s -> {out}; baseline -> {base_out}")
     return 0
 

@@ -267,7 +267,7 @@ def boxworld_experiment(
         segs = boxworld_map(rng)
         n_boards.append(len(segs) - 4)
         log, _ = rig.record(segs, rng, n_poses=poses_per_config, repeats=repeats)
-        sources = {"real": np.nan_to_num(log.ranges, nan=0.0)}
+        sources = {"rig": np.nan_to_num(log.ranges, nan=0.0)}  # the rig plays reality: named for what it is
         for name, sensor in _SOURCES(model, g):
             sources[name] = simulate(
                 sensor, log.poses, log.bearings, segs, repeats, rng, max_range, name != "model_world"
@@ -293,7 +293,7 @@ def boxworld_experiment(
         "target_length_m": length,
         "steps": steps_table(),
         "trajectories": totals,
-        "distance_to_real": summarise(totals),
+        "distance_to_rig": summarise(totals, reference="rig"),
         "notes": list(LIDAR_NOTES),
         "data": {
             "configurations": n_configs,
