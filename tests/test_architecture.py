@@ -24,6 +24,7 @@ LAYERS = {
     "heap": 0,
     "lazy": 0,
     "outputs": 0,
+    "cards": 0,
     "lidar": 1,
     "radar": 1,
     "envs": 2,
