@@ -14,8 +14,8 @@ imported lazily on first use (module-level ``__getattr__``, as ``gymnasium.wrapp
 Packages: ``lidar`` and ``radar`` (the sensor models), ``envs`` (the worlds), ``diagnose`` and ``evaluate``
 (tools), ``cli`` (the ``sensor-envs`` command). Shared modules: ``geometry`` (rays and segments), ``maps``
 (2D segment maps), ``modelio`` (model files), ``outputs`` (safe output files), ``rng`` (seeded generators),
-``trig`` and ``jit`` (compiled kernels), ``heap`` (opt-in malloc tuning), ``lazy`` (lazy public names), ``cards`` (model cards
-from a file's header and measured metrics).
+``trig`` and ``jit`` (compiled kernels), ``heap`` (opt-in malloc tuning), ``lazy`` (lazy public names),
+``cards`` (model cards from a file's header and measured metrics).
 """
 
 from __future__ import annotations
