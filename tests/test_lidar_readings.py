@@ -243,6 +243,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_cli_fit_and_validate_scan_log_with_map(tmp_path):
     log = scan_log(n=80, spur=0.02)
     path = tmp_path / "scans.npz"
@@ -260,6 +261,7 @@ def test_cli_fit_and_validate_scan_log_with_map(tmp_path):
     assert "NLL/reading" in val.stdout and (tmp_path / "v" / "per_reading.png").exists()
 
 
+@pytest.mark.slow
 def test_cli_bad_inputs_exit_2(tmp_path):
     log = scan_log(n=20)
     bad = tmp_path / "nan_poses.npz"
@@ -275,6 +277,7 @@ def test_cli_bad_inputs_exit_2(tmp_path):
     assert "does not cover" in out.stderr and not (tmp_path / "m.npz").exists()
 
 
+@pytest.mark.slow
 def test_bag_without_scan_topic(tmp_path):
     pytest.importorskip("rosbags")
     from rosbags.rosbag1 import Writer

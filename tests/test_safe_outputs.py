@@ -255,6 +255,7 @@ def test_sigterm_rolls_back_and_keeps_the_old_file(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["precious.csv"]
 
 
+@pytest.mark.slow
 def test_subprocess_bad_input_has_no_traceback(tmp_path):
     bad = tmp_path / "bad.log.gz"
     bad.write_bytes(b"\x1f\x8b\x08\x00garbage")

@@ -88,6 +88,7 @@ def test_compiled_and_numpy_paths_give_the_same_bits(compiled_kernels):
     assert np.array_equal(trig.tan_half_pi(t), tan_numpy, equal_nan=True)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lidar", ["ideal", "gaussian"])
 def test_vector_step_does_not_page_fault(lidar):
     """A 64-robot vector step reuses freed heap (sensor_envs.heap): under 5 minor page faults a step.
