@@ -11,8 +11,8 @@ The public API below is importable from here (``from sensor_envs import KDERadar
 imported lazily on first use (module-level ``__getattr__``, as ``gymnasium.wrappers`` does), so
 ``import sensor_envs`` stays cheap.
 
-Packages: ``lidar`` and ``radar`` (the sensor models), ``envs`` (the worlds), ``diagnose`` and ``evaluate``
-(tools), ``cli`` (the ``sensor-envs`` command). Shared modules: ``geometry`` (rays and segments), ``maps``
+Packages: ``lidar`` and ``radar`` (the sensor models), ``envs`` (the worlds), ``diagnose``, ``evaluate`` and
+``training`` (tools), ``cli`` (the ``sensor-envs`` command). Shared modules: ``geometry`` (rays and segments), ``maps``
 (2D segment maps), ``modelio`` (model files), ``outputs`` (safe output files), ``rng`` (seeded generators),
 ``trig`` and ``jit`` (compiled kernels), ``heap`` (opt-in malloc tuning), ``lazy`` (lazy public names),
 ``cards`` (model cards from a file's header and measured metrics).

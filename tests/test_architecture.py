@@ -30,6 +30,7 @@ LAYERS = {
     "envs": 2,
     "diagnose": 3,
     "evaluate": 3,
+    "training": 3,
     "cli": 4,
 }
 # Sensor domains that must not import each other.
@@ -152,7 +153,13 @@ def test_package_docstring_names_all_its_modules(package):
     assert not missing, f"{name}: docstring does not name {missing}"
 
 
-LAZY_PACKAGES = ["sensor_envs.lidar", "sensor_envs.radar", "sensor_envs.evaluate", "sensor_envs.envs"]
+LAZY_PACKAGES = [
+    "sensor_envs.lidar",
+    "sensor_envs.radar",
+    "sensor_envs.evaluate",
+    "sensor_envs.envs",
+    "sensor_envs.training",
+]
 
 
 @pytest.mark.parametrize("package", LAZY_PACKAGES)

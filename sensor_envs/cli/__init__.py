@@ -3,5 +3,5 @@
 Modules: ``main`` (the entry point and its subcommands' table), ``__main__`` (``python -m sensor_envs.cli``),
 ``args`` (shared argument types and the one-line input-error exit), one module per sensor's verbs (``lidar``,
 ``radar``), ``diagnose``, ``evaluate``, ``rebuild`` (``rebuild-models``: the shipped models from their
-recipes) and ``demo`` (the main job).
+recipes), ``training`` (``train`` and ``robustness``) and ``demo`` (the main job).
 """

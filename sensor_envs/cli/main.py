@@ -1,6 +1,6 @@
 """The sensor-envs command line.
 
-Commands: demo, record, fit, validate, calibrate, diagnose, evaluate, card.
+Commands: demo, record, fit, validate, calibrate, diagnose, evaluate, rebuild-models, card, train, robustness.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from sensor_envs.cli import evaluate as cli_evaluate
 from sensor_envs.cli import lidar as cli_lidar
 from sensor_envs.cli import radar as cli_radar
 from sensor_envs.cli import rebuild as cli_rebuild
+from sensor_envs.cli import training as cli_training
 from sensor_envs.cli.args import OneLineParser, add_force, nonneg_int, positive_int
 
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError, EOFError)
@@ -64,6 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
     card.add_argument("--out", required=True, help="output card (.md)")
     add_force(card)
     card.set_defaults(func=_run_card)
+    cli_training.register(sub)
     return parser
 
 
@@ -86,6 +88,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``sensor-envs``; returns the process exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # the command line, for reports that quote it
     previous = _terminate_cleanly()
     try:
         return int(args.func(args) or 0)
