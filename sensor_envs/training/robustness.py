@@ -274,7 +274,7 @@ def score_matrix(evals: list[dict[str, Any]], column: str, metric: str) -> NDArr
 
 
 def cell_statistics(scores: NDArray[np.float64]) -> dict[str, Any]:
-    """IQM and mean with 95 % stratified-bootstrap intervals (seeded: the same scores give the same numbers)."""
+    """IQM and mean with 95 % bootstrap intervals, seeds resampled whole (seeded: same scores, same numbers)."""
     return {
         "iqm": stats.iqm(scores),
         "iqm_ci95": list(stats.bootstrap_ci(scores, stats.iqm, reps=BOOTSTRAP_REPS)),
@@ -297,7 +297,7 @@ def improvement(a: NDArray[np.float64], b: NDArray[np.float64], metric: str) -> 
 def build_matrix(out: Path, domain: str, rows: list[str], columns: list[str], seeds: list[int]) -> dict[str, Any]:
     """The jobs' ``eval.json`` as cells (IQM, mean, intervals) and the rows' probabilities of improvement."""
     metrics = DOMAINS[domain]["metrics"]
-    over = "seeds resampled within each evaluation episode" if len(seeds) > 1 else "episodes resampled (single seed)"
+    over = "seeds resampled whole, with their episodes" if len(seeds) > 1 else "episodes resampled (single seed)"
     evals = {r: [json.loads((out / "runs" / r / f"seed{s}" / "eval.json").read_text()) for s in seeds] for r in rows}
     cells = {
         f"{r}->{c}": {m: cell_statistics(score_matrix(evals[r], c, m)) for m in metrics} for r in rows for c in columns
