@@ -457,17 +457,21 @@ def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[di
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``sensor-envs robustness``."""
-    parser.add_argument("--domain", choices=sorted(DOMAINS), default="neato")
-    parser.add_argument("--preset", choices=sorted(PRESETS), default="short")
-    parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--backend", choices=("process", "ray"), default="process")
+    parser.add_argument("--domain", choices=sorted(DOMAINS), default="neato", help="world (default neato)")
+    parser.add_argument(
+        "--preset", choices=sorted(PRESETS), default="short", help="training budget and evaluation size (default short)"
+    )
+    parser.add_argument("--out", type=Path, required=True, help="output folder (a rerun with its settings resumes)")
+    parser.add_argument(
+        "--backend", choices=("process", "ray"), default="process", help="local process pool or Ray (default process)"
+    )
     parser.add_argument("--address", default=None, help="Ray cluster address (default: start a local instance)")
     parser.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 2)), help="parallel jobs (local)")
     parser.add_argument("--algo", default=None, help="algorithm block of the config (default: the env's algo)")
     parser.add_argument("--sensors", nargs="+", default=None, help="training sensors (rows); default: all")
     parser.add_argument("--seeds", type=int, default=None, help="number of seeds (default: the preset's)")
-    parser.add_argument("--seed0", type=int, default=0)
-    parser.add_argument("--device", default="auto")
+    parser.add_argument("--seed0", type=int, default=0, help="first training seed (default 0)")
+    parser.add_argument("--device", default="auto", help="torch device: auto (default), cpu, cuda, ...")
     parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG, help="YAML config (default: the shipped one)")
     parser.add_argument(
         "--real-data", type=Path, default=None, help="e.g. ../shared/data/real: adds a real-data column"
