@@ -177,7 +177,7 @@ def _frame_figure(frame: NDArray[np.uint8], path: Path, title: str, legend: dict
     ax.imshow(frame)
     ax.set_axis_off()
     ax.set_title(title, fontsize=9)
-    handles = [Patch(color=np.array(c) / 255, label=k) for k, c in legend.items()]
+    handles = [Patch(color=(c[0] / 255, c[1] / 255, c[2] / 255), label=k) for k, c in legend.items()]
     ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=len(handles), fontsize=7)
     fig.savefig(path, dpi=100, bbox_inches="tight")
     plt.close(fig)
