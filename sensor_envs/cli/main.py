@@ -1,6 +1,6 @@
 """The sensor-envs command line.
 
-Commands: demo, record, fit, validate, calibrate, diagnose, evaluate, card.
+Commands: demo, record, fit, validate, calibrate, diagnose, evaluate, rebuild-models, card.
 """
 
 from __future__ import annotations
