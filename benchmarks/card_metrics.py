@@ -129,7 +129,14 @@ def lidar_metrics(data: Path) -> dict[str, Any]:
 def radar_metrics(fidelity: Path, model: str) -> dict[str, Any]:
     """The shipped radar ``model`` ("kde" or "gaussian") from real_radar_fidelity.py's JSON (module docstring)."""
     rep = json.loads(fidelity.read_text(encoding="utf-8"))
-    return {"measured": _measured("Astyx HiRes2019"), "metrics": radar_rows(rep, model)}
+    frames = f"{rep['n_frames']} frames, {rep['folds']} folds of {rep['block']}-frame blocks"
+    measured = _measured(f"Astyx HiRes2019 ({frames})")
+    source = (  # the run that wrote the report, then this one (the report's folder as DIR: no machine path)
+        f"python benchmarks/real_radar_fidelity.py --data ../shared/data/real/{rep['data_name']} --out DIR "
+        f"--models-from {Path(str(rep['after_from'])).name} --seed {rep['seed']}"
+    )
+    measured["command"] = f"{source} && " + measured["command"].replace(str(fidelity.parent), "DIR")
+    return {"measured": measured, "metrics": radar_rows(rep, model)}
 
 
 def radar_rows(rep: dict[str, Any], model: str) -> list[dict[str, Any]]:
@@ -145,7 +152,7 @@ def radar_rows(rep: dict[str, Any], model: str) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     for key, what in (
         ("nll_outcome", "NLL of outcomes (miss or offset)"),
-        ("nll_z_given_detected", "NLL of z | detected"),
+        ("nll_z_given_detected", "NLL of z given a detection"),
     ):
         rows.append(
             {

@@ -243,10 +243,8 @@ def _metrics_section(metrics: Mapping[str, Any]) -> list[str]:
         unit = f" {m['unit']}" if m.get("unit") else ""
         iv = m.get("interval")
         iv_text = f"[{_fmt(float(iv[0]))}, {_fmt(float(iv[1]))}]" if iv else "-"
-        lines.append(
-            f"| {m['name']} | {_fmt(float(m['value']))}{unit} | {iv_text} | {m.get('reference', '-')} | "
-            f"{m.get('note', '')} |"
-        )
+        cells = [m["name"], f"{_fmt(float(m['value']))}{unit}", iv_text, m.get("reference", "-"), m.get("note", "")]
+        lines.append("| " + " | ".join(str(c).replace("|", "/") for c in cells) + " |")
     return [*lines, ""]
 
 

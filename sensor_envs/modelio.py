@@ -32,7 +32,18 @@ __all__ = [
 
 
 class ModelFileError(ValueError):
-    """A model file is unreadable, of the wrong kind or version, or holds a malformed field."""
+    """A model file is unreadable, of the wrong kind or version, or holds a malformed field.
+
+    Examples:
+        >>> from pathlib import Path
+        >>> from sensor_envs import KDERadarModel, ModelFileError
+        >>> _ = Path("broken.npz").write_bytes(b"not a model")
+        >>> try:
+        ...     KDERadarModel.load("broken.npz")
+        ... except ModelFileError as err:
+        ...     print("broken.npz" in str(err))
+        True
+    """
 
 
 M = TypeVar("M")

@@ -1,5 +1,7 @@
 import json
 
+import pytest
+
 from sensor_envs.cli.main import main
 
 
@@ -31,6 +33,7 @@ def test_demo_main_job_writes_pictures_and_report(tmp_path):
     assert "real" not in ev["board_detection_rig"] and "model_world" not in ev["board_detection_rig"]
 
 
+@pytest.mark.slow  # a whole demo in a subprocess (~20 s)
 def test_demo_stderr_has_a_line_per_stage_and_no_sdl_noise(tmp_path):
     import subprocess
     import sys

@@ -44,7 +44,7 @@ TUTORIALS: dict[str, Tutorial] = {
     ),
     "lidar-from-logs.md": Tutorial(
         real=True,
-        shrink={"--max-readings 300": "--max-readings 24", "MAX_READINGS = 300": "MAX_READINGS = 24"},
+        shrink={"--max-readings 300": "--max-readings 24", "MAX_READINGS = 300": "MAX_READINGS = 24"},  # every use
         needs=("rosbags",),
     ),
     "radar-from-astyx.md": Tutorial(

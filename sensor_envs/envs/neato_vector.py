@@ -48,6 +48,19 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
         **kwargs: :class:`~sensor_envs.envs.neato.NeatoEnv` keyword arguments (``lidar``, ``map``, ...).
 
     Construction leaves the process's malloc settings alone unless ``tune_heap=True``.
+
+    Examples:
+        >>> import gymnasium as gym
+        >>> import sensor_envs
+        >>> envs = gym.make_vec(
+        ...     "sensor_envs/Neato-v0", num_envs=4, vectorization_mode="vector_entry_point", lidar="gaussian"
+        ... )
+        >>> obs, infos = envs.reset(seed=0)
+        >>> obs.shape
+        (4, 363)
+        >>> obs, rewards, terminated, truncated, infos = envs.step(envs.action_space.sample())
+        >>> rewards.shape
+        (4,)
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 5, "autoreset_mode": AutoresetMode.NEXT_STEP}

@@ -60,6 +60,14 @@ class LidarLog:
         t: ``(P,)`` times [s] or ``None``.
         covariates: per-scan covariates, each ``(P,)``.
         source: where the log came from (used in error messages).
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import LidarLog
+        >>> log = LidarLog(ranges=np.full((2, 4, 3), 1.5), bearings=np.linspace(0, np.pi, 4),
+        ...                poses=np.zeros((2, 3)), map_segments=np.array([[[2.0, -1.0], [2.0, 1.0]]]))
+        >>> log.n_poses, log.n_bearings, log.ranges.shape
+        (2, 4, (2, 4, 3))
     """
 
     ranges: NDArray[np.float64]
@@ -189,6 +197,17 @@ def load_log(path: PathLike, **kwargs: Any) -> LidarLog:
     Raises:
         LidarLogError: for a malformed log, naming the file and the field.
         FileNotFoundError: when ``path`` does not exist.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import load_log
+        >>> from sensor_envs.lidar.log import save_log
+        >>> from sensor_envs import LidarLog
+        >>> scans = np.full((2, 4, 1), 1.5)  # 2 scans x 4 bearings, one reading each [m]
+        >>> wall = np.array([[[2.0, -1.0], [2.0, 1.0]]])  # the map: one segment [m]
+        >>> path = save_log(LidarLog(scans, np.linspace(0, np.pi, 4), np.zeros((2, 3)), wall), "example_log.npz")
+        >>> load_log(path).ranges.shape  # (scans, bearings, 1): one reading per scan and bearing
+        (2, 4, 1)
     """
     p = Path(path)
     if not p.exists():
@@ -271,7 +290,7 @@ def _parse_robotlaser1(
 
 
 def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = None) -> LidarLog:
-    """Read ``FLASER`` and ``ROBOTLASER1`` lines of a CARMEN log (optionally gzipped) into a log.
+    r"""Read ``FLASER`` and ``ROBOTLASER1`` lines of a CARMEN log (optionally gzipped) into a log.
 
     FLASER bearing ``i`` of ``n`` is ``-pi/2 + i * pi / (n - 1)`` [rad] (``n`` beams over the 180 degrees
     field of view, both ends included: 361 beams are 0.5 degree steps); ROBOTLASER1 uses its start angle and
@@ -287,6 +306,14 @@ def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = No
     Raises:
         LidarLogError: when the file holds no laser line, a line is malformed, scans differ in size, or
             the file is unreadable (truncated or non-gzip ``.gz``, bytes that are not UTF-8 text).
+
+    Examples:
+        >>> from pathlib import Path
+        >>> from sensor_envs import read_carmen
+        >>> _ = Path("example.log").write_text("FLASER 3 1.0 2.0 0.0 0.0 0.0 0.0 0.0 0.0 0.0 0.5 robot 0.5\n")
+        >>> log = read_carmen("example.log")  # FLASER n ranges... x y theta odom_x odom_y odom_theta t host t_local
+        >>> log.ranges.shape, log.bearings.round(3).tolist()
+        ((1, 3, 1), [-1.571, 0.0, 1.571])
     """
     p = Path(path)
     try:
@@ -359,6 +386,14 @@ def read_rosbag(
     Raises:
         LidarLogError: naming the bag and topic when a topic is absent or scans differ in size, or when
             the bag is empty, truncated or damaged.
+
+    Examples:
+        >>> import os
+        >>> from sensor_envs import read_rosbag
+        >>> data = os.environ.get("SENSOR_ENVS_REAL_DATA", "../shared/data/real")
+        >>> log = read_rosbag(os.path.join(data, "neato_ros1_bags", "middle.bag"))  # doctest: +SKIP
+        >>> log.ranges.shape[1]  # doctest: +SKIP
+        360
     """
     from rosbags.highlevel import AnyReaderError  # optional dependency
     from rosbags.rosbag1 import ReaderError as Ros1Error

@@ -288,6 +288,16 @@ class LidarLWLR(BaseEstimator):
             in EVERY fold, so the chosen ``mu`` is never worse than the raycast in any CV fold.
         pose_correction: correct the training poses (dx, dy, dtheta each) jointly with a per-bearing bias
             before learning the tables (:mod:`sensor_envs.lidar.pose_correction`; static logs with repeats).
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import LidarLWLR
+        >>> from sensor_envs.modelio import default_model_path
+        >>> model = LidarLWLR.load(default_model_path("neato_lidar.npz"))  # the shipped model
+        >>> r, alpha = np.full((1, 360), 2.0), np.zeros((1, 360))  # nominal range [m], incidence [rad]
+        >>> scan = model.sample_scan(r, alpha, np.random.default_rng(0))  # readings [m], 0 = null
+        >>> scan.shape, bool((scan == 0).any())
+        ((1, 360), True)
     """
 
     _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
@@ -1244,7 +1254,15 @@ def _scan_readings(
 # ---------------------------------------------------------------------------------------- the adapter
 @dataclass(frozen=True)
 class LearnedLidar:
-    """:class:`~sensor_envs.lidar.sensors.LidarSensor` adapter around a fitted :class:`LidarLWLR`."""
+    """:class:`~sensor_envs.lidar.sensors.LidarSensor` adapter around a fitted :class:`LidarLWLR`.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import make_lidar
+        >>> lidar = make_lidar("learned")  # a LearnedLidar around the shipped LidarLWLR
+        >>> lidar.measure(np.full(360, 2.0), np.zeros(360), np.random.default_rng(0)).shape
+        (360,)
+    """
 
     model: LidarLWLR
 

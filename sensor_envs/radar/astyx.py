@@ -184,6 +184,14 @@ def load_astyx(
 
     Raises:
         FileNotFoundError: when ``root`` lacks the ``radar_6455`` folder.
+
+    Examples:
+        >>> import os
+        >>> from sensor_envs import load_astyx
+        >>> root = os.path.join(os.environ.get("SENSOR_ENVS_REAL_DATA", "../shared/data/real"), "astyx_hires2019")
+        >>> log = load_astyx(root, frames=range(10))  # doctest: +SKIP
+        >>> int(log["frame"].max())  # doctest: +SKIP
+        9
     """
     root = Path(root)
     if not (root / "radar_6455").is_dir():

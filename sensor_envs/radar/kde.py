@@ -414,6 +414,16 @@ class KDERadarModel(BaseEstimator):
             kernels and applied to samples (see the module docstring), or ``"fit"``: estimated from the
             training log's detections (``azimuth_bias_``; :func:`~sensor_envs.radar.alignment.estimate_azimuth_bias`).
             ``0`` (the default, and every file before format 7) is the paper's model.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import KDERadarModel
+        >>> from sensor_envs.radar.rig import record_rig_log
+        >>> log = record_rig_log(8, 20, 6, np.random.default_rng(0))  # sequences x cycles x targets of the rig
+        >>> model = KDERadarModel(random_state=0).fit(log, cycle_time=1.0)
+        >>> z, source = model.sample(np.array([[15.0, 1.0]]), np.random.default_rng(1))
+        >>> z.shape
+        (1, 2)
     """
 
     _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {

@@ -197,6 +197,16 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         TypeError: when ``env`` is not a highway-env environment with a ``Kinematics`` observation.
         ValueError: naming the bad argument or observation key, or when the model's cycle time does
             not match the radar rate.
+
+    Examples:
+        >>> import gymnasium as gym
+        >>> import highway_env  # registers highway-env's ids
+        >>> from sensor_envs import RadarObservation
+        >>> env = RadarObservation(gym.make("highway-fast-v0"), radar="gaussian")
+        >>> obs, info = env.reset(seed=0)
+        >>> obs, reward, terminated, truncated, info = env.step(1)
+        >>> obs.shape == env.observation_space.shape and bool(info["radar"].visible.any())
+        True
     """
 
     def __init__(
@@ -594,6 +604,15 @@ def make_highway(
 
     Raises:
         ValueError: naming an unknown ``config`` key or a bad sensor argument.
+
+    Examples:
+        >>> from sensor_envs import make_highway
+        >>> env = make_highway("highway-fast-v0", radar="kde")
+        >>> obs, info = env.reset(seed=0)
+        >>> obs, reward, terminated, truncated, info = env.step(1)
+        >>> radar = info["radar"]
+        >>> int(radar.detected.sum()) <= int(radar.visible.sum())
+        True
     """
     import highway_env  # noqa: F401  (registers highway-env's ids)
 
