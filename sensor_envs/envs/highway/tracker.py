@@ -184,6 +184,8 @@ class MultiTargetTracker:
             t_idx, d_idx = np.flatnonzero(stage), np.flatnonzero(free)
             if t_idx.size and d_idx.size:
                 sub = cost[np.ix_(t_idx, d_idx)]
+                rows, cols = (sub < _BIG).any(axis=1), (sub < _BIG).any(axis=0)  # only gated pairs compete
+                t_idx, d_idx, sub = t_idx[rows], d_idx[cols], sub[np.ix_(rows, cols)]
                 r, k = linear_sum_assignment(sub)
                 ok = sub[r, k] <= c.gate
                 match[d_idx[k[ok]]] = t_idx[r[ok]]
@@ -191,7 +193,9 @@ class MultiTargetTracker:
         self._update(det_w, match)
         out = np.full(len(det_w), -1, dtype=np.int64)
         out[match >= 0] = self.ids[match[match >= 0]]
-        self._maintain(np.isin(np.arange(len(self)), match))
+        hit = np.zeros(len(self), dtype=bool)
+        hit[match[match >= 0]] = True
+        self._maintain(hit)
         out[free] = self._start(det_w[free], det_radial[free], u[free], road_heading)
         return out
 
@@ -217,26 +221,40 @@ class MultiTargetTracker:
             return
         F = np.eye(4)
         F[0, 2] = F[1, 3] = dt
-        g = np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]]) * self.config.accel_std**2
-        q = np.kron(g, np.eye(2))  # state order x, y, vx, vy
+        g = self.config.accel_std**2
+        q = np.zeros((4, 4))  # state order x, y, vx, vy
+        q[0, 0] = q[1, 1] = g * dt**4 / 4
+        q[0, 2] = q[2, 0] = q[1, 3] = q[3, 1] = g * dt**3 / 2
+        q[2, 2] = q[3, 3] = g * dt**2
         self.x = self.x @ F.T
         self.P = F @ self.P @ F.T + q
 
     def _cost(self, det_w: NDArray[np.float64], det_radial: NDArray[np.float64], u: NDArray[np.float64]) -> NDArray:
-        """``(t, k)`` squared Mahalanobis distances, ``_BIG`` outside the gates."""
+        """``(t, k)`` squared Mahalanobis distances, ``_BIG`` outside the gates.
+
+        Only pairs inside a box bounding each track's gate ellipse (half-width ``sqrt(gate * trace S)``)
+        are evaluated; the others are outside the gate anyway.
+        """
+        cost = np.full((len(self), len(det_w)), _BIG)
         if not len(self) or not len(det_w):
-            return np.zeros((len(self), len(det_w)))
-        S = self.P[:, :2, :2] + self.config.position_std**2 * np.eye(2)
-        det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
-        d = det_w[None, :, :] - self.x[:, None, :2]  # (t, k, 2)
-        m = (S[:, None, 1, 1] * d[..., 0] ** 2 - 2 * S[:, None, 0, 1] * d[..., 0] * d[..., 1]) + S[:, None, 0, 0] * d[
-            ..., 1
-        ] ** 2
-        m = m / det[:, None]
-        if self.config.doppler_gate is not None:
-            pred_radial = self.x[:, None, 2] * u[None, :, 0] + self.x[:, None, 3] * u[None, :, 1]
-            m = np.where(np.abs(pred_radial - det_radial[None, :]) <= self.config.doppler_gate, m, _BIG)
-        return np.where(m <= self.config.gate, m, _BIG)
+            return cost
+        c = self.config
+        S = self.P[:, :2, :2] + c.position_std**2 * np.eye(2)
+        half = np.sqrt(c.gate * (S[:, 0, 0] + S[:, 1, 1]))
+        dx = det_w[None, :, 0] - self.x[:, None, 0]
+        dy = det_w[None, :, 1] - self.x[:, None, 1]
+        t, k = np.nonzero((np.abs(dx) <= half[:, None]) & (np.abs(dy) <= half[:, None]))
+        if not t.size:
+            return cost
+        a, b, d = S[t, 0, 0], S[t, 0, 1], S[t, 1, 1]
+        x, y = dx[t, k], dy[t, k]
+        m = (d * x * x - 2 * b * x * y + a * y * y) / (a * d - b * b)
+        ok = m <= c.gate
+        if c.doppler_gate is not None:
+            pred = self.x[t, 2] * u[k, 0] + self.x[t, 3] * u[k, 1]
+            ok &= np.abs(pred - det_radial[k]) <= c.doppler_gate
+        cost[t[ok], k[ok]] = m[ok]
+        return cost
 
     def _update(self, det_w: NDArray[np.float64], match: NDArray[np.int64]) -> None:
         """Kalman update of the tracks matched by ``match`` (track index per detection, -1 = none)."""
