@@ -383,3 +383,23 @@ def test_bad_object_clutter_file_names_file_and_field(tmp_path, doc, field):
 def test_shipped_law_is_object_level():
     law = load_object_clutter()
     assert isinstance(law, ObjectClutterLaw) and law.total.sum() > 0
+
+
+@pytest.mark.parametrize("kw", [{"tracks": True}, {"history": 2}], ids=["tracks", "history"])
+def test_pickle_round_trip_keeps_the_rollout(kw):
+    import pickle
+
+    env = _make("kde", **kw)
+    env.reset(seed=9)
+    clone = pickle.loads(pickle.dumps(env))
+    for a in (1, 0, 2):
+        oa, *_ = env.step(a)
+        ob, *_ = clone.step(a)
+        assert np.array_equal(oa, ob)
+
+
+def test_stacked_rows_refuses_a_flat_space():
+    from sensor_envs.envs.highway import StackedRows
+
+    with pytest.raises(TypeError, match=re.escape("env: expected a 3-D Box observation space")):
+        StackedRows(_make("ideal"))

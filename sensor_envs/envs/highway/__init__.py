@@ -13,7 +13,14 @@ from sensor_envs.envs.highway.observation import SUPPORTED_FEATURES, KinematicsL
 from sensor_envs.envs.highway.render import draw_radar
 from sensor_envs.envs.highway.sensor import DEFAULT_FOV, DEFAULT_MAX_RANGE, SensorSpec, load_radar
 from sensor_envs.envs.highway.tracker import MultiTargetTracker, TrackerConfig, TrackList
-from sensor_envs.envs.highway.wrapper import IDEAL_KINEMATICS, RNG_TAG, ObservedRows, RadarObservation, make_highway
+from sensor_envs.envs.highway.wrapper import (
+    IDEAL_KINEMATICS,
+    RNG_TAG,
+    ObservedRows,
+    RadarObservation,
+    StackedRows,
+    make_highway,
+)
 from sensor_envs.radar.sensors import RADAR_NAMES
 
 __all__ = [
@@ -27,6 +34,7 @@ __all__ = [
     "KinematicsLayout",
     "RadarObservation",
     "ObservedRows",
+    "StackedRows",
     "CLUTTER_LEVELS",
     "STATIONARY_MODES",
     "TrackerConfig",

@@ -165,6 +165,7 @@ __all__ = [
     "IDEAL_KINEMATICS",
     "RadarObservation",
     "ObservedRows",
+    "StackedRows",
     "make_highway",
     "cycle_period",
     "check_cycle_time",
@@ -613,6 +614,32 @@ class ObservedRows:
     velocity: NDArray[np.float64]
 
 
+class StackedRows(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
+    """Turn a ``(k, rows, features)`` stack of observations into one ``(k * rows, features)`` table.
+
+    The 2-D layout of ``Kinematics`` is kept (a 3-D float array would be taken for an image by SB3's
+    checker); the oldest observation's rows come first. Picklable, unlike a lambda-based reshape.
+
+    Raises:
+        TypeError: when the observation space is not a 3-D ``Box``.
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self)
+        gym.ObservationWrapper.__init__(self, env)
+        space = env.observation_space
+        if not isinstance(space, spaces.Box) or len(space.shape) != 3:
+            raise TypeError(f"env: expected a 3-D Box observation space, got {space}")
+        k, rows, feats = space.shape
+        self.observation_space = spaces.Box(
+            space.low.reshape(k * rows, feats), space.high.reshape(k * rows, feats), dtype=space.dtype
+        )
+
+    def observation(self, observation: NDArray[np.float32]) -> NDArray[np.float32]:
+        """The stack as one table (a view, rows of the oldest observation first)."""
+        return np.asarray(observation).reshape(self.observation_space.shape)
+
+
 class _RoadStepHook:
     """Set as the ``step`` attribute of ONE highway-env ``Road`` instance (``radar_rate="simulation"``).
 
@@ -735,7 +762,7 @@ def make_highway(
         tracker: tracker settings (:class:`~sensor_envs.envs.highway.tracker.TrackerConfig` or a dict of
             its fields); only with ``tracks=True``.
         history: the observation stacks the last ``history`` observations (gymnasium's
-            ``FrameStackObservation``, zero-padded after ``reset``, then ``ReshapeObservation``): a
+            ``FrameStackObservation``, zero-padded after ``reset``, then :class:`StackedRows`): a
             ``(history * vehicles_count, n_features)`` table, the oldest observation's rows first and the
             latest's last; 1 = no stacking.
 
@@ -782,6 +809,4 @@ def make_highway(
     )
     if history == 1:
         return wrapped
-    stacked = gym.wrappers.FrameStackObservation(wrapped, int(history), padding_type="zero")
-    shape = (int(history) * wrapped.layout.vehicles_count, len(wrapped.layout.features))
-    return gym.wrappers.ReshapeObservation(stacked, shape)  # a 2-D table, as Kinematics (not an "image")
+    return StackedRows(gym.wrappers.FrameStackObservation(wrapped, int(history), padding_type="zero"))
