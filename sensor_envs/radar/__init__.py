@@ -6,7 +6,8 @@ exact sampler), ``relevance`` (CV of its relevance kernel), ``features`` (derive
 occlusion), ``alignment`` (the azimuth bias and the frame rotation of offsets), ``gaussian`` (the baseline),
 ``log`` (the CSV object log), ``astyx`` (the Astyx reader), ``rig`` (the reference rig), ``calibrate`` (the
 rig fitted to real frames), ``scene_law`` (the scene the rig records, fitted to real reference boxes),
-``validate`` (reports).
+``object_clutter`` (object-level clutter per cycle measured on Astyx, the law the highway wrapper thins
+to), ``validate`` (reports).
 
 The public names below are importable from here (``from sensor_envs.radar import KDERadarModel``), each
 imported on first use.
@@ -38,6 +39,9 @@ _PUBLIC: dict[str, str] = {
     "calibrate_rig": "sensor_envs.radar.calibrate",
     "load_real": "sensor_envs.radar.calibrate",
     "fit_scene_law": "sensor_envs.radar.scene_law",
+    "ObjectClutterLaw": "sensor_envs.radar.object_clutter",
+    "load_object_clutter": "sensor_envs.radar.object_clutter",
+    "measure_object_clutter": "sensor_envs.radar.object_clutter",
     "select_corner_variances": "sensor_envs.radar.relevance",
     "energy_distance_2d": "sensor_envs.radar.validate",
     "write_report": "sensor_envs.radar.validate",
