@@ -54,7 +54,7 @@ def simulate(
     """``(P, K, repeats)`` readings [m] (``0`` = null) of a sensor at ``(P, 3)`` poses in a map.
 
     The learned model samples with its pose uncertainty (:meth:`LidarLWLR.sample`, as for a log's
-    approximate poses: each cell's mean drawn independently, ``mu + tau z`` or a uniform outlier) or,
+    approximate poses: one rigid pose error per pose, then the worlds' draw at the perturbed pose) or,
     with ``pose_uncertainty=False``, as the worlds' sensor does (:class:`~sensor_envs.lidar.lwlr.LearnedLidar`:
     the poses taken as true). The Gaussian and ideal lidars measure the nominal raycast.
     """
@@ -71,13 +71,12 @@ def simulate(
 
 
 LIDAR_NOTES = (
-    "'model' is LidarLWLR.sample at the log's approximate poses: each pose-bearing cell's mean is drawn "
-    "independently (mu + tau z, tau ~ 4 cm, or a uniform outlier with p_out), which turns straight walls "
-    "and boards into jagged points; a real pose error shifts the whole scan rigidly instead. The line "
-    "detector's gap and line-fit checks then reject most boards, so this source is far from the real one.",
+    "'model' is LidarLWLR.sample at the log's approximate poses: one rigid pose error per pose (the model's "
+    "pose_sd_, fitted from the training poses' corrections), shared by all bearings and repeats, then the "
+    "worlds' per-reading draw at the perturbed pose, with persistent nulls per cell over the repeats (since "
+    "issue 43; before, each cell's mean was drawn independently, which turned walls and boards jagged).",
     "'model_world' is the same fitted model sampled as the worlds' LearnedLidar does (poses taken as true, "
-    "no per-cell pose spread): the learned per-bearing noise, nulls and spurious returns without the "
-    "independent pose term.",
+    "no pose error): the learned per-bearing noise, nulls and spurious returns.",
     "'baseline' is the Gaussian lidar (refitted on the same training poses when the model is fitted): no "
     "persistent nulls, so boards are seen whole more often than on the real sensor (recall too high at the "
     "recall steps).",

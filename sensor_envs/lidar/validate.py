@@ -366,6 +366,25 @@ def _shrinkage_markdown(model: LidarLWLR) -> list[str]:
         maes = " | ".join(f"{p[k]:.5f}" for k in ("mae_raycast", "mae_unshrunk", "mae_chosen"))
         lines.append(f"| {p['fold']} | {p['n_cells']} | {maes} |")
     lines.append(f"| pooled | | {sc['cv_mae_raycast']:.5f} | {sc['cv_mae_unshrunk']:.5f} | {sc['cv_mae_chosen']:.5f} |")
+    if "local_weight" in sc:  # bias_model="pooled": bias = G + lam L (sensor_envs.lidar.bias_transfer)
+        g = sc["global"]
+        lines += [
+            "",
+            f"Pooled bias (`bias_model` pooled): bias = G + lam L, G pooled over bearings (h_range {g['h'][0]} m, "
+            f"h_alpha {g['h'][1]} rad, degree {int(g['h'][3])}), L the per-bearing remainder; lam = "
+            f"{sc['local_weight']} chosen with s on the same folds. Pooled CV MAE of mu per lam: "
+            + ", ".join(
+                f"{row['local_weight']}: {row['cv_mae']:.5f} (s {row['shrinkage']})" for row in sc["per_local_weight"]
+            )
+            + ".",
+        ]
+    sd = model.cv_scores_.get("pose_error_sd")
+    if sd:
+        lines += [
+            "",
+            f"Rigid pose error of `sample` (robust spread of the training poses' corrections): dx {sd['sd'][0]:.4f} m,"
+            f" dy {sd['sd'][1]:.4f} m, dtheta {sd['sd'][2]:.4f} rad.",
+        ]
     pc = model.cv_scores_.get("pose_correction")
     if pc:
         lines += [
