@@ -1,14 +1,16 @@
 """A lidar fitted by `sensor-envs fit lidar` on real static poses: its mean vs the raycast at UNSEEN poses (issue 43).
 
     python benchmarks/real_lidar_mean_vs_raycast.py --data ../shared/data/real [--folds 5] [--seeds 0 1 2]
-        [--bias-models pooled per_bearing] [--out-md docs/results/lidar_mean_vs_raycast.md]
+        [--spatial] [--bias-models pooled per_bearing] [--out-md docs/results/lidar_mean_vs_raycast.md]
         [--out-json docs/results/lidar_mean_vs_raycast.json]
 
-For every fold assignment (``--seeds``) the 29 poses of ``neato_mar27_train.npz`` are dealt into ``--folds``
-leave-poses-out folds; per fold, the learned lidar is fitted on the other folds exactly as ``sensor-envs fit lidar
-LOG --out M`` does with its defaults (extended variant, 10 CV folds, seed 0, max range 5 m, spurious above 6 m), once
-per ``--bias-models`` value (``pooled``: the default since issue 43; ``per_bearing``: the default before), and the
-Gaussian baseline is refitted on the same poses. At the held-out poses it prints and writes:
+For every fold assignment (``--seeds``; with ``--spatial`` also ``x-slabs``: the poses sorted along the room's
+length and cut into contiguous slabs, so the held-out poses stand where no training pose did) the 29 poses of
+``neato_mar27_train.npz`` are dealt into ``--folds`` leave-poses-out folds; per fold, the learned lidar is fitted on
+the other folds exactly as ``sensor-envs fit lidar LOG --out M`` does with its defaults (extended variant, 10 CV
+folds, seed 0, max range 5 m, spurious above 6 m), once per ``--bias-models`` value (``pooled``: the default since
+issue 43; ``per_bearing``: the default before), and the Gaussian baseline is refitted on the same poses. At the
+held-out poses it prints and writes:
 
 * per fold: MAE of ``mu`` [m] of each model and of the raycast (``mu = r``), over hit cells with >= 2 in-range
   readings (Table I's ``mae_mu``), and whether the model is worse;
@@ -72,8 +74,11 @@ def run_folds(real: Any, r: np.ndarray, a: np.ndarray, args: argparse.Namespace)
     err_ray = np.abs(np.where(ok, r, 0.0) - st["mean"])
     names = [*args.bias_models, "gaussian", "ideal"]
     out: dict[str, Any] = {"per_fold": [], "per_pose": {}, "table_one": {}, "choices": []}
-    for seed in args.seeds:
-        fold = fold_ids(real.n_poses, args.folds, random_state=seed)
+    x_rank = np.argsort(np.argsort(real.poses[:, 0]))
+    plans = [(seed, fold_ids(real.n_poses, args.folds, random_state=seed)) for seed in args.seeds]
+    if args.spatial:  # contiguous slabs along the room's length: held-out poses where no training pose stood
+        plans.append(("x-slabs", x_rank * args.folds // real.n_poses))
+    for seed, fold in plans:
         pred: dict[str, dict[str, np.ndarray]] = {n: {} for n in names}
         spur = {n: (np.zeros(real.n_poses), np.ones(real.n_poses)) for n in names}
         for f in range(args.folds):
@@ -196,7 +201,8 @@ def markdown(res: dict[str, Any], args: argparse.Namespace, real: Any) -> str:
         "",
         f"Real log `{Path(real.source).name}` (sha256 of ranges `{ranges_sha256(real)[:16]}...`): {real.n_poses} "
         f"static poses x {real.n_bearings} bearings x {real.ranges.shape[2]} repeats. {args.folds} leave-poses-out "
-        f"folds per fold assignment (seeds {', '.join(map(str, args.seeds))}); each fold's model is fitted on the "
+        f"folds per fold assignment (seeds {', '.join(map(str, args.seeds))}"
+        f"{'; x-slabs: contiguous slabs along the room' if args.spatial else ''}); each fold's model is fitted on the "
         "other folds as `sensor-envs fit lidar` does with its defaults (`bias_model` aside). MAE of mu [m] over the "
         "held-out hit cells with >= 2 in-range readings.",
         "",
@@ -280,6 +286,7 @@ def main() -> None:
     ap.add_argument("--data", default=str(ROOT / ".." / "shared" / "data" / "real"), help="real data folder or .npz")
     ap.add_argument("--folds", type=int, default=5, help="leave-poses-out folds (default: 5)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="fold assignments (default: 0 1 2)")
+    ap.add_argument("--spatial", action="store_true", help="also folds of contiguous x-slabs of the room")
     ap.add_argument("--bias-models", nargs="+", default=["pooled", "per_bearing"], choices=("pooled", "per_bearing"))
     ap.add_argument("--out-md", default=str(ROOT / "docs" / "results" / "lidar_mean_vs_raycast.md"))
     ap.add_argument("--out-json", default=str(ROOT / "docs" / "results" / "lidar_mean_vs_raycast.json"))

@@ -10,12 +10,14 @@ With ``bias_model="pooled"`` (:class:`~sensor_envs.lidar.lwlr.LidarLWLR`'s defau
 
     bias_k(r, alpha) = G(r, alpha) + lam L_k(r, alpha),    mu = r + (1 - s) bias_k(r, alpha),
 
-where ``G`` is an LWLR of every bearing's cells pooled (the part many poses and bearings support; kernel widths
-and degree chosen by the leave-poses-out folds), ``L_k`` the per-bearing LWLR of the residual ``bias - G`` (the
-model's usual per-bearing fit), and the local weight ``lam`` (in :data:`LOCAL_WEIGHT_GRID`) and the shrinkage
-``s`` (in :data:`~sensor_envs.lidar.kernel.SHRINKAGE_GRID`) are chosen together by :func:`choose_bias`: the pair of
-least pooled held-out MAE of ``mu`` among those no worse than the raycast in EVERY fold (``s = 1`` always is).
-The held-out predictions are honest: per fold, ``G`` and ``L`` are refitted on the training poses only.
+where ``G`` is an LWLR of every bearing's cells pooled (the part many poses and bearings support; kernel widths and
+degree chosen by the leave-poses-out folds), ``L_k`` the per-bearing LWLR of the residual ``bias - G`` (the model's
+usual per-bearing fit), set to 0 outside the range/incidence span of bearing ``k``'s own training cells
+(:func:`support_gate`: no extrapolation of a per-bearing effect), and the local weight ``lam`` (in
+:data:`LOCAL_WEIGHT_GRID`) and the shrinkage ``s`` (in :data:`~sensor_envs.lidar.kernel.SHRINKAGE_GRID`) are chosen
+together by :func:`choose_bias`: the pair of least pooled held-out MAE of ``mu`` among those no worse than the
+raycast in EVERY fold (``s = 1`` always is). The held-out predictions are honest: per fold, ``G`` and ``L`` are
+refitted on the training poses only.
 
 ``G`` is fitted on cells binned on a fine ``(r, alpha)`` grid (:data:`BIN_RANGE` x :data:`BIN_ALPHA`; weighted
 means, exact for the local-constant fit and within the bin size for the local-linear one) and tabulated on the
@@ -42,6 +44,7 @@ __all__ = [
     "choose_global_widths",
     "pooled_oof",
     "choose_bias",
+    "support_gate",
 ]
 
 BIAS_MODELS = ("pooled", "per_bearing")
@@ -114,6 +117,29 @@ def global_lookup(
     return np.where(hit, v, 0.0)
 
 
+def support_gate(
+    q_r: NDArray[np.float64],
+    q_a: NDArray[np.float64],
+    t_r: NDArray[np.float64],
+    t_a: NDArray[np.float64],
+    w: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """Where the per-bearing part may act: ``(Q, K)`` True within its own bearing's training span.
+
+    A query counts when it lies within the range and incidence span (not widened) of its OWN bearing's training
+    cells (``w > 0``). Beyond that span a per-bearing regression extrapolates (its table is clamped to the nearest
+    edge value), and what it learned at a few poses there is least likely to recur; the bias falls back to ``G``.
+    """
+    ok = w > 0
+    with np.errstate(invalid="ignore"):
+        rr, aa = np.where(ok, t_r, np.nan), np.where(ok, t_a, np.nan)
+        has = ok.any(0)
+        lo_r, hi_r = np.nanmin(np.where(has, rr, 0.0), 0), np.nanmax(np.where(has, rr, 0.0), 0)
+        lo_a, hi_a = np.nanmin(np.where(has, aa, 0.0), 0), np.nanmax(np.where(has, aa, 0.0), 0)
+    inside = (q_r >= lo_r) & (q_r <= hi_r) & (q_a >= lo_a) & (q_a <= hi_a)
+    return np.asarray(inside & has, dtype=bool)
+
+
 def choose_global_widths(
     r: NDArray[np.float64],
     a: NDArray[np.float64],
@@ -176,7 +202,7 @@ def pooled_oof(
         res = (y[tr] - global_lookup(tab, grid, r[tr], a[tr]))[..., None]
         g_oof[te] = global_lookup(tab, grid, q_r[te], q_a[te])
         pred = lwlr(q_r[te], q_a[te], r[tr], a[tr], res, w_tr, h_r, h_a, (h_b,), (int(deg),))
-        l_oof[te] = pred[0, 0, ..., 0]
+        l_oof[te] = np.where(support_gate(q_r[te], q_a[te], r[tr], a[tr], w_tr), pred[0, 0, ..., 0], 0.0)
     return g_oof, l_oof
 
 

@@ -83,6 +83,7 @@ from sensor_envs.lidar.bias_transfer import (
     global_lookup,
     global_table,
     pooled_oof,
+    support_gate,
 )
 from sensor_envs.lidar.extra_state import MAX_COEF, apply_extra, check_extra_state, fit_extra_terms
 from sensor_envs.lidar.kernel import (
@@ -447,10 +448,9 @@ class LidarLWLR(BaseEstimator):
             groups.append(self._tau_group(r0, a0, groups, stats["n_ok"], held_out))
             self.h_["tau2"] = list(self.h_["bias"])
         self._tabulate(r, a, groups)
-        if pooled is not None:  # bias = G + lam L, on the same grid (float32 values, as every table)
+        if pooled is not None:  # bias = G + lam L (L where bearing k has cells), same grid, float32 values
             j = self.param_names_.index("bias")
-            combined = pooled["table"][None] + self.cv_scores_["bias_shrinkage"]["local_weight"] * self.tables_[j]
-            self.tables_[j] = combined.astype(np.float32).astype(np.float64)
+            self.tables_[j] = self._combined_bias(pooled, self.tables_[j], r0, a0)
         del self._bias_oof
         if self.variant == "seed":
             self.p_out_ = 0.0
@@ -506,6 +506,17 @@ class LidarLWLR(BaseEstimator):
         y2[..., 0] = np.where(weight > 0, yb - global_lookup(table, grid, r, a), 0.0)
         groups[i] = (names, y2, weight, robust)
         return {"h": h, "score": score, "table": table, "y": yb, "weight": weight, "robust": robust}
+
+    def _combined_bias(
+        self, pooled: dict[str, Any], local: NDArray[np.float64], r: NDArray[np.float64], a: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """The bias table ``(K, n_r, n_alpha)``: ``G + lam L``, ``L`` gated to each bearing's training span."""
+        rg, ag = self.range_grid_, self.alpha_grid_
+        qr, qa = (v.ravel() for v in np.meshgrid(rg, ag, indexing="ij"))
+        gate = support_gate(qr[:, None], qa[:, None], r, a, pooled["weight"])  # (Q, K)
+        lam = self.cv_scores_["bias_shrinkage"]["local_weight"]
+        combined = pooled["table"][None] + lam * np.where(gate.T.reshape(local.shape), local, 0.0)
+        return np.asarray(combined.astype(np.float32), dtype=np.float64)
 
     def _choose_pooled(
         self,
