@@ -237,3 +237,25 @@ def test_real_fit_mean_never_worse_than_the_raycast_at_held_out_poses(real_data)
         ray, chosen = _mae_mu(model, log.subset(fold == f))
         assert chosen <= ray
         assert np.all(model.pose_sd_ < np.array([0.05, 0.05, np.deg2rad(3.0)]))
+
+
+# ----------------------------------------------------------------------------------------- validate, words
+@pytest.mark.parametrize(
+    ("model_mu", "word"), [(0.040, "better"), (0.04290, "the same"), (0.0452, "WORSE"), (0.042904, "the same")]
+)
+def test_validate_says_the_verdict_in_words(model_mu, word):
+    from sensor_envs.lidar.validate import verdict_markdown
+
+    def row(mu: float, sigma: float, p_null: float) -> dict:
+        return {"all": {"mae_mu": mu, "mae_sigma": sigma, "mae_p_null": p_null}}
+
+    metrics = {
+        "model_extended": row(model_mu, 0.0053, 0.40),
+        "ideal": row(0.0429, 0.009, 0.2),
+        "gaussian": row(0.0429, 0.0081, 0.361),
+    }
+    text = verdict_markdown(metrics)
+    assert f"- mean mu vs the raycast: {model_mu:.4f} vs 0.0429: {word}" in text
+    assert "- spread sigma vs the Gaussian baseline: 0.0053 vs 0.0081: better" in text
+    assert "- null probability vs the Gaussian baseline: 0.4000 vs 0.3610: WORSE" in text
+    assert verdict_markdown({"ideal": metrics["ideal"]}) == ""

@@ -268,6 +268,7 @@ def _validate(args: argparse.Namespace) -> int:
             write_json(folder / "report.json", report)
         else:
             print(metrics_markdown(report["metrics"]))
+            print(report.get("verdict", ""))
         if args.card:
             cmds = [*model.card_extra_.get("commands", ["sensor-envs fit lidar ..."]), _command()]
             tx.file(card).write_text(model_card_markdown(model, cmds, report), encoding="utf-8")

@@ -189,9 +189,10 @@ def validate(
         "gaussian_baseline": vars(gaussian) if gaussian else vars(GaussianLidar()),
         "definitions": __doc__.split("Definitions (written into every ``report.json``):")[1].strip(),
         "metrics": metrics,
+        "verdict": verdict_markdown(metrics),
     }
     write_json(out / "report.json", report)
-    (out / "report.md").write_text(metrics_markdown(metrics))
+    (out / "report.md").write_text(metrics_markdown(metrics) + "\n" + report["verdict"])
     plot_scan(model, log, params, out / "scan.png", rng or np.random.default_rng(0))
     plot_per_bearing(log, params, out / "per_bearing_error.png", model.spur_above)
     return report
@@ -216,6 +217,31 @@ def metrics_markdown(metrics: dict[str, dict[str, Any]]) -> str:
             f"{m['ll_spur_counts_per_reading']:.4g} | "
             f"{m['ll_spur_counts_per_reading_independent']:.4g} |"
         )
+    return "\n".join(lines) + "\n"
+
+
+VERDICT_TOL = 1e-5
+"""MAEs within this of each other [m, or probability] are called the same by :func:`verdict_markdown`."""
+
+
+def verdict_markdown(metrics: dict[str, dict[str, Any]]) -> str:
+    """One line per Table I parameter: the learned model against its baseline, in words (all cells).
+
+    ``mu`` against the raycast (``ideal``: ``mu = r``), ``sigma`` and ``p_null`` against the Gaussian baseline:
+    "better" (lower MAE), "the same" (within :data:`VERDICT_TOL`) or "WORSE". Empty without a ``model_*`` entry.
+    """
+    name = next((k for k in metrics if k.startswith("model")), None)
+    if name is None or "ideal" not in metrics or "gaussian" not in metrics:
+        return ""
+    lines = ["Verdict (MAE on all cells, lower is better):", ""]
+    for key, base, label in (
+        ("mae_mu", "ideal", "mean mu vs the raycast"),
+        ("mae_sigma", "gaussian", "spread sigma vs the Gaussian baseline"),
+        ("mae_p_null", "gaussian", "null probability vs the Gaussian baseline"),
+    ):
+        m, b = metrics[name]["all"][key], metrics[base]["all"][key]
+        word = "the same" if abs(m - b) <= VERDICT_TOL else ("better" if m < b else "WORSE")
+        lines.append(f"- {label}: {m:.4f} vs {b:.4f}: {word}")
     return "\n".join(lines) + "\n"
 
 
