@@ -3,7 +3,8 @@
     sensor-envs record lidar --out LOG.npz [--rig RIG.json] [--map NAME] [--poses N] [--repeats R] [--seed S]
         [--unit-seed U]
     sensor-envs calibrate lidar REAL_DATA --out RIG.json [--seed S] [--max-evals N] [--spurious-only RIG]
-    sensor-envs fit lidar LOG --out MODEL [--variant seed|extended] [--folds 10] [--seed S] [LOG OPTIONS]
+    sensor-envs fit lidar LOG --out MODEL [--variant seed|extended] [--folds 10] [--seed S]
+        [--bias-model pooled|per_bearing] [LOG OPTIONS]
         [--max-range M] [--spur-above M] [--table-range-step M] [--max-readings N] [--cv-block-scans N]
     sensor-envs validate lidar MODEL LOG --out DIR [--card] [LOG OPTIONS]
 
@@ -81,6 +82,13 @@ def register(verbs: dict[str, argparse._SubParsersAction[OneLineParser]]) -> Non
     )
     fit.add_argument("--folds", type=positive_int, default=10, help="cross-validation folds (default: 10)")
     fit.add_argument("--seed", type=nonneg_int, default=0, help="seed of the fold assignment (default: 0)")
+    fit.add_argument(
+        "--bias-model",
+        choices=("pooled", "per_bearing"),
+        default="pooled",
+        help="pooled: a trend over all bearings + a per-bearing part weighted by CV (default, format 6); "
+        "per_bearing: the per-bearing bias alone (the fit before format 6)",
+    )
     add_force(fit)
     fit.add_argument("--note", action="append", default=[], help="a line for the model card (e.g. how LOG was made)")
     fit.add_argument("--max-range", type=positive_float, default=5.0, help="sensor's maximum range [m] (default: 5)")
@@ -203,6 +211,7 @@ def lwlr_from_args(args: argparse.Namespace) -> Any:
         max_range=args.max_range,
         spur_above=args.spur_above,
         table_range_step=args.table_range_step,
+        bias_model=args.bias_model,
     )
 
 
