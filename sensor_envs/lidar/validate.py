@@ -192,7 +192,7 @@ def validate(
         "verdict": verdict_markdown(metrics),
     }
     write_json(out / "report.json", report)
-    (out / "report.md").write_text(metrics_markdown(metrics) + "\n" + report["verdict"])
+    (out / "report.md").write_text(metrics_markdown(metrics) + "\n" + verdict_markdown(metrics))
     plot_scan(model, log, params, out / "scan.png", rng or np.random.default_rng(0))
     plot_per_bearing(log, params, out / "per_bearing_error.png", model.spur_above)
     return report
