@@ -2,7 +2,8 @@
 
 Modules: ``sensors`` (the :class:`~sensor_envs.lidar.sensors.LidarSensor` protocol, ideal and Gaussian
 lidars, ``make_lidar``), ``lwlr`` (the learned per-bearing model, :class:`~sensor_envs.lidar.lwlr.LidarLWLR`),
-``kernel`` (its locally weighted regression and shrinkage choice), ``readings`` (its per-reading fit, block
+``kernel`` (its locally weighted regression and shrinkage choice), ``bias_transfer`` (its bias pooled over
+bearings plus a weighted per-bearing part), ``readings`` (its per-reading fit, block
 folds), ``extra_state`` (extra state terms: previous reading, time), ``log`` (lidar logs: npz, CARMEN, ROS
 bags), ``mapping`` (maps from scans, occupancy grids), ``pose_correction`` (scan-to-map pose correction),
 ``rig`` (the reference rig that records synthetic logs), ``calibrate`` (the rig fitted to a real log),
