@@ -155,3 +155,54 @@ def _rewrite_header(src, dst, edit):
 def test_target_tuples_of_a_rig_log_have_previous_rows(rig_split):
     """The fixture the tune test plants outliers in is a time series (both laws are scored)."""
     assert target_tuples(rig_split[1]).has_prev_row.any()
+
+
+def test_validate_radar_gives_a_verdict_per_metric_on_single_frames(model, rig_split, tmp_path, capsys):
+    """Single frames (no previous cycle in the log): start tuple and stationary law, mean and median NLL and
+    detection per bin, each with a verdict word, in the printout and in report.json."""
+    from sensor_envs.cli.main import main
+    from sensor_envs.radar.gaussian import GaussianRadar
+    from sensor_envs.radar.log import write_log
+
+    test = rig_split[1]
+    frames = test.select(test["frame"] % 2 == 0)  # no row's previous cycle is in the log
+    write_log(frames, tmp_path / "frames.csv")
+    model.with_tail(0.05, 8.0).save(tmp_path / "m.npz")
+    GaussianRadar().fit(rig_split[0]).save(tmp_path / "m_gaussian.npz")
+    args = ["validate", "radar", str(tmp_path / "m.npz"), str(tmp_path / "frames.csv"), "--out", str(tmp_path / "v")]
+    assert main([*args, "--chains", "2", "--cycles", "2", "--n-boot", "100"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    words = ("BETTER", "NOT DISTINGUISHABLE", "WORSE")
+    for law in ("start", "stationary"):
+        for what in ("NLL of z given a detection (mean)", "NLL of z given a detection (median)", "detection range"):
+            hits = [line for line in out if line.startswith(f"{law} law, {what}")]
+            assert hits and all(line.rstrip().endswith(words) for line in hits), (law, what)
+    rep = json.loads((tmp_path / "v" / "report.json").read_text())["frames"]
+    nll = rep["stationary"]["nll_z_given_detected"]["model"]
+    assert nll["mean_ci"][0] <= nll["mean"] <= nll["mean_ci"][1] and nll["median_verdict"] in {w.lower() for w in words}
+    assert {"ideal", "baseline_gaussian", "model"} <= set(rep["start"]["detection_range"][0])
+
+
+def test_tune_radar_refit_chooses_a_tail_for_a_model_fitted_on_frames_with_outliers(rig_split, tmp_path, capsys):
+    """A KDE fitted on the user's own frames (no z_{t-1}), 8 % of them far off: ``--refit`` scores each fold with a
+    copy fitted without it and keeps a tail; the written model carries it and the card records the choice."""
+    from sensor_envs.cli.main import main
+    from sensor_envs.radar.log import write_log
+
+    test = rig_split[1]
+    rng = np.random.default_rng(23)
+    far = np.isfinite(test["meas_x"]) & (rng.random(len(test)) < 0.08)
+    cols = dict(test.columns)
+    cols["meas_y"] = np.where(far, cols["meas_y"] + rng.choice([-10.0, 10.0], len(test)), cols["meas_y"])
+    log = type(test)(cols, source="planted")
+    write_log(log, tmp_path / "frames.csv")
+    KDERadarModel(use_prev=False, cv_group="sequence", random_state=0).fit(log).save(tmp_path / "m.npz")
+    out = tmp_path / "tailed.npz"
+    args = ["tune", "radar", str(tmp_path / "m.npz"), str(tmp_path / "frames.csv"), "--out", str(out), "--refit"]
+    assert main([*args, "--folds", "3", "--block", "5", "--tail-weights", "0", "0.1", "--tail-scales", "8"]) == 0
+    tailed = KDERadarModel.load(out)
+    assert (tailed.tail_weight, tailed.tail_scale) == (0.1, 8.0)
+    assert tailed.card_["tail_choice"]["refit"] is True
+    assert "nested choices" in capsys.readouterr().out
+    assert main([*args, "--what", "bandwidth", "--force"]) == 2  # --refit is for the tail only
+    assert "--refit" in capsys.readouterr().err

@@ -86,7 +86,7 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         type=float_between(0.01, 100.0),  # the model's accepted range (KDERadarModel's constraint)
         default=1.0,
         help="factor on the contribution bandwidths the CV chose (default 1; the shipped KDE's factor was chosen "
-        "on real frames: benchmarks/real_radar_bandwidth_scale.py)",
+        "on real frames: sensor-envs tune radar --what bandwidth)",
     )
     fit.add_argument(
         "--start-bandwidth-scale",

@@ -37,6 +37,12 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         help="tail: the tail mixture (weight, scale) by the mean NLL of z given a detection, start tuple and "
         "stationary law averaged (default); bandwidth: a factor on the contribution bandwidths of --tree",
     )
+    p.add_argument(
+        "--refit",
+        action="store_true",
+        help="--what tail: MODEL was fitted on these frames; score each fold with a copy fitted on the other folds "
+        "(its hyperparameters, no tail) instead of MODEL itself, which has seen every row",
+    )
     p.add_argument("--tree", choices=("both", "start", "main"), default="both", help="--what bandwidth: trees")
     p.add_argument("--criterion", choices=("nll", "energy"), default="nll", help="--what bandwidth: criterion")
     p.add_argument("--nll-guard", type=float_between(0.0, 10.0), default=0.05, help="--criterion energy: NLL guard")
@@ -70,6 +76,8 @@ def _tune(args: argparse.Namespace) -> int:
     folds_n = int(args.folds)
     if folds_n != args.folds:
         raise ValueError(f"--folds: expected a whole number, got {args.folds}")
+    if args.refit and args.what != "tail":
+        raise ValueError("--refit: only with --what tail")
     check_inputs(args.model, args.real)
     out = check_output(args.out, inputs=[args.model, args.real], force=args.force, suffix=".npz")
     js = (
@@ -83,7 +91,18 @@ def _tune(args: argparse.Namespace) -> int:
         check_folds(log, args.block, folds_n)
         folds = [fold_rows(log, args.block, folds_n, k) for k in range(folds_n)]
     if args.what == "tail":
-        chosen, report = _tune_tail(model, folds, args)
+        fold_models = None
+        if args.refit:  # per fold, the model's hyperparameters fitted without the fold's rows
+            from sensor_envs.radar.tune import refit
+            from sensor_envs.radar.validate import split_by_blocks
+
+            show = _progress("refit without fold")
+            with about(args.real):
+                fold_models = []
+                for k in range(folds_n):  # one fit per fold
+                    show(k)
+                    fold_models.append(refit(model, split_by_blocks(log, args.block, folds_n, k)[0]))
+        chosen, report = _tune_tail(model, folds, args, fold_models)
     else:
         chosen, report = _tune_bandwidth(model, folds, args)
     report.update(model=str(args.model), data=Path(args.real).name, folds=folds_n, block=args.block)
@@ -97,11 +116,11 @@ def _tune(args: argparse.Namespace) -> int:
     return 0
 
 
-def _tune_tail(model: Any, folds: list, args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
+def _tune_tail(model: Any, folds: list, args: argparse.Namespace, fold_models: Any) -> tuple[Any, dict[str, Any]]:
     from sensor_envs.radar.tune import choose_tail, nested_rows, tail_scores
 
     scores = tail_scores(
-        model,
+        model if fold_models is None else fold_models,
         folds,
         tuple(args.tail_weights),
         tuple(args.tail_scales),
@@ -126,6 +145,7 @@ def _tune_tail(model: Any, folds: list, args: argparse.Namespace) -> tuple[Any, 
     print(f"final: tail_weight {final[0]:g}, tail_scale {final[1]:g}")
     report = {
         "what": "tail",
+        "refit": bool(args.refit),
         "final": {"tail_weight": final[0], "tail_scale": final[1]},
         "nested_choice": [list(p) for p in nested],
         "nested_nll_z_given_detected": {law: [float(v.mean()), float(np.median(v))] for law, v in held.items()},

@@ -39,6 +39,14 @@ __all__ = [
     "fold_rows",
     "paired_intervals",
     "verdict",
+    "row_blocks",
+    "score_laws",
+    "concat_laws",
+    "summarise",
+    "frames_report",
+    "verdict_lines",
+    "AZIMUTH_BINS_DEG",
+    "BASELINE",
 ]
 
 VERDICTS = ("better", "not distinguishable", "worse")
@@ -308,42 +316,63 @@ def frames_report(
         n_boot: bootstrap replicates.
     """
     from sensor_envs.radar.features import with_derived_columns
-    from sensor_envs.radar.validate import RANGE_BINS
 
     if BASELINE not in models:
         raise ValueError(f"models: the baseline {BASELINE!r} is missing")
     log = with_derived_columns(log)
     tt = target_tuples(log)
+    laws = score_laws(models, tt, log, seed, chains, cycles)
+    report = summarise(laws, tt, row_blocks(tt, block), seed, n_boot)
+    return report | {"block": block, "chains": chains, "cycles": cycles, "seed": seed}
+
+
+def concat_laws(parts: list[dict[str, dict[str, dict[str, Any]]]]) -> dict[str, dict[str, dict[str, Any]]]:
+    """:func:`score_laws` results of disjoint row sets (e.g. folds) joined in order."""
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for name, laws in parts[0].items():
+        out[name] = {}
+        for law in laws:
+            res = [p[name][law] for p in parts]
+            logp = None if res[0]["logp"] is None else np.concatenate([r["logp"] for r in res])
+            out[name][law] = {"p_det": np.concatenate([r["p_det"] for r in res]), "logp": logp}
+    return out
+
+
+def summarise(
+    laws: dict[str, dict[str, dict[str, Any]]], tt: TargetTuples, blocks: NDArray, seed: int = 0, n_boot: int = 2000
+) -> dict[str, Any]:
+    """The metrics of :func:`frames_report` from scored laws (:func:`score_laws`) at the rows of ``tt``.
+
+    ``blocks (n,)``: each row's block id (:func:`row_blocks`), resampled whole for the intervals.
+    """
+    from sensor_envs.radar.validate import RANGE_BINS
+
     det = np.isfinite(tt.z[:, 0])
     if det.sum() < 2:
-        raise ValueError(f"{log.source}: fewer than 2 detected target rows to score")
-    blocks = row_blocks(tt, block)
-    laws = score_laws(models, tt, log, seed, chains, cycles)
-    rng = np.random.default_rng([seed, 7])
-    w = block_multiplicities(blocks, n_boot, rng)
+        raise ValueError("fewer than 2 detected target rows to score")
+    w = block_multiplicities(blocks, n_boot, np.random.default_rng([seed, 7]))
     q = [0.025, 0.975]
-    scored = [k for k, m in models.items() if not isinstance(m, IdealRadar)]
-    report: dict[str, Any] = {"n_rows": int(det.size), "n_detected": int(det.sum()), "block": block}
-    report.update(n_blocks=int(blocks.max()) + 1, chains=chains, cycles=cycles, seed=seed)
+    scored = [k for k, v in laws.items() if v["start"]["logp"] is not None]
+    report: dict[str, Any] = {"n_rows": int(det.size), "n_detected": int(det.sum()), "n_blocks": int(blocks.max()) + 1}
+    r = np.hypot(tt.corner[:, 0], tt.corner[:, 1])
+    az = np.rad2deg(np.arctan2(tt.corner[:, 1], tt.corner[:, 0]))
     for law in ("start", "stationary"):  # one iteration per law
         res = {k: laws[k][law] for k in scored}
-        cond = {k: nll_given_detected(r, tt.z) for k, r in res.items()}
-        outc = {k: -r["logp"] for k, r in res.items()}
+        cond = {k: nll_given_detected(v, tt.z) for k, v in res.items()}
+        outc = {k: -v["logp"] for k, v in res.items()}
         sub = np.random.default_rng([seed, 8])
+        p_det = {k: v[law]["p_det"] for k, v in laws.items()}
         report[law] = {
             "nll_z_given_detected": paired_intervals(cond, blocks[det], sub, BASELINE, n_boot),
             "nll_outcome": paired_intervals(outc, blocks, sub, BASELINE, n_boot),
+            "detection_range": _detection_bins(p_det, det, r, RANGE_BINS, w, q),
+            "detection_azimuth": _detection_bins(p_det, det, az, AZIMUTH_BINS_DEG, w, q),
         }
-        p_det = {k: laws[k][law]["p_det"] for k in models}
-        r = np.hypot(tt.corner[:, 0], tt.corner[:, 1])
-        az = np.rad2deg(np.arctan2(tt.corner[:, 1], tt.corner[:, 0]))
-        report[law]["detection_range"] = _detection_bins(p_det, det, r, RANGE_BINS, w, q)
-        report[law]["detection_azimuth"] = _detection_bins(p_det, det, az, AZIMUTH_BINS_DEG, w, q)
     return report
 
 
 def verdict_lines(report: dict[str, Any], model: str = "model") -> list[str]:
-    """One line per metric of :func:`frames_report`: ``model``'s figure, the baseline's, the verdict."""
+    """One line per metric of :func:`frames_report`: ``model``'s figure, the baseline's, ending in the verdict."""
     lines = []
     for law in ("start", "stationary"):
         part = report[law]
@@ -353,9 +382,9 @@ def verdict_lines(report: dict[str, Any], model: str = "model") -> list[str]:
             for st in stats:
                 lines.append(
                     f"{law} law, {lab} ({st}): {m[st]:.3f} [{m[f'{st}_ci'][0]:.3f}, {m[f'{st}_ci'][1]:.3f}] vs "
-                    f"Gaussian {b[st]:.3f} [{b[f'{st}_ci'][0]:.3f}, {b[f'{st}_ci'][1]:.3f}] nats: "
-                    f"{m[f'{st}_verdict'].upper()} (difference {m[f'{st}_diff']:+.3f}, 95 % interval "
-                    f"[{m[f'{st}_diff_ci'][0]:+.3f}, {m[f'{st}_diff_ci'][1]:+.3f}])"
+                    f"Gaussian {b[st]:.3f} [{b[f'{st}_ci'][0]:.3f}, {b[f'{st}_ci'][1]:.3f}] nats, difference "
+                    f"{m[f'{st}_diff']:+.3f} [{m[f'{st}_diff_ci'][0]:+.3f}, {m[f'{st}_diff_ci'][1]:+.3f}]: "
+                    f"{m[f'{st}_verdict'].upper()}"
                 )
         for key, unit in (("detection_range", "m"), ("detection_azimuth", "deg")):
             for row in part[key]:

@@ -402,7 +402,7 @@ class KDERadarModel(BaseEstimator):
         relevance_candidates_prev: ``z_{t-1}`` variances [m^2] tried by ``relevance="cv_state"``.
         bandwidth_scale: factor on every contribution bandwidth the leave-one-track-out CV chose (1: the
             seed's CV bandwidths). A KDE fitted on a SIMULATED log (the rig) may need narrower kernels
-            for the real sensor than that log's CV picks: ``benchmarks/real_radar_bandwidth_scale.py``
+            for the real sensor than that log's CV picks: :mod:`sensor_envs.radar.tune` (``sensor-envs tune radar``)
             chooses the factor by held-out likelihood on real frames (model card).
         start_bandwidth_scale: the same factor for the START trees (queries without ``z_{t-1}``: new tracks,
             after a miss), or ``None`` (default): ``bandwidth_scale``. A start tuple is drawn once, while a

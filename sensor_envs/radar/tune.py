@@ -39,6 +39,7 @@ __all__ = [
     "energy_per_bin",
     "criterion",
     "choose",
+    "refit",
     "tail_scores",
     "choose_tail",
 ]
@@ -74,15 +75,20 @@ def with_factor(model: KDERadarModel, factor: float, tree: str) -> KDERadarModel
     raise ValueError(f"tree: expected 'both', 'start' or 'main', got {tree!r}")
 
 
-def fold_scores(model: Any, folds: list[Fold], seed: int, chains: int, cycles: int) -> list[dict[str, Any]]:
+def fold_scores(
+    model: Any, folds: list[Fold], seed: int, chains: int, cycles: int, start: int = 0
+) -> list[dict[str, Any]]:
     """``model``'s law (start tuple at ``cycles == 1``, else stationary) on each fold's real rows.
+
+    Fold ``k`` of ``folds`` draws from the generator seeded ``[seed, start + k]`` (``start``: the index of
+    ``folds[0]`` among all folds, so one fold scored alone draws what it draws among the others).
 
     Returns per fold: ``nll`` (mean NLL of outcomes [nats]), ``nll_det`` (per detected row, NLL of ``z`` given
     a detection [nats]), the real rows ``corner``, ``z`` [m] and the chains' last draws ``samples (n, chains, 2)``.
     """
     out = []
     for k, (tt, test) in enumerate(folds):  # one iteration per fold
-        rng = np.random.default_rng([seed, k])
+        rng = np.random.default_rng([seed, start + k])
         res = marginal(
             model, tt.corner, tt.z, rng, chains, cycles, all_samples=True, extra=model_extra(model, test, tt.row)
         )
@@ -153,8 +159,14 @@ def choose(
     return final, nested
 
 
+def refit(model: KDERadarModel, log: Any) -> KDERadarModel:
+    """A copy of ``model``'s hyperparameters (no tail) fitted on ``log``: the fold model of ``tune radar --refit``."""
+    params = {**model.get_params(), "tail_weight": 0.0}
+    return KDERadarModel(**params).fit(log, cycle_time=None if np.isnan(model.cycle_time_) else model.cycle_time_)
+
+
 def tail_scores(
-    model: KDERadarModel,
+    model: KDERadarModel | list[KDERadarModel],
     folds: list[Fold],
     weights: tuple[float, ...] = TAIL_WEIGHTS,
     scales: tuple[float, ...] = TAIL_SCALES,
@@ -165,10 +177,15 @@ def tail_scores(
 ) -> dict[tuple[float, float], dict[str, list[NDArray]]]:
     """Per tail pair ``(w, c)``, per law (``start``, ``stationary``) and fold: NLL of ``z`` given a detection per row.
 
-    ``w = 0`` is scored once (as ``(0, c)`` of the first scale); the stationary law only for a model with
-    ``z_{t-1}``. ``progress``: a callable given each pair before it is scored (e.g. a progress line).
+    ``model``: one model for every fold (fitted on other data, e.g. the rig), or one per fold (fitted without
+    that fold's rows: :func:`refit`). ``w = 0`` is scored once (as ``(0, c)`` of the first scale); the
+    stationary law only for a model with ``z_{t-1}``. ``progress``: a callable given each pair before it is
+    scored (e.g. a progress line).
     """
-    laws = {"start": 1, **({"stationary": cycles} if model.use_prev and cycles > 1 else {})}
+    per_fold = model if isinstance(model, list) else [model] * len(folds)
+    if len(per_fold) != len(folds):
+        raise ValueError(f"model: {len(per_fold)} fold models for {len(folds)} folds")
+    laws = {"start": 1, **({"stationary": cycles} if per_fold[0].use_prev and cycles > 1 else {})}
     pairs = [(float(w), float(c)) for w in weights for c in scales if w > 0]
     if 0.0 in weights:
         pairs.insert(0, (0.0, float(scales[0])))
@@ -176,8 +193,12 @@ def tail_scores(
     for w, c in pairs:  # one iteration per candidate pair
         if progress is not None:
             progress((w, c))
-        m = model.with_tail(w, c)
-        out[(w, c)] = {law: [p["nll_det"] for p in fold_scores(m, folds, seed, chains, cy)] for law, cy in laws.items()}
+        out[(w, c)] = {law: [] for law in laws}
+        for k, m in enumerate(per_fold):  # one iteration per fold (its own model, or the same one)
+            tailed = m.with_tail(w, c)
+            for law, cy in laws.items():
+                part = fold_scores(tailed, folds[k : k + 1], seed, chains, cy, start=k)[0]
+                out[(w, c)][law].append(part["nll_det"])
     return out
 
 
