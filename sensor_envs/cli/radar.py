@@ -95,6 +95,19 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         help="the same factor for the start trees (new tracks, after a miss; default: --bandwidth-scale's)",
     )
     fit.add_argument(
+        "--tail-weight",
+        type=float_between(0.0, 0.5),
+        default=0.0,
+        help="share w of the detection density in the wide tail kernels, (1-w) KDE_h + w KDE_{c h} (default 0: "
+        "none; chosen on real held-out frames by sensor-envs tune radar --what tail)",
+    )
+    fit.add_argument(
+        "--tail-scale",
+        type=float_between(1.0, 100.0),
+        default=4.0,
+        help="factor c of the tail kernels' bandwidths over the main kernels' (default 4)",
+    )
+    fit.add_argument(
         "--state-transform",
         default="cartesian",
         choices=("cartesian", "polar"),
@@ -363,6 +376,8 @@ def kde_from_args(args: argparse.Namespace) -> Any:
         start_bandwidth_scale=args.start_bandwidth_scale,
         azimuth_bias=args.azimuth_bias,
         extra_state=tuple(args.extra_state),
+        tail_weight=args.tail_weight,
+        tail_scale=args.tail_scale,
         **extra,
     )
     return model
