@@ -1,8 +1,8 @@
 """What ``validate radar`` tells a user about the shipped radar models on real Astyx frames, with the tail mixture.
 
-Writes ``docs/results/radar_validate.md`` and, beside each model, ``models/<name>.metrics.json`` (the figures a
-model card states: mean and median NLL of ``z`` given a detection, with 95 % block-bootstrap intervals, against
-the Gaussian baseline on held-out real frames, start tuple and stationary law).
+Writes ``docs/results/radar_validate.md`` and ``models/metrics/<name>.heldout.json`` (the figures a model card
+states, in the schema of :mod:`sensor_envs.cards`: mean and median NLL of ``z`` given a detection, with 95 %
+block-bootstrap intervals, against the Gaussian baseline on held-out real frames, start tuple and stationary law).
 
 The shipped KDEs were fitted on the calibrated rig's log: they never saw a real row. Their tail mixture
 (``tail_weight``, ``tail_scale``) was chosen on these frames by ``sensor-envs tune radar`` (folds of 10-frame
@@ -11,11 +11,13 @@ folds (``--tune-json``: ``tune radar --json``'s ``nested_choice``), so no row sc
 it. The same KDE without the tail (``tail_weight = 0``, the files before 2026-11-28) is scored beside.
 
 With ``--detection``, also ``sensor-envs evaluate radar-detection`` (the "car in my lane within 40 m" trigger)
-on the same frames for each KDE file given by ``--detection-models`` (e.g. the file before and after the tail):
-the distance of the KDE's and the Gaussian's precision-recall points to the real ones.
+on the same frames for the shipped ``radar_kde.npz`` and the same file without its tail: the distance of the
+KDE's and the Gaussian's precision-recall points to the real ones. With ``--user-chain``, also the documented
+commands of a user fitting their own real frames (``fit radar --no-prev``, ``tune radar --refit``), scored on
+outer folds they never saw.
 
     python benchmarks/real_radar_validate.py --data ../shared/data/real/astyx_hires2019 \\
-        --tune-json /tmp/radar_kde.tail.json /tmp/radar_kde_fast.tail.json [--detection ...]
+        --tune-json /tmp/radar_kde.tail.json /tmp/radar_kde_fast.tail.json [--detection] [--user-chain]
 """
 
 from __future__ import annotations
@@ -106,32 +108,41 @@ def _pooled(parts: list, tts: list, args: argparse.Namespace) -> dict[str, Any]:
 
 
 def card_metrics(rep: dict[str, Any], name: str, tune: dict[str, Any], args: argparse.Namespace) -> dict[str, Any]:
-    """The figures a model card states, from a :func:`nested_report`."""
+    """The figures a model card states, from a :func:`nested_report`, in the schema of ``sensor_envs.cards``.
+
+    ``metrics``: per law, the KDE's mean and median NLL of z given a detection with intervals and the
+    Gaussian's beside them (``reference``), and the verdict; ``detail``: every figure, for a generator.
+    """
+    data = f"{Path(args.data).name}: {rep['n_detected']} detected car rows of {rep['n_rows']}, {rep['n_blocks']} blocks"
     out: dict[str, Any] = {
-        "model_file": f"models/{name}.npz",
-        "baseline_file": f"models/{PAIRS[name]}.npz",
-        "data": Path(args.data).name,
-        "rows": rep["n_rows"],
-        "detected_rows": rep["n_detected"],
-        "blocks": rep["n_blocks"],
-        "folds": args.folds,
-        "block_frames": args.block,
-        "tail": tune["final"],
-        "tail_nested_choice": tune["nested_choice"],
-        "how": "NLL [nats] of z given a detection on real frames the KDE never saw (fitted on the rig log); tail "
-        "chosen on the other folds; 95 % intervals resample whole frame blocks, paired with the Gaussian's",
-        "command": "python benchmarks/real_radar_validate.py " + " ".join(sys.argv[1:]),
+        "measured": {
+            "command": "python benchmarks/real_radar_validate.py --data astyx_hires2019 --tune-json "
+            + " ".join(f"{n}.tail.json" for n in args.names)
+            + f" --chains {args.chains} --cycles {args.cycles}",
+            "date": time.strftime("%Y-%m-%d", time.gmtime()),
+            "data": f"{data}; held out: the KDE was fitted on the rig log, its tail chosen on the other folds",
+        },
+        "metrics": [],
     }
+    detail: dict[str, Any] = {"tail": tune["final"], "tail_nested_choice": tune["nested_choice"], "folds": args.folds}
     for law in ("start", "stationary"):
         nll = rep[law]["nll_z_given_detected"]
         m, g, o = nll["model"], nll[BASELINE], nll["model_without_tail"]
-        out[law] = {
-            k: {"mean": m2["mean"], "mean_ci": m2["mean_ci"], "median": m2["median"], "median_ci": m2["median_ci"]}
-            for k, m2 in (("kde", m), ("kde_without_tail", o), ("gaussian", g))
-        }
         for st in ("mean", "median"):
-            out[law]["kde"][f"{st}_diff_to_gaussian_ci"] = m[f"{st}_diff_ci"]
-            out[law]["kde"][f"{st}_verdict"] = m[f"{st}_verdict"]
+            out["metrics"].append(
+                {
+                    "name": f"NLL of z given a detection, {law} {'tuple' if law == 'start' else 'law'}, {st}",
+                    "value": round(m[st], 4),
+                    "interval": [round(v, 4) for v in m[f"{st}_ci"]],
+                    "unit": "nats",
+                    "reference": f"Gaussian baseline {g[st]:.3f} [{g[f'{st}_ci'][0]:.3f}, {g[f'{st}_ci'][1]:.3f}]; "
+                    f"without the tail {o[st]:.3f}",
+                    "note": f"{m[f'{st}_verdict']} than the Gaussian (paired 95 % interval of the difference "
+                    f"[{m[f'{st}_diff_ci'][0]:+.3f}, {m[f'{st}_diff_ci'][1]:+.3f}], whole 10-frame scenes resampled)",
+                }
+            )
+        detail[law] = {"kde": m, "kde_without_tail": o, "gaussian": g}
+    out["detail"] = detail
     return out
 
 
@@ -174,9 +185,14 @@ def detection_table(rep: dict[str, Any], law: str) -> list[str]:
 
 
 def detection_runs(args: argparse.Namespace, work: Path) -> list[dict[str, Any]]:
-    """``sensor-envs evaluate radar-detection`` on the frames for each ``--detection-models`` file."""
+    """``sensor-envs evaluate radar-detection`` on the frames: the shipped KDE, and the same file without its tail
+    (written to ``work``: the file shipped before 2026-11-28)."""
+    shipped = ROOT / "models" / "radar_kde.npz"
+    kde = KDERadarModel.load(shipped)
+    no_tail = work / "radar_kde_without_tail.npz"
+    kde.with_tail(0.0, kde.tail_scale).save(no_tail, card=kde.card_)
     out = []
-    for i, model in enumerate(args.detection_models):  # one run per KDE file
+    for i, model in enumerate([str(no_tail), str(shipped)]):  # one run per KDE file
         dest = work / f"detection_{i}"
         cmd = ["evaluate", "radar-detection", "--real", str(args.data), "--model", model,
                "--baseline", str(ROOT / "models" / "radar_gaussian.npz"), "--out", str(dest), "--force"]  # fmt: skip
@@ -200,10 +216,9 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--detection", action="store_true", help="also run evaluate radar-detection")
     ap.add_argument("--user-chain", action="store_true", help="also score fit + tune --refit on real folds")
-    ap.add_argument("--detection-models", nargs="+", default=[str(ROOT / "models" / "radar_kde.npz")])
-    ap.add_argument("--work", default="/tmp/real_radar_validate", help="folder of the evaluate runs")
+    ap.add_argument("--work", default="/tmp/real_radar_validate", help="folder of the evaluate runs (created)")
     ap.add_argument("--md", default=str(ROOT / "docs" / "results" / "radar_validate.md"))
-    ap.add_argument("--metrics-dir", default=str(ROOT / "models"), help="where <name>.metrics.json go")
+    ap.add_argument("--metrics-dir", default=str(ROOT / "models" / "metrics"), help="where <name>.heldout.json go")
     args = ap.parse_args()
     if len(args.tune_json) != len(args.names):
         print("--tune-json: one file per --names entry", file=sys.stderr)
@@ -217,6 +232,7 @@ def main() -> None:
         print(f"{exc}: nothing written", file=sys.stderr)
         raise SystemExit(2) from None
     folds = [fold_rows(log, args.block, args.folds, k) for k in range(args.folds)]
+    Path(args.work).mkdir(parents=True, exist_ok=True)
     md = ["# `validate radar` on real Astyx frames: the KDE's tails against the Gaussian", "", *intro(args), ""]
     for name, tune in zip(args.names, tunes, strict=True):  # one iteration per shipped model
         print(f"{name}:", file=sys.stderr, flush=True)
@@ -224,7 +240,7 @@ def main() -> None:
         base = GaussianRadar.load(ROOT / "models" / f"{PAIRS[name]}.npz")
         nested = [tuple(p) for p in tune["nested_choice"]]
         rep = nested_report(kde, base, folds, nested, args)
-        write_json(Path(args.metrics_dir) / f"{name}.metrics.json", card_metrics(rep, name, tune, args))
+        write_json(Path(args.metrics_dir) / f"{name}.heldout.json", card_metrics(rep, name, tune, args))
         md += model_section(name, kde, tune, rep)
     if args.user_chain:
         rep, chosen = user_chain(log, folds, args)

@@ -85,7 +85,7 @@ def _single_frames(cols: dict, detected: np.ndarray):
     from sensor_envs.radar.log import RadarLog
 
     n = detected.size
-    box = {"t": cols["frame"].astype(np.float64), "ref_x": np.full(n, 22.0), "ref_y": np.zeros(n), "ref_heading": np.zeros(n)}
-    box |= {"ref_length": np.full(n, 4.0), "ref_width": np.full(n, 2.0)}
+    box = {"t": cols["frame"].astype(np.float64), "ref_x": np.full(n, 22.0), "ref_y": np.zeros(n)}
+    box |= {"ref_heading": np.zeros(n), "ref_length": np.full(n, 4.0), "ref_width": np.full(n, 2.0)}
     meas = {"meas_x": np.where(detected, 20.0, np.nan), "meas_y": np.where(detected, 0.0, np.nan)}
     return RadarLog({**cols, **box, **meas}, source="single frames")
