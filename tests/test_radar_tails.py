@@ -206,3 +206,36 @@ def test_tune_radar_refit_chooses_a_tail_for_a_model_fitted_on_frames_with_outli
     assert "nested choices" in capsys.readouterr().out
     assert main([*args, "--what", "bandwidth", "--force"]) == 2  # --refit is for the tail only
     assert "--refit" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("extra", "field"),
+    [
+        (["--block", "1000", "--folds", "500"], "blocks of 1000 frames"),
+        (["--folds", "2.5"], "--folds"),
+        (["--tail-weights", "0.7"], "--tail-weights"),
+        (["--tail-scales", "0.5"], "--tail-scales"),
+    ],
+)
+def test_tune_radar_bad_input_exits_2_one_line_nothing_written(model, rig_split, tmp_path, capsys, extra, field):
+    from sensor_envs.cli.main import main
+    from sensor_envs.radar.log import write_log
+
+    write_log(rig_split[1], tmp_path / "frames.csv")
+    model.save(tmp_path / "m.npz")
+    out = tmp_path / "o.npz"
+    with pytest.raises(SystemExit) if field.startswith("--tail") else _nothing():
+        code = main(["tune", "radar", str(tmp_path / "m.npz"), str(tmp_path / "frames.csv"), "--out", str(out), *extra])
+        assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err and field in err[-1] and not out.exists()
+
+
+class _nothing:
+    """A context that expects nothing (argparse errors raise SystemExit(2) instead of returning 2)."""
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, *exc: object) -> bool:
+        return False
