@@ -137,7 +137,7 @@ def card_metrics(rep: dict[str, Any], name: str, tune: dict[str, Any], args: arg
                     "unit": "nats",
                     "reference": f"Gaussian baseline {g[st]:.3f} [{g[f'{st}_ci'][0]:.3f}, {g[f'{st}_ci'][1]:.3f}]; "
                     f"without the tail {o[st]:.3f}",
-                    "note": f"{m[f'{st}_verdict']} than the Gaussian (paired 95 % interval of the difference "
+                    "note": f"verdict vs the Gaussian: {m[f'{st}_verdict']} (paired 95 % interval of the difference "
                     f"[{m[f'{st}_diff_ci'][0]:+.3f}, {m[f'{st}_diff_ci'][1]:+.3f}], whole 10-frame scenes resampled)",
                 }
             )
@@ -199,7 +199,7 @@ def detection_runs(args: argparse.Namespace, work: Path) -> list[dict[str, Any]]
         print("$ sensor-envs " + " ".join(cmd), file=sys.stderr, flush=True)
         subprocess.run([sys.executable, "-m", "sensor_envs.cli.main", *cmd], check=True, cwd=ROOT)
         rep = json.loads((dest / "report.json").read_text(encoding="utf-8"))
-        out.append({"model": model, "command": "sensor-envs " + " ".join(cmd), **rep["distance_to_real"]})
+        out.append({"file": model, "command": "sensor-envs " + " ".join(cmd), **rep["distance_to_real"]})
     return out
 
 
@@ -337,12 +337,12 @@ def detection_section(runs: list[dict[str, Any]]) -> list[str]:
         "|---|---|---|---|",
     ]
     for r in runs:
-        lines.append(f"| {Path(r['model']).name} | {r['model']:.3f} | {r['baseline']:.3f} | {r['ideal']:.3f} |")
+        lines.append(f"| {Path(r['file']).name} | {r['model']:.3f} | {r['baseline']:.3f} | {r['ideal']:.3f} |")
     far = [r for r in runs if r["model"] > r["baseline"]]
     lines += [""]
     for r in far:
         lines.append(
-            f"The KDE ({Path(r['model']).name}) is still FARTHER from the real precision-recall than the Gaussian: "
+            f"The KDE ({Path(r['file']).name}) is still FARTHER from the real precision-recall than the Gaussian: "
             f"{r['model']:.3f} vs {r['baseline']:.3f}."
         )
     lines += ["", "Commands:", "", "```", *(r["command"] for r in runs), "```"]
