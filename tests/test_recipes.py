@@ -68,7 +68,8 @@ def test_recipe_argv_spells_the_card_commands():
                       "--sequences", "50", "--cycles", "40", "--targets", "8", "--cycle-time", "1.0",
                       "--in-view-only"]  # fmt: skip
     assert fit[:5] == ["fit", "radar", "W/radar_kde_train.csv", "--out", "O/radar_kde.npz"]
-    assert "--baseline-out" in fit and fit[-4:] == ["--bandwidth-scale", "0.3", "--start-bandwidth-scale", "0.7"]
+    assert "--baseline-out" in fit and fit[-8:] == ["--bandwidth-scale", "0.3", "--start-bandwidth-scale", "0.7",
+                                                    "--tail-weight", "0.1", "--tail-scale", "4.0"]  # fmt: skip
 
 
 @pytest.mark.parametrize(

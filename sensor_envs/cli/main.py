@@ -1,6 +1,6 @@
 """The sensor-envs command line.
 
-Commands: demo, record, fit, validate, calibrate, diagnose, evaluate, rebuild-models, card, train, robustness.
+Commands: demo, record, fit, validate, calibrate, tune, diagnose, evaluate, rebuild-models, card, train, robustness.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from sensor_envs.cli import lidar as cli_lidar
 from sensor_envs.cli import radar as cli_radar
 from sensor_envs.cli import rebuild as cli_rebuild
 from sensor_envs.cli import training as cli_training
+from sensor_envs.cli import tune as cli_tune
 from sensor_envs.cli.args import OneLineParser, add_force, nonneg_int, positive_int
 
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError, EOFError)
@@ -44,11 +45,13 @@ def build_parser() -> argparse.ArgumentParser:
         ("fit", "fit a sensor model to a log"),
         ("validate", "compare a model with a log and its baselines"),
         ("calibrate", "fit a reference rig's parameters to real data (simulation-based)"),
+        ("tune", "choose a fitted model's post-fit factors on real held-out data"),
     ):
         p = sub.add_parser(verb, help=text)
         verbs[verb] = p.add_subparsers(dest="kind", required=True)
     cli_lidar.register(verbs)
     cli_radar.register(verbs)
+    cli_tune.register(verbs)
     cli_diagnose.register(sub)
     cli_evaluate.register(
         sub.add_parser("evaluate", help="does the simulator predict an algorithm's performance on the real sensor?")

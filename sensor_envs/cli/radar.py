@@ -86,13 +86,26 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         type=float_between(0.01, 100.0),  # the model's accepted range (KDERadarModel's constraint)
         default=1.0,
         help="factor on the contribution bandwidths the CV chose (default 1; the shipped KDE's factor was chosen "
-        "on real frames: benchmarks/real_radar_bandwidth_scale.py)",
+        "on real frames: sensor-envs tune radar --what bandwidth)",
     )
     fit.add_argument(
         "--start-bandwidth-scale",
         type=float_between(0.01, 100.0),
         default=None,
         help="the same factor for the start trees (new tracks, after a miss; default: --bandwidth-scale's)",
+    )
+    fit.add_argument(
+        "--tail-weight",
+        type=float_between(0.0, 0.5),
+        default=0.0,
+        help="share w of the detection density in the wide tail kernels, (1-w) KDE_h + w KDE_{c h} (default 0: "
+        "none; chosen on real held-out frames by sensor-envs tune radar --what tail)",
+    )
+    fit.add_argument(
+        "--tail-scale",
+        type=float_between(1.0, 100.0),
+        default=4.0,
+        help="factor c of the tail kernels' bandwidths over the main kernels' (default 4)",
     )
     fit.add_argument(
         "--state-transform",
@@ -193,7 +206,15 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     cal.set_defaults(func=_calibrate)
     val = verbs["validate"].add_parser("radar", help="compare a KDE model and its baseline with a (held-out) log")
     val.add_argument("model", help="KDE model file (.npz)")
-    val.add_argument("log", help="radar log CSV")
+    val.add_argument(
+        "log",
+        help="radar log CSV, or an astyx_hires2019 folder; real single frames (no previous cycle) are also scored "
+        "as static boxes: start tuple and stationary law next to the Gaussian and the ideal radar, with verdicts",
+    )
+    val.add_argument("--block", type=positive_int, default=10, help="frames per block of the bootstrap (default 10)")
+    val.add_argument("--chains", type=positive_int, default=16, help="stationary law: rollouts per row (default 16)")
+    val.add_argument("--cycles", type=positive_int, default=5, help="stationary law: cycles per rollout (default 5)")
+    val.add_argument("--n-boot", type=positive_int, default=2000, help="block-bootstrap replicates (default 2000)")
     val.add_argument("--out", required=True, help="output folder for report.json and figures")
     val.add_argument(
         "--baseline",
@@ -355,6 +376,8 @@ def kde_from_args(args: argparse.Namespace) -> Any:
         start_bandwidth_scale=args.start_bandwidth_scale,
         azimuth_bias=args.azimuth_bias,
         extra_state=tuple(args.extra_state),
+        tail_weight=args.tail_weight,
+        tail_scale=args.tail_scale,
         **extra,
     )
     return model
@@ -420,9 +443,11 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _validate(args: argparse.Namespace) -> int:
+    from sensor_envs.radar.fidelity import BASELINE, frames_report, load_real_log, verdict_lines
     from sensor_envs.radar.gaussian import GaussianRadar
     from sensor_envs.radar.kde import KDERadarModel
-    from sensor_envs.radar.log import read_log
+    from sensor_envs.radar.log import target_tuples
+    from sensor_envs.radar.sensors import IdealRadar
     from sensor_envs.radar.validate import validate, write_report
 
     check_inputs(args.model, args.log)
@@ -432,9 +457,13 @@ def _validate(args: argparse.Namespace) -> int:
     if not base_path.exists():
         raise FileNotFoundError(f"{base_path}: Gaussian baseline not found; pass --baseline (fit radar writes one)")
     baseline = read_model(GaussianRadar, base_path)
-    log = read_log(args.log)
     with about(args.log):
+        log = load_real_log(args.log, block=args.block, progress=sys.stderr.isatty())
         report = validate(model, baseline, log, seed=args.seed)
+        single = not target_tuples(log).has_prev_row.any()
+        if single:  # real single frames: static boxes, start tuple and stationary law, with verdicts
+            models = {"model": model, BASELINE: baseline, "ideal": IdealRadar()}
+            report["frames"] = frames_report(models, log, args.block, args.chains, args.cycles, args.seed, args.n_boot)
     report.update(model_file=str(args.model), baseline_file=str(base_path))
     with OutputTransaction() as tx:
         with about(args.log):
@@ -450,4 +479,6 @@ def _validate(args: argparse.Namespace) -> int:
             for k in ("new", "after_miss", "after_detection")
         )
         print(f"rollout detection rate vs recorded: {parts}")
+    if "frames" in report:
+        print("\n".join(verdict_lines(report["frames"])))
     return 0

@@ -7,7 +7,9 @@ occlusion), ``alignment`` (the azimuth bias and the frame rotation of offsets), 
 ``log`` (the CSV object log), ``astyx`` (the Astyx reader), ``rig`` (the reference rig), ``calibrate`` (the
 rig fitted to real frames), ``scene_law`` (the scene the rig records, fitted to real reference boxes),
 ``object_clutter`` (object-level clutter per cycle measured on Astyx, the law the highway wrapper thins
-to), ``validate`` (reports).
+to), ``validate`` (reports), ``fidelity`` (real single frames: start tuple and stationary law, block-bootstrap
+intervals and verdicts against the Gaussian), ``tune`` (post-fit factors chosen on real held-out frames:
+bandwidth factor, tail mixture).
 
 The public names below are importable from here (``from sensor_envs.radar import KDERadarModel``), each
 imported on first use.
@@ -45,6 +47,8 @@ _PUBLIC: dict[str, str] = {
     "select_corner_variances": "sensor_envs.radar.relevance",
     "energy_distance_2d": "sensor_envs.radar.validate",
     "write_report": "sensor_envs.radar.validate",
+    "frames_report": "sensor_envs.radar.fidelity",
+    "choose_tail": "sensor_envs.radar.tune",
 }
 
 __all__ = list(_PUBLIC)
