@@ -217,10 +217,20 @@ def main() -> None:
     rad = sub.add_parser("radar")
     rad.add_argument("--fidelity", required=True, help="fidelity.json of benchmarks/real_radar_fidelity.py")
     rad.add_argument("--model", choices=("kde", "gaussian"), default="kde")
+    rad.add_argument(
+        "--heldout",
+        default=None,
+        help="also the rows of benchmarks/real_radar_validate.py's models/metrics/NAME.heldout.json (mean and "
+        "median NLL with intervals against the Gaussian, the tail chosen on other folds)",
+    )
     rad.add_argument("--out", required=True, help="metrics JSON to write")
     args = ap.parse_args()
     out = Path(args.out)
     blob = lidar_metrics(Path(args.data)) if args.what == "lidar" else radar_metrics(Path(args.fidelity), args.model)
+    if getattr(args, "heldout", None):
+        held = json.loads(Path(args.heldout).read_text(encoding="utf-8"))
+        blob["metrics"] = blob["metrics"] + held["metrics"]
+        blob["measured"]["command"] += f" --heldout {Path(args.heldout).name} (from: {held['measured']['command']})"
     blob = {**blob, **_kept(out)}
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(blob, indent=1) + "\n", encoding="utf-8")
