@@ -39,6 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 from sensor_envs.envs.neato_render import render_world
 from sensor_envs.geometry import nearest_wall_distance, raycast_pose, sample_free_poses, to_frame, wrap_angle
 from sensor_envs.jit import compiled
+from sensor_envs.lidar.extra_state import modify, split_term
 from sensor_envs.lidar.sensors import GaussianLidar, IdealLidar, LidarSensor, make_lidar
 from sensor_envs.maps import SegmentMap, load_map
 from sensor_envs.rng import RowGenerators, sensor_rng
@@ -177,7 +178,7 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self.world_map = load_map(map)
         self.lidar = make_lidar(lidar, model=model, **(lidar_kwargs or {}))
         self._extra_names = lidar_extra_state(self.lidar)
-        missing = [n for n in self._extra_names if n not in WORLD_STATE]
+        missing = [n for n in self._extra_names if split_term(n)[0] not in WORLD_STATE]
         if missing:
             raise ValueError(
                 f"lidar: the learned model's state names {missing}, which Neato-v0 cannot supply "
@@ -287,7 +288,9 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         """``(1, K, d)`` values of the learned lidar's extra state variables (see :data:`WORLD_STATE`)."""
         k = self.bearings.size
         cols = {"v": self._motion[0], "omega": self._motion[1], "t": self._motion[2], "prev_residual": self._prev_res}
-        return np.stack([np.broadcast_to(cols[n], (k,)) for n in self._extra_names], axis=-1)[None]
+        terms = [split_term(n) for n in self._extra_names]  # a term may interact with the bearing
+        vals = [modify(np.broadcast_to(cols[n], (k,)).astype(np.float64), m, self.bearings) for n, m in terms]
+        return np.stack(vals, axis=-1)[None]
 
     def _residual(
         self, nominal: NDArray[np.float64], incidence: NDArray[np.float64], scan: NDArray[np.float64]

@@ -1,0 +1,430 @@
+"""The search of ``diagnose``: score candidate causes against a model's held-out residuals, test them.
+
+**Targets.** Every residual metric of the :class:`~sensor_envs.diagnose.core.Evaluation` is a target;
+the adapter states each metric's kind (``mean``: a signed residual; ``spread``: a transform of its
+size such as ``sqrt(|residual| / sigma)``; ``rate``: ``1{event} - P(event)``; ``score``: per-reading
+excess NLL), so an effect on the spread or on a rate is as visible as one on the mean.
+
+**Learner.** For a candidate ``c`` and a target ``r``, two regressors are cross-fitted by folds:
+
+* main: ``r ~ a + b c + g(bin(c))``, a linear trend (it extrapolates a real trend, e.g. in time,
+  to the other fold) plus a binned correction (10 quantile bins, bin means of the trend's remainder
+  shrunk toward 0 with ``10 x D`` pseudo-readings, ``D`` the mean run length of equal consecutive
+  values: a per-scan covariate repeated over K bearings carries one scan's information, not K
+  readings'): monotone, U-shaped and step effects alike;
+* interaction with each of the model's state features ``s`` (e.g. bearing sector, range, azimuth):
+  ``r - m(bin(s)) ~ h(bin(c), bin(s))`` on a 6 x 8 grid, the target first freed of the state's own
+  pattern, so an effect whose sign follows the bearing (zero mean over the scan) is seen.
+
+The score of a candidate is the largest held-out ``R^2`` over its regressors and the targets.
+
+**Folds with gaps.** The held-out readings, in time order, are cut into :data:`N_SEGMENTS`
+contiguous segments dealt alternately to the two folds, and the readings within :data:`GAP` of a
+segment boundary are left out of both: a candidate that follows time cannot interpolate slow drift
+between neighbouring blocks, it must carry over to a distant part of the log.
+
+**Significance.** Circular shifts of all candidates at once relative to the residuals, in time order
+(by a random offset between 10 % and 90 % of the readings), keep each candidate's own time structure
+(a random walk stays a random walk) while breaking its alignment with the residuals. Each
+(candidate, target, regressor) score is studentised by its own shift distribution (``z``), so a
+target whose scores vary widely under the null (e.g. a drifting range residual) does not drown the
+others; the adjusted p-value is Westfall-Young max-T of ``z`` over all of them. Candidates are ranked
+by ``z`` (significant ones first).
+
+**Conditional check.** Among the top candidates, ``i`` is a *proxy* of ``j`` when, once ``j``'s fit
+is removed, ``i`` explains less than a fifth of its own score and less than ``j`` does given ``i``;
+a proxy is not significant and is ranked below its cause.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from tqdm import tqdm
+
+__all__ = ["Ranking", "bin_candidate", "rank_candidates", "time_folds", "N_SEGMENTS", "GAP"]
+
+N_SEGMENTS = 6
+"""Contiguous time segments of the held-out readings, dealt alternately to the two cross-fitting folds."""
+GAP = 0.08
+"""Share of each segment's length left out at either end (the gap between fit and scored readings)."""
+_SHRINK = 10.0
+_MAIN_BINS = 10
+_INT_BINS = (6, 8)
+_TOP_COND = 5
+
+
+def bin_candidate(x: NDArray, n_bins: int = 16) -> NDArray[np.int64]:
+    """Bin index ``(n,)``: one bin per value (at most ``n_bins`` values), else quantile bins; NaN last."""
+    x = np.asarray(x, dtype=np.float64)
+    ok = np.isfinite(x)
+    out = np.full(x.shape, n_bins, dtype=np.int64)
+    if not ok.any():
+        return out
+    vals = np.unique(x[ok])
+    if vals.size <= n_bins:
+        out[ok] = np.searchsorted(vals, x[ok])
+    else:
+        edges = np.unique(np.quantile(x[ok], np.linspace(0, 1, n_bins + 1)[1:-1]))
+        out[ok] = np.searchsorted(edges, x[ok], side="right")
+    return out
+
+
+def time_folds(order: NDArray, n_segments: int = N_SEGMENTS, gap: float = GAP) -> NDArray[np.int64]:
+    """Fold ``(n,)`` of each reading: 0 or 1 by contiguous time segment, -1 in the gaps at segment ends."""
+    rank = np.argsort(np.argsort(np.asarray(order, dtype=np.float64), kind="stable"), kind="stable")
+    q = (rank + 0.5) / max(rank.size, 1) * n_segments
+    seg = np.minimum(np.floor(q).astype(np.int64), n_segments - 1)
+    frac = q - seg
+    return np.where((frac < gap) | (frac > 1 - gap), -1, seg % 2).astype(np.int64)
+
+
+def _standardise(x: NDArray) -> NDArray[np.float64]:
+    """``(x - mean) / sd`` with NaN set to 0 (NaN readings get their own bin)."""
+    x = np.asarray(x, dtype=np.float64)
+    ok = np.isfinite(x)
+    if not ok.any():
+        return np.zeros(x.shape)
+    m, s = x[ok].mean(), x[ok].std()
+    return np.where(ok, (x - m) / (s if s > 0 else 1.0), 0.0)
+
+
+def _r2_rows(
+    bins: NDArray, xs: NDArray | None, r: NDArray, fold: NDArray, nb: int, shrink: NDArray
+) -> NDArray[np.float64]:
+    """Cross-fitted ``R^2`` of target ``r (n,)`` on each row of ``bins (R, n)`` (+ linear in ``xs (R, n)``).
+
+    ``fold (n,)`` in ``{0, 1}``; ``shrink (R,)``: pseudo-readings pulling each row's bin means toward the
+    trend. Computed from per-bin sufficient statistics (counts, sums of ``r``, ``x``, ``x^2``, ``x r``).
+    """
+    k, n = bins.shape
+    if n == 0:
+        return np.full(k, -np.inf)
+    m2 = 2 * nb
+    ids = (bins + nb * fold[None] + (np.arange(k) * m2)[:, None]).ravel()
+    size = k * m2
+
+    def sums(w: NDArray | None) -> NDArray[np.float64]:
+        return np.bincount(ids, weights=None if w is None else np.ravel(w), minlength=size).reshape(k, 2, nb)
+
+    cnt, sr = sums(None), sums(np.broadcast_to(r, (k, n)))
+    if xs is not None:
+        sx, sxx, sxr = sums(xs), sums(xs * xs), sums(xs * r[None])
+    else:
+        sx = sxx = sxr = np.zeros_like(cnt)
+    rr = np.array([np.sum(r[fold == f] ** 2) for f in (0, 1)])
+    out = np.zeros(k)
+    for a in (0, 1):  # fit on fold a, score on the other
+        b = 1 - a
+        na = cnt[:, a].sum(1)
+        if na.min() < 10 or cnt[:, b].sum(1).min() < 10:
+            return np.full(k, -np.inf)
+        mean_a = sr[:, a].sum(1) / na
+        xm = sx[:, a].sum(1) / na
+        slope = (sxr[:, a].sum(1) - na * xm * mean_a) / (sxx[:, a].sum(1) - na * xm**2 + 1.0)
+        rem = sr[:, a] - cnt[:, a] * mean_a[:, None] - slope[:, None] * (sx[:, a] - cnt[:, a] * xm[:, None])
+        g = rem / (cnt[:, a] + shrink[:, None])
+        alpha = (mean_a - slope * xm)[:, None] + g  # prediction in fold b: alpha[bin] + slope x
+        beta = slope[:, None]
+        sse = rr[b] + np.sum(
+            -2 * alpha * sr[:, b]
+            - 2 * beta * sxr[:, b]
+            + alpha**2 * cnt[:, b]
+            + 2 * alpha * beta * sx[:, b]
+            + beta**2 * sxx[:, b],
+            axis=1,
+        )
+        nbb, srb = cnt[:, b].sum(1), sr[:, b].sum(1)
+        sst = rr[b] - 2 * mean_a * srb + nbb * mean_a**2
+        out += 0.5 * (1.0 - sse / np.maximum(sst, 1e-300))
+    return out
+
+
+@dataclass
+class _Design:
+    """The regressors of one ranking: main rows (one per candidate) and interaction rows (candidate x state)."""
+
+    names: list[str]
+    main_bins: NDArray[np.int64]  # (C, n)
+    main_x: NDArray[np.float64]  # (C, n)
+    int_cbins: NDArray[np.int64]  # (C, n) coarse candidate bins
+    deff: NDArray[np.float64]  # (C,) readings per run of equal values (design effect of repeated values)
+    state_bins: list[NDArray[np.int64]]  # per state feature (n,)
+    state_names: list[str]
+
+
+def _design(cands: dict[str, NDArray], names: list[str], state: dict[str, NDArray]) -> _Design:
+    nc, ns = _INT_BINS
+    return _Design(
+        names=names,
+        main_bins=np.stack([bin_candidate(cands[c], _MAIN_BINS) for c in names]),
+        main_x=np.stack([_standardise(cands[c]) for c in names]),
+        int_cbins=np.stack([bin_candidate(cands[c], nc) for c in names]),
+        deff=np.array([_design_effect(cands[c]) for c in names]),
+        state_bins=[bin_candidate(v, ns) for v in state.values()],
+        state_names=list(state),
+    )
+
+
+def _design_effect(x: NDArray) -> float:
+    """Mean length of runs of equal consecutive values (e.g. the bearings of a scan sharing a covariate)."""
+    x = np.nan_to_num(np.asarray(x, dtype=np.float64), nan=np.inf)
+    changes = 1 + int(np.count_nonzero(x[1:] != x[:-1]))
+    return x.size / changes
+
+
+def _target_variants(r: NDArray, state_bins: list[NDArray], mask: NDArray) -> list[NDArray]:
+    """``r`` freed of each state feature's own binned pattern (the interaction rows' targets)."""
+    out = []
+    for sb in state_bins:
+        b = sb[mask]
+        s = np.bincount(b, weights=r, minlength=b.max() + 1)
+        c = np.bincount(b, minlength=b.max() + 1)
+        out.append(r - (s / np.maximum(c, 1))[b])
+    return out
+
+
+def _score_all(
+    d: _Design, shift: int, targets: list[tuple[NDArray, NDArray, list[NDArray], NDArray]]
+) -> NDArray[np.float64]:
+    """``(C, m, 1 + S)`` scores of every candidate (shifted by ``shift`` readings) on every target and regressor."""
+    mb, mx, ib = d.main_bins, d.main_x, d.int_cbins
+    if shift:
+        mb, mx, ib = np.roll(mb, shift, axis=1), np.roll(mx, shift, axis=1), np.roll(ib, shift, axis=1)
+    nc, ns = _INT_BINS
+    nbi = (nc + 1) * (ns + 1)
+    out = np.full((len(d.names), len(targets), 1 + len(d.state_bins)), -np.inf)
+    sh_main = _SHRINK * d.deff
+    sh_int = _SHRINK * np.maximum(1.0, d.deff / ns)
+    for j, (r, mask, variants, fold) in enumerate(targets):
+        out[:, j, 0] = _r2_rows(mb[:, mask], mx[:, mask], r, fold, _MAIN_BINS + 1, sh_main)
+        for s, (sb, rv) in enumerate(zip(d.state_bins, variants, strict=True)):
+            joint = ib[:, mask] * (ns + 1) + sb[mask][None]
+            out[:, j, 1 + s] = _r2_rows(joint, None, rv, fold, nbi, sh_int)
+    return out
+
+
+@dataclass
+class Ranking:
+    """Candidate effects scored on one evaluation, best first (``refused``: candidates not tested, with why)."""
+
+    effects: list[dict[str, Any]]
+    alpha: float
+    min_score: float
+    n_permutations: int
+    refused: list[dict[str, str]]
+
+    def significant(self) -> list[dict[str, Any]]:
+        """The effects with ``p_value < alpha`` and ``score >= min_score`` (proxies excluded), best first."""
+        return [e for e in self.effects if e["significant"]]
+
+
+def _refusal(x: NDArray) -> str | None:
+    """Why a candidate cannot be tested (too few distinct values), or ``None``."""
+    f = np.asarray(x, dtype=np.float64)
+    f = f[np.isfinite(f)]
+    if f.size == 0:
+        return "no finite value"
+    vals, counts = np.unique(f, return_counts=True)
+    if vals.size < 2:
+        return f"a single distinct value ({vals[0]:.6g})"
+    if counts.max() > 0.99 * f.size:
+        return f"{counts.max() / f.size:.1%} of its values equal {vals[np.argmax(counts)]:.6g}"
+    return None
+
+
+def _cond(d: _Design, i: int, j: int, r: NDArray, mask: NDArray, fold: NDArray) -> float:
+    """Held-out ``R^2`` that candidate ``i``'s main regressor adds once ``j``'s is removed (relative to ``j``'s SSE)."""
+    out = 0.0
+    for a in (0, 1):
+        fa, fb = fold == a, fold == 1 - a
+        pj = _fit_predict(d.main_bins[j, mask], d.main_x[j, mask], r, fa, _SHRINK * d.deff[j])
+        u = r - pj
+        pi = _fit_predict(d.main_bins[i, mask], d.main_x[i, mask], u, fa, _SHRINK * d.deff[i])
+        sse_j = np.sum(u[fb] ** 2)
+        sse_ij = np.sum((u[fb] - pi[fb]) ** 2)
+        out += 0.5 * (1 - sse_ij / max(sse_j, 1e-300))
+    return float(out)
+
+
+def _fit_predict(bins: NDArray, x: NDArray, r: NDArray, fa: NDArray, shrink: float) -> NDArray[np.float64]:
+    """The main regressor (trend + binned correction) fitted on ``fa``, predicted at every reading."""
+    ra = r[fa]
+    m = ra.mean()
+    xm = x[fa].mean()
+    slope = float((x[fa] - xm) @ (ra - m) / (np.sum((x[fa] - xm) ** 2) + 1.0))
+    rem = ra - m - slope * (x[fa] - xm)
+    nb = int(bins.max()) + 1
+    s = np.bincount(bins[fa], weights=rem, minlength=nb)
+    c = np.bincount(bins[fa], minlength=nb)
+    return m + slope * (x - xm) + (s / (c + shrink))[bins]
+
+
+def rank_candidates(
+    ev: Any,
+    exclude: tuple[str, ...] = (),
+    *,
+    n_permutations: int = 199,
+    alpha: float = 0.01,
+    min_score: float = 0.001,
+    max_readings: int = 20_000,
+    rng: np.random.Generator | None = None,
+    progress: bool = False,
+) -> Ranking:
+    """Score every candidate of ``ev`` (except ``exclude``) on every residual target; test by circular shifts.
+
+    Args:
+        ev: held-out :class:`~sensor_envs.diagnose.core.Evaluation`.
+        exclude: candidate names not to rank (e.g. already in the model's state).
+        n_permutations: circular shifts (p-values resolve down to ``1 / (P + 1)``).
+        alpha: family-wise level of the max-T adjusted p-value.
+        min_score: minimum held-out ``R^2`` of a significant effect.
+        max_readings: readings used (an even subsample in time order beyond this).
+        rng: generator of the shifts (default seed 0).
+        progress: tqdm bar over the shifts.
+
+    Returns:
+        The :class:`Ranking`; each effect dict holds ``name``, ``score``, ``p_value``, ``p_raw``,
+        ``metric``, ``kind`` (the metric's kind), ``form`` (``main`` or ``x <state feature>``),
+        ``metric_scores``, ``significant``, ``proxy_of``.
+    """
+    rng = rng if rng is not None else np.random.default_rng(0)
+    order = np.asarray(ev.order if getattr(ev, "order", None) is not None else ev.blocks, dtype=np.float64)
+    idx = np.argsort(order, kind="stable")
+    if idx.size > max_readings:
+        idx = idx[np.linspace(0, idx.size - 1, max_readings).astype(np.int64)]
+    refused = []
+    names = []
+    for c in ev.candidates:
+        if c in exclude:
+            continue
+        why = _refusal(ev.candidates[c][idx])
+        if why is None:
+            names.append(c)
+        else:
+            refused.append({"name": c, "reason": f"not tested: {why}"})
+    if not names:
+        return Ranking([], alpha, min_score, n_permutations, refused)
+    cands = {c: np.asarray(ev.candidates[c], dtype=np.float64)[idx] for c in names}
+    state = {s: np.asarray(v, dtype=np.float64)[idx] for s, v in getattr(ev, "state", {}).items()}
+    d = _design(cands, names, state)
+    fold_all = time_folds(order[idx])
+    metrics = list(ev.residuals)
+    kinds = getattr(ev, "metric_kinds", {}) or {}
+    targets = []
+    for m in metrics:
+        r = np.asarray(ev.residuals[m], dtype=np.float64)[idx]
+        mask = np.isfinite(r) & (fold_all >= 0)
+        targets.append((r[mask], mask, _target_variants(r[mask], d.state_bins, mask), fold_all[mask]))
+    obs = _score_all(d, 0, targets)  # (C, m, 1 + S)
+    n = idx.size
+    perm = np.empty((n_permutations, *obs.shape))
+    for p in tqdm(range(n_permutations), disable=not progress, desc="shift test"):
+        sh = int(rng.integers(max(1, n // 10), max(2, 9 * n // 10)))
+        perm[p] = _score_all(d, sh, targets)
+    # studentise every (candidate, target, regressor) cell by its own shift distribution, then max-T
+    finite = np.isfinite(perm).all(axis=0) & np.isfinite(obs)
+    mu = np.where(finite, np.nan_to_num(perm).mean(axis=0), 0.0)
+    sd = np.where(finite, np.nan_to_num(perm).std(axis=0), 1.0)
+    # floor: half the median spread of the same (target, regressor) over the candidates, so a degenerate
+    # cell (e.g. time's interaction cells, which cannot carry over between time segments) cannot dominate
+    med = np.array(
+        [
+            [np.median(sd[:, j, f][finite[:, j, f]]) if finite[:, j, f].any() else 0.0 for f in range(sd.shape[2])]
+            for j in range(sd.shape[1])
+        ]
+    )
+    sd = np.maximum(sd, np.maximum(0.5 * med[None], 1e-9))
+    z_obs = np.where(finite, (obs - mu) / sd, -np.inf).reshape(len(names), -1)
+    z_perm = np.where(finite[None], (np.nan_to_num(perm) - mu) / sd, -np.inf).reshape(n_permutations, len(names), -1)
+    best_z = z_obs.max(axis=1)
+    perm_best = z_perm.max(axis=2)  # (P, C)
+    p_raw = (1 + np.sum(perm_best >= best_z[None], axis=0)) / (1 + n_permutations)
+    p_adj = (1 + np.sum(perm_best.max(axis=1)[:, None] >= best_z[None], axis=0)) / (1 + n_permutations)
+    forms = ["main", *(f"x {s}" for s in d.state_names)]
+    effects: list[dict[str, Any]] = []
+    for i, c in enumerate(names):
+        j, f = np.unravel_index(int(np.argmax(z_obs[i])), obs[i].shape)
+        score = float(obs[i, j, f])
+        effects.append(
+            {
+                "name": c,
+                "score": score,
+                "z": float(best_z[i]),
+                "p_value": float(p_adj[i]),
+                "p_raw": float(p_raw[i]),
+                "metric": metrics[j],
+                "kind": kinds.get(metrics[j], "mean"),
+                "form": forms[f],
+                "metric_scores": {m: float(obs[i, jj].max()) for jj, m in enumerate(metrics)},
+                "significant": bool(p_adj[i] < alpha and score >= min_score),
+                "proxy_of": None,
+            }
+        )
+    _settle_forms(effects, obs, d, targets, metrics, forms, alpha)
+    _mark_proxies(effects, d, names, targets, metrics)
+    effects.sort(key=lambda e: (e["proxy_of"] is not None, not e["significant"], -float(e["z"])))
+    return Ranking(effects, alpha, min_score, n_permutations, refused)
+
+
+def _interaction_gain(d: _Design, i: int, s: int, r: NDArray, mask: NDArray, fold: NDArray) -> float:
+    """Held-out ``R^2`` the candidate x state grid adds beyond the candidate's main regressor and the state's pattern."""
+    nc, ns = _INT_BINS
+    sb = d.state_bins[s][mask]
+    joint = d.int_cbins[i, mask] * (ns + 1) + sb
+    out = 0.0
+    for a in (0, 1):
+        fa, fb = fold == a, fold == 1 - a
+        u = r - _fit_predict(d.main_bins[i, mask], d.main_x[i, mask], r, fa, _SHRINK * d.deff[i])
+        st = np.bincount(sb[fa], weights=u[fa], minlength=ns + 1) / np.maximum(np.bincount(sb[fa], minlength=ns + 1), 1)
+        u = u - st[sb]
+        size = (nc + 1) * (ns + 1)
+        g = np.bincount(joint[fa], weights=u[fa], minlength=size) / (
+            np.bincount(joint[fa], minlength=size) + _SHRINK * max(1.0, d.deff[i] / ns)
+        )
+        out += 0.5 * (1 - np.sum((u[fb] - g[joint[fb]]) ** 2) / max(np.sum(u[fb] ** 2), 1e-300))
+    return float(out)
+
+
+def _settle_forms(
+    effects: list[dict[str, Any]], obs: NDArray, d: _Design, targets: list, metrics: list, forms: list, alpha: float
+) -> None:
+    """An effect found through an interaction regressor keeps that form only if the grid adds to its main effect.
+
+    Otherwise (a main effect that the interaction grid also fits) the form is ``main`` on the same target.
+    """
+    for i, e in enumerate(effects):
+        if e["form"] == "main" or not e["significant"]:
+            continue
+        j = metrics.index(e["metric"])
+        r, mask, _, fold = targets[j]
+        s = forms.index(e["form"]) - 1
+        gain = _interaction_gain(d, i, s, r, mask, fold)
+        e["interaction_gain"] = gain
+        main = float(obs[i, j, 0])
+        if gain < max(0.001, 0.1 * max(main, 0.0)):
+            e["form"], e["score"] = "main", max(main, e["score"] if main <= 0 else main)
+
+
+def _mark_proxies(effects: list[dict[str, Any]], d: _Design, names: list[str], targets: list, metrics: list) -> None:
+    """Mark a top candidate whose effect another top candidate explains (``proxy_of``; no longer significant)."""
+    top = sorted(range(len(effects)), key=lambda i: -effects[i]["z"])[:_TOP_COND]
+    top = [i for i in top if effects[i]["significant"]]
+    for i in top:
+        ei = effects[i]
+        if ei["form"] != "main":
+            continue
+        r, mask, _, fold = targets[metrics.index(ei["metric"])]
+        for j in top:
+            if j == i or effects[j]["proxy_of"] is not None:
+                continue
+            ci = _cond(d, i, j, r, mask, fold)
+            cj = _cond(d, j, i, r, mask, fold)
+            if ci < 0.2 * ei["score"] and cj > ci:
+                ei["proxy_of"] = names[j]
+                ei["conditional_score"] = ci
+                ei["significant"] = False
+                break
