@@ -109,7 +109,10 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]], command: str) 
     ]
     lines += ["|---|---|---|---|---|---|---|"]
     for k, d in summary.items():
-        f = lambda key: f"{d[key]:.2f}" if key in d else ""  # noqa: E731
+
+        def f(key: str, d: dict[str, Any] = d) -> str:
+            return f"{d[key]:.2f}" if key in d else ""
+
         lines.append(
             f"| {k} | {d['cases']} | {f('recall')} | {f('cause_first')} | {f('proxy_added')} | "
             f"{f('false_positive_rate')} | {f('false_addition_rate')} |"

@@ -371,7 +371,7 @@ def rank_candidates(
 
 
 def _interaction_gain(d: _Design, i: int, s: int, r: NDArray, mask: NDArray, fold: NDArray) -> float:
-    """Held-out ``R^2`` the candidate x state grid adds beyond the candidate's main regressor and the state's pattern."""
+    """Held-out ``R^2`` the candidate x state grid adds beyond the candidate's main effect and the state's pattern."""
     nc, ns = _INT_BINS
     sb = d.state_bins[s][mask]
     joint = d.int_cbins[i, mask] * (ns + 1) + sb
