@@ -19,7 +19,7 @@ with bearing to ``<name>``, ``<name>@cos_bearing``, ``<name>@sin_bearing``
 (:mod:`sensor_envs.lidar.extra_state`), each acting on the null, bias and log-sigma parts.
 
 Candidates: every per-scan covariate of the log by its name (``cov_omega`` as ``omega``), ``time``
-(time since the first scan), ``scan`` (index), ``bearing`` (index), ``range`` and ``incidence``
+(time since the first scan), ``scan`` (index, only when the log has no time), ``bearing`` (index), ``range`` and ``incidence``
 (nominal, from the map) and ``prev_residual`` (the same bearing's residual from the tables' mean at the
 previous scan, :mod:`sensor_envs.lidar.extra_state`). The model can take covariates, ``time`` and
 ``prev_residual`` into its state; ``range``, ``incidence`` and ``bearing`` are its own state (tested as
@@ -106,7 +106,8 @@ class LidarAdapter:
         out = {name: np.asarray(v, dtype=np.float64)[s] for name, v in sorted(self.log.covariates.items())}
         if self.log.t is not None:
             out["time"] = (self.log.t - self.log.t[0])[s]
-        out["scan"] = s.astype(np.float64)
+        else:  # the scan index stands for time (not addable); with ``t`` it would duplicate ``time``
+            out["scan"] = s.astype(np.float64)
         out["bearing"] = k.astype(np.float64)
         out["range"] = self.r[s, k]
         out["incidence"] = np.nan_to_num(self.a[s, k])

@@ -13,8 +13,11 @@ excess NLL), so an effect on the spread or on a rate is as visible as one on the
   values: a per-scan covariate repeated over K bearings carries one scan's information, not K
   readings'): monotone, U-shaped and step effects alike;
 * interaction with each of the model's state features ``s`` (e.g. bearing sector, range, azimuth):
-  ``r - m(bin(s)) ~ h(bin(c), bin(s))`` on a 6 x 8 grid, the target first freed of the state's own
-  pattern, so an effect whose sign follows the bearing (zero mean over the scan) is seen.
+  ``r ~ h(bin(c), bin(s))`` on a 6 x 8 grid, so an effect whose sign follows the bearing (zero mean
+  over the scan) is seen.
+
+Every target is first freed of the additive binned pattern of the state features (misfit along the
+model's own state, e.g. a kernel width, is not credited to a candidate that correlates with the state).
 
 The score of a candidate is the largest held-out ``R^2`` over its regressors and the targets.
 
@@ -23,10 +26,13 @@ contiguous segments dealt alternately to the two folds, and the readings within 
 segment boundary are left out of both: a candidate that follows time cannot interpolate slow drift
 between neighbouring blocks, it must carry over to a distant part of the log.
 
-**Significance.** Circular shifts of all candidates at once relative to the residuals, in time order
-(by a random offset between 10 % and 90 % of the readings), keep each candidate's own time structure
-(a random walk stays a random walk) while breaking its alignment with the residuals. Each
-(candidate, target, regressor) score is studentised by its own shift distribution (``z``), so a
+**Significance.** A block sign-flip test (a wild block bootstrap): the centred residual targets are
+multiplied by random signs, one sign per contiguous time block (:data:`N_BLOCKS` blocks of the
+held-out readings in time order), all candidates alike. Within a block the residuals keep their
+correlation (slow drift, AR(1), a scan's shared offset), across blocks any alignment with a candidate
+is broken, and the candidates keep their own time structure (a random walk stays a random walk, a
+trend stays a trend), so the null spread of a score is that of a time-correlated residual. Each
+(candidate, target, regressor) score is studentised by its own null distribution (``z``), so a
 target whose scores vary widely under the null (e.g. a drifting range residual) does not drown the
 others; the adjusted p-value is Westfall-Young max-T of ``z`` over all of them. Candidates are ranked
 by ``z`` (significant ones first).
@@ -51,6 +57,8 @@ N_SEGMENTS = 6
 """Contiguous time segments of the held-out readings, dealt alternately to the two cross-fitting folds."""
 GAP = 0.08
 """Share of each segment's length left out at either end (the gap between fit and scored readings)."""
+N_BLOCKS = 24
+"""Contiguous time blocks of the held-out readings whose residual signs are flipped together in the test."""
 _SHRINK = 10.0
 _MAIN_BINS = 10
 _INT_BINS = (6, 8)
@@ -92,55 +100,66 @@ def _standardise(x: NDArray) -> NDArray[np.float64]:
     return np.where(ok, (x - m) / (s if s > 0 else 1.0), 0.0)
 
 
-def _r2_rows(
-    bins: NDArray, xs: NDArray | None, r: NDArray, fold: NDArray, nb: int, shrink: NDArray
+def _r2_from_stats(
+    cnt: NDArray, sx: NDArray, sxx: NDArray, sr: NDArray, sxr: NDArray, rr: NDArray, shrink: NDArray
 ) -> NDArray[np.float64]:
-    """Cross-fitted ``R^2`` of target ``r (n,)`` on each row of ``bins (R, n)`` (+ linear in ``xs (R, n)``).
+    """Cross-fitted ``R^2`` ``(..., R)`` from per-(row, fold, bin) sufficient statistics.
 
-    ``fold (n,)`` in ``{0, 1}``; ``shrink (R,)``: pseudo-readings pulling each row's bin means toward the
-    trend. Computed from per-bin sufficient statistics (counts, sums of ``r``, ``x``, ``x^2``, ``x r``).
+    ``cnt``, ``sx``, ``sxx`` ``(R, 2, nb)`` (counts, sums of ``x``, ``x^2``); ``sr``, ``sxr``
+    ``(..., R, 2, nb)`` (sums of ``r``, ``x r``; leading axes: sign-flip draws); ``rr (2,)``: sum of
+    ``r^2`` per fold; ``shrink (R,)``: pseudo-readings pulling bin means toward the trend.
     """
-    k, n = bins.shape
-    if n == 0:
-        return np.full(k, -np.inf)
-    m2 = 2 * nb
-    ids = (bins + nb * fold[None] + (np.arange(k) * m2)[:, None]).ravel()
-    size = k * m2
-
-    def sums(w: NDArray | None) -> NDArray[np.float64]:
-        return np.bincount(ids, weights=None if w is None else np.ravel(w), minlength=size).reshape(k, 2, nb)
-
-    cnt, sr = sums(None), sums(np.broadcast_to(r, (k, n)))
-    if xs is not None:
-        sx, sxx, sxr = sums(xs), sums(xs * xs), sums(xs * r[None])
-    else:
-        sx = sxx = sxr = np.zeros_like(cnt)
-    rr = np.array([np.sum(r[fold == f] ** 2) for f in (0, 1)])
-    out = np.zeros(k)
+    out = np.zeros(sr.shape[:-2])
     for a in (0, 1):  # fit on fold a, score on the other
         b = 1 - a
-        na = cnt[:, a].sum(1)
-        if na.min() < 10 or cnt[:, b].sum(1).min() < 10:
-            return np.full(k, -np.inf)
-        mean_a = sr[:, a].sum(1) / na
-        xm = sx[:, a].sum(1) / na
-        slope = (sxr[:, a].sum(1) - na * xm * mean_a) / (sxx[:, a].sum(1) - na * xm**2 + 1.0)
-        rem = sr[:, a] - cnt[:, a] * mean_a[:, None] - slope[:, None] * (sx[:, a] - cnt[:, a] * xm[:, None])
-        g = rem / (cnt[:, a] + shrink[:, None])
-        alpha = (mean_a - slope * xm)[:, None] + g  # prediction in fold b: alpha[bin] + slope x
-        beta = slope[:, None]
+        na = cnt[:, a].sum(-1)
+        if na.min() < 10 or cnt[:, b].sum(-1).min() < 10:
+            return np.full(sr.shape[:-2], -np.inf)
+        mean_a = sr[..., a, :].sum(-1) / na
+        xm = sx[:, a].sum(-1) / na
+        slope = (sxr[..., a, :].sum(-1) - na * xm * mean_a) / (sxx[:, a].sum(-1) - na * xm**2 + 1.0)
+        rem = sr[..., a, :] - cnt[:, a] * mean_a[..., None] - slope[..., None] * (sx[:, a] - cnt[:, a] * xm[:, None])
+        alpha = (mean_a - slope * xm)[..., None] + rem / (cnt[:, a] + shrink[:, None])
+        beta = slope[..., None]
+        srb, sxrb = sr[..., b, :], sxr[..., b, :]
         sse = rr[b] + np.sum(
-            -2 * alpha * sr[:, b]
-            - 2 * beta * sxr[:, b]
+            -2 * alpha * srb
+            - 2 * beta * sxrb
             + alpha**2 * cnt[:, b]
             + 2 * alpha * beta * sx[:, b]
             + beta**2 * sxx[:, b],
-            axis=1,
+            axis=-1,
         )
-        nbb, srb = cnt[:, b].sum(1), sr[:, b].sum(1)
-        sst = rr[b] - 2 * mean_a * srb + nbb * mean_a**2
+        sst = rr[b] - 2 * mean_a * srb.sum(-1) + cnt[:, b].sum(-1) * mean_a**2
         out += 0.5 * (1.0 - sse / np.maximum(sst, 1e-300))
     return out
+
+
+def _block_stats(
+    bins: NDArray, xs: NDArray | None, r: NDArray, fold: NDArray, block: NDArray, nb: int, n_blocks: int
+) -> tuple[NDArray, ...]:
+    """Sufficient statistics of rows ``bins (R, n)`` (+ ``xs``) against ``r``: fixed ones and per time block.
+
+    Returns ``cnt, sx, sxx`` ``(R, 2, nb)`` and ``sr_b, sxr_b`` ``(n_blocks, R, 2, nb)`` (sums of ``r`` and
+    ``x r`` within each block), so that any block sign-flip of ``r`` is a product with the flips.
+    """
+    k, n = bins.shape
+    size = k * 2 * nb
+    ids = (bins + nb * fold[None] + (np.arange(k) * 2 * nb)[:, None]).ravel()
+    idb = ids + size * np.tile(block, k)
+
+    def sums(w: NDArray | None, by_block: bool) -> NDArray[np.float64]:
+        wf = None if w is None else np.ravel(np.broadcast_to(w, (k, n)))
+        if by_block:
+            return np.bincount(idb, weights=wf, minlength=size * n_blocks).reshape(n_blocks, k, 2, nb)
+        return np.bincount(ids, weights=wf, minlength=size).reshape(k, 2, nb)
+
+    cnt = sums(None, False)
+    sr_b = sums(r[None], True)
+    if xs is None:
+        z = np.zeros_like(cnt)
+        return cnt, z, z, sr_b, np.zeros_like(sr_b)
+    return cnt, sums(xs, False), sums(xs * xs, False), sr_b, sums(xs * r[None], True)
 
 
 @dataclass
@@ -176,34 +195,56 @@ def _design_effect(x: NDArray) -> float:
     return x.size / changes
 
 
-def _target_variants(r: NDArray, state_bins: list[NDArray], mask: NDArray) -> list[NDArray]:
-    """``r`` freed of each state feature's own binned pattern (the interaction rows' targets)."""
-    out = []
-    for sb in state_bins:
-        b = sb[mask]
-        s = np.bincount(b, weights=r, minlength=b.max() + 1)
-        c = np.bincount(b, minlength=b.max() + 1)
-        out.append(r - (s / np.maximum(c, 1))[b])
+def _free_of_state(r: NDArray, state_bins: list[NDArray], mask: NDArray, passes: int = 2) -> NDArray[np.float64]:
+    """``r`` freed of the state features' additive binned pattern (backfitting): misfit along the model's own
+    state is not credited to a candidate that merely correlates with the state."""
+    out = np.asarray(r, dtype=np.float64).copy()
+    for _ in range(passes if state_bins else 0):
+        for sb in state_bins:
+            b = sb[mask]
+            s = np.bincount(b, weights=out, minlength=b.max() + 1)
+            c = np.bincount(b, minlength=b.max() + 1)
+            out -= (s / np.maximum(c, 1))[b]
     return out
 
 
-def _score_all(
-    d: _Design, shift: int, targets: list[tuple[NDArray, NDArray, list[NDArray], NDArray]]
-) -> NDArray[np.float64]:
-    """``(C, m, 1 + S)`` scores of every candidate (shifted by ``shift`` readings) on every target and regressor."""
-    mb, mx, ib = d.main_bins, d.main_x, d.int_cbins
-    if shift:
-        mb, mx, ib = np.roll(mb, shift, axis=1), np.roll(mx, shift, axis=1), np.roll(ib, shift, axis=1)
+def _all_stats(d: _Design, targets: list, n_blocks: int) -> list[list[tuple[NDArray, ...]]]:
+    """Per target, per regressor (main, then each state interaction): the block statistics."""
     nc, ns = _INT_BINS
     nbi = (nc + 1) * (ns + 1)
-    out = np.full((len(d.names), len(targets), 1 + len(d.state_bins)), -np.inf)
     sh_main = _SHRINK * d.deff
     sh_int = _SHRINK * np.maximum(1.0, d.deff / ns)
-    for j, (r, mask, variants, fold) in enumerate(targets):
-        out[:, j, 0] = _r2_rows(mb[:, mask], mx[:, mask], r, fold, _MAIN_BINS + 1, sh_main)
-        for s, (sb, rv) in enumerate(zip(d.state_bins, variants, strict=True)):
-            joint = ib[:, mask] * (ns + 1) + sb[mask][None]
-            out[:, j, 1 + s] = _r2_rows(joint, None, rv, fold, nbi, sh_int)
+    out = []
+    for r, mask, variants, fold, block in targets:
+        row = [
+            (
+                *_block_stats(d.main_bins[:, mask], d.main_x[:, mask], r, fold, block, _MAIN_BINS + 1, n_blocks),
+                np.array([np.sum(r[fold == f] ** 2) for f in (0, 1)]),
+                sh_main,
+            )
+        ]
+        for sb, rv in zip(d.state_bins, variants, strict=True):
+            joint = d.int_cbins[:, mask] * (ns + 1) + sb[mask][None]
+            row.append(
+                (
+                    *_block_stats(joint, None, rv, fold, block, nbi, n_blocks),
+                    np.array([np.sum(rv[fold == f] ** 2) for f in (0, 1)]),
+                    sh_int,
+                )
+            )
+        out.append(row)
+    return out
+
+
+def _scores(stats: list, flips: NDArray, n_cand: int) -> NDArray[np.float64]:
+    """``(P, C, m, 1 + S)`` scores for block sign-flips ``flips (P, n_blocks)`` of the residual targets."""
+    m, f = len(stats), len(stats[0])
+    out = np.full((flips.shape[0], n_cand, m, f), -np.inf)
+    for j, row in enumerate(stats):
+        for g, (cnt, sx, sxx, sr_b, sxr_b, rr, shrink) in enumerate(row):
+            sr = np.tensordot(flips, sr_b, axes=(1, 0))
+            sxr = np.tensordot(flips, sxr_b, axes=(1, 0))
+            out[:, :, j, g] = _r2_from_stats(cnt, sx, sxx, sr, sxr, rr, shrink)
     return out
 
 
@@ -274,17 +315,17 @@ def rank_candidates(
     rng: np.random.Generator | None = None,
     progress: bool = False,
 ) -> Ranking:
-    """Score every candidate of ``ev`` (except ``exclude``) on every residual target; test by circular shifts.
+    """Score every candidate of ``ev`` (except ``exclude``) on every residual target; block sign-flip test.
 
     Args:
         ev: held-out :class:`~sensor_envs.diagnose.core.Evaluation`.
         exclude: candidate names not to rank (e.g. already in the model's state).
-        n_permutations: circular shifts (p-values resolve down to ``1 / (P + 1)``).
+        n_permutations: block sign-flips (p-values resolve down to ``1 / (P + 1)``).
         alpha: family-wise level of the max-T adjusted p-value.
         min_score: minimum held-out ``R^2`` of a significant effect.
         max_readings: readings used (an even subsample in time order beyond this).
-        rng: generator of the shifts (default seed 0).
-        progress: tqdm bar over the shifts.
+        rng: generator of the flips (default seed 0).
+        progress: tqdm bar over the flips.
 
     Returns:
         The :class:`Ranking`; each effect dict holds ``name``, ``score``, ``p_value``, ``p_raw``,
@@ -312,23 +353,33 @@ def rank_candidates(
     state = {s: np.asarray(v, dtype=np.float64)[idx] for s, v in getattr(ev, "state", {}).items()}
     d = _design(cands, names, state)
     fold_all = time_folds(order[idx])
+    rank = np.argsort(np.argsort(order[idx], kind="stable"), kind="stable")
+    block_all = (rank * N_BLOCKS // max(rank.size, 1)).astype(np.int64)
     metrics = list(ev.residuals)
     kinds = getattr(ev, "metric_kinds", {}) or {}
     targets = []
     for m in metrics:
         r = np.asarray(ev.residuals[m], dtype=np.float64)[idx]
         mask = np.isfinite(r) & (fold_all >= 0)
-        targets.append((r[mask], mask, _target_variants(r[mask], d.state_bins, mask), fold_all[mask]))
-    obs = _score_all(d, 0, targets)  # (C, m, 1 + S)
-    n = idx.size
+        rc = r[mask] - r[mask].mean()  # centred: a sign flip must not create structure from the mean
+        rc = _free_of_state(rc, d.state_bins, mask)
+        targets.append((rc, mask, [rc] * len(d.state_bins), fold_all[mask], block_all[mask]))
+    stats = _all_stats(d, targets, N_BLOCKS)
+    obs = _scores(stats, np.ones((1, N_BLOCKS)), len(names))[0]  # (C, m, 1 + S)
     perm = np.empty((n_permutations, *obs.shape))
-    for p in tqdm(range(n_permutations), disable=not progress, desc="shift test"):
-        sh = int(rng.integers(max(1, n // 10), max(2, 9 * n // 10)))
-        perm[p] = _score_all(d, sh, targets)
-    # studentise every (candidate, target, regressor) cell by its own shift distribution, then max-T
+    bar = tqdm(total=n_permutations, disable=not progress, desc="block sign-flip test")
+    for p0 in range(0, n_permutations, 50):  # batches of flips, vectorised inside
+        k = min(50, n_permutations - p0)
+        perm[p0 : p0 + k] = _scores(stats, rng.choice([-1.0, 1.0], size=(k, N_BLOCKS)), len(names))
+        bar.update(k)
+    bar.close()
+    # studentise every (candidate, target, regressor) cell by its own null distribution, then max-T
     finite = np.isfinite(perm).all(axis=0) & np.isfinite(obs)
-    mu = np.where(finite, np.nan_to_num(perm).mean(axis=0), 0.0)
-    sd = np.where(finite, np.nan_to_num(perm).std(axis=0), 1.0)
+    # centre and scale of each cell's null from its upper tail (median, 95th percentile): the scores
+    # are skewed (an overfitting regressor's R^2 is bounded above by chance alignment, not below)
+    q50, q95 = np.percentile(np.nan_to_num(perm, neginf=0.0), [50, 95], axis=0)
+    mu = np.where(finite, q50, 0.0)
+    sd = np.where(finite, (q95 - q50) / 1.645, 1.0)
     # floor: half the median spread of the same (target, regressor) over the candidates, so a degenerate
     # cell (e.g. time's interaction cells, which cannot carry over between time segments) cannot dominate
     med = np.array(
@@ -400,7 +451,7 @@ def _settle_forms(
         if e["form"] == "main" or not e["significant"]:
             continue
         j = metrics.index(e["metric"])
-        r, mask, _, fold = targets[j]
+        r, mask, _, fold, _b = targets[j]
         s = forms.index(e["form"]) - 1
         gain = _interaction_gain(d, i, s, r, mask, fold)
         e["interaction_gain"] = gain
@@ -417,7 +468,7 @@ def _mark_proxies(effects: list[dict[str, Any]], d: _Design, names: list[str], t
         ei = effects[i]
         if ei["form"] != "main":
             continue
-        r, mask, _, fold = targets[metrics.index(ei["metric"])]
+        r, mask, _, fold, _b = targets[metrics.index(ei["metric"])]
         for j in top:
             if j == i or effects[j]["proxy_of"] is not None:
                 continue
