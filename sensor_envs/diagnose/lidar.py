@@ -19,7 +19,8 @@ with bearing to ``<name>``, ``<name>@cos_bearing``, ``<name>@sin_bearing``
 (:mod:`sensor_envs.lidar.extra_state`), each acting on the null, bias and log-sigma parts.
 
 Candidates: every per-scan covariate of the log by its name (``cov_omega`` as ``omega``), ``time``
-(time since the first scan), ``scan`` (index, only when the log has no time), ``bearing`` (index), ``range`` and ``incidence``
+(time since the first scan), ``scan`` (index, only when the log has no time), ``bearing`` (index),
+``range`` and ``incidence``
 (nominal, from the map) and ``prev_residual`` (the same bearing's residual from the tables' mean at the
 previous scan, :mod:`sensor_envs.lidar.extra_state`). The model can take covariates, ``time`` and
 ``prev_residual`` into its state; ``range``, ``incidence`` and ``bearing`` are its own state (tested as

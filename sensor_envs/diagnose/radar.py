@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.diagnose.core import Evaluation
+from sensor_envs.radar.astyx import OUTCOME_COLUMNS
 from sensor_envs.radar.features import state_matrix, with_derived_columns
 from sensor_envs.radar.gaussian import GaussianRadar
 from sensor_envs.radar.kde import CV_RELEVANCE, KDERadarModel
@@ -90,7 +91,9 @@ class RadarAdapter:
         missing = [c for c in exclude if c not in self.log.columns]  # a derived feature may be excluded too
         if missing:
             raise ValueError(f"{log.source}: excluded column {missing[0]!r} is not in the log")
-        self.exclude = tuple(exclude)
+        outcomes = [c for c in self.log.columns if c in OUTCOME_COLUMNS or c.startswith("outcome_")]
+        self.outcomes = tuple(outcomes)  # outcomes of the measurement (e.g. Astyx's n_points): never causes
+        self.exclude = tuple(dict.fromkeys((*exclude, *outcomes)))
         self.fit_log = self.log.select(~held_out)
         self.held_log = self.log.select(held_out)
         self.fit_log.source = self.held_log.source = log.source

@@ -58,7 +58,9 @@ N_SEGMENTS = 6
 GAP = 0.08
 """Share of each segment's length left out at either end (the gap between fit and scored readings)."""
 N_BLOCKS = 24
-"""Contiguous time blocks of the held-out readings whose residual signs are flipped together in the test."""
+"""Most contiguous time blocks of the held-out readings whose residual signs are flipped together; fewer
+(down to :data:`MIN_BLOCKS`) when the residuals are correlated over longer times (:func:`n_flip_blocks`)."""
+MIN_BLOCKS = 8
 _SHRINK = 10.0
 _MAIN_BINS = 10
 _INT_BINS = (6, 8)
@@ -189,15 +191,57 @@ def _design(cands: dict[str, NDArray], names: list[str], state: dict[str, NDArra
 
 
 def _design_effect(x: NDArray) -> float:
-    """Mean length of runs of equal consecutive values (e.g. the bearings of a scan sharing a covariate)."""
+    """Readings per independent unit of information in a candidate's values, in time order.
+
+    The mean run length of equal consecutive values (e.g. the bearings of a scan sharing a covariate)
+    times the AR(1) variance inflation ``(1 + rho) / (1 - rho)`` of the run values (capped at 20): a slow
+    candidate's bins gather neighbouring times, whose residuals share drift, so their means are noisier
+    than their counts suggest.
+    """
     x = np.nan_to_num(np.asarray(x, dtype=np.float64), nan=np.inf)
-    changes = 1 + int(np.count_nonzero(x[1:] != x[:-1]))
-    return x.size / changes
+    change = np.flatnonzero(x[1:] != x[:-1]) + 1
+    runs = x[np.concatenate([[0], change])]
+    runs = runs[np.isfinite(runs)]
+    infl = 1.0
+    if runs.size > 10 and runs.std() > 0:
+        rho = float(np.clip(np.corrcoef(runs[1:], runs[:-1])[0, 1], 0.0, 0.95))
+        infl = min((1 + rho) / (1 - rho), 20.0)
+    return x.size / (1 + change.size) * infl
+
+
+def _within_instant(r: NDArray, instant: NDArray) -> NDArray[np.float64]:
+    """``r`` minus the mean of its time instant (where an instant has more than one reading)."""
+    _, inv, cnt = np.unique(instant, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    mean = np.bincount(inv, weights=r) / cnt
+    return np.where(cnt[inv] > 1, r - mean[inv], r)
+
+
+def n_flip_blocks(series: list[NDArray], chunks: int = 96) -> int:
+    """Blocks for the sign-flip test: each block at least twice the residuals' correlation length.
+
+    Each residual series (in time order) is averaged in ``chunks`` equal parts and freed of a linear
+    trend; the largest lag-1 autocorrelation ``rho`` of those means over the series gives a
+    correlation length of ``(1 + rho) / (1 - rho)`` chunks.
+    """
+    length = 1.0
+    for r in series:
+        if r.size < 4 * chunks:
+            continue
+        m = np.array([c.mean() for c in np.array_split(r, chunks)])  # one mean per chunk
+        u = np.arange(chunks, dtype=np.float64)
+        m = m - np.polyval(np.polyfit(u, m, 1), u)  # a trend is a candidate's effect, not correlation
+        if m.std() > 0:
+            rho = float(np.clip(np.corrcoef(m[1:], m[:-1])[0, 1], 0.0, 0.98))
+            length = max(length, (1 + rho) / (1 - rho))
+    return int(np.clip(round(chunks / (2 * length)), MIN_BLOCKS, N_BLOCKS))
 
 
 def _free_of_state(r: NDArray, state_bins: list[NDArray], mask: NDArray, passes: int = 2) -> NDArray[np.float64]:
-    """``r`` freed of the state features' additive binned pattern (backfitting): misfit along the model's own
-    state is not credited to a candidate that merely correlates with the state."""
+    """``r`` freed of the state features' additive binned pattern (backfitting).
+
+    Misfit along the model's own state is then not credited to a candidate that correlates with the state.
+    """
     out = np.asarray(r, dtype=np.float64).copy()
     for _ in range(passes if state_bins else 0):
         for sb in state_bins:
@@ -208,17 +252,20 @@ def _free_of_state(r: NDArray, state_bins: list[NDArray], mask: NDArray, passes:
     return out
 
 
-def _all_stats(d: _Design, targets: list, n_blocks: int) -> list[list[tuple[NDArray, ...]]]:
-    """Per target, per regressor (main, then each state interaction): the block statistics."""
+def _all_stats(d: _Design, targets: list, n_blocks: tuple[int, int]) -> list[list[tuple[NDArray, ...]]]:
+    """Per target, per regressor (main, then each state interaction): the block statistics.
+
+    ``n_blocks``: blocks of the main regressors' and of the interactions' targets.
+    """
     nc, ns = _INT_BINS
     nbi = (nc + 1) * (ns + 1)
     sh_main = _SHRINK * d.deff
     sh_int = _SHRINK * np.maximum(1.0, d.deff / ns)
     out = []
-    for r, mask, variants, fold, block in targets:
+    for r, mask, variants, fold, block, block_int in targets:
         row = [
             (
-                *_block_stats(d.main_bins[:, mask], d.main_x[:, mask], r, fold, block, _MAIN_BINS + 1, n_blocks),
+                *_block_stats(d.main_bins[:, mask], d.main_x[:, mask], r, fold, block, _MAIN_BINS + 1, n_blocks[0]),
                 np.array([np.sum(r[fold == f] ** 2) for f in (0, 1)]),
                 sh_main,
             )
@@ -227,7 +274,7 @@ def _all_stats(d: _Design, targets: list, n_blocks: int) -> list[list[tuple[NDAr
             joint = d.int_cbins[:, mask] * (ns + 1) + sb[mask][None]
             row.append(
                 (
-                    *_block_stats(joint, None, rv, fold, block, nbi, n_blocks),
+                    *_block_stats(joint, None, rv, fold, block_int, nbi, n_blocks[1]),
                     np.array([np.sum(rv[fold == f] ** 2) for f in (0, 1)]),
                     sh_int,
                 )
@@ -236,14 +283,19 @@ def _all_stats(d: _Design, targets: list, n_blocks: int) -> list[list[tuple[NDAr
     return out
 
 
-def _scores(stats: list, flips: NDArray, n_cand: int) -> NDArray[np.float64]:
-    """``(P, C, m, 1 + S)`` scores for block sign-flips ``flips (P, n_blocks)`` of the residual targets."""
+def _scores(stats: list, flips: tuple[NDArray, NDArray], n_cand: int) -> NDArray[np.float64]:
+    """``(P, C, m, 1 + S)`` scores for block sign-flips of the residual targets.
+
+    ``flips``: ``(P, blocks)`` signs for the main regressors' targets and for the interactions' targets
+    (drawn independently: the max over cells is then, if anything, conservative).
+    """
     m, f = len(stats), len(stats[0])
-    out = np.full((flips.shape[0], n_cand, m, f), -np.inf)
+    out = np.full((flips[0].shape[0], n_cand, m, f), -np.inf)
     for j, row in enumerate(stats):
         for g, (cnt, sx, sxx, sr_b, sxr_b, rr, shrink) in enumerate(row):
-            sr = np.tensordot(flips, sr_b, axes=(1, 0))
-            sxr = np.tensordot(flips, sxr_b, axes=(1, 0))
+            fl = flips[0] if g == 0 else flips[1]
+            sr = np.tensordot(fl, sr_b, axes=(1, 0))
+            sxr = np.tensordot(fl, sxr_b, axes=(1, 0))
             out[:, :, j, g] = _r2_from_stats(cnt, sx, sxx, sr, sxr, rr, shrink)
     return out
 
@@ -257,6 +309,7 @@ class Ranking:
     min_score: float
     n_permutations: int
     refused: list[dict[str, str]]
+    n_blocks: int = 0
 
     def significant(self) -> list[dict[str, Any]]:
         """The effects with ``p_value < alpha`` and ``score >= min_score`` (proxies excluded), best first."""
@@ -354,23 +407,32 @@ def rank_candidates(
     d = _design(cands, names, state)
     fold_all = time_folds(order[idx])
     rank = np.argsort(np.argsort(order[idx], kind="stable"), kind="stable")
-    block_all = (rank * N_BLOCKS // max(rank.size, 1)).astype(np.int64)
+    instant = np.floor(order[idx])  # readings of one time instant (a scan, a radar cycle)
     metrics = list(ev.residuals)
     kinds = getattr(ev, "metric_kinds", {}) or {}
-    targets = []
+    freed, within = [], []
     for m in metrics:
         r = np.asarray(ev.residuals[m], dtype=np.float64)[idx]
         mask = np.isfinite(r) & (fold_all >= 0)
         rc = r[mask] - r[mask].mean()  # centred: a sign flip must not create structure from the mean
         rc = _free_of_state(rc, d.state_bins, mask)
-        targets.append((rc, mask, [rc] * len(d.state_bins), fold_all[mask], block_all[mask]))
-    stats = _all_stats(d, targets, N_BLOCKS)
-    obs = _scores(stats, np.ones((1, N_BLOCKS)), len(names))[0]  # (C, m, 1 + S)
+        freed.append((rc, mask))
+        within.append(_within_instant(rc, instant[mask]))
+    # main regressors see drift shared by an instant's readings; interactions see the within-instant part
+    n_blocks = (n_flip_blocks([f[0] for f in freed]), n_flip_blocks(within))
+    blocks = [(rank * b // max(rank.size, 1)).astype(np.int64) for b in n_blocks]
+    targets = [
+        (rc, mask, [w] * len(d.state_bins), fold_all[mask], blocks[0][mask], blocks[1][mask])
+        for (rc, mask), w in zip(freed, within, strict=True)
+    ]
+    stats = _all_stats(d, targets, n_blocks)
+    obs = _scores(stats, (np.ones((1, n_blocks[0])), np.ones((1, n_blocks[1]))), len(names))[0]  # (C, m, 1 + S)
     perm = np.empty((n_permutations, *obs.shape))
     bar = tqdm(total=n_permutations, disable=not progress, desc="block sign-flip test")
     for p0 in range(0, n_permutations, 50):  # batches of flips, vectorised inside
         k = min(50, n_permutations - p0)
-        perm[p0 : p0 + k] = _scores(stats, rng.choice([-1.0, 1.0], size=(k, N_BLOCKS)), len(names))
+        fl = (rng.choice([-1.0, 1.0], size=(k, n_blocks[0])), rng.choice([-1.0, 1.0], size=(k, n_blocks[1])))
+        perm[p0 : p0 + k] = _scores(stats, fl, len(names))
         bar.update(k)
     bar.close()
     # studentise every (candidate, target, regressor) cell by its own null distribution, then max-T
@@ -418,7 +480,7 @@ def rank_candidates(
     _settle_forms(effects, obs, d, targets, metrics, forms, alpha)
     _mark_proxies(effects, d, names, targets, metrics)
     effects.sort(key=lambda e: (e["proxy_of"] is not None, not e["significant"], -float(e["z"])))
-    return Ranking(effects, alpha, min_score, n_permutations, refused)
+    return Ranking(effects, alpha, min_score, n_permutations, refused, n_blocks[0])
 
 
 def _interaction_gain(d: _Design, i: int, s: int, r: NDArray, mask: NDArray, fold: NDArray) -> float:
@@ -448,10 +510,10 @@ def _settle_forms(
     Otherwise (a main effect that the interaction grid also fits) the form is ``main`` on the same target.
     """
     for i, e in enumerate(effects):
-        if e["form"] == "main" or not e["significant"]:
+        if e["form"] == "main" or not e["p_raw"] < max(alpha, 0.05):
             continue
         j = metrics.index(e["metric"])
-        r, mask, _, fold, _b = targets[j]
+        r, mask, _, fold, _b, _bi = targets[j]
         s = forms.index(e["form"]) - 1
         gain = _interaction_gain(d, i, s, r, mask, fold)
         e["interaction_gain"] = gain
@@ -463,12 +525,10 @@ def _settle_forms(
 def _mark_proxies(effects: list[dict[str, Any]], d: _Design, names: list[str], targets: list, metrics: list) -> None:
     """Mark a top candidate whose effect another top candidate explains (``proxy_of``; no longer significant)."""
     top = sorted(range(len(effects)), key=lambda i: -effects[i]["z"])[:_TOP_COND]
-    top = [i for i in top if effects[i]["significant"]]
+    top = [i for i in top if effects[i]["p_raw"] < 0.05 and effects[i]["form"] == "main"]
     for i in top:
         ei = effects[i]
-        if ei["form"] != "main":
-            continue
-        r, mask, _, fold, _b = targets[metrics.index(ei["metric"])]
+        r, mask, _, fold, _b, _bi = targets[metrics.index(ei["metric"])]
         for j in top:
             if j == i or effects[j]["proxy_of"] is not None:
                 continue

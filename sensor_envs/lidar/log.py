@@ -18,6 +18,7 @@ from __future__ import annotations
 import gzip
 import os
 import struct
+import warnings
 import zlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -324,7 +325,7 @@ def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = No
         raise LidarLogError(f"{p}: field 'ranges': the file is not readable as {what} ({detail})") from None
     if not scans:
         raise LidarLogError(f"{p}: field 'ranges': no FLASER or ROBOTLASER1 line found")
-    ps, ts = np.stack(poses), np.asarray(times)
+    ps, ts = np.stack(poses), scan_times(np.asarray(times), str(p))
     return log_from_arrays(
         np.stack(scans), bearings, ps, _map_or_none(map), ts, motion_covariates(ts, ps, str(p)), source=str(p)
     )
@@ -464,6 +465,26 @@ def _read_bag_messages(
             scans.append(np.where(null, 0.0, r))
             st.append(t * 1e-9)
     return scans, st, pts, pt, twists, bearings
+
+
+def scan_times(t: NDArray[np.float64], source: str) -> NDArray[np.float64]:
+    """Scan times [s] a user can trust: the logged ones, or evenly spread ones when those are too coarse.
+
+    Too coarse: fewer distinct values than half the scans (e.g. timestamps cut to 6 significant digits).
+    Then the times are spread evenly over the logged span at the scan rate it implies, and a
+    ``UserWarning`` names the file and field ``t``.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    if t.size < 3 or not np.isfinite(t).all() or np.unique(t).size >= 0.5 * t.size:
+        return t
+    span = float(t[-1] - t[0])
+    period = span / (t.size - 1) if span > 0 else 0.2
+    warnings.warn(
+        f"{source}: field 't': {np.unique(t).size} distinct times for {t.size} scans; time, speed and turn "
+        f"rate derived from the scan rate instead ({1 / period:.3g} Hz{'' if span > 0 else ', assumed'})",
+        stacklevel=3,
+    )
+    return t[0] + period * np.arange(t.size)
 
 
 def motion_covariates(

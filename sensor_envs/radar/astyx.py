@@ -234,6 +234,12 @@ def load_astyx(
     return RadarLog({n: data[:, j] for j, n in enumerate(names_all)}, source=f"astyx {root}")
 
 
+OUTCOME_COLUMNS = ("n_points",)
+"""Columns this converter writes that are OUTCOMES of the measurement, not causes: ``n_points`` (radar
+points inside the box) is 0 exactly when the target is missed. ``diagnose radar`` never offers them (nor
+any column named ``outcome_*``) as candidate causes."""
+
+
 def detection_statistics(log: RadarLog, range_edges: NDArray, azimuth_edges: NDArray) -> dict[str, Any]:
     """Share of target rows detected per range bin and per azimuth bin, and the clutter rate.
 
