@@ -57,10 +57,10 @@ N_SEGMENTS = 6
 """Contiguous time segments of the held-out readings, dealt alternately to the two cross-fitting folds."""
 GAP = 0.08
 """Share of each segment's length left out at either end (the gap between fit and scored readings)."""
-N_BLOCKS = 24
+N_BLOCKS = 32
 """Most contiguous time blocks of the held-out readings whose residual signs are flipped together; fewer
 (down to :data:`MIN_BLOCKS`) when the residuals are correlated over longer times (:func:`n_flip_blocks`)."""
-MIN_BLOCKS = 8
+MIN_BLOCKS = 16
 _SHRINK = 10.0
 _MAIN_BINS = 10
 _INT_BINS = (6, 8)
@@ -222,7 +222,8 @@ def n_flip_blocks(series: list[NDArray], chunks: int = 96) -> int:
 
     Each residual series (in time order) is averaged in ``chunks`` equal parts and freed of a linear
     trend; the largest lag-1 autocorrelation ``rho`` of those means over the series gives a
-    correlation length of ``(1 + rho) / (1 - rho)`` chunks.
+    correlation length of ``(1 + rho) / (1 - rho)`` chunks. At least :data:`MIN_BLOCKS`: with fewer,
+    no sign pattern is rare enough for p < 0.01.
     """
     length = 1.0
     for r in series:
