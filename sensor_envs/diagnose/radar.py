@@ -184,7 +184,7 @@ class RadarAdapter:
             residuals=resid,
             candidates=cand,
             blocks=self._blocks(),
-            order=tt.sequence * (float(tt.frame.max(initial=0)) + 2.0) + tt.frame,
+            order=(tt.sequence * (float(tt.frame.max(initial=0)) + 2.0) + tt.frame).astype(np.float64),
             state={k: cand[k] for k in ("range", "azimuth") if k in cand},
             metric_kinds={
                 "offset_x": "mean",

@@ -153,8 +153,8 @@ def _block_stats(
     def sums(w: NDArray | None, by_block: bool) -> NDArray[np.float64]:
         wf = None if w is None else np.ravel(np.broadcast_to(w, (k, n)))
         if by_block:
-            return np.bincount(idb, weights=wf, minlength=size * n_blocks).reshape(n_blocks, k, 2, nb)
-        return np.bincount(ids, weights=wf, minlength=size).reshape(k, 2, nb)
+            return np.asarray(np.bincount(idb, wf, size * n_blocks), dtype=np.float64).reshape(n_blocks, k, 2, nb)
+        return np.asarray(np.bincount(ids, wf, size), dtype=np.float64).reshape(k, 2, nb)
 
     cnt = sums(None, False)
     sr_b = sums(r[None], True)
