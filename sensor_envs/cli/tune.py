@@ -46,14 +46,32 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     p.add_argument("--tree", choices=("both", "start", "main"), default="both", help="--what bandwidth: trees")
     p.add_argument("--criterion", choices=("nll", "energy"), default="nll", help="--what bandwidth: criterion")
     p.add_argument("--nll-guard", type=float_between(0.0, 10.0), default=0.05, help="--criterion energy: NLL guard")
-    p.add_argument("--factors", type=float_between(0.01, 100.0), nargs="+", default=list(FACTORS))
-    p.add_argument("--tail-weights", type=float_between(0.0, 0.5), nargs="+", default=list(TAIL_WEIGHTS))
-    p.add_argument("--tail-scales", type=float_between(1.0, 100.0), nargs="+", default=list(TAIL_SCALES))
+    p.add_argument(
+        "--factors",
+        type=float_between(0.01, 100.0),
+        nargs="+",
+        default=list(FACTORS),
+        help="--what bandwidth: candidate bandwidth factors (default: %(default)s)",
+    )
+    p.add_argument(
+        "--tail-weights",
+        type=float_between(0.0, 0.5),
+        nargs="+",
+        default=list(TAIL_WEIGHTS),
+        help="--what tail: candidate weights of the wide component (default: %(default)s)",
+    )
+    p.add_argument(
+        "--tail-scales",
+        type=float_between(1.0, 100.0),
+        nargs="+",
+        default=list(TAIL_SCALES),
+        help="--what tail: candidate widths of the wide component, in bandwidths (default: %(default)s)",
+    )
     p.add_argument("--block", type=positive_int, default=10, help="frames per block (default 10)")
     p.add_argument("--folds", type=float_between(2, 1000), default=5, help="folds of blocks (default 5)")
     p.add_argument("--chains", type=positive_int, default=16, help="rollouts per row of the stationary law")
     p.add_argument("--cycles", type=positive_int, default=5, help="cycles per rollout (the last is scored)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the stationary-law rollouts (default 0)")
     p.add_argument("--json", default=None, help="also write every candidate's figures to this JSON file")
     add_force(p)
     p.set_defaults(func=_tune)
