@@ -6,7 +6,8 @@ azimuth side, spread, detection rate, null), runs the diagnosis loop on each exa
 (:func:`sensor_envs.diagnose.core.run_diagnose` with the sensor's adapter and a block split), and
 prints, per sensor and kind:
 
-* recall: the cause ranked first AND added AND the held-out NLL down;
+* recall: the cause ranked first AND added AND the held-out NLL down; the share of cases where a
+  proxy, and where any column other than the cause (proxy or distractor), was added;
 * for null logs, the false-positive rate: any effect significant (and, separately, any added).
 
 Writes ``suite.json`` (every case: drawn parameters, ranking head, decision) and ``suite.md``.
@@ -44,7 +45,7 @@ LIDAR_FIT = {
 """Table fit of the lidar cases (the fast seed variant: the suite measures the search, not the tables)."""
 
 
-def diagnose_case(case: Case, sensor: str, permutations: int, seed: int) -> Any:
+def diagnose_case(case: Case, sensor: str, permutations: int, seed: int, alpha: float = 0.05) -> Any:
     """Run the loop on one case as the CLI would (block split, adapter, run_diagnose)."""
     if sensor == "lidar":
         from sensor_envs.diagnose.lidar import LidarAdapter, lidar_blocks
@@ -55,7 +56,7 @@ def diagnose_case(case: Case, sensor: str, permutations: int, seed: int) -> Any:
         from sensor_envs.diagnose.radar import RadarAdapter, radar_blocks
 
         adapter = RadarAdapter(case.log, block_split(radar_blocks(case.log)))
-    return run_diagnose(adapter, base_state=case.base_state, n_permutations=permutations, seed=seed)
+    return run_diagnose(adapter, base_state=case.base_state, n_permutations=permutations, alpha=alpha, seed=seed)
 
 
 def score_case(case: Case, res: Any) -> dict[str, Any]:
@@ -97,6 +98,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
                 d["recall"] = float(np.mean([r["recall"] for r in sel]))
                 d["cause_first"] = float(np.mean([r["top"] == r["cause"] for r in sel]))
                 d["proxy_added"] = float(np.mean([r["proxy_added"] for r in sel]))
+                d["other_added"] = float(np.mean([any(a != r["cause"] for a in r["added"]) for r in sel]))
             out[f"{sensor}/{kind}"] = d
     return out
 
@@ -105,16 +107,17 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]], command: str) 
     """The summary table and one line per case."""
     lines = ["# diagnose suite", "", f"Command: `{command}`", ""]
     lines += [
-        "| sensor/kind | cases | recall | cause first | proxy added | false pos. (significant) | false pos. (added) |"
+        "| sensor/kind | cases | recall | cause first | proxy added | any non-cause added | false pos. (significant) "
+        "| false pos. (added) |"
     ]
-    lines += ["|---|---|---|---|---|---|---|"]
+    lines += ["|---|---|---|---|---|---|---|---|"]
     for k, d in summary.items():
 
         def f(key: str, d: dict[str, Any] = d) -> str:
             return f"{d[key]:.2f}" if key in d else ""
 
         lines.append(
-            f"| {k} | {d['cases']} | {f('recall')} | {f('cause_first')} | {f('proxy_added')} | "
+            f"| {k} | {d['cases']} | {f('recall')} | {f('cause_first')} | {f('proxy_added')} | {f('other_added')} | "
             f"{f('false_positive_rate')} | {f('false_addition_rate')} |"
         )
     lines += ["", "## Cases", ""]
@@ -137,6 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--bearings", type=int, default=60)
     ap.add_argument("--sequences", type=int, default=24, help="radar sequences (30 cycles x 10 targets each)")
     ap.add_argument("--permutations", type=int, default=199)
+    ap.add_argument("--alpha", type=float, default=0.05, help="family-wise level (default 0.05, as the CLI)")
     ap.add_argument("--out", type=Path, default=Path("diagnose_suite_out"))
     a = ap.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
@@ -152,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
                     case = lidar_case(kind, seed, scans=a.scans, bearings=a.bearings)
                 else:
                     case = radar_case(kind, seed, sequences=a.sequences)
-                res = diagnose_case(case, sensor, a.permutations, seed)
+                res = diagnose_case(case, sensor, a.permutations, seed, a.alpha)
                 row = {"sensor": sensor, "seed": seed, **score_case(case, res)}
                 row["seconds"] = time.perf_counter() - t0
                 rows.append(row)

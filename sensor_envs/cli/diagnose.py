@@ -32,7 +32,7 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     add_force(p)
     p.add_argument("--max-add", type=positive_int, default=3, help="at most this many effects are added (default 3)")
     p.add_argument("--permutations", type=positive_int, default=499, help="permutations of the test (default 499)")
-    p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level (default 0.01)")
+    p.add_argument("--alpha", type=float, default=0.05, help="family-wise significance level (default 0.05)")
     p.add_argument("--min-score", type=float, default=0.005, help="minimum cross-fitted R^2 (default 0.005)")
     p.add_argument("--block-frames", type=positive_int, default=25, help="frames per contiguous block (default 25)")
     p.add_argument("--no-prev", action="store_true", help="do not condition the KDE on z_{t-1}")
@@ -55,7 +55,7 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     add_force(q)
     q.add_argument("--max-add", type=positive_int, default=3, help="at most this many effects are added (default 3)")
     q.add_argument("--permutations", type=positive_int, default=499, help="permutations of the test (default 499)")
-    q.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level (default 0.01)")
+    q.add_argument("--alpha", type=float, default=0.05, help="family-wise significance level (default 0.05)")
     q.add_argument("--min-score", type=float, default=0.005, help="minimum cross-fitted R^2 (default 0.005)")
     q.add_argument(
         "--block-scans", dest="block_frames", type=positive_int, default=5, help="scans per block (default 5)"

@@ -10,7 +10,7 @@ the held-out part is spread over the log but no block is cut.
 **Search and significance.** :mod:`sensor_envs.diagnose.search`: every residual target (mean,
 spread, rate, score kinds) regressed on each candidate by a trend + binned regressor and by its
 interactions with the model's state features, cross-fitted over contiguous time segments with gaps;
-circular-shift tests with Westfall-Young max-T adjustment; proxies of a stronger cause marked.
+block sign-flip tests with Westfall-Young max-T adjustment; proxies of a stronger cause marked.
 Candidates with too few distinct values are refused (listed, not tested).
 
 **State features.** Candidates that are functions of the model's own state (the adapter's
@@ -62,7 +62,7 @@ class Evaluation:
         residuals: metric name -> ``(n,)`` residual (NaN where the metric is undefined).
         candidates: candidate name -> ``(n,)`` value (NaN = missing).
         blocks: ``(n,)`` contiguous block id of each reading.
-        order: ``(n,)`` time-order key of each reading (time folds and circular shifts follow it;
+        order: ``(n,)`` time-order key of each reading (time folds and sign-flip blocks follow it;
             ``None``: the block ids).
         state: interaction features: the model's own state (bearing, range, azimuth, ...) ``(n,)`` each.
         metric_kinds: residual metric -> ``mean`` / ``spread`` / ``rate`` / ``score`` (default ``mean``).
@@ -218,7 +218,7 @@ def run_diagnose(
     base_model: Any = None,
     max_add: int = 3,
     n_permutations: int = 199,
-    alpha: float = 0.01,
+    alpha: float = 0.05,
     min_score: float = 0.001,
     seed: int = 0,
     progress: bool = False,
@@ -230,10 +230,10 @@ def run_diagnose(
         base_state: extra state the base model already has.
         base_model: an already fitted base model (``--model``); ``None`` = fit one on the fit part.
         max_add: at most this many refits (effects added or rejected).
-        n_permutations: circular shifts per ranking.
+        n_permutations: block sign-flips per ranking.
         alpha: family-wise significance level.
         min_score: minimum held-out ``R^2`` of a significant effect.
-        seed: seed of the shifts.
+        seed: seed of the sign-flips.
         progress: show progress bars.
 
     Returns:
@@ -327,7 +327,7 @@ def run_diagnose(
         settings={
             "alpha": alpha,
             "multiple_testing": "Westfall-Young max-T over candidates, regressors and residual targets "
-            "(circular shifts of the candidates relative to the residuals, in time order)",
+            "(block sign-flips of the residual targets, in time order)",
             "min_score": min_score,
             "n_permutations": n_permutations,
             "max_add": max_add,

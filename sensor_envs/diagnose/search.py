@@ -363,7 +363,7 @@ def rank_candidates(
     exclude: tuple[str, ...] = (),
     *,
     n_permutations: int = 199,
-    alpha: float = 0.01,
+    alpha: float = 0.05,
     min_score: float = 0.001,
     max_readings: int = 20_000,
     rng: np.random.Generator | None = None,
