@@ -16,6 +16,12 @@ Radar rate rows (``--no-rate`` skips them): the same world at ``simulation_frequ
 Kinematics baseline, the shipped 1 s KDE at ``radar_rate="policy"`` and the shipped
 ``radar_kde_fast.npz`` (cycle time 1/15 s) at ``radar_rate="simulation"``: 15 radar cycles per
 policy step. Their ratios are to the 15 Hz baseline; "obs" then includes every cycle's sensing.
+
+Observation option rows: ``tracks=True`` (the multi-target tracker, its own time per policy step in the
+"tracker ms" column, goal < 2 ms, and the mean number of live tracks, tentative included),
+``tracks=True, stationary="drop"`` and ``history=4``. The last line times filterpy's ``predict`` +
+``update`` on one 4-state filter and multiplies by the live-track count: what a per-track filterpy
+loop would cost instead of the batched numpy filter.
 """
 
 from __future__ import annotations
@@ -65,16 +71,20 @@ def _find_radar(env: gym.Env) -> RadarObservation | None:
     return None
 
 
-def run_once(make: Callable[[], gym.Env], steps: int, seed: int) -> tuple[float, float, float]:
-    """Return seconds per step, of observation per step and of radar model per step over ``steps`` steps."""
+def run_once(make: Callable[[], gym.Env], steps: int, seed: int) -> tuple[float, float, float, float, float]:
+    """Seconds per step, of observation, of radar model and of tracker per step; mean live tracks."""
     env = make()
     obs_times: list[float] = []
     model_times: list[float] = []
+    tracker_times: list[float] = []
+    live: list[int] = []
     radar = _find_radar(env)
     if radar is not None:  # the hooks installed at reset call these (per policy step / per sub-step)
         radar._on_observe = _timed(radar._on_observe, obs_times)
         radar._cycle = _timed(radar._cycle, obs_times)
         radar.radar = _TimedModel(radar.radar, model_times)  # this instance only (models are shared)
+        if radar.tracker is not None:
+            radar.tracker.step = _timed(radar.tracker.step, tracker_times)
 
     def reset(s=None):
         env.reset(seed=s)
@@ -90,11 +100,31 @@ def run_once(make: Callable[[], gym.Env], steps: int, seed: int) -> tuple[float,
     t0 = time.perf_counter()
     for a in actions:
         _, _, term, trunc, _ = env.step(int(a))
+        if radar is not None and radar.tracker is not None:
+            live.append(len(radar.tracker))
         if term or trunc:
             reset()
     total = time.perf_counter() - t0
     env.close()
-    return total / steps, float(np.sum(obs_times)) / steps, float(np.sum(model_times)) / steps
+    per = (float(np.sum(x)) / steps for x in (obs_times, model_times, tracker_times))
+    return (total / steps, *per, float(np.mean(live)) if live else 0.0)  # type: ignore[return-value]
+
+
+def filterpy_seconds_per_track() -> float:
+    """Median seconds of filterpy's ``predict`` + ``update`` on one constant-velocity 4-state filter."""
+    from filterpy.kalman import predict, update
+
+    x, P, F, Q = np.zeros(4), np.eye(4), np.eye(4), 0.1 * np.eye(4)
+    F[0, 2] = F[1, 3] = 1.0
+    H, R, z = np.eye(2, 4), 0.5 * np.eye(2), np.ones(2)
+    times = []
+    for _ in range(5):
+        t = time.perf_counter()
+        for _ in range(400):
+            xp, Pp = predict(x, P, F, Q)
+            update(xp, Pp, z, R, H)
+        times.append((time.perf_counter() - t) / 400)
+    return float(np.median(times))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -135,8 +165,13 @@ def main(argv: list[str] | None = None) -> None:
             radar_rate="simulation",
             config=sim15,
         )
+    fast = "sensor_envs/HighwayFast-v0"
+    configs["kde, tracks"] = lambda: gym.make(fast, radar="kde", tracks=True)
+    configs["kde, tracks, drop"] = lambda: gym.make(fast, radar="kde", tracks=True, stationary="drop")
+    configs["kde, clutter=model, tracks"] = lambda: gym.make(fast, radar="kde", tracks=True, clutter="model")
+    configs["kde, history=4"] = lambda: gym.make(fast, radar="kde", history=4)
     rate_rows = {base15, "kde, 15 Hz, rate=policy", "kde_fast, rate=simulation"}  # their baseline: 15 Hz
-    results: dict[str, list[tuple[float, float, float]]] = {k: [] for k in configs}
+    results: dict[str, list[tuple[float, float, float, float, float]]] = {k: [] for k in configs}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for make in configs.values():  # warm-up: imports, model loading (cached per process)
@@ -148,10 +183,12 @@ def main(argv: list[str] | None = None) -> None:
     print(f"highway-fast-v0, {args.steps} steps x {args.repeats} repeats (medians), seed {args.seed}")
     print(
         f"{'configuration':<26}{'steps/s':>9}{'ms/step':>9}{'obs ms/step':>13}{'model ms':>10}{'step ratio':>12}"
-        f"{'obs % of base step':>20}{'wrapper %':>11}"
+        f"{'obs % of base step':>20}{'wrapper %':>11}{'tracker ms':>12}{'live tracks':>13}"
     )
+    most_live = 0.0
     for k, res in results.items():
-        step, obs, model = (float(np.median([r[i] for r in res])) for i in range(3))
+        step, obs, model, trk, live = (float(np.median([r[i] for r in res])) for i in range(5))
+        most_live = max(most_live, live)
         radar = not k.startswith("kinematics")
         base_step = base_steps[base15 if k in rate_rows else base_name]
         model_col = f"{model * 1e3:>10.3f}" if radar else f"{'-':>10}"
@@ -159,7 +196,13 @@ def main(argv: list[str] | None = None) -> None:
         print(
             f"{k:<26}{1 / step:>9.1f}{step * 1e3:>9.2f}{obs * 1e3:>13.3f}{model_col}"
             f"{step / base_step:>12.3f}{100 * obs / base_step:>19.1f}%{wrapper_col}"
+            + (f"{trk * 1e3:>12.3f}{live:>13.1f}" if live else "")
         )
+    per_track = filterpy_seconds_per_track()
+    print(
+        f"filterpy predict+update: {per_track * 1e6:.1f} us per filter and cycle; a per-track loop at "
+        f"{most_live:.0f} live tracks would take {per_track * most_live * 1e3:.2f} ms per policy step"
+    )
 
 
 if __name__ == "__main__":

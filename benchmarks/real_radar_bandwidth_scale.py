@@ -5,7 +5,7 @@ CV on that SIMULATED log; at the real boxes they come out wider than those a KDE
 chooses (model card). This script scores the model (``--model``, default the shipped
 ``models/radar_kde.npz``) with every factor of ``--factors`` applied to its bandwidth table
 (:meth:`KDERadarModel.with_bandwidth_scale`) on the real car rows: the stationary law at the static box
-(``real_radar_fidelity.marginal``: ``--chains`` rollouts of ``--cycles`` cycles, ``z_{t-1}`` fed back),
+(:func:`sensor_envs.radar.fidelity.marginal`: ``--chains`` rollouts of ``--cycles`` cycles, ``z_{t-1}`` fed back),
 on the folds of 10-frame blocks (``validate.split_by_blocks``, the folds of the fidelity benchmark).
 The model itself never saw a real row, so every row is held out for it; the FACTOR is chosen on the rows
 by ``--criterion``:
@@ -43,6 +43,10 @@ A chain fed its own outputs draws from the main trees every cycle and its law sp
 it resamples, while a start tuple is drawn once: the two can want different factors (model card).
 
 Detection rates do not depend on the factor (it only narrows or widens the contribution kernels).
+
+The logic is the package's (:mod:`sensor_envs.radar.tune`); the command a user runs is
+``sensor-envs tune radar MODEL DATA --what bandwidth --tree T --criterion C --out OUT.npz``. This script prints
+the per-fold table of the model card.
 ~1 min per factor on 2 cores.
 
     python benchmarks/real_radar_bandwidth_scale.py --data ../shared/data/real/astyx_hires2019 \
@@ -63,102 +67,14 @@ from tqdm import tqdm
 from sensor_envs.modelio import ModelFileError
 from sensor_envs.outputs import OutputError, OutputTransaction, check_output
 from sensor_envs.radar.astyx import load_astyx
-from sensor_envs.radar.features import model_extra
+from sensor_envs.radar.fidelity import fold_rows
 from sensor_envs.radar.kde import KDERadarModel
-from sensor_envs.radar.validate import RANGE_BINS, energy_distance_2d
+from sensor_envs.radar.tune import FACTORS, NLL_GUARD, choose, criterion, energy_per_bin, fold_scores, with_factor
+from sensor_envs.radar.validate import RANGE_BINS
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from real_radar_fidelity import ENERGY_MAX_N, fold_rows, marginal  # noqa: E402  (benchmarks are scripts, not a package)
-
-FACTORS = (0.35, 0.5, 0.6, 0.7, 0.85, 1.0)
 CRITERIA = ("nll", "energy")
 TREES = ("both", "start", "main")
-
-
-def with_factor(model: KDERadarModel, factor: float, tree: str) -> KDERadarModel:
-    """``model`` with the bandwidths of ``tree`` (``both``, ``start`` or ``main``, see the module docstring)
-    ``factor`` times its own."""
-    start = model.start_bandwidth_scale if model.start_bandwidth_scale is not None else model.bandwidth_scale
-    if tree == "both":
-        return model.with_bandwidth_scale(factor)
-    if tree == "start":
-        return model.with_start_bandwidth_scale(start * factor)
-    return model.with_start_bandwidth_scale(start).with_bandwidth_scale(factor)
-
-
-def fold_scores(model: KDERadarModel, folds: list, seed: int, chains: int, cycles: int) -> list[dict]:
-    """``model``'s stationary law on each fold's real rows (``folds``: (tuples, log) pairs of ``fold_rows``):
-    ``nll`` (mean NLL of outcomes [nats]), the real rows (``corner``, ``z``) and the chains' last draws
-    ``samples (n, chains, 2)`` [m]."""
-    out = []
-    for k, (tt, test) in enumerate(folds):  # one iteration per fold
-        rng = np.random.default_rng([seed, k])
-        res = marginal(
-            model, tt.corner, tt.z, rng, chains, cycles, all_samples=True, extra=model_extra(model, test, tt.row)
-        )
-        out.append({"nll": float(-res["logp"].mean()), "corner": tt.corner, "z": tt.z, "samples": res["samples"]})
-    return out
-
-
-def energy_per_bin(parts: list[dict], seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Energy distance [m] per corner-range bin (U-statistic) between the pooled draws and real detected offsets
-    of ``parts`` (items of :func:`fold_scores`), and the real detected rows per bin."""
-    corner = np.concatenate([p["corner"] for p in parts])
-    z = np.concatenate([p["z"] for p in parts])
-    sim = np.concatenate([p["samples"] for p in parts])
-    r = np.hypot(corner[:, 0], corner[:, 1])
-    rng = np.random.default_rng([seed, 99])
-    ed, n = [], []
-    for lo, hi in zip(RANGE_BINS[:-1], RANGE_BINS[1:], strict=True):  # one iteration per range bin
-        s = (r >= lo) & (r < hi)
-        a = sim[s].reshape(-1, 2)
-        b = z[s & np.isfinite(z[:, 0])]
-        ed.append(energy_distance_2d(a[np.isfinite(a[:, 0])], b, rng, max_n=ENERGY_MAX_N, unbiased=True))
-        n.append(b.shape[0])
-    return np.asarray(ed), np.asarray(n, dtype=np.float64)
-
-
-NLL_GUARD = 0.05
-"""``--criterion energy`` considers the factors whose mean NLL is within this share of the least one."""
-
-
-def criterion(parts: list[dict], kind: str, seed: int) -> float:
-    """A factor's score on ``parts`` (lower is better): mean NLL (``nll``), or row-weighted energy distance."""
-    if kind == "nll":
-        return float(np.mean([p["nll"] for p in parts]))
-    ed, n = energy_per_bin(parts, seed)
-    ok = np.isfinite(ed)
-    return float(np.sum(n[ok] * ed[ok]) / max(n[ok].sum(), 1.0))
-
-
-def _pick(scores: dict[float, list[dict]], folds: list[int], kind: str, seed: int, guard: float) -> float:
-    """The factor chosen on ``folds`` (indices into each factor's parts; ties: nearer 1).
-
-    ``energy``: among the factors whose mean NLL is within ``guard`` of the least, the one nearest 1 whose
-    mean per-fold energy distance is within one standard error (across ``folds``) of the least: the
-    one-standard-error rule; the energy distance is flat near its optimum and a narrower kernel than needed
-    costs likelihood on rows the folds did not hold.
-    """
-    factors = sorted(scores, key=lambda f: abs(np.log(f)))
-    nll = {f: criterion([scores[f][j] for j in folds], "nll", seed) for f in factors}
-    if kind == "energy":  # the energy distance among the factors whose NLL stays near its optimum
-        factors = [f for f in factors if nll[f] <= (1.0 + guard) * min(nll.values())]
-        per_fold = {f: np.array([criterion([scores[f][j]], "energy", seed) for j in folds]) for f in factors}
-        best = min(factors, key=lambda f: per_fold[f].mean())
-        se = float(per_fold[best].std(ddof=1) / np.sqrt(len(folds))) if len(folds) > 1 else 0.0
-        return next(f for f in factors if per_fold[f].mean() <= per_fold[best].mean() + se)
-    return min(factors, key=lambda f: nll[f])
-
-
-def choose(
-    scores: dict[float, list[dict]], kind: str, seed: int, guard: float = NLL_GUARD
-) -> tuple[float, list[float]]:
-    """Final factor (``kind`` criterion on all folds) and the nested choice of each fold (on the others)."""
-    n = len(next(iter(scores.values())))
-    final = _pick(scores, list(range(n)), kind, seed, guard)
-    nested = [_pick(scores, [j for j in range(n) if j != k], kind, seed, guard) for k in range(n)]
-    return final, nested
 
 
 def main() -> None:
@@ -204,7 +120,7 @@ def main() -> None:
     except (FileNotFoundError, ValueError, ModelFileError, OutputError) as exc:
         print(exc, file=sys.stderr)
         raise SystemExit(2) from None
-    folds = [fold_rows(log, args, k) for k in range(args.folds)]
+    folds = [fold_rows(log, args.block, args.folds, k) for k in range(args.folds)]
     scores = {}
     cycles = 1 if args.tree == "start" else args.cycles  # the start tuple: a new track's first draw
     for f in tqdm(args.factors, desc="bandwidth factors", unit="factor"):  # one iteration per factor

@@ -15,11 +15,9 @@ The whole chain runs from a fresh clone (~30-45 min on 2 shared cores, most of i
    the chain of the models shipped there) and the Gaussian baseline on it, both through the ``sensor-envs`` CLI
    (``--models-from DIR`` skips this and uses
    ``DIR/radar_kde.npz`` and ``DIR/radar_gaussian.npz``, e.g. ``models``);
-2. BEFORE models: ``git show <--before-rev>:models/radar_kde.npz`` (and the Gaussian): by default the
-   models shipped before the occlusion loss per range and the scene law in the rig (b005a25, the eighth change;
-   ``daf3071``: before the mounting yaw error and the offset mixture from 30 m; ``6f662ae``: before the KDE's
-   polar output frame; ``ce7b78a``: before the rig with the offset mixture from 50 m; ``f327671``: before the
-   calibration, fitted on the generic rig);
+2. BEFORE models (optional, ``--before DIR``): ``DIR/radar_kde.npz`` and ``DIR/radar_gaussian.npz`` of an
+   earlier change, scored beside (until 2026-11-28 this script took them from ``git show`` of an old commit;
+   no figure depends on the repository's history any more);
 3. real data: ``load_astyx`` (cars; measured position = a cluster's detection nearest to the
    sensor); frames in blocks of ``--block`` consecutive frames, block ``b`` in test fold
    ``b % --folds`` (``validate.split_by_blocks``). Every fold: a KDE fitted on the other folds
@@ -30,7 +28,7 @@ The whole chain runs from a fresh clone (~30-45 min on 2 shared cores, most of i
    :data:`RIG_OPTIONS`, from ``--per-fold-base``), its log recorded as the card says, the KDE fitted with
    the after model's hyperparameters (its CV-chosen relevance variances given, ``relevance="paper"``: the
    CV runs on rig logs, not real rows) and its two bandwidth factors chosen on the training folds' real rows
-   (``real_radar_bandwidth_scale.py``'s criterion ``--per-fold-criterion``; the start trees' first, then the
+   (:mod:`sensor_envs.radar.tune`'s criterion ``--per-fold-criterion``; the start trees' first, then the
    main trees', as the card did). No real row of the test fold enters; what does: the base rig's time
    constants and the optimiser's starting point (the base rig was calibrated on every frame). ~10 min per fold.
 
@@ -86,17 +84,19 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import logsumexp
 
 from sensor_envs.outputs import write_json
 from sensor_envs.radar.astyx import load_astyx
 from sensor_envs.radar.calibrate import DET_AZIMUTH_EDGES, calibrate_rig, frames_from_log
-from sensor_envs.radar.features import model_extra, with_derived_columns
+from sensor_envs.radar.features import model_extra
+from sensor_envs.radar.fidelity import fold_rows as _fold_rows
+from sensor_envs.radar.fidelity import marginal
 from sensor_envs.radar.gaussian import GaussianRadar
 from sensor_envs.radar.kde import KDERadarModel
-from sensor_envs.radar.log import RadarLog, TargetTuples, target_tuples
+from sensor_envs.radar.log import RadarLog, TargetTuples
 from sensor_envs.radar.rig import RigConfig, load_rig, record_rig_log
 from sensor_envs.radar.sensors import IdealRadar
+from sensor_envs.radar.tune import ENERGY_MAX_N
 from sensor_envs.radar.validate import (
     RANGE_BINS,
     block_multiplicities,
@@ -108,14 +108,6 @@ from sensor_envs.radar.validate import (
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT / ".." / "shared" / "data" / "real" / "astyx_hires2019"
-BEFORE_REV = "b005a25"
-"""Commit whose ``models/`` hold the radar models shipped before the last change (the eighth change's: one occlusion
-loss for every range, the generic lane traffic in the rig log; daf3071: no mounting yaw error, the offset mixture
-from 50 m; 6f662ae: the KDE with sensor-frame outputs; ce7b78a: the reflection-law rig at every range; f327671:
-before the calibration, the generic rig)."""
-BASE_RIG_REV = "daf3071"
-"""Commit whose ``models/radar_rig.json`` the shipped rig was calibrated from (``calibrate radar --base``): the
-default starting rig of ``--rig-per-fold``'s calibrations."""
 RANGE_LABELS = [f"{lo:g}-{hi:g}" for lo, hi in zip(RANGE_BINS[:-1], RANGE_BINS[1:], strict=True)]
 AZ_DEG = np.rad2deg(DET_AZIMUTH_EDGES)
 AZ_LABELS = [f"{lo:g}..{hi:g}" for lo, hi in zip(AZ_DEG[:-1], AZ_DEG[1:], strict=True)]
@@ -155,8 +147,6 @@ RIG_OPTIONS: dict[str, Any] = {
 training frames' boxes only; until 2026-11-27 the options stopped at ``--azimuth-bias``)."""
 MAIN_FACTORS = (0.2, 0.25, 0.3, 0.35, 0.5, 0.6, 0.7, 0.85, 1.0)
 """Main-tree factors ``--rig-per-fold`` tries (the card's ``real_radar_bandwidth_scale.py --tree main --factors``)."""
-ENERGY_MAX_N = 4000
-"""Simulated draws per range bin for the energy distance (of up to ``chains`` x rows)."""
 
 
 def chain(
@@ -214,7 +204,7 @@ def rig_per_fold_model(
     trees at their chosen factor). Until 2026-11-27 the start trees kept ``after``'s factor, chosen on every
     fold (a leak of the test fold). Returns the model and what was fitted (angle, factors, seconds).
     """
-    from real_radar_bandwidth_scale import FACTORS, choose, fold_scores, with_factor  # lazy: it imports this one
+    from sensor_envs.radar.tune import FACTORS, choose, fold_scores, with_factor
 
     t0 = time.perf_counter()
     cfg, _ = calibrate_rig(frames_from_log(train), base, seed=args.seed, **RIG_OPTIONS)
@@ -248,70 +238,11 @@ def rig_per_fold_model(
 
 
 def fold_rows(log: RadarLog, args: argparse.Namespace, fold: int) -> tuple[TargetTuples, RadarLog]:
-    """The test rows of ``fold`` (10-frame blocks, ``validate.split_by_blocks``) and their log, its derived
-    features added once (every model and factor scored on the fold reads its extra state from it)."""
-    test = with_derived_columns(split_by_blocks(log, block=args.block, n_folds=args.folds, fold=fold)[1])
-    return target_tuples(test), test
+    """The test rows of ``fold`` (``args.block``-frame blocks, ``args.folds`` folds) and their log.
 
-
-def before_models(work: Path, rev: str) -> tuple[Path, Path]:
-    """The models shipped at ``rev`` (``git show``), written to ``work``."""
-    work.mkdir(parents=True, exist_ok=True)
-    out = []
-    for name in ("radar_kde.npz", "radar_gaussian.npz"):
-        blob = subprocess.run(["git", "show", f"{rev}:models/{name}"], cwd=ROOT, check=True, capture_output=True).stdout
-        (work / name).write_bytes(blob)
-        out.append(work / name)
-    return out[0], out[1]
-
-
-def marginal(
-    model: Any,
-    corner: NDArray,
-    z: NDArray,
-    rng: np.random.Generator,
-    chains: int,
-    cycles: int,
-    all_samples: bool = False,
-    extra: NDArray | None = None,
-) -> dict:
-    """Stationary law of ``model`` at static corners: detection probability, one sample, log p(z), log P(det).
-
-    ``extra (n, E)``: the values of the model's extra state variables at the rows (``features.model_extra``;
-    static over the chain's cycles, as the box is). Returns ``p_det (n,)``, ``sample (n, 2)`` (NaN: miss),
-    ``logp (n,)`` (of the observed ``z``, NaN rows = misses) and ``logp_det (n,)``; with ``all_samples`` also
-    ``samples (n, chains, 2)``, the last output of every chain (a model without ``z_{t-1}``, or at
-    ``cycles == 1``: ``chains`` independent draws at the row's state).
+    :func:`sensor_envs.radar.fidelity.fold_rows`, under the signature the research scripts call.
     """
-    n = corner.shape[0]
-    if isinstance(model, IdealRadar):
-        return {"p_det": np.ones(n), "sample": np.zeros((n, 2)), "samples": np.zeros((n, chains, 2)), "logp": None}
-    has_prev = bool(getattr(model, "use_prev", False))
-    uses_prev = has_prev and cycles > 1
-    m = chains if uses_prev or all_samples else 1
-    cc = np.repeat(corner, m, axis=0)
-    ex: dict[str, Any] = {} if extra is None else {"extra": np.repeat(np.asarray(extra, dtype=np.float64), m, axis=0)}
-    prev = np.full((n * m, 2), np.nan)
-    kw: dict[str, Any] = {}
-    for k in range(cycles - 1 if uses_prev else 0):  # one iteration per cycle, vectorised over rows x chains
-        if uses_prev:  # cycle 0: a new track; later, no previous output = missed last cycle (format 4 trees)
-            kw = {"new_track": np.full(n * m, k == 0) & np.isnan(prev[:, 0])}
-        prev, _ = model.sample_cycle(cc, prev, rng, **kw, **ex)
-    if has_prev:  # the start-tuple score is a new track's; the stationary law's misses are after-miss rows
-        kw = {"new_track": np.full(n * m, not uses_prev) & np.isnan(prev[:, 0])}
-    last, _ = model.sample_cycle(cc, prev, rng, **kw, **ex)
-    # the density: without z_{t-1} fed back every copy of a row has the row's state, so one copy is scored
-    d, one = (m, slice(None)) if uses_prev else (1, slice(None, None, m))
-    state = np.concatenate([cc, prev], axis=1)[one]
-    kw = {key: v[one] for key, v in {**kw, **ex}.items()}
-    lp = model.log_prob(np.repeat(z, d, axis=0), state, **kw).reshape(n, d)
-    lp_miss = model.log_prob(np.full((n * d, 2), np.nan), state, **kw).reshape(n, d)
-    logp = logsumexp(lp, axis=1) - np.log(d)
-    p_miss = np.exp(logsumexp(lp_miss, axis=1) - np.log(d))
-    out = {"p_det": 1.0 - p_miss, "sample": last.reshape(n, m, 2)[:, 0], "logp": logp}
-    if all_samples:
-        out["samples"] = last.reshape(n, m, 2)
-    return out
+    return _fold_rows(log, args.block, args.folds, fold)
 
 
 def scores(res: dict, corner: NDArray, z: NDArray, rng: np.random.Generator) -> dict[str, Any]:
@@ -502,7 +433,7 @@ def markdown(rep: dict) -> str:
         lines.append(f"| {lab} | | " + " | ".join(cells) + " |")
     lines += [
         "",
-        f"Seconds: {rep['seconds']}. Before = models at commit {rep['before_rev']}; after = {rep['after_from']}.",
+        f"Seconds: {rep['seconds']}. Before = {rep['before'] or 'not scored'}; after = {rep['after_from']}.",
     ]
     del ref
     return "\n".join(lines) + "\n"
@@ -571,7 +502,11 @@ def main() -> None:
         default=AZIMUTH_BIAS,
         help=f"chain: fit radar --azimuth-bias (default {AZIMUTH_BIAS}, the shipped model's; 0: up to daf3071)",
     )
-    ap.add_argument("--before-rev", default=BEFORE_REV, help="git revision of the BEFORE models")
+    ap.add_argument(
+        "--before",
+        default=None,
+        help="folder with radar_kde.npz / radar_gaussian.npz of an earlier change to score beside (default: none)",
+    )
     ap.add_argument(
         "--rig-per-fold",
         action="store_true",
@@ -580,8 +515,7 @@ def main() -> None:
     ap.add_argument(
         "--per-fold-base",
         default=None,
-        help=f"starting rig of --rig-per-fold's calibrations (default: models/radar_rig.json of {BASE_RIG_REV}, "
-        "the shipped rig's --base)",
+        help="starting rig of --rig-per-fold's calibrations (required with it: the shipped rig's --base)",
     )
     ap.add_argument(
         "--per-fold-criterion",
@@ -607,6 +541,9 @@ def main() -> None:
         print(f"{args.data}: --block {args.block} gives {n_blocks} blocks, fewer than --folds {args.folds}",
               file=sys.stderr)  # fmt: skip
         raise SystemExit(2)
+    if args.rig_per_fold and not args.per_fold_base:
+        print("--rig-per-fold: needs --per-fold-base (the rig file the calibrations start from)", file=sys.stderr)
+        raise SystemExit(2)
     out.mkdir(parents=True, exist_ok=True)
     if args.models_from:
         kde_after, gauss_after = Path(args.models_from) / "radar_kde.npz", Path(args.models_from) / "radar_gaussian.npz"
@@ -623,19 +560,19 @@ def main() -> None:
             azimuth_bias=args.azimuth_bias,
             start_bandwidth_scale=args.start_bandwidth_scale,
         )
-    kde_before, gauss_before = before_models(out / "before", args.before_rev)
     if args.rig_per_fold:
-        base_path = args.per_fold_base or out / "before" / "base_rig.json"
-        if not args.per_fold_base:
-            rig_blob = subprocess.run(["git", "show", f"{BASE_RIG_REV}:models/radar_rig.json"], cwd=ROOT, check=True,
-                                      capture_output=True).stdout  # fmt: skip
-            Path(base_path).write_bytes(rig_blob)
-        per_fold_base, _ = load_rig(base_path)
+        per_fold_base, _ = load_rig(args.per_fold_base)
         after_model = KDERadarModel.load(kde_after)
+    before: dict[str, tuple[Any, int]] = {}
+    if args.before:  # a folder with the models of an earlier change (e.g. extracted by the user from a release)
+        kde_before, gauss_before = Path(args.before) / "radar_kde.npz", Path(args.before) / "radar_gaussian.npz"
+        before = {
+            "kde_before_start": (KDERadarModel.load(kde_before), 1),
+            "kde_before_stationary": (KDERadarModel.load(kde_before), args.cycles),
+            "gaussian_before": (GaussianRadar.load(gauss_before), 1),
+        }
     fixed = {
-        "kde_before_start": (KDERadarModel.load(kde_before), 1),
-        "kde_before_stationary": (KDERadarModel.load(kde_before), args.cycles),
-        "gaussian_before": (GaussianRadar.load(gauss_before), 1),
+        **before,
         "kde_after_start": (KDERadarModel.load(kde_after), 1),
         "kde_after_stationary": (KDERadarModel.load(kde_after), args.cycles),
         "gaussian_after": (GaussianRadar.load(gauss_after), 1),
@@ -701,7 +638,7 @@ def main() -> None:
         "chains": args.chains,
         "cycles": args.cycles,
         "seed": args.seed,
-        "before_rev": args.before_rev,
+        "before": args.before,
         "after_from": str(
             args.models_from
             or f"chain: {args.rig} -> record{' --in-view-only' if args.in_view_only else ''} -> fit --relevance "

@@ -10,6 +10,12 @@ Importing the package registers the environments with Gymnasium:
 The public API below is importable from here (``from sensor_envs import KDERadarModel``); each name is
 imported lazily on first use (module-level ``__getattr__``, as ``gymnasium.wrappers`` does), so
 ``import sensor_envs`` stays cheap.
+
+Packages: ``lidar`` and ``radar`` (the sensor models), ``envs`` (the worlds), ``diagnose``, ``evaluate`` and
+``training`` (tools), ``cli`` (the ``sensor-envs`` command). Shared modules: ``geometry`` (rays and segments), ``maps``
+(2D segment maps), ``modelio`` (model files), ``outputs`` (safe output files), ``rng`` (seeded generators),
+``trig`` and ``jit`` (compiled kernels), ``heap`` (opt-in malloc tuning), ``lazy`` (lazy public names),
+``cards`` (model cards from a file's header and measured metrics).
 """
 
 from __future__ import annotations

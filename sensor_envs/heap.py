@@ -5,6 +5,11 @@ glibc's malloc serves such sizes with ``mmap`` or trims them off the heap top wh
 touches fresh pages: ~200 minor page faults and ~0.55 ms of a ~1.4 ms ideal-lidar step (measured with
 ``benchmarks/bench_neato_vector.py``). Raising glibc's mmap and trim thresholds keeps that memory mapped
 for reuse, at the cost of holding up to :data:`TRIM_THRESHOLD` bytes of freed memory in the process.
+
+Opt-in: nothing in the package calls :func:`keep_freed_heap` as a side effect. Call it yourself (e.g. at the
+start of a training script) or build the vector env with ``tune_heap=True``::
+
+    gym.make_vec("sensor_envs/Neato-v0", num_envs=64, vectorization_mode="vector_entry_point", tune_heap=True)
 """
 
 from __future__ import annotations

@@ -32,7 +32,14 @@ __all__ = ["SegmentMap", "load_map", "BUILTIN_MAPS", "read_ros_map", "ros_occupa
 
 @dataclass(frozen=True)
 class SegmentMap:
-    """A validated line-segment map: ``segments`` ``(M, 2, 2)`` [m] in the map frame and a name."""
+    """A validated line-segment map: ``segments`` ``(M, 2, 2)`` [m] in the map frame and a name.
+
+    Examples:
+        >>> from sensor_envs import SegmentMap, load_map
+        >>> room = load_map("seed_room")
+        >>> isinstance(room, SegmentMap), room.segments.shape[1:]  # (M, 2, 2) end points [m]
+        (True, (2, 2))
+    """
 
     segments: NDArray[np.float64]
     name: str = "map"
@@ -94,6 +101,14 @@ def load_map(spec: str | os.PathLike[str] | ArrayLike | SegmentMap) -> SegmentMa
     Raises:
         ValueError: naming the file (or ``map``) and the problem: unknown name, unreadable file,
             no segments, NaN coordinates, zero-length segments.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import load_map
+        >>> load_map(np.array([[[0.0, 0.0], [1.0, 0.0]]])).segments.shape
+        (1, 2, 2)
+        >>> load_map("corridor").name
+        'corridor'
     """
     if isinstance(spec, SegmentMap):
         return spec

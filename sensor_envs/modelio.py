@@ -8,6 +8,7 @@ loader declares, and for finiteness where asked.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from collections.abc import Callable, Mapping
@@ -32,7 +33,18 @@ __all__ = [
 
 
 class ModelFileError(InputError):
-    """A model file is unreadable, of the wrong kind or version, or holds a malformed field."""
+    """A model file is unreadable, of the wrong kind or version, or holds a malformed field.
+
+    Examples:
+        >>> from pathlib import Path
+        >>> from sensor_envs import KDERadarModel, ModelFileError
+        >>> _ = Path("broken.npz").write_bytes(b"not a model")
+        >>> try:
+        ...     KDERadarModel.load("broken.npz")
+        ... except ModelFileError as err:
+        ...     print("broken.npz" in str(err))
+        True
+    """
 
 
 M = TypeVar("M")
@@ -401,6 +413,20 @@ def _as_float(path: str | os.PathLike[str], field: str, arr: np.typing.ArrayLike
         return np.asarray(arr, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ModelFileError(f"{path}: field {field!r} is not numeric ({exc})") from None
+
+
+def file_sha256(path: str | os.PathLike[str]) -> str:
+    """The sha256 hex digest of a file's bytes (read in 1 MiB chunks), for model cards: name + hash, never a path."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def data_reference(path: str | os.PathLike[str]) -> dict[str, str]:
+    """``{"file": name, "sha256": digest}`` of an input file: what a card stores instead of its absolute path."""
+    return {"file": Path(path).name, "sha256": file_sha256(path)}
 
 
 def default_model_path(file_name: str) -> Path:

@@ -1,27 +1,17 @@
-"""The rule that chooses the KDE's bandwidth factors on real frames (benchmarks/real_radar_bandwidth_scale.py)."""
-
-import importlib.util
-import sys
-from pathlib import Path
+"""The rule that chooses the KDE's bandwidth factors on real frames (sensor_envs.radar.tune; sensor-envs tune radar)."""
 
 import numpy as np
 import pytest
 
+from sensor_envs.radar import tune
+from sensor_envs.radar.fidelity import frames_report
 from sensor_envs.radar.kde import KDERadarModel
-
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "real_radar_bandwidth_scale.py"
 
 
 @pytest.fixture(scope="module")
 def script():
-    sys.path.insert(0, str(SCRIPT.parent))  # the script imports its sibling real_radar_fidelity
-    try:
-        spec = importlib.util.spec_from_file_location("real_radar_bandwidth_scale", SCRIPT)
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-    finally:
-        sys.path.remove(str(SCRIPT.parent))
-    return mod
+    """The bandwidth-factor rule, in the package since 2026-11-28 (tests import no benchmark script)."""
+    return tune
 
 
 def _parts(spread: float, nll: float, seed: int, folds: int = 5) -> list[dict]:
@@ -70,17 +60,32 @@ def test_tree_factors_act_on_their_own_kernels(script, outward_rig_log):
     np.testing.assert_allclose(both.bandwidth(corners, start=True), 0.4 * base)
 
 
-def test_block_bootstrap_interval_of_the_measured_share_widens_with_scene_to_scene_spread(script):
-    """real_rates' interval resamples whole blocks: alike blocks give a narrow one, opposite blocks a wide one."""
-    fid = sys.modules["real_radar_fidelity"]
+def test_block_bootstrap_interval_of_the_measured_share_widens_with_scene_to_scene_spread(rig_split):
+    """frames_report's measured share resamples whole blocks: alike blocks give a narrow interval, opposite wide."""
+    from sensor_envs.radar.gaussian import GaussianRadar
+
+    base = GaussianRadar().fit(rig_split[0])
     rng = np.random.default_rng(0)
     n = 400
-    corner = np.column_stack([np.full(n, 20.0), np.zeros(n)])  # one range bin, the 0-deg azimuth bin
-    block = np.repeat(np.arange(20), n // 20)
-    alike = np.where((rng.random(n) < 0.8)[:, None], 0.0, np.nan) * np.ones((n, 2))
-    split = np.where((block % 2 == 0)[:, None], 0.0, np.nan) * np.ones((n, 2))  # half the scenes miss all
-    ci_alike = fid.real_rates(corner, alike, block, np.random.default_rng(1))["det_range_ci"][1]
-    ci_split = fid.real_rates(corner, split, block, np.random.default_rng(1))["det_range_ci"][1]
-    assert ci_alike[0] <= np.mean(np.isfinite(alike[:, 0])) <= ci_alike[1]
-    assert ci_alike[1] - ci_alike[0] < 0.12  # ~ binomial: 4 sd of sqrt(.16 / 400) = 0.08
-    assert ci_split[1] - ci_split[0] > 0.3  # 20 scenes of all-or-nothing: the share moves by +-0.2
+    frame = np.arange(n)  # one target per frame, 20 blocks of 20 frames, 20 m ahead
+    cols = {"sequence": np.zeros(n, dtype=np.int64), "frame": frame, "target": np.zeros(n, dtype=np.int64)}
+    widths = []
+    for detected in (rng.random(n) < 0.8, (frame // 20) % 2 == 0):  # alike blocks; half the scenes miss all
+        log = _single_frames(cols, detected)
+        rep = frames_report({"baseline_gaussian": base}, log, block=20, chains=2, cycles=1, n_boot=500)
+        row = rep["start"]["detection_range"][1]  # the 15-30 m bin
+        assert row["n"] == n and row["measured_ci"][0] <= row["measured"] <= row["measured_ci"][1]
+        widths.append(row["measured_ci"][1] - row["measured_ci"][0])
+    assert widths[0] < 0.12  # ~ binomial: 4 sd of sqrt(.16 / 400) = 0.08
+    assert widths[1] > 0.3  # 20 scenes of all-or-nothing: the share moves by +-0.2
+
+
+def _single_frames(cols: dict, detected: np.ndarray):
+    """A single-frame log: one 4 x 2 m box 20 m ahead per frame, measured at its closest corner where ``detected``."""
+    from sensor_envs.radar.log import RadarLog
+
+    n = detected.size
+    box = {"t": cols["frame"].astype(np.float64), "ref_x": np.full(n, 22.0), "ref_y": np.zeros(n)}
+    box |= {"ref_heading": np.zeros(n), "ref_length": np.full(n, 4.0), "ref_width": np.full(n, 2.0)}
+    meas = {"meas_x": np.where(detected, 20.0, np.nan), "meas_y": np.where(detected, 0.0, np.nan)}
+    return RadarLog({**cols, **box, **meas}, source="single frames")

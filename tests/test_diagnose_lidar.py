@@ -124,7 +124,7 @@ def test_extra_state_model_round_trips_and_checks_values(tmp_path):
 
 
 def test_cli_diagnose_lidar(tmp_path):
-    log_path = save_log(make_log("omega", scans=300, bearings=36), tmp_path / "log.npz")
+    log_path = save_log(make_log("omega", scans=400, bearings=36), tmp_path / "log.npz")
     out = tmp_path / "diag"
     cmd = [sys.executable, "-m", "sensor_envs.cli.main", "diagnose", "lidar", str(log_path), "--out", str(out)]
     cmd += ["--permutations", "199", "--max-readings", "100", "--quiet"]

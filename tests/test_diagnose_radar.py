@@ -274,6 +274,7 @@ def test_held_out_scores_take_previous_outputs_from_the_whole_log_and_route_new_
     np.testing.assert_allclose(adapter.evaluate(model).nll, -routed)
 
 
+@pytest.mark.slow
 def test_state_variances_chosen_by_cv_once_then_reused(latency_log):
     """A model whose relevance variances come from CV (e.g. the shipped one) is not re-cross-validated per refit."""
     held = block_split(radar_blocks(latency_log))

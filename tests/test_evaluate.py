@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from sensor_envs.cli.main import main
-from sensor_envs.evaluate.aeb import NNTracker, gospa
-from sensor_envs.evaluate.detection import (
+from sensor_envs.evaluate.lidar_detection import (
     TRAJECTORY_STEPS,
     DetectorParams,
     detect_lines,
@@ -18,6 +17,7 @@ from sensor_envs.evaluate.detection import (
     target_indices,
 )
 from sensor_envs.evaluate.metrics import precision_recall, trajectory_distance, wilson_interval
+from sensor_envs.evaluate.radar_aeb import NNTracker, gospa
 from sensor_envs.geometry import raycast_pose
 from sensor_envs.lidar.log import save_log
 
@@ -141,8 +141,9 @@ def test_boxworld_small():
         LidarLWLR.load(default_model_path(DEFAULT_MODEL_FILE)), n_configs=2, poses_per_config=1, repeats=2
     )
     assert rep["data"]["scans_per_source"] == 4
-    assert rep["trajectories"]["real"][0]["scans"] == 4
-    assert all(np.isfinite(v) for v in rep["distance_to_real"].values())
+    assert rep["trajectories"]["rig"][0]["scans"] == 4  # the rig plays reality and is named so
+    assert "real" not in rep["trajectories"] and "distance_to_real" not in rep
+    assert all(np.isfinite(v) for v in rep["distance_to_rig"].values())
 
 
 def test_cli_detection_writes_report_refuses_existing_out(tmp_path, capsys):
@@ -184,7 +185,7 @@ def test_cli_detection_bad_input_exit_2(tmp_path, capsys):
 
 
 def test_aeb_small():
-    from sensor_envs.evaluate.aeb import aeb_experiment
+    from sensor_envs.evaluate.radar_aeb import aeb_experiment
 
     rep = aeb_experiment(episodes=2, max_steps=4, radars=("ideal", "kde"))
     for v in rep["radars"].values():
@@ -232,7 +233,7 @@ def test_real_astyx_trigger(real_data):
 
 
 def test_scan_matcher_converges_and_registration_small():
-    from sensor_envs.evaluate.registration import match_scan, registration_experiment
+    from sensor_envs.evaluate.lidar_registration import match_scan, registration_experiment
     from sensor_envs.maps import load_map
 
     segs = load_map("corridor").segments

@@ -480,6 +480,7 @@ def test_sync_vector_env_matches_single_envs():
     assert np.array_equal(obs[1], _fast(JitterRadar()).reset(seed=4)[0])
 
 
+@pytest.mark.slow
 def test_sb3_subproc_vec_env_runs():
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import SubprocVecEnv

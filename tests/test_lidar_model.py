@@ -292,7 +292,15 @@ def test_format_version_1_files_load_with_independent_nulls(rig_fit, tmp_path):
     with np.load(path) as z:
         arrays = {k: z[k] for k in z.files}
     header = json.loads(arrays["__header__"].tobytes().decode("utf-8"))
-    assert header["format_version"] == 5
+    assert header["format_version"] == 6
+    assert header["params"]["bias_model"] == ext.bias_model and "pose_sd" in header
+    del header["params"]["bias_model"], header["pose_sd"]  # format 6 added the pooled bias and the pose error
+    header["format_version"] = 5
+    arrays["__header__"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
+    np.savez(tmp_path / "v5.npz", **arrays)
+    v5 = LidarLWLR.load(tmp_path / "v5.npz")
+    assert v5.bias_model == "per_bearing" and v5.pose_sd_ is None
+    np.testing.assert_array_equal(v5.tables_, ext.tables_)
     assert header["spur_rho"] == ext.spur_rho_
     del header["spur_rho"]  # format 5 added the persistence of spurious returns
     header["format_version"] = 4
@@ -326,11 +334,11 @@ def test_format_version_1_files_load_with_independent_nulls(rig_fit, tmp_path):
     old = LidarLWLR.load(tmp_path / "v1.npz")
     assert old.null_rho_ == 0.0
     np.testing.assert_array_equal(old.tables_, ext.tables_)
-    header["format_version"] = 6
+    header["format_version"] = 7
     arrays["__header__"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
-    np.savez(tmp_path / "v6.npz", **arrays)
-    with pytest.raises(ModelFileError, match=re.escape("field 'format_version' is 6")):
-        LidarLWLR.load(tmp_path / "v6.npz")
+    np.savez(tmp_path / "v7.npz", **arrays)
+    with pytest.raises(ModelFileError, match=re.escape("field 'format_version' is 7")):
+        LidarLWLR.load(tmp_path / "v7.npz")
 
 
 def test_bad_model_files_name_the_field(rig_fit, tmp_path):

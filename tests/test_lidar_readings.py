@@ -120,7 +120,7 @@ def test_per_reading_and_per_cell_paths_agree_on_a_repeated_log():
     rig = NeatoRig(pose_sd=(0.0, 0.0), map_sd=0.0, spur_prone=0.0)
     log, _ = rig.record(ROOM, np.random.default_rng(3), n_poses=12, repeats=12)
     kw = {"h_range_grid": (0.6,), "h_alpha_grid": (0.5,), "n_folds": 3, "progress": False}
-    cell = LidarLWLR(variant="seed", **kw).fit(log)
+    cell = LidarLWLR(variant="seed", bias_model="per_bearing", **kw).fit(log)  # the per-reading fit's bias model
     read = LidarLWLR(variant="seed", **kw).fit(log, per_reading=True, max_readings=None)
     assert read.training_["fit"] == "per reading" and "fit" not in cell.training_
     r, a = lidar_features(log.poses, log.bearings, ROOM, 5.0)
@@ -243,6 +243,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow
 def test_cli_fit_and_validate_scan_log_with_map(tmp_path):
     log = scan_log(n=80, spur=0.02)
     path = tmp_path / "scans.npz"
@@ -260,6 +261,7 @@ def test_cli_fit_and_validate_scan_log_with_map(tmp_path):
     assert "NLL/reading" in val.stdout and (tmp_path / "v" / "per_reading.png").exists()
 
 
+@pytest.mark.slow
 def test_cli_bad_inputs_exit_2(tmp_path):
     log = scan_log(n=20)
     bad = tmp_path / "nan_poses.npz"
@@ -275,6 +277,7 @@ def test_cli_bad_inputs_exit_2(tmp_path):
     assert "does not cover" in out.stderr and not (tmp_path / "m.npz").exists()
 
 
+@pytest.mark.slow
 def test_bag_without_scan_topic(tmp_path):
     pytest.importorskip("rosbags")
     from rosbags.rosbag1 import Writer

@@ -129,3 +129,35 @@ def test_vector_env_pickles_and_copies_with_its_streams():
     ref = [env.step(a)[0] for _ in range(3)]
     for c in copies:
         assert all(np.array_equal(c.step(a)[0], r) for r in ref)
+
+
+def test_heap_tuning_is_opt_in(monkeypatch):
+    """Building the vector env leaves the process's malloc settings alone unless tune_heap=True."""
+    from sensor_envs import heap
+
+    calls: list[int] = []
+    monkeypatch.setattr(heap, "keep_freed_heap", lambda: calls.append(1) or True)
+    NeatoVectorEnv(num_envs=2, lidar="ideal")
+    gym.make_vec("sensor_envs/Neato-v0", num_envs=2, vectorization_mode="vector_entry_point", lidar="ideal")
+    assert calls == []
+    NeatoVectorEnv(num_envs=2, lidar="ideal", tune_heap=True)
+    assert calls == [1]
+    with pytest.raises(ValueError, match="tune_heap"):
+        NeatoVectorEnv(num_envs=2, lidar="ideal", tune_heap="yes")
+
+
+def test_building_a_vector_env_does_not_call_mallopt():
+    """In a fresh process: no mallopt call (heap's once-per-process flag never set) after build, reset, step."""
+    import subprocess
+    import sys
+
+    code = """
+import gymnasium as gym, numpy as np, sensor_envs
+from sensor_envs import heap
+env = gym.make_vec("sensor_envs/Neato-v0", num_envs=4, vectorization_mode="vector_entry_point", lidar="ideal")
+env.reset(seed=0)
+env.step(np.zeros((4, 2), dtype=np.float32))
+print(heap._applied)
+"""
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
+    assert out.stdout.split()[-1] == "None"

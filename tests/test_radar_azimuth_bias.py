@@ -92,6 +92,7 @@ def test_the_model_keeps_both_the_outward_offset_and_the_rotation(models, rotate
     np.testing.assert_allclose(np.nanmean(z.reshape(4, 4000, 2), axis=1), fitted.mean_output(corners[:4])[0], atol=0.05)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("with_prev", [False, True])
 def test_log_prob_is_a_density_in_the_sensor_frame(models, rotated_log, with_prev):
     fitted, _ = models

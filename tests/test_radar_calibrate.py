@@ -139,6 +139,7 @@ def test_snapshot_follows_the_detection_probability():
     assert np.all(np.abs(st["det_range"][ok] - ex["det_range"][ok]) < 0.03)
 
 
+@pytest.mark.slow
 def test_calibrate_recovers_known_parameters():
     frames = synthetic_frames(TRUE, n_frames=150)
     generic = RigConfig()
@@ -195,6 +196,7 @@ def test_offset_statistic_is_outward_so_mirrored_scenes_agree():
     assert np.all(a["offset"][:4, 3, 1] > 0.3), a["offset"][:, 3, 1]
 
 
+@pytest.mark.slow
 def test_calibrate_recovers_the_reflection_center():
     true = replace(TRUE, corner_share=0.0, reflection_center=0.15, reflection_spread=0.1)
     frames = synthetic_frames(true, n_frames=150)
@@ -398,6 +400,7 @@ def _polar_offsets(corner: np.ndarray, meas: np.ndarray) -> np.ndarray:
     return to_polar_frame(meas - corner, corner)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["snapshot", "record"])
 def test_mixture_law_draws_the_mixture_around_the_closest_corner(mode):
     """Snapshot and the running rig's stationary law are the bin's mixture in the corner's polar frame."""
@@ -495,6 +498,7 @@ def test_bad_mixture_values_fail_at_load_naming_file_and_field(tmp_path, change,
         load_rig(path)
 
 
+@pytest.mark.slow
 def test_fit_offset_mixture_recovers_a_known_offset_law():
     """EM per range bin recovers the rig's mixture; the CV keeps one component where one suffices."""
     from sensor_envs.radar.calibrate import fit_offset_mixture
@@ -520,6 +524,7 @@ def test_fit_offset_mixture_recovers_a_known_offset_law():
         np.testing.assert_allclose(np.sqrt(np.diag(c_fit)), np.sqrt(np.diag(c_true)), rtol=0.3)
 
 
+@pytest.mark.slow
 def test_calibrate_cli_offset_law_mixture(tmp_path):
     real = _synthetic_csv_of(tmp_path, MIXTURE, synthetic_frames(MIXTURE, n_frames=40, seed=2))
     rig = tmp_path / "rig.json"
@@ -575,6 +580,7 @@ def test_bad_mixture_min_range_fails_at_load(tmp_path, change, field):
     test_bad_mixture_values_fail_at_load_naming_file_and_field(tmp_path, change, field)
 
 
+@pytest.mark.slow
 def test_calibrate_cli_mixture_min_range(tmp_path, capsys):
     """``--mixture-min-range``: the reflection law is fitted for the nearer boxes, the mixture beyond;
     refused (exit 2, one line naming the option, nothing written) without ``--offset-law mixture``."""
@@ -657,6 +663,7 @@ def test_fit_azimuth_bias_finds_an_undeclared_mounting_yaw_error():
     assert d0["offset_signed"] - d1["offset_signed"] > 2 * (d0["offset"] - d1["offset"])
 
 
+@pytest.mark.slow
 def test_calibrate_with_azimuth_bias_recovers_it_and_fits_the_laws_on_derotated_data():
     true_bias = np.deg2rad(-0.4)
     frames = synthetic_frames(replace(TRUE, azimuth_bias=true_bias), n_frames=150)
@@ -668,6 +675,7 @@ def test_calibrate_with_azimuth_bias_recovers_it_and_fits_the_laws_on_derotated_
     assert plain.azimuth_bias == 0.0  # without the option the bias stays the base's
 
 
+@pytest.mark.slow
 def test_calibrate_cli_azimuth_bias_flag_writes_the_fitted_bias(tmp_path):
     yawed = replace(TRUE, azimuth_bias=float(np.deg2rad(0.5)))
     real = _synthetic_csv_of(tmp_path, yawed, synthetic_frames(yawed, n_frames=60, seed=3))
@@ -697,6 +705,7 @@ def test_astyx_detections_carry_a_mounting_yaw_error_that_fit_azimuth_bias_finds
     assert with_bias < 0.8 * without, (with_bias, without)
 
 
+@pytest.mark.slow
 def test_occlusion_loss_per_range_knot_is_recovered_where_one_loss_cannot_fit():
     """A rig that loses hidden boxes near the sensor only: calibrate's ``occlusion_by_range`` finds the table
     (near loss high, far loss low) and fits the range x occlusion cells better than one loss for every range."""
@@ -755,22 +764,3 @@ def test_calibrate_cli_occlusion_by_range_writes_the_table(tmp_path):
     assert "det_occlusion_range" in card["discrepancy_after"]
     argv = ["calibrate", "radar", str(real), "--out", str(tmp_path / "r2.json"), "--scene-only", "--occlusion-by-range"]
     assert main([*argv, "--base", str(rig)]) == 2  # --scene-only fits no sensor law
-
-
-def test_calibration_cv_benchmark_runs_on_a_log_and_scores_the_occlusion_cells(tmp_path, capsys, monkeypatch):
-    """benchmarks/real_radar_calibration_cv.py end to end on synthetic single frames (2 folds, one ridge)."""
-    import importlib.util
-    import sys
-
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "real_radar_calibration_cv.py"
-    spec = importlib.util.spec_from_file_location("real_radar_calibration_cv", script)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    real = _synthetic_csv(tmp_path)
-    argv = ["x", "--data", str(real), "--rig", str(SHIPPED_RIG), "--ridges", "0.002", "--folds", "2",
-            "--replicates", "1", "--kinds", "symmetric", "occlusion_by_range"]  # fmt: skip
-    monkeypatch.setattr(sys, "argv", argv)
-    mod.main()
-    out = capsys.readouterr().out
-    assert "ridge 0.002 occlusion_by_range:" in out and "det_occlusion_range" in out
-    assert "| 0-15 m, 0 (" in out  # the held-out range x occlusion table

@@ -1,5 +1,7 @@
 import json
 
+import pytest
+
 from sensor_envs.cli.main import main
 
 
@@ -23,6 +25,7 @@ def test_bad_log_gives_exit_code_2_and_names_the_file(tmp_path, capsys):
     assert f"{bad}: required column 't' is missing" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_validate_the_shipped_model_finds_its_shipped_baseline(tmp_path):
     from sensor_envs.modelio import default_model_path
     from sensor_envs.radar.sensors import DEFAULT_MODEL_FILES

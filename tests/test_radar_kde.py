@@ -33,6 +33,7 @@ def test_samples_follow_the_analytic_pdf(model, sampler):
         assert res["p_value"] > P_MIN, (state, res["statistic"], res["dof"])
 
 
+@pytest.mark.slow
 def test_bucket_sampler_with_strong_miss_prior_and_fine_grid(rig_split):
     # a large pseudo-weight makes the pseudo-tuple paths (miss / detected-after-pseudo) frequent
     m = KDERadarModel(miss_prior=30.0, bucket_cell=1.5, sampler="bucket", random_state=0).fit(rig_split[0])

@@ -95,6 +95,7 @@ class _Shifted:
         return self.m.bin_probabilities(s, ex, ey)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("with_prev", [False, True])
 def test_polar_log_prob_is_a_density_in_the_sensor_frame(pair, outward_log, with_prev):
     _, polar = pair

@@ -81,6 +81,7 @@ def test_polar_relevance_cv_picks_from_the_candidates():
     assert scores[2 + (0.005, 0.08).index(va)] == scores[2:].max()
 
 
+@pytest.mark.slow
 def test_cv_state_chooses_the_previous_output_variance_on_the_training_log(tmp_path, rewrite_kde_file):
     """``relevance="cv_state"``: corner x and y variances, then the z_{t-1} variance, all from their candidates."""
     log = record_rig_log(8, 15, 6, np.random.default_rng(3))

@@ -158,6 +158,7 @@ def _real_csv(tmp_path: Path) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_calibrate_cli_scene_only_fits_the_scene_and_keeps_the_base_rig(tmp_path, capsys):
     real = _real_csv(tmp_path)
     out = tmp_path / "rig.json"
@@ -221,6 +222,7 @@ def test_scene_law_fitted_on_astyx_spreads_the_recorded_boxes_like_the_real_ones
         assert new["along_share"] == pytest.approx(want["along_share"], abs=0.1), (new, want)
 
 
+@pytest.mark.slow
 def test_calibrate_rig_with_scene_fits_the_laws_and_the_scene(tmp_path):
     """``calibrate radar --scene``: the same sensor laws as without it, plus the scene law of the real boxes."""
     from sensor_envs.radar.calibrate import calibrate_rig, load_real

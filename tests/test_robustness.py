@@ -1,18 +1,13 @@
-import importlib.util
 import json
 import os
-from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "training" / "robustness.py"
+from sensor_envs.training import robustness
 
 
 def _module():
-    spec = importlib.util.spec_from_file_location("robustness", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return robustness
 
 
 @pytest.fixture(scope="module")
@@ -29,17 +24,22 @@ def test_short_preset_matrix_rows_columns_intervals_and_files(short_matrix):
     mod, out, matrix = short_matrix
     sensors = ["ideal", "gaussian", "learned"]
     assert matrix["rows_trained_on"] == sensors and matrix["columns_evaluated_on"] == sensors
-    assert matrix["seeds"] == [0, 1] and "Student-t" in matrix["interval"]
+    assert matrix["seeds"] == [0, 1] and "seeds resampled whole" in matrix["interval"]
     assert set(matrix["cells"]) == {f"{r}->{c}" for r in sensors for c in sensors}
     for cell in matrix["cells"].values():
         assert set(cell) == {"success", "collision", "return"}
         for m in cell.values():
-            lo, hi = m["ci95"]
-            assert lo <= m["mean"] <= hi and len(m["per_seed"]) == 2
-        assert 0.0 <= cell["success"]["mean"] <= 1.0 and 0.0 <= cell["collision"]["mean"] <= 1.0
+            for stat in ("iqm", "mean"):
+                lo, hi = m[f"{stat}_ci95"]
+                assert lo <= m[stat] <= hi
+            assert len(m["per_seed"]) == 2
+        for rate in ("success", "collision"):
+            assert 0.0 <= cell[rate]["mean_ci95"][0] <= cell[rate]["mean_ci95"][1] <= 1.0
+    pairs = matrix["probability_of_improvement"]["return"]
+    assert set(pairs) == {f"{a} vs {b} @ {c}" for a, b in [sensors[:2], sensors[::2], sensors[1:]] for c in sensors}
     assert json.loads((out / "matrix.json").read_text())["cells"] == matrix["cells"]
     md = (out / "matrix.md").read_text()
-    assert "| learned |" in md and "95 % CI" in md
+    assert "| learned |" in md and "95 % CI" in md and "Probability of improvement" in md
     assert (out / "matrix.png").stat().st_size > 0
     for r in sensors:
         for s in (0, 1):

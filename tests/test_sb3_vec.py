@@ -1,8 +1,5 @@
 """The SB3 adapter of gymnasium vector envs: the same numbers as SB3's DummyVecEnv of single envs, and training."""
 
-import importlib.util
-from pathlib import Path
-
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -18,7 +15,6 @@ import sensor_envs  # noqa: F401
 from sensor_envs.envs.sb3_vec import SB3VecEnv, make_sb3_vector_env, unbatch_info
 
 ID = "sensor_envs/Neato-v0"
-TRAIN = Path(__file__).resolve().parents[1] / "training" / "train.py"
 
 
 def _assert_same_rollout(vec, dummy, n, steps, seed_actions=0):
@@ -100,10 +96,9 @@ def test_unbatch_info_honours_masks_and_gives_python_scalars():
 
 
 def _train_module():
-    spec = importlib.util.spec_from_file_location("train", TRAIN)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    from sensor_envs.training import train
+
+    return train
 
 
 def _short_vector_run(train, out, seed):
@@ -116,6 +111,7 @@ def _short_vector_run(train, out, seed):
     )  # fmt: skip
 
 
+@pytest.mark.slow
 def test_ppo_trains_on_the_vector_entry_point_and_same_seed_gives_same_model(tmp_path):
     import torch
     from stable_baselines3 import PPO

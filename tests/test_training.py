@@ -1,19 +1,16 @@
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
 
-TRAIN = Path(__file__).resolve().parents[1] / "training" / "train.py"
+from sensor_envs.cli.main import main
+from sensor_envs.training import train as train_module
 
 
 def _train_module():
-    spec = importlib.util.spec_from_file_location("train", TRAIN)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return train_module
 
 
+@pytest.mark.slow
 def test_training_smoke_run_writes_config_model_and_result(tmp_path):
     train = _train_module()
     out = tmp_path / "run"
@@ -71,6 +68,30 @@ def test_config_errors_exit_2_with_one_line_naming_the_key(tmp_path, capsys):
         train.load_config(train.DEFAULT_CONFIG, "sensor_envs/Neato-v0", ["bogus=1"])
 
 
+def test_existing_out_is_refused_unless_force(tmp_path, capsys):
+    """train.py used to write into an existing --out silently; now exit 2, one line, nothing written."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "keep.txt").write_text("old run")
+    with pytest.raises(SystemExit) as err:
+        main(["train", "--env", "sensor_envs/Neato-v0", "--out", str(out), "--set", "n_timesteps=64"])
+    assert err.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "--out" in lines[0] and "--force" in lines[0]
+    assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
+
+
+def test_train_and_robustness_are_cli_commands_with_the_shipped_config(capsys):
+    from importlib import resources
+
+    shipped = resources.files("sensor_envs.training").joinpath("configs", "default.yaml")
+    assert shipped.is_file() and str(train_module.DEFAULT_CONFIG) == str(shipped)
+    for command in ("train", "robustness"):
+        with pytest.raises(SystemExit) as err:
+            main([command, "--help"])
+        assert err.value.code == 0 and "--out" in capsys.readouterr().out
+
+
 def test_algo_block_sensor_and_device_resolve():
     train = _train_module()
     cfg = train.load_config(train.DEFAULT_CONFIG, "sensor_envs/HighwayFast-v0", [], algo="dqn", sensor="gaussian")
@@ -82,6 +103,7 @@ def test_algo_block_sensor_and_device_resolve():
     assert neato["algo"] == "sac" and neato["env_kwargs"]["lidar"] == "ideal"
 
 
+@pytest.mark.slow
 def test_subproc_vec_env_and_tensorboard_log(tmp_path):
     pytest.importorskip("tensorboard", reason="TensorBoard logs need the train extra (pip install tensorboard)")
     train = _train_module()

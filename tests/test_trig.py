@@ -88,6 +88,7 @@ def test_compiled_and_numpy_paths_give_the_same_bits(compiled_kernels):
     assert np.array_equal(trig.tan_half_pi(t), tan_numpy, equal_nan=True)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lidar", ["ideal", "gaussian"])
 def test_vector_step_does_not_page_fault(lidar):
     """A 64-robot vector step reuses freed heap (sensor_envs.heap): under 5 minor page faults a step.
@@ -99,7 +100,8 @@ def test_vector_step_does_not_page_fault(lidar):
     code = f"""
 import resource, numpy as np, gymnasium as gym, sensor_envs
 from sensor_envs.heap import keep_freed_heap
-env = gym.make_vec("sensor_envs/Neato-v0", num_envs=64, vectorization_mode="vector_entry_point", lidar="{lidar}")
+env = gym.make_vec("sensor_envs/Neato-v0", num_envs=64, vectorization_mode="vector_entry_point", lidar="{lidar}",
+                   tune_heap=True)
 env.reset(seed=0)
 acts = np.random.default_rng(0).uniform(-1, 1, (60, 64, 2)).astype(np.float32)
 for a in acts[:10]:

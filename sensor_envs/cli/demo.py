@@ -11,11 +11,19 @@ detections against the true closest corners, plus a frame with the radar overlay
 with a small algorithm-level evaluation where the sensors differ (``report["evaluation"]``): the seed's
 board detector on the rig's box world per lidar (``detection_pr.png``) and a forward-collision warning
 per radar (false alarms, missed warnings); ``sensor-envs evaluate`` runs the full experiments.
+
+Outputs: ``report.json`` and ``report.md`` (the same numbers, every field defined: :data:`FIELDS`), and
+figures, each titled with its units and a legend. Sensor names are the same everywhere: ``ideal``,
+``gaussian``, ``learned`` / ``kde``; in the box-world evaluation the calibrated rig plays reality and is
+called ``rig``, ``learned (sample)`` is the learned model sampled per cell with its pose uncertainty.
+When stderr is not a terminal (a log file, CI), each stage also prints one line to stderr.
 """
 
 from __future__ import annotations
 
 import json
+import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -25,15 +33,58 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.patches import Patch
 from numpy.typing import NDArray
 from tqdm import tqdm
+
+# highway-env renders with pygame: SDL's off-screen driver draws without a display (the "dummy" driver draws black
+# frames) and does not probe for one, which printed "XDG_RUNTIME_DIR is invalid" lines on machines without one
+os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 import sensor_envs  # noqa: F401  (registers the ids)
 from sensor_envs.lidar.sensors import LIDAR_NAMES
 from sensor_envs.outputs import OutputTransaction, check_output, write_json
 from sensor_envs.radar.sensors import RADAR_NAMES
 
-__all__ = ["run_demo", "reactive_action"]
+__all__ = ["run_demo", "reactive_action", "report_markdown", "FIELDS"]
+
+FIELDS: dict[str, str] = {
+    "success_rate": "share of episodes that reached the goal (terminated, is_success)",
+    "collision_rate": "share of episodes that ended touching a wall (terminated, collision)",
+    "timeout_rate": "share of episodes cut at the step limit (truncated: neither goal nor wall in 500 steps)",
+    "mean_return": "mean undiscounted episode return",
+    "mean_steps": "mean episode length [policy steps of 0.2 s]",
+    "null_share": "share of lidar readings that were nulls (no return)",
+    "steps": "policy steps driven (1 s each; fewer than 20 when the ego vehicle crashed)",
+    "ended_by": "why the highway run stopped: 'steps' (all 20 driven), 'crash' (terminated) or 'time' (truncated)",
+    "visible_targets": "vehicle-steps inside the radar's field of view and range, not hidden (the detectable ones)",
+    "detection_rate": "detected / visible targets",
+    "clutter_per_step": "detections matching no vehicle, per step",
+    "median_position_error_m": "median distance of a detection from its vehicle's true closest corner [m]",
+    "precision": "true detections / all detections (board detection) or correct warnings / warnings (FCW)",
+    "recall": "boards detected / boards present, or warned steps / steps that needed a warning (FCW)",
+    "tp, fp, fn": "true positives, false positives, false negatives (counts)",
+    "distance to rig": "mean point-wise distance of a sensor's precision-recall trajectory from the rig's",
+    "warnings, false_alarms, missed_warnings": "forward-collision warnings given, given without need, needed "
+    "but not given (policy steps)",
+    "mean_gospa_m": "mean GOSPA distance of the tracker's objects from the true vehicles [m] (lower is better)",
+}
+"""Every field of ``report.json`` / ``report.md``, defined (written into ``report.md``)."""
+
+_BOX_NAMES = {
+    "rig": "rig",
+    "model": "learned (sample)",
+    "model_world": "learned",
+    "baseline": "gaussian",
+    "ideal": "ideal",
+}
+"""The box-world evaluation's sources under the names the rest of the report uses."""
+
+
+def _stage(text: str) -> None:
+    """One line per stage on stderr when it is not a terminal (tqdm's bars show progress on a terminal)."""
+    if not sys.stderr.isatty():
+        print(f"sensor-envs demo: {text}", file=sys.stderr, flush=True)
 
 
 def reactive_action(obs: NDArray[np.float32], n_bearings: int = 360, clearance: float = 0.45) -> NDArray[np.float32]:
@@ -80,7 +131,12 @@ def _drive(lidar: str, seed: int, episodes: int, out: Path, map_name: str = "see
             nulls += int(np.sum(info["scan"] == 0.0))
             readings += info["scan"].size
         if ep == 0:
-            plt.imsave(out / f"neato_{lidar}.png", np.asarray(env.render()))
+            _frame_figure(
+                np.asarray(env.render()),
+                out / f"neato_{lidar}.png",
+                f"Neato-v0 ({map_name}), {lidar} lidar: last frame of episode 1 (robot radius 0.17 m)",
+                _NEATO_LEGEND,
+            )
         outcomes.append("success" if info["is_success"] else "collision" if info["collision"] else "timeout")
         returns.append(total)
         steps.append(t)
@@ -90,10 +146,41 @@ def _drive(lidar: str, seed: int, episodes: int, out: Path, map_name: str = "see
         "episodes": episodes,
         "success_rate": outcomes.count("success") / episodes,
         "collision_rate": outcomes.count("collision") / episodes,
+        "timeout_rate": outcomes.count("timeout") / episodes,
         "mean_return": round(float(np.mean(returns)), 3),
         "mean_steps": round(float(np.mean(steps)), 1),
         "null_share": round(nulls / max(readings, 1), 4),
     }
+
+
+_NEATO_LEGEND = {
+    "walls": (20, 20, 20),
+    "rays": (170, 200, 240),
+    "returns": (220, 30, 30),
+    "robot (0.17 m)": (90, 90, 90),
+    "goal": (30, 160, 60),
+}
+_HIGHWAY_LEGEND = {
+    "detection": (230, 0, 230),
+    "clutter": (255, 140, 0),
+    "missed vehicle": (220, 0, 0),
+    "field of view": (120, 170, 255),
+    "ego vehicle": (50, 200, 0),
+    "other vehicles": (100, 200, 255),
+}
+
+
+def _frame_figure(frame: NDArray[np.uint8], path: Path, title: str, legend: dict[str, tuple[int, int, int]]) -> None:
+    """An env frame saved with a title and a colour legend."""
+    h, w = frame.shape[:2]
+    fig, ax = plt.subplots(figsize=(min(12.0, w / 80 + 1), h / 80 + 1.2))
+    ax.imshow(frame)
+    ax.set_axis_off()
+    ax.set_title(title, fontsize=9)
+    handles = [Patch(color=(c[0] / 255, c[1] / 255, c[2] / 255), label=k) for k, c in legend.items()]
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=len(handles), fontsize=7)
+    fig.savefig(path, dpi=100, bbox_inches="tight")
+    plt.close(fig)
 
 
 def _scan_figure(lidars: tuple[str, ...], seed: int, path: Path) -> None:
@@ -109,6 +196,7 @@ def _scan_figure(lidars: tuple[str, ...], seed: int, path: Path) -> None:
         env.close()
     ax.set_ylim(0.0, 5.0)  # the lidar's max range: spurious ~16.9 m returns fall outside (counted in the title)
     ax.set_title("One scan of each lidar from the same pose (seed room), range [m];\nreturns beyond 5 m not drawn")
+    ax.set_xlabel("bearing [deg], counter-clockwise from the robot's heading")
     ax.legend(loc="upper left", bbox_to_anchor=(-0.12, 1.0), fontsize=8)  # outside the 225-degree label
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
@@ -129,13 +217,19 @@ def _highway(radar: str, seed: int, steps: int, out: Path) -> dict[str, Any]:
         clutter += int((~own).sum())
         errors.append(np.linalg.norm(ri.detections[own] - ri.truth_reference[ri.detection_target[own]], axis=1))
         if t == steps // 2:
-            plt.imsave(out / f"highway_{radar}.png", np.asarray(env.render()))
+            _frame_figure(
+                np.asarray(env.render()),
+                out / f"highway_{radar}.png",
+                f"highway-fast, {radar} radar: step {t + 1} (lanes 4 m wide; 100 deg field of view, 120 m)",
+                _HIGHWAY_LEGEND,
+            )
         if term or trunc:
             break
     env.close()
     err = np.concatenate(errors) if errors else np.zeros(0)
     return {
         "steps": t + 1,
+        "ended_by": "crash" if term else "time" if trunc else "steps",
         "visible_targets": visible,
         "detection_rate": round(detected / max(visible, 1), 4),
         "clutter_per_step": round(clutter / (t + 1), 3),
@@ -153,8 +247,8 @@ def _evaluation(seed: int, out: Path) -> dict[str, Any]:
     trajectory) for the ideal, Gaussian and learned lidars, and the forward-collision warning on
     highway-fast for each radar (false alarms, missed warnings).
     """
-    from sensor_envs.evaluate.aeb import aeb_experiment
     from sensor_envs.evaluate.lidar_experiments import boxworld_experiment
+    from sensor_envs.evaluate.radar_aeb import aeb_experiment
     from sensor_envs.evaluate.report import plot_trajectories
     from sensor_envs.lidar.lwlr import DEFAULT_MODEL_FILE, LidarLWLR
     from sensor_envs.modelio import default_model_path
@@ -162,21 +256,20 @@ def _evaluation(seed: int, out: Path) -> dict[str, Any]:
     box = boxworld_experiment(
         LidarLWLR.load(default_model_path(DEFAULT_MODEL_FILE)), n_configs=6, poses_per_config=1, repeats=3, seed=seed
     )
-    plot_trajectories(box["trajectories"], out / "detection_pr.png", "board detection on the rig's box world")
-    names = {
-        "real": "rig",
-        "model": "learned (sample)",
-        "model_world": "learned",
-        "baseline": "gaussian",
-        "ideal": "ideal",
-    }
+    names = _BOX_NAMES
+    plot_trajectories(
+        {names[k]: v for k, v in box["trajectories"].items()},
+        out / "detection_pr.png",
+        "Board detection on the rig's box world (the rig plays reality):\nprecision vs recall per step of the "
+        "detector's development (unitless shares)",
+    )
     aeb = aeb_experiment(episodes=6, max_steps=20, seed=seed)
     return {
         "board_detection_rig": {
             names[k]: {key: v[-1][key] for key in ("precision", "recall", "tp", "fp", "fn")}
             for k, v in box["trajectories"].items()
         },
-        "board_detection_distance_to_rig": {names[k]: v for k, v in box["distance_to_real"].items()},
+        "board_detection_distance_to_rig": {names[k]: v for k, v in box["distance_to_rig"].items()},
         "forward_collision_warning": {k: {key: v[key] for key in _FCW_KEYS} for k, v in aeb["radars"].items()},
     }
 
@@ -192,11 +285,46 @@ def run_demo(out: str | Path, seed: int = 0, episodes: int = 10, force: bool = F
     with OutputTransaction() as tx:
         tmp = tx.folder(out)
         for lidar in tqdm(LIDAR_NAMES, desc="Neato-v0 lidars"):
+            _stage(f"Neato-v0: {episodes} episodes with the {lidar} lidar")
             report["neato"][lidar] = _drive(lidar, seed, episodes, tmp)
+        _stage("Neato-v0: one scan of each lidar from one pose")
         _scan_figure(LIDAR_NAMES, seed, tmp / "neato_scans.png")
-        report["highway_fast"] = {radar: _highway(radar, seed, 20, tmp) for radar in tqdm(RADAR_NAMES, desc="radars")}
+        report["highway_fast"] = {}
+        for radar in tqdm(RADAR_NAMES, desc="radars"):
+            _stage(f"highway-fast: 20 steps with the {radar} radar")
+            report["highway_fast"][radar] = _highway(radar, seed, 20, tmp)
+        _stage("evaluation: board detection on the rig's box world, forward-collision warning per radar")
         report["evaluation"] = _evaluation(seed, tmp)
         write_json(tmp / "report.json", report)
+        (tmp / "report.md").write_text(report_markdown(report), encoding="utf-8")
     print(json.dumps(report, indent=2))
-    print(f"pictures and report.json written to {out.resolve()}")
+    print(f"pictures, report.json and report.md written to {out.resolve()}")
     return report
+
+
+def _md_table(rows: dict[str, dict[str, Any]], first: str) -> list[str]:
+    keys = list(next(iter(rows.values())))
+    lines = [f"| {first} | " + " | ".join(keys) + " |", "|---" * (len(keys) + 1) + "|"]
+    lines += [f"| {name} | " + " | ".join(str(v) for v in row.values()) + " |" for name, row in rows.items()]
+    return lines
+
+
+def report_markdown(report: dict[str, Any]) -> str:
+    """``report.md``: the report's numbers as tables, then the definition of every field (:data:`FIELDS`)."""
+    ev = report["evaluation"]
+    lines = [f"# sensor-envs demo (seed {report['seed']})", ""]
+    lines += ["## Neato-v0: a reactive controller, the same seeded episodes with each lidar", ""]
+    lines += _md_table(report["neato"], "lidar") + [""]
+    lines += ["Figures: `neato_<lidar>.png` (last frame of episode 1), `neato_scans.png` (one scan per lidar).", ""]
+    lines += ["## highway-fast: 20 IDLE steps with each radar (the same traffic)", ""]
+    lines += _md_table(report["highway_fast"], "radar") + ["", "Figures: `highway_<radar>.png`.", ""]
+    lines += ["## Board detection on the rig's box world (the rig plays reality; final detector step)", ""]
+    rows = {
+        k: {**v, "distance to rig": ev["board_detection_distance_to_rig"].get(k, "-")}
+        for k, v in ev["board_detection_rig"].items()
+    }
+    lines += _md_table(rows, "source") + ["", "Figure: `detection_pr.png`.", ""]
+    lines += ["## Forward-collision warning on highway-fast, per radar", ""]
+    lines += _md_table(ev["forward_collision_warning"], "radar") + [""]
+    lines += ["## Fields", ""] + [f"- `{k}`: {v}" for k, v in FIELDS.items()] + [""]
+    return "\n".join(lines)

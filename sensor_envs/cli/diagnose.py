@@ -33,12 +33,14 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     add_force(p)
     p.add_argument("--max-add", type=positive_int, default=3, help="at most this many effects are added (default 3)")
     p.add_argument("--permutations", type=positive_int, default=499, help="permutations of the test (default 499)")
-    p.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level (default 0.01)")
+    p.add_argument("--alpha", type=float, default=0.05, help="family-wise significance level (default 0.05)")
     p.add_argument("--min-score", type=float, default=0.005, help="minimum cross-fitted R^2 (default 0.005)")
     p.add_argument("--block-frames", type=positive_int, default=25, help="frames per contiguous block (default 25)")
     p.add_argument("--no-prev", action="store_true", help="do not condition the KDE on z_{t-1}")
     p.add_argument("--exclude", action="append", default=[], help="a log column that is not a candidate (repeatable)")
-    p.add_argument("--seed", type=nonneg_int, default=0)
+    p.add_argument(
+        "--seed", type=nonneg_int, default=0, help="seed of the block split, fits and permutations (default: 0)"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_naming_the_log(_diagnose_radar))
     q = kinds.add_parser("lidar", help="diagnose the learned lidar on a scan log (.npz, CARMEN log, ROS bag)")
@@ -56,12 +58,14 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     add_force(q)
     q.add_argument("--max-add", type=positive_int, default=3, help="at most this many effects are added (default 3)")
     q.add_argument("--permutations", type=positive_int, default=499, help="permutations of the test (default 499)")
-    q.add_argument("--alpha", type=float, default=0.01, help="family-wise significance level (default 0.01)")
+    q.add_argument("--alpha", type=float, default=0.05, help="family-wise significance level (default 0.05)")
     q.add_argument("--min-score", type=float, default=0.005, help="minimum cross-fitted R^2 (default 0.005)")
     q.add_argument(
         "--block-scans", dest="block_frames", type=positive_int, default=5, help="scans per block (default 5)"
     )
-    q.add_argument("--seed", type=nonneg_int, default=0)
+    q.add_argument(
+        "--seed", type=nonneg_int, default=0, help="seed of the block split, fits and permutations (default: 0)"
+    )
     q.add_argument("--quiet", action="store_true", help="no progress bars")
     q.set_defaults(func=_naming_the_log(_diagnose_lidar))
 

@@ -38,11 +38,13 @@ def register(parser: argparse.ArgumentParser) -> None:
     det.add_argument(
         "--model", default="fit", help="'fit' (default: LWLR fitted leave-poses-out on the log) or a model file (.npz)"
     )
-    det.add_argument("--baseline", default="gaussian", choices=("gaussian",))
+    det.add_argument(
+        "--baseline", default="gaussian", choices=("gaussian",), help="baseline simulator: the Gaussian lidar"
+    )
     det.add_argument("--length", type=positive_float, default=0.61, help="target length [m] (default: 0.61)")
     det.add_argument("--repeats", type=positive_int, default=10, help="scans per pose and source (default: 10)")
     det.add_argument("--folds", type=positive_int, default=3, help="leave-poses-out folds when fitting (default: 3)")
-    det.add_argument("--seed", type=nonneg_int, default=0)
+    det.add_argument("--seed", type=nonneg_int, default=0, help="seed of the folds and simulated scans (default: 0)")
     _common(det)
     det.set_defaults(func=_detection)
     box = sub.add_parser("boxworld", help="the seed's box-world detection experiment on the rig (rig = reality)")
@@ -50,7 +52,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     box.add_argument("--configs", type=positive_int, default=50, help="board configurations (default: 50)")
     box.add_argument("--poses", type=positive_int, default=2, help="poses per configuration (default: 2)")
     box.add_argument("--repeats", type=positive_int, default=5, help="scans per pose (default: 5)")
-    box.add_argument("--seed", type=nonneg_int, default=0)
+    box.add_argument("--seed", type=nonneg_int, default=0, help="seed of the box worlds and scans (default: 0)")
     _common(box)
     box.set_defaults(func=_boxworld)
     rad = sub.add_parser("radar-detection", help="ADAS trigger on object radar output: real vs KDE vs Gaussian")
@@ -58,20 +60,20 @@ def register(parser: argparse.ArgumentParser) -> None:
     rad.add_argument("--model", default=None, help="KDE radar model file (default: the shipped one)")
     rad.add_argument("--baseline", default=None, help="Gaussian radar model file (default: the shipped one)")
     rad.add_argument("--fit", action="store_true", help="fit the KDE and Gaussian models leave-blocks-out on the log")
-    rad.add_argument("--seed", type=nonneg_int, default=0)
+    rad.add_argument("--seed", type=nonneg_int, default=0, help="seed of the simulated draws (default: 0)")
     rad.add_argument("--draws", type=positive_int, default=20, help="simulated draws per reference box (default: 20)")
     _common(rad)
     rad.set_defaults(func=_radar_detection)
     reg = sub.add_parser("registration", help="corridor registration (Kalman filter + scan matcher) vs iterations")
     reg.add_argument("--model", default=None, help="learned lidar model (default: the shipped one)")
     reg.add_argument("--poses", type=positive_int, default=40, help="poses along the corridor (default: 40)")
-    reg.add_argument("--seed", type=nonneg_int, default=0)
+    reg.add_argument("--seed", type=nonneg_int, default=0, help="seed of the corridor scans (default: 0)")
     _common(reg)
     reg.set_defaults(func=_registration)
     aeb = sub.add_parser("aeb", help="forward-collision warning + tracker on highway-fast with each radar")
     aeb.add_argument("--episodes", type=positive_int, default=30, help="seeded episodes per radar (default: 30)")
     aeb.add_argument("--steps", type=positive_int, default=40, help="policy steps per episode at most (default: 40)")
-    aeb.add_argument("--seed", type=nonneg_int, default=0)
+    aeb.add_argument("--seed", type=nonneg_int, default=0, help="seed of the first episode (default: 0)")
     _common(aeb)
     aeb.set_defaults(func=_aeb)
 
@@ -129,7 +131,7 @@ def _boxworld(args: argparse.Namespace) -> int:
         )
         report["command"] = _command()
         write_report(report, tmp)
-    _print_distances(report)
+    _print_distances(report, key="distance_to_rig")
     print(f"wrote {Path(args.out) / 'report.json'}")
     return 0
 
@@ -150,7 +152,7 @@ def _radar_detection(args: argparse.Namespace) -> int:
 
 
 def _aeb(args: argparse.Namespace) -> int:
-    from sensor_envs.evaluate.aeb import aeb_experiment, write_aeb_report
+    from sensor_envs.evaluate.radar_aeb import aeb_experiment, write_aeb_report
 
     with output_folder(args.out, args.force) as tmp:
         report = aeb_experiment(episodes=args.episodes, max_steps=args.steps, seed=args.seed)
@@ -162,7 +164,7 @@ def _aeb(args: argparse.Namespace) -> int:
 
 
 def _registration(args: argparse.Namespace) -> int:
-    from sensor_envs.evaluate.registration import registration_experiment, write_registration_report
+    from sensor_envs.evaluate.lidar_registration import registration_experiment, write_registration_report
 
     with output_folder(args.out, args.force, (args.model,)) as tmp:
         report = registration_experiment(args.model, n_poses=args.poses, seed=args.seed)

@@ -3,7 +3,8 @@
     sensor-envs record lidar --out LOG.npz [--rig RIG.json] [--map NAME] [--poses N] [--repeats R] [--seed S]
         [--unit-seed U]
     sensor-envs calibrate lidar REAL_DATA --out RIG.json [--seed S] [--max-evals N] [--spurious-only RIG]
-    sensor-envs fit lidar LOG --out MODEL [--variant seed|extended] [--folds 10] [--seed S] [LOG OPTIONS]
+    sensor-envs fit lidar LOG --out MODEL [--variant seed|extended] [--folds 10] [--seed S]
+        [--bias-model pooled|per_bearing] [LOG OPTIONS]
         [--max-range M] [--spur-above M] [--table-range-step M] [--max-readings N] [--cv-block-scans N]
     sensor-envs validate lidar MODEL LOG --out DIR [--card] [LOG OPTIONS]
 
@@ -27,6 +28,7 @@ import shlex
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -73,9 +75,21 @@ def register(verbs: dict[str, argparse._SubParsersAction[OneLineParser]]) -> Non
     fit = verbs["fit"].add_parser("lidar", help="fit the per-bearing LWLR lidar model to a log")
     fit.add_argument("log", help="lidar log (.npz, CARMEN log or ROS bag)")
     fit.add_argument("--out", required=True, help="output model file (.npz); the card goes to MODEL.md")
-    fit.add_argument("--variant", choices=("seed", "extended"), default="extended")
+    fit.add_argument(
+        "--variant",
+        choices=("seed", "extended"),
+        default="extended",
+        help="seed: the paper's model; extended: + spurious returns, pooling, persistence (default)",
+    )
     fit.add_argument("--folds", type=positive_int, default=10, help="cross-validation folds (default: 10)")
     fit.add_argument("--seed", type=nonneg_int, default=0, help="seed of the fold assignment (default: 0)")
+    fit.add_argument(
+        "--bias-model",
+        choices=("pooled", "per_bearing"),
+        default="pooled",
+        help="pooled: a trend over all bearings + a per-bearing part weighted by CV (default, format 6); "
+        "per_bearing: the per-bearing bias alone (the fit before format 6)",
+    )
     add_force(fit)
     fit.add_argument("--note", action="append", default=[], help="a line for the model card (e.g. how LOG was made)")
     fit.add_argument(
@@ -237,8 +251,22 @@ def _calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fit(args: argparse.Namespace) -> int:
+def lwlr_from_args(args: argparse.Namespace) -> Any:
+    """The unfitted :class:`~sensor_envs.lidar.lwlr.LidarLWLR` that ``fit lidar`` with ``args`` fits."""
     from sensor_envs.lidar.lwlr import LidarLWLR
+
+    return LidarLWLR(
+        variant=args.variant,
+        n_folds=args.folds,
+        random_state=args.seed,
+        max_range=args.max_range,
+        spur_above=args.spur_above,
+        table_range_step=args.table_range_step,
+        bias_model=args.bias_model,
+    )
+
+
+def _fit(args: argparse.Namespace) -> int:
     from sensor_envs.lidar.validate import fit_gaussian_lidar, model_card_markdown
 
     max_range, spur_above = range_options(args.log, args.max_range, args.spur_above, args.table_range_step)
@@ -249,14 +277,8 @@ def _fit(args: argparse.Namespace) -> int:
     )
     log, prep = _prepared_log(args, max_range)
     t0 = time.perf_counter()
-    model = LidarLWLR(
-        variant=args.variant,
-        n_folds=args.folds,
-        random_state=args.seed,
-        max_range=max_range,
-        spur_above=spur_above,
-        table_range_step=args.table_range_step,
-    )
+    args.max_range, args.spur_above = max_range, spur_above  # as range_options resolved them from the log
+    model = lwlr_from_args(args)
     with about(args.log):
         if log.ranges.shape[2] == 1:
             from sensor_envs.lidar.mapping import map_features
@@ -310,6 +332,7 @@ def _validate(args: argparse.Namespace) -> int:
             write_json(folder / "report.json", report)
         else:
             print(metrics_markdown(report["metrics"]))
+            print(report.get("verdict", ""))
         if args.card:
             cmds = [*model.card_extra_.get("commands", ["sensor-envs fit lidar ..."]), _command()]
             tx.file(card).write_text(printable(model_card_markdown(model, cmds, report)), encoding="utf-8")

@@ -1,6 +1,6 @@
-"""The ``sensor-envs`` command line.
+"""The sensor-envs command line.
 
-Commands: ``demo``, ``record``, ``fit``, ``validate``, ``calibrate``, ``diagnose``, ``evaluate``.
+Commands: demo, record, fit, validate, calibrate, tune, diagnose, evaluate, rebuild-models, card, train, robustness.
 """
 
 from __future__ import annotations
@@ -17,6 +17,9 @@ from sensor_envs.cli import diagnose as cli_diagnose
 from sensor_envs.cli import evaluate as cli_evaluate
 from sensor_envs.cli import lidar as cli_lidar
 from sensor_envs.cli import radar as cli_radar
+from sensor_envs.cli import rebuild as cli_rebuild
+from sensor_envs.cli import training as cli_training
+from sensor_envs.cli import tune as cli_tune
 from sensor_envs.cli.args import OneLineParser, add_force, bounded_int, declare_ranges, nonneg_int
 from sensor_envs.inputs import InputError
 
@@ -35,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="the main job: drive every env with every sensor, write pictures and a report")
     demo.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
-    demo.add_argument("--seed", type=nonneg_int, default=0)
+    demo.add_argument("--seed", type=nonneg_int, default=0, help="seed of the first episode of every run (default: 0)")
     demo.add_argument(
         "--episodes", type=bounded_int(1, 10_000), default=10, help="episodes per env and sensor (default: 10)"
     )
@@ -47,17 +50,40 @@ def build_parser() -> argparse.ArgumentParser:
         ("fit", "fit a sensor model to a log"),
         ("validate", "compare a model with a log and its baselines"),
         ("calibrate", "fit a reference rig's parameters to real data (simulation-based)"),
+        ("tune", "choose a fitted model's post-fit factors on real held-out data"),
     ):
         p = sub.add_parser(verb, help=text)
         verbs[verb] = p.add_subparsers(dest="kind", required=True)
     cli_lidar.register(verbs)
     cli_radar.register(verbs)
+    cli_tune.register(verbs)
     cli_diagnose.register(sub)
     cli_evaluate.register(
         sub.add_parser("evaluate", help="does the simulator predict an algorithm's performance on the real sensor?")
     )
+    cli_rebuild.register(sub)
+    card = sub.add_parser(
+        "card",
+        help="write the one-page model card of a model file (from its header and a measured-metrics JSON)",
+        description="Write the one-page Markdown card of a model file, generated from the file's own header and "
+        "a measured-metrics JSON (schema: sensor_envs/cards.py).",
+    )
+    card.add_argument("model", help="model file (.npz)")
+    card.add_argument("--metrics", default=None, help="measured-metrics JSON (default: none; the card says so)")
+    card.add_argument("--out", required=True, help="output card (.md)")
+    add_force(card)
+    card.set_defaults(func=_run_card)
+    cli_training.register(sub)
     declare_ranges(parser)  # every numeric option its declared range, every path option non-empty
     return parser
+
+
+def _run_card(args: argparse.Namespace) -> int:
+    from sensor_envs.cards import write_card
+
+    path = write_card(args.model, args.out, metrics=args.metrics, force=args.force)
+    print(f"wrote {path}")
+    return 0
 
 
 def _run_demo(args: argparse.Namespace) -> int:
@@ -74,6 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
+        args.argv = list(sys.argv[1:] if argv is None else argv)  # the command line, for reports that quote it
         try:
             return int(args.func(args) or 0)
         except USER_ERRORS as exc:

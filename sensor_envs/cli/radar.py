@@ -21,7 +21,7 @@ from sensor_envs.cli.args import (
     positive_int,
 )
 from sensor_envs.inputs import InputError
-from sensor_envs.modelio import read_model
+from sensor_envs.modelio import data_reference, read_model
 from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
 
 
@@ -29,7 +29,7 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     """Add the ``radar`` sub-commands under each verb parser in ``verbs``."""
     rec = verbs["record"].add_parser("radar", help="record a radar object log from the reference rig (or Astyx)")
     rec.add_argument("--out", required=True, help="output CSV log")
-    rec.add_argument("--seed", type=nonneg_int, default=0)
+    rec.add_argument("--seed", type=nonneg_int, default=0, help="seed of the rig's scenes and draws (default 0)")
     rec.add_argument("--sequences", type=positive_int, default=50, help="rig scenarios (default 50)")
     rec.add_argument("--cycles", type=positive_int, default=40, help="radar cycles per scenario (default 40)")
     rec.add_argument("--targets", type=positive_int, default=8, help="target boxes per scenario (default 8)")
@@ -54,7 +54,12 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     fit.add_argument("--baseline-out", default=None, help="Gaussian baseline file (default <out>_gaussian.npz)")
     fit.add_argument("--no-prev", action="store_true", help="do not condition on z_{t-1} (for non-time-series logs)")
     fit.add_argument("--cycle-time", type=positive_float, default=None, help="seconds between frames of the log")
-    fit.add_argument("--cv-group", default="track", choices=("track", "sequence", "row"))
+    fit.add_argument(
+        "--cv-group",
+        default="track",
+        choices=("track", "sequence", "row"),
+        help="what the relevance CV holds out together (default track)",
+    )
     fit.add_argument(
         "--relevance",
         default="paper",
@@ -82,13 +87,26 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         type=float_between(0.01, 100.0),  # the model's accepted range (KDERadarModel's constraint)
         default=1.0,
         help="factor on the contribution bandwidths the CV chose (default 1; the shipped KDE's factor was chosen "
-        "on real frames: benchmarks/real_radar_bandwidth_scale.py)",
+        "on real frames: sensor-envs tune radar --what bandwidth)",
     )
     fit.add_argument(
         "--start-bandwidth-scale",
         type=float_between(0.01, 100.0),
         default=None,
         help="the same factor for the start trees (new tracks, after a miss; default: --bandwidth-scale's)",
+    )
+    fit.add_argument(
+        "--tail-weight",
+        type=float_between(0.0, 0.5),
+        default=0.0,
+        help="share w of the detection density in the wide tail kernels, (1-w) KDE_h + w KDE_{c h} (default 0: "
+        "none; chosen on real held-out frames by sensor-envs tune radar --what tail)",
+    )
+    fit.add_argument(
+        "--tail-scale",
+        type=float_between(1.0, 100.0),
+        default=4.0,
+        help="factor c of the tail kernels' bandwidths over the main kernels' (default 4)",
     )
     fit.add_argument(
         "--state-transform",
@@ -118,7 +136,7 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         help="extra state variables of both models: numeric log columns or derived features (occluded, aspect, "
         "range, azimuth, rel_speed); the KDE's variances by CV, the Gaussian's linear terms (default: none)",
     )
-    fit.add_argument("--seed", type=nonneg_int, default=0)
+    fit.add_argument("--seed", type=nonneg_int, default=0, help="seed of the CV folds and the model (default 0)")
     add_force(fit)
     fit.set_defaults(func=_fit)
     cal = verbs["calibrate"].add_parser(
@@ -134,7 +152,7 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         "--signed-azimuth",
         action="store_true",
         help="fit a signed (left/right) azimuth detection table instead of the symmetric |azimuth| one "
-        "(generalises worse across Astyx frames held out: benchmarks/real_radar_calibration_cv.py)",
+        "(generalises worse across Astyx frames held out: docs/history/scripts/real_radar_calibration_cv.py)",
     )
     cal.add_argument(
         "--occlusion-by-range",
@@ -189,14 +207,22 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     cal.set_defaults(func=_calibrate)
     val = verbs["validate"].add_parser("radar", help="compare a KDE model and its baseline with a (held-out) log")
     val.add_argument("model", help="KDE model file (.npz)")
-    val.add_argument("log", help="radar log CSV")
+    val.add_argument(
+        "log",
+        help="radar log CSV, or an astyx_hires2019 folder; real single frames (no previous cycle) are also scored "
+        "as static boxes: start tuple and stationary law next to the Gaussian and the ideal radar, with verdicts",
+    )
+    val.add_argument("--block", type=positive_int, default=10, help="frames per block of the bootstrap (default 10)")
+    val.add_argument("--chains", type=positive_int, default=16, help="stationary law: rollouts per row (default 16)")
+    val.add_argument("--cycles", type=positive_int, default=5, help="stationary law: cycles per rollout (default 5)")
+    val.add_argument("--n-boot", type=positive_int, default=2000, help="block-bootstrap replicates (default 2000)")
     val.add_argument("--out", required=True, help="output folder for report.json and figures")
     val.add_argument(
         "--baseline",
         default=None,
         help="Gaussian baseline (default <model>_gaussian.npz; <name>_gaussian.npz for <name>_kde.npz)",
     )
-    val.add_argument("--seed", type=nonneg_int, default=0)
+    val.add_argument("--seed", type=nonneg_int, default=0, help="seed of the rollouts and draws (default 0)")
     add_force(val)
     val.set_defaults(func=_validate)
 
@@ -341,22 +367,10 @@ def _azimuth_bias(text: str) -> float | str:
         ) from None
 
 
-def _fit(args: argparse.Namespace) -> int:
-    from sensor_envs.radar.gaussian import GaussianRadar
+def kde_from_args(args: argparse.Namespace) -> Any:
+    """The unfitted :class:`~sensor_envs.radar.kde.KDERadarModel` that ``fit radar`` with ``args`` fits."""
     from sensor_envs.radar.kde import KDERadarModel
-    from sensor_envs.radar.log import read_log
 
-    check_inputs(args.log)
-    out = check_output(args.out, inputs=[args.log], force=args.force, suffix=".npz")
-    base_out = check_output(
-        args.baseline_out or _baseline_path(str(out)),
-        inputs=[args.log, out],
-        force=args.force,
-        suffix=".npz",
-        option="--baseline-out",
-    )
-    log = read_log(args.log)
-    t0 = time.perf_counter()
     extra: dict[str, Any] = {}
     if args.relevance_candidates is not None:
         extra["relevance_candidates"] = tuple(args.relevance_candidates)
@@ -373,13 +387,41 @@ def _fit(args: argparse.Namespace) -> int:
         start_bandwidth_scale=args.start_bandwidth_scale,
         azimuth_bias=args.azimuth_bias,
         extra_state=tuple(args.extra_state),
+        tail_weight=args.tail_weight,
+        tail_scale=args.tail_scale,
         **extra,
     )
+    return model
+
+
+def gaussian_from_args(args: argparse.Namespace) -> Any:
+    """The unfitted Gaussian baseline that ``fit radar`` with ``args`` fits beside the KDE."""
+    from sensor_envs.radar.gaussian import GaussianRadar
+
+    return GaussianRadar(extra_state=tuple(args.extra_state))
+
+
+def _fit(args: argparse.Namespace) -> int:
+    from sensor_envs.radar.log import read_log
+
+    check_inputs(args.log)
+    out = check_output(args.out, inputs=[args.log], force=args.force, suffix=".npz")
+    base_out = check_output(
+        args.baseline_out or _baseline_path(str(out)),
+        inputs=[args.log, out],
+        force=args.force,
+        suffix=".npz",
+        option="--baseline-out",
+    )
+    log = read_log(args.log)
+    t0 = time.perf_counter()
+    model = kde_from_args(args)
     with about(args.log):
         model.fit(log, cycle_time=args.cycle_time, progress=args.relevance != "paper")
     fit_s = time.perf_counter() - t0
+    data = data_reference(args.log)  # the log's name and sha256, never the path of the machine that fitted it
     card = {
-        "log": str(args.log),
+        "log": data,
         "rows": len(log),
         "fit_seconds": round(fit_s, 2),
         "cv_group": args.cv_group,
@@ -394,19 +436,29 @@ def _fit(args: argparse.Namespace) -> int:
         "extra_state": list(model.extra_state_),
         "extra_variance_fitted": list(model.extra_variance_),
     }
+    t0 = time.perf_counter()
     with about(args.log):  # like with like: the baseline has the same extra state
-        baseline = GaussianRadar(extra_state=tuple(args.extra_state)).fit(log, cycle_time=args.cycle_time)
+        baseline = gaussian_from_args(args).fit(log, cycle_time=args.cycle_time)
+    base_card = {  # its own card: the KDE's choices (relevance, bandwidths, fit time) are not the baseline's
+        "log": data,
+        "rows": len(log),
+        "fit_seconds": round(time.perf_counter() - t0, 2),
+        "extra_state": list(args.extra_state),
+        "fitted_with": Path(out).name,
+    }
     with OutputTransaction() as tx:  # model and baseline: both or neither
         model.save(tx.file(out), card=card)
-        baseline.save(tx.file(base_out), card=card)
+        baseline.save(tx.file(base_out), card=base_card)
     print(f"fitted {model.states_.shape[0]} tuples in {fit_s:.1f} s -> {out}; baseline -> {base_out}")
     return 0
 
 
 def _validate(args: argparse.Namespace) -> int:
+    from sensor_envs.radar.fidelity import BASELINE, frames_report, load_real_log, verdict_lines
     from sensor_envs.radar.gaussian import GaussianRadar
     from sensor_envs.radar.kde import KDERadarModel
-    from sensor_envs.radar.log import read_log
+    from sensor_envs.radar.log import target_tuples
+    from sensor_envs.radar.sensors import IdealRadar
     from sensor_envs.radar.validate import validate, write_report
 
     check_inputs(args.model, args.log)
@@ -416,9 +468,13 @@ def _validate(args: argparse.Namespace) -> int:
     if not base_path.exists():
         raise FileNotFoundError(f"{base_path}: Gaussian baseline not found; pass --baseline (fit radar writes one)")
     baseline = read_model(GaussianRadar, base_path)
-    log = read_log(args.log)
     with about(args.log):
+        log = load_real_log(args.log, block=args.block, progress=sys.stderr.isatty())
         report = validate(model, baseline, log, seed=args.seed)
+        single = not target_tuples(log).has_prev_row.any()
+        if single:  # real single frames: static boxes, start tuple and stationary law, with verdicts
+            models = {"model": model, BASELINE: baseline, "ideal": IdealRadar()}
+            report["frames"] = frames_report(models, log, args.block, args.chains, args.cycles, args.seed, args.n_boot)
     report.update(model_file=str(args.model), baseline_file=str(base_path))
     with OutputTransaction() as tx:
         with about(args.log):
@@ -434,4 +490,6 @@ def _validate(args: argparse.Namespace) -> int:
             for k in ("new", "after_miss", "after_detection")
         )
         print(f"rollout detection rate vs recorded: {parts}")
+    if "frames" in report:
+        print("\n".join(verdict_lines(report["frames"])))
     return 0

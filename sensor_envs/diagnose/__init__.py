@@ -3,7 +3,10 @@
 Tool level: imports :mod:`sensor_envs.radar` and :mod:`sensor_envs.lidar`, never the other way round.
 :mod:`~sensor_envs.diagnose.core` is sensor-independent; a sensor plugs in with an adapter
 (:class:`~sensor_envs.diagnose.core.DiagnoseAdapter`); :mod:`~sensor_envs.diagnose.radar` is the radar's,
-:mod:`~sensor_envs.diagnose.lidar` the learned lidar's.
+:mod:`~sensor_envs.diagnose.lidar` the learned lidar's; :mod:`~sensor_envs.diagnose.search` scores and
+tests candidate causes; :mod:`~sensor_envs.diagnose.report` writes the before/after report;
+:mod:`~sensor_envs.diagnose.families` draws seeded synthetic logs with planted causes (the suite's).
+The adapters and ``write_report`` are imported on first use.
 """
 
 from sensor_envs.diagnose.core import (
@@ -14,5 +17,18 @@ from sensor_envs.diagnose.core import (
     rank_candidates,
     run_diagnose,
 )
+from sensor_envs.lazy import lazy_exports
 
-__all__ = ["DiagnoseAdapter", "DiagnoseResult", "Evaluation", "block_split", "rank_candidates", "run_diagnose"]
+_LAZY: dict[str, str] = {
+    "LidarAdapter": "sensor_envs.diagnose.lidar",
+    "RadarAdapter": "sensor_envs.diagnose.radar",
+    "write_report": "sensor_envs.diagnose.report",
+}
+
+__all__ = ["DiagnoseAdapter", "DiagnoseResult", "Evaluation", "block_split", "rank_candidates", "run_diagnose", *_LAZY]
+__getattr__, _dir_lazy = lazy_exports(__name__, _LAZY)
+
+
+def __dir__() -> list[str]:
+    """The public names (for tab completion)."""
+    return sorted(__all__)

@@ -7,25 +7,11 @@ on the held-out part, fit the base model with a given extra state, held-out NLL 
 dealt to the held-out part by rank (:func:`block_split`: ranks ``2, 5, 8`` modulo 10, i.e. 30 %), so
 the held-out part is spread over the log but no block is cut.
 
-**Score of a candidate.** On the held-out readings, each residual metric ``r`` (NaN where undefined)
-is regressed on the candidate by a regularised binned mean (16 quantile bins, or one bin per value
-for discrete candidates, NaN its own bin; bin mean shrunk toward the fold mean with 10 pseudo-readings:
-a one-feature piecewise-constant regressor, like a depth-1 gradient-boosting stage with 16 leaves).
-It is cross-fitted by blocks: fitted on the even held-out blocks and scored on the odd ones, and vice
-versa. The score is the held-out explained variance ``R^2 = 1 - SSE / SST`` (SST about the fitting
-fold's mean), averaged over the two directions; the candidate's score is its best metric's ``R^2``.
-A distractor that correlates by chance within some blocks does not carry over to other blocks, so its
-cross-fitted ``R^2`` is near zero or negative.
-
-**Permutation test and multiple testing.** ``n_permutations`` random permutations of the held-out
-readings are applied to every candidate's values at once (the residuals stay), and the scores
-recomputed. ``p_raw`` of a candidate is ``(1 + #{perm score >= score}) / (1 + P)``; the reported
-``p_value`` is the Westfall-Young max-T adjusted one, ``(1 + #{perm max over all candidates >=
-score}) / (1 + P)``, which controls the family-wise error rate over all candidates and metrics at
-once. An effect is **significant** when ``p_value < alpha`` (default 0.01) and its score is at least
-``min_score`` (default 0.005, half a percent of residual variance: on large logs tiny but real
-effects would otherwise be added). Permuting single readings ignores the correlation inside blocks;
-the cross-fitting by blocks is what protects against that.
+**Search and significance.** :mod:`sensor_envs.diagnose.search`: every residual target (mean,
+spread, rate, score kinds) regressed on each candidate by a trend + binned regressor and by its
+interactions with the model's state features, cross-fitted over contiguous time segments with gaps;
+block sign-flip tests with Westfall-Young max-T adjustment; proxies of a stronger cause marked.
+Candidates with too few distinct values are refused (listed, not tested).
 
 **State features.** Candidates that are functions of the model's own state (the adapter's
 ``state_features``) are tested in a separate family and reported as ``state_misfit``: a pattern
@@ -36,18 +22,21 @@ adding them cannot help. ``effects`` holds the other candidates only.
 significant candidate the model can take into its state, refit, re-measure on the SAME held-out part;
 keep it only when the held-out NLL improves (else it is reported as rejected and the next significant
 candidate is tried); re-rank after each addition; repeat while an effect is significant, with at most
-``max_add`` (default 3) refits in all.
+``max_add`` (default 3) refits in all. An adapter with ``state_terms(name, form)`` turns a finding's form
+(e.g. an interaction with bearing) into the state terms that represent it; a significant effect the
+model cannot take is reported in words (``unrepresented``) with its kind and form.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
+from sensor_envs.diagnose.search import Ranking, bin_candidate, rank_candidates
 from sensor_envs.inputs import InputError
 
 __all__ = [
@@ -73,13 +62,20 @@ class Evaluation:
         nll: ``(n,)`` negative log-likelihood per reading [nats].
         residuals: metric name -> ``(n,)`` residual (NaN where the metric is undefined).
         candidates: candidate name -> ``(n,)`` value (NaN = missing).
-        blocks: ``(n,)`` contiguous block id of each reading (the cross-fitting unit).
+        blocks: ``(n,)`` contiguous block id of each reading.
+        order: ``(n,)`` time-order key of each reading (time folds and sign-flip blocks follow it;
+            ``None``: the block ids).
+        state: interaction features: the model's own state (bearing, range, azimuth, ...) ``(n,)`` each.
+        metric_kinds: residual metric -> ``mean`` / ``spread`` / ``rate`` / ``score`` (default ``mean``).
     """
 
     nll: NDArray[np.float64]
     residuals: dict[str, NDArray[np.float64]]
     candidates: dict[str, NDArray[np.float64]]
     blocks: NDArray[np.int64]
+    order: NDArray[np.float64] | None = None
+    state: dict[str, NDArray[np.float64]] = field(default_factory=dict)
+    metric_kinds: dict[str, str] = field(default_factory=dict)
 
     @property
     def error(self) -> float:
@@ -133,144 +129,6 @@ def block_split(blocks: NDArray, held_ranks: tuple[int, ...] = (2, 5, 8), period
     if held.all() or not held.any():
         raise InputError(f"the log has {inv.max(initial=-1) + 1} blocks: too few to split into fit and held-out parts")
     return held
-
-
-def bin_candidate(x: NDArray, n_bins: int = 16) -> NDArray[np.int64]:
-    """Bin index ``(n,)``: one bin per value (at most ``n_bins`` values), else quantile bins; NaN last."""
-    x = np.asarray(x, dtype=np.float64)
-    ok = np.isfinite(x)
-    out = np.full(x.shape, n_bins, dtype=np.int64)
-    if not ok.any():
-        return out
-    vals = np.unique(x[ok])
-    if vals.size <= n_bins:
-        out[ok] = np.searchsorted(vals, x[ok])
-    else:
-        edges = np.unique(np.quantile(x[ok], np.linspace(0, 1, n_bins + 1)[1:-1]))
-        out[ok] = np.searchsorted(edges, x[ok], side="right")
-    return out
-
-
-def _r2_batch(bins: NDArray, r: NDArray, fold: NDArray, nb: int, shrink: float) -> NDArray[np.float64]:
-    """Cross-fitted ``R^2`` of ``r`` on each row of ``bins (K, n)``, averaged over both fold directions."""
-    k, n = bins.shape
-    out = np.zeros(k)
-    off = (np.arange(k) * nb)[:, None]
-    for a in (0, 1):  # fit on fold a, score on the other
-        fa, fb = fold == a, fold != a
-        if fa.sum() < 2 or fb.sum() < 2:
-            return np.full(k, -np.inf)
-        mean_a = r[fa].mean()
-        ids = (bins[:, fa] + off).ravel()
-        s = np.bincount(ids, weights=np.tile(r[fa], k), minlength=k * nb).reshape(k, nb)
-        c = np.bincount(ids, minlength=k * nb).reshape(k, nb)
-        pred = (s + shrink * mean_a) / (c + shrink)
-        rb = r[fb]
-        p = np.take_along_axis(pred, bins[:, fb], axis=1)
-        sse = np.sum((rb[None] - p) ** 2, axis=1)
-        sst = np.sum((rb - mean_a) ** 2)
-        out += 0.5 * (1.0 - sse / max(sst, 1e-300))
-    return out
-
-
-def _scores(
-    bins: NDArray, residuals: list[NDArray], masks: list[NDArray], folds: list[NDArray], nb: int, shrink: float
-) -> NDArray[np.float64]:
-    """``(K, m)`` cross-fitted ``R^2`` of every binning row against every residual metric."""
-    return np.stack(
-        [_r2_batch(bins[:, mk], r, f, nb, shrink) for r, mk, f in zip(residuals, masks, folds, strict=True)], axis=1
-    )
-
-
-@dataclass
-class Ranking:
-    """Candidate effects scored on one evaluation, best first."""
-
-    effects: list[dict[str, Any]]
-    alpha: float
-    min_score: float
-    n_permutations: int
-
-    def significant(self) -> list[dict[str, Any]]:
-        """The effects with ``p_value < alpha`` and ``score >= min_score``, best first."""
-        return [e for e in self.effects if e["significant"]]
-
-
-def rank_candidates(
-    ev: Evaluation,
-    exclude: tuple[str, ...] = (),
-    *,
-    n_permutations: int = 499,
-    alpha: float = 0.01,
-    min_score: float = 0.005,
-    n_bins: int = 16,
-    shrink: float = 10.0,
-    rng: np.random.Generator | None = None,
-    progress: bool = False,
-) -> Ranking:
-    """Score every candidate of ``ev`` (except ``exclude``) against its residuals, with the permutation test.
-
-    Args:
-        ev: held-out evaluation.
-        exclude: candidate names not to rank (e.g. already in the model's state).
-        n_permutations: permutations of the candidates (p-values resolve down to ``1 / (P + 1)``).
-        alpha: family-wise significance level of the max-T adjusted p-value.
-        min_score: minimum cross-fitted ``R^2`` of a significant effect.
-        n_bins: bins of continuous candidates.
-        shrink: pseudo-readings pulling bin means toward the fold mean.
-        rng: generator of the permutations (default seed 0).
-        progress: tqdm bar over the permutations.
-
-    Returns:
-        The :class:`Ranking` (``effects``: dicts with ``name``, ``score``, ``p_value``, ``p_raw``,
-        ``metric``, ``metric_scores``, ``significant``), best score first.
-    """
-    rng = rng if rng is not None else np.random.default_rng(0)
-    names = [c for c in ev.candidates if c not in exclude]
-    metrics = list(ev.residuals)
-    nb = n_bins + 1
-    if not names:
-        return Ranking([], alpha, min_score, n_permutations)
-    bins = np.stack([bin_candidate(ev.candidates[c], n_bins) for c in names])  # (C, n)
-    _, bl = np.unique(ev.blocks, return_inverse=True)
-    fold_all = (bl.ravel() % 2).astype(np.int64)
-    masks = [np.isfinite(ev.residuals[m]) for m in metrics]
-    res = [ev.residuals[m][mk] for m, mk in zip(metrics, masks, strict=True)]
-    folds = [fold_all[mk] for mk in masks]
-    obs = _scores(bins, res, masks, folds, nb, shrink)  # (C, m)
-    best = obs.max(axis=1)
-    ge_raw = np.zeros(len(names))
-    ge_max = np.zeros(len(names))
-    n = bins.shape[1]
-    chunk = max(1, 4_000_000 // (len(names) * max(n, 1)))  # bounds the (chunk * C, n) permuted bin array
-    done = 0
-    bar = tqdm(total=n_permutations, disable=not progress, desc="permutation test")
-    while done < n_permutations:  # chunks of permutations, vectorised inside
-        k = min(chunk, n_permutations - done)
-        perms = np.argsort(rng.random((k, n)), axis=1)
-        pb = bins[:, perms].transpose(1, 0, 2).reshape(k * len(names), n)  # (k*C, n)
-        ps = _scores(pb, res, masks, folds, nb, shrink).max(axis=1).reshape(k, len(names))
-        ge_raw += np.sum(ps >= best[None], axis=0)
-        ge_max += np.sum(ps.max(axis=1)[:, None] >= best[None], axis=0)
-        done += k
-        bar.update(k)
-    bar.close()
-    p_raw = (1 + ge_raw) / (1 + n_permutations)
-    p_adj = (1 + ge_max) / (1 + n_permutations)
-    effects: list[dict[str, Any]] = [
-        {
-            "name": c,
-            "score": float(best[i]),
-            "p_value": float(p_adj[i]),
-            "p_raw": float(p_raw[i]),
-            "metric": metrics[int(np.argmax(obs[i]))],
-            "metric_scores": {m: float(obs[i, j]) for j, m in enumerate(metrics)},
-            "significant": bool(p_adj[i] < alpha and best[i] >= min_score),
-        }
-        for i, c in enumerate(names)
-    ]
-    effects.sort(key=lambda e: -float(e["score"]))
-    return Ranking(effects, alpha, min_score, n_permutations)
 
 
 @dataclass
@@ -332,15 +190,37 @@ def _metric_summary(ev: Evaluation) -> dict[str, dict[str, float]]:
     return out
 
 
+def _terms(adapter: DiagnoseAdapter, effect: dict[str, Any]) -> tuple[str, ...] | None:
+    """State terms that add ``effect`` (its form included, e.g. an interaction with bearing), or ``None``."""
+    if hasattr(adapter, "state_terms"):
+        return adapter.state_terms(effect["name"], effect.get("form", "main"))
+    var = adapter.state_name(effect["name"])
+    return None if var is None else (var,)
+
+
+def _why_not(adapter: DiagnoseAdapter, effect: dict[str, Any]) -> str:
+    """Words for a significant effect the model cannot take: its kind and form, and why."""
+    form = "" if effect.get("form", "main") == "main" else f", interacting with {effect['form'][2:]}"
+    what = f"{effect['name']}: a {effect.get('kind', 'mean')} effect on {effect['metric']}{form}"
+    if adapter.state_name(effect["name"]) is None:
+        return f"{what}; the model cannot take {effect['name']} into its state (not a variable the world supplies)"
+    return f"{what}; the model's extra state has no term of this form"
+
+
+def _ranking_rows(r: Ranking) -> list[dict[str, Any]]:
+    keys = ("name", "score", "p_value", "p_raw", "metric", "kind", "form", "proxy_of")
+    return [{k: e.get(k) for k in keys} for e in r.effects]
+
+
 def run_diagnose(
     adapter: DiagnoseAdapter,
     *,
     base_state: tuple[str, ...] = (),
     base_model: Any = None,
     max_add: int = 3,
-    n_permutations: int = 499,
-    alpha: float = 0.01,
-    min_score: float = 0.005,
+    n_permutations: int = 199,
+    alpha: float = 0.05,
+    min_score: float = 0.001,
     seed: int = 0,
     progress: bool = False,
 ) -> DiagnoseResult:
@@ -350,11 +230,11 @@ def run_diagnose(
         adapter: the sensor's adapter (fit/held-out parts fixed inside it).
         base_state: extra state the base model already has.
         base_model: an already fitted base model (``--model``); ``None`` = fit one on the fit part.
-        max_add: at most this many effects are added.
-        n_permutations: permutations per ranking.
+        max_add: at most this many refits (effects added or rejected).
+        n_permutations: block sign-flips per ranking.
         alpha: family-wise significance level.
-        min_score: minimum cross-fitted ``R^2`` of a significant effect.
-        seed: seed of the permutations.
+        min_score: minimum held-out ``R^2`` of a significant effect.
+        seed: seed of the sign-flips.
         progress: show progress bars.
 
     Returns:
@@ -371,51 +251,48 @@ def run_diagnose(
     feats = tuple(adapter.state_features())
     exclude = tuple(c for c in ev.candidates if adapter.state_name(c) in state) + feats
     first: Ranking | None = None
+    opts = {"n_permutations": n_permutations, "alpha": alpha, "min_score": min_score, "rng": rng, "progress": progress}
     misfit = rank_candidates(
-        ev,
+        replace(ev, state={}),
         tuple(c for c in ev.candidates if c not in feats),
-        n_permutations=n_permutations,
-        alpha=alpha,
-        min_score=min_score,
-        rng=rng,
-        progress=progress,
+        **opts,  # type: ignore[arg-type]
     )
     rejected: list[str] = []
+    unrepresented: dict[str, str] = {}
     ranking: Ranking | None = None
+    step: dict[str, Any] = {}
     for _ in range(max_add):  # at most max_add refits (added or rejected)
         if ranking is None:  # the model changed: rank its residuals again
-            ranking = rank_candidates(
-                ev, exclude, n_permutations=n_permutations, alpha=alpha, min_score=min_score, rng=rng, progress=progress
-            )
+            ranking = rank_candidates(ev, exclude, **opts)  # type: ignore[arg-type]
             first = first or ranking
-            step: dict[str, Any] = {
-                "error": ev.error,
-                "ranking": [
-                    {k: e[k] for k in ("name", "score", "p_value", "p_raw", "metric")} for e in ranking.effects
-                ],
-                "attempts": [],
-            }
+            step = {"error": ev.error, "ranking": _ranking_rows(ranking), "attempts": []}
             steps.append(step)
-        pick = next(
-            (
-                e
-                for e in ranking.significant()
-                if adapter.state_name(e["name"]) is not None and e["name"] not in rejected
-            ),
-            None,
-        )
-        if pick is None:
+        pick, terms = None, None
+        for e in ranking.significant():
+            if e["name"] in rejected:
+                continue
+            terms = _terms(adapter, e)
+            if terms is None:
+                unrepresented.setdefault(e["name"], _why_not(adapter, e))
+                if e.get("form", "main") != "main":  # represent what the model can: its main effect
+                    terms = _terms(adapter, {**e, "form": "main"})
+                if terms is None:
+                    continue
+            pick = e
+            break
+        if pick is None or terms is None:
             step["decision"] = "no (further) significant effect the model can take"
             break
-        var = adapter.state_name(pick["name"])
-        assert var is not None
-        new_model = adapter.fit((*state, var))
+        new_model = adapter.fit((*state, *terms))
         new_ev = adapter.evaluate(new_model)
         bar.update()
         attempt = {
             "candidate": pick["name"],
+            "terms": list(terms),
+            "kind": pick.get("kind"),
+            "form": pick.get("form"),
             "error_with": new_ev.error,
-            "baseline_with": adapter.baseline((*state, var)),
+            "baseline_with": adapter.baseline((*state, *terms)),
         }
         step["attempts"].append(attempt)
         if not new_ev.error < ev.error:
@@ -423,21 +300,15 @@ def run_diagnose(
             step["decision"] = attempt["decision"]
             rejected.append(pick["name"])
             continue
-        attempt["decision"] = step["decision"] = f"added {pick['name']}"
-        state, model, ev = (*state, var), new_model, new_ev
+        attempt["decision"] = step["decision"] = f"added {pick['name']} as {', '.join(terms)}"
+        state, model, ev = (*state, *terms), new_model, new_ev
         added.append(pick["name"])
         exclude = (*exclude, pick["name"])
         ranking = None
     if ranking is None:  # the refit budget ended on an addition: rank the final model's residuals too
-        final = rank_candidates(
-            ev, exclude, n_permutations=n_permutations, alpha=alpha, min_score=min_score, rng=rng, progress=progress
-        )
+        final = rank_candidates(ev, exclude, **opts)  # type: ignore[arg-type]
         steps.append(
-            {
-                "error": ev.error,
-                "ranking": [{k: e[k] for k in ("name", "score", "p_value", "p_raw", "metric")} for e in final.effects],
-                "decision": f"stopped: {max_add} refits done",
-            }
+            {"error": ev.error, "ranking": _ranking_rows(final), "decision": f"stopped: {max_add} refits done"}
         )
     bar.update(bar.total - bar.n)
     bar.close()
@@ -456,13 +327,16 @@ def run_diagnose(
         baseline_after=adapter.baseline(state) if added else adapter.baseline(tuple(base_state)),
         settings={
             "alpha": alpha,
-            "multiple_testing": "Westfall-Young max-T over all candidates and metrics (permutation of candidates)",
+            "multiple_testing": "Westfall-Young max-T over candidates, regressors and residual targets "
+            "(block sign-flips of the residual targets, in time order)",
             "min_score": min_score,
             "n_permutations": n_permutations,
             "max_add": max_add,
             "seed": seed,
-            "score": "block-cross-fitted R^2 of a binned-mean regression of the residual on the candidate",
+            "score": "held-out R^2 of a trend + binned regressor (and candidate x state interactions), "
+            "cross-fitted over contiguous time segments with gaps",
             "state_before": list(base_state),
             "state_after": list(state),
         },
+        extra={"unrepresented": [{"name": k, "why": v} for k, v in unrepresented.items()], "refused": first.refused},
     )

@@ -8,10 +8,19 @@ Residuals of a fitted model on the held-out part:
 * ``null``: ``1{null} - p_null``;
 * ``range``: ``x - mu`` [m] of non-null in-range readings (NaN otherwise; spurious far returns
   ``> spur_above`` excluded), clipped to +-1 m;
-* ``pit``: the reading's PIT under the model minus 0.5 (non-null readings).
+* ``pit``: the reading's PIT under the model minus 0.5 (non-null readings);
+* ``range_spread``: ``sqrt(|x - mu| / sigma)`` of the same readings as ``range`` (kind ``spread``:
+  an effect on the noise's scale or tails moves it while the mean residual stays 0).
+
+Interaction features (the model's own state, see :mod:`sensor_envs.diagnose.search`): bearing,
+nominal range and incidence. A finding's form maps to state terms (:meth:`LidarAdapter.state_terms`):
+a main effect to the variable itself (``<name>``, and ``<name>@sq`` for a U-shaped one), an interaction
+with bearing to ``<name>``, ``<name>@cos_bearing``, ``<name>@sin_bearing``
+(:mod:`sensor_envs.lidar.extra_state`), each acting on the null, bias and log-sigma parts.
 
 Candidates: every per-scan covariate of the log by its name (``cov_omega`` as ``omega``), ``time``
-(time since the first scan), ``scan`` (index), ``bearing`` (index), ``range`` and ``incidence``
+(time since the first scan), ``scan`` (index, only when the log has no time), ``bearing`` (index),
+``range`` and ``incidence``
 (nominal, from the map) and ``prev_residual`` (the same bearing's residual from the tables' mean at the
 previous scan, :mod:`sensor_envs.lidar.extra_state`). The model can take covariates, ``time`` and
 ``prev_residual`` into its state; ``range``, ``incidence`` and ``bearing`` are its own state (tested as
@@ -99,7 +108,8 @@ class LidarAdapter:
         out = {name: np.asarray(v, dtype=np.float64)[s] for name, v in sorted(self.log.covariates.items())}
         if self.log.t is not None:
             out["time"] = (self.log.t - self.log.t[0])[s]
-        out["scan"] = s.astype(np.float64)
+        else:  # the scan index stands for time (not addable); with ``t`` it would duplicate ``time``
+            out["scan"] = s.astype(np.float64)
         out["bearing"] = k.astype(np.float64)
         out["range"] = self.r[s, k]
         out["incidence"] = np.nan_to_num(self.a[s, k])
@@ -111,6 +121,21 @@ class LidarAdapter:
             return TIME if self.log.t is not None else None
         if candidate == PREV or candidate in self.log.covariates:
             return candidate
+        return None
+
+    def state_terms(self, candidate: str, form: str = "main") -> tuple[str, ...] | None:
+        """State terms representing a finding of ``candidate`` with ``form`` (``main``, ``x bearing``, ...).
+
+        ``None`` when the model cannot take it: not a state variable, or an interaction with range or
+        incidence (the extra terms have no such form; reported in words).
+        """
+        var = self.state_name(candidate)
+        if var is None:
+            return None
+        if form == "main":
+            return (var, f"{var}@sq") if var != PREV else (var,)
+        if form == "x bearing":
+            return (var, f"{var}@cos_bearing", f"{var}@sin_bearing")
         return None
 
     def state_features(self) -> tuple[str, ...]:
@@ -146,14 +171,25 @@ class LidarAdapter:
         null = x == 0
         inr = (x > 0) & (x <= model.spur_above)
         pit = np.where(x > 0, _pit(np.where(x > 0, x, 1.0), ps, (model.spur_mu_, model.spur_sigma_)) - 0.5, np.nan)
+        rng_res = np.where(inr, np.clip(x - ps["mu"], -_RANGE_CLIP, _RANGE_CLIP), np.nan)
         resid = {
             "null": null - ps["p_null"],
-            "range": np.where(inr, np.clip(x - ps["mu"], -_RANGE_CLIP, _RANGE_CLIP), np.nan),
+            "range": rng_res,
             "pit": pit,
+            "range_spread": np.sqrt(np.minimum(np.abs(rng_res) / ps["sigma"], 25.0)),
         }
         cand = dict(self._candidates)
         cand[PREV] = feats[s, k, -1 if PREV not in names else names.index(PREV)]
-        return Evaluation(nll=-lp, residuals=resid, candidates=cand, blocks=self.blocks)
+        kb = self.log.n_bearings
+        return Evaluation(
+            nll=-lp,
+            residuals=resid,
+            candidates=cand,
+            blocks=self.blocks,
+            order=s + k / kb,
+            state={"bearing": k.astype(np.float64), "range": self.r[s, k], "incidence": np.nan_to_num(self.a[s, k])},
+            metric_kinds={"null": "rate", "range": "mean", "pit": "mean", "range_spread": "spread"},
+        )
 
     def baseline(self, extra_state: tuple[str, ...]) -> float | None:
         """No baseline with extra state for the lidar (``None``)."""

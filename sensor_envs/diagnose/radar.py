@@ -9,7 +9,14 @@ Residuals of a fitted model on the held-out part (sensor frame, metres):
 * ``detection``: ``1{detected} - P(detected | x)``;
 * ``nll``: the reading's negative log-likelihood minus its expectation under the model at the same
   state (Monte Carlo, 4 draws from the model): NLL itself varies over the state space where the model
-  is right (wider noise far away), its excess over the model's own expectation does not.
+  is right (wider noise far away), its excess over the model's own expectation does not;
+* ``offset_spread``: ``sqrt`` of the offset's length in units of the offsets' RMS per axis (kind
+  ``spread``: a covariate that widens the scatter moves it while the mean offset stays 0).
+
+Interaction features (the model's own state, see :mod:`sensor_envs.diagnose.search`): range and
+azimuth of the box. The KDE takes an added column as a full kernel dimension, so main effects and
+interactions with its state alike are represented; the Gaussian baseline takes it linearly (an
+interaction is reported as unrepresented for it).
 
 Candidates: every extra numeric column of the log by its name (``t`` as ``time``), the ``frame``
 index, derived features (``range``, ``azimuth``, ``aspect`` = target heading relative to the line of
@@ -19,7 +26,9 @@ sight, ``occluded`` = the share of the box hidden behind the other boxes of its 
 (``prev_offset_x``, ``prev_offset_y``, ``prev_detection``). The model can take any log column into
 its state (``extra_state``); the previous residuals (the KDE's ``z_{t-1}`` plays that part) cannot be
 added. The corner, range and azimuth are functions of the state the models already have (the box
-position, up to its size): they are tested as ``state_misfit`` (see :mod:`sensor_envs.diagnose.core`).
+position, up to its size), and the previous residuals are the KDE's own ``z_{t-1}`` conditioning: all
+of them are tested as ``state_misfit`` (see :mod:`sensor_envs.diagnose.core`), set aside from the
+search for missing effects.
 """
 
 from __future__ import annotations
@@ -32,6 +41,7 @@ from numpy.typing import NDArray
 
 from sensor_envs.diagnose.core import Evaluation
 from sensor_envs.inputs import InputError
+from sensor_envs.radar.astyx import OUTCOME_COLUMNS
 from sensor_envs.radar.features import state_matrix, with_derived_columns
 from sensor_envs.radar.gaussian import GaussianRadar
 from sensor_envs.radar.kde import CV_RELEVANCE, KDERadarModel
@@ -82,7 +92,9 @@ class RadarAdapter:
         missing = [c for c in exclude if c not in self.log.columns]  # a derived feature may be excluded too
         if missing:
             raise InputError(f"{log.source}: excluded column {missing[0]!r} is not in the log")
-        self.exclude = tuple(exclude)
+        outcomes = [c for c in self.log.columns if c in OUTCOME_COLUMNS or c.startswith("outcome_")]
+        self.outcomes = tuple(outcomes)  # outcomes of the measurement (e.g. Astyx's n_points): never causes
+        self.exclude = tuple(dict.fromkeys((*exclude, *outcomes)))
         self.fit_log = self.log.select(~held_out)
         self.held_log = self.log.select(held_out)
         self.fit_log.source = self.held_log.source = log.source
@@ -112,6 +124,13 @@ class RadarAdapter:
             return None
         col = {v: k for k, v in _RENAME.items()}.get(candidate, candidate)
         return col if col in self.log.columns else None
+
+    def state_terms(self, candidate: str, form: str = "main") -> tuple[str, ...] | None:
+        """The log column that represents a finding (any form for the KDE; main effects only for the Gaussian)."""
+        col = self.state_name(candidate)
+        if col is None or (self.model_kind == "gaussian" and form != "main"):
+            return None
+        return (col,)
 
     def _static_candidates(self) -> dict[str, NDArray[np.float64]]:
         """Candidates that do not depend on the model: log columns and the corner, at the held-out readings."""
@@ -148,17 +167,34 @@ class RadarAdapter:
         mu, p_miss = model.mean_output(self._state, extra=ex, new_track=new)
         det = ~np.isnan(z[:, 0])
         off = np.where(det[:, None], z - mu, np.nan)
+        rms = np.sqrt(np.nanmean(off**2, axis=0)) if det.any() else np.ones(2)
         resid = {
             "offset_x": off[:, 0],
             "offset_y": off[:, 1],
             "detection": det - (1.0 - p_miss),
             "nll": np.minimum(-lp, 50.0) - self._expected_nll(model, ex),
+            "offset_spread": np.sqrt(np.minimum(np.hypot(*(off / np.maximum(rms, 1e-9)).T), 25.0)),
         }
         cand = dict(self._candidates)
         prev = self._previous_index()
         for k in ("offset_x", "offset_y", "detection"):
             cand[f"prev_{k}"] = np.where(prev >= 0, resid[k][np.maximum(prev, 0)], np.nan)
-        return Evaluation(nll=-lp, residuals=resid, candidates=cand, blocks=self._blocks())
+        tt = self._tt
+        return Evaluation(
+            nll=-lp,
+            residuals=resid,
+            candidates=cand,
+            blocks=self._blocks(),
+            order=(tt.sequence * (float(tt.frame.max(initial=0)) + 2.0) + tt.frame).astype(np.float64),
+            state={k: cand[k] for k in ("range", "azimuth") if k in cand},
+            metric_kinds={
+                "offset_x": "mean",
+                "offset_y": "mean",
+                "detection": "rate",
+                "nll": "score",
+                "offset_spread": "spread",
+            },
+        )
 
     def _expected_nll(self, model: Any, ex: NDArray | None) -> NDArray[np.float64]:
         """Model-expected NLL of each held-out state, by ``n_mc`` samples from the model itself (seeded)."""
@@ -190,8 +226,8 @@ class RadarAdapter:
         return radar_blocks(self.held_log)[self._tt.row]
 
     def state_features(self) -> tuple[str, ...]:
-        """Functions of the state the radar models already have: the corner, and range/azimuth of the box."""
-        return ("corner_x", "corner_y", "range", "azimuth")
+        """The models' own state: the corner, range/azimuth of the box, and the previous residuals (``z_{t-1}``)."""
+        return ("corner_x", "corner_y", "range", "azimuth", "prev_offset_x", "prev_offset_y", "prev_detection")
 
     def baseline(self, extra_state: tuple[str, ...]) -> float | None:
         """Held-out NLL of the Gaussian baseline with the same extra state (linear terms), per reading."""

@@ -11,7 +11,20 @@ import numpy as np
 from sensor_envs.diagnose.core import DiagnoseResult, Evaluation, bin_candidate
 from sensor_envs.outputs import write_json
 
-__all__ = ["write_report"]
+__all__ = ["write_report", "describe_effect"]
+
+UNITS = {
+    "null": "null probability",
+    "detection": "detection probability",
+    "range": "m",
+    "offset_x": "m",
+    "offset_y": "m",
+    "pit": "PIT",
+    "nll": "nats",
+    "range_spread": "sqrt(|residual| / sigma)",
+    "offset_spread": "sqrt(offset / RMS)",
+}
+"""Unit of each residual metric (the size of a finding is stated in it)."""
 
 
 def _slug(name: str) -> str:
@@ -29,6 +42,62 @@ def _binned(x: np.ndarray, r: np.ndarray, n_bins: int = 16) -> tuple[np.ndarray,
         mean.append(r[ok][sel].mean())
         se.append(r[ok][sel].std() / np.sqrt(max(sel.sum(), 1)))
     return np.asarray(centre), np.asarray(mean), np.asarray(se)
+
+
+def _slope(x: np.ndarray, r: np.ndarray) -> tuple[float, float, float, float]:
+    """OLS slope of ``r`` on ``x``, the 5th/95th percentiles of ``x`` and the binned-mean change between them."""
+    ok = np.isfinite(x) & np.isfinite(r)
+    if ok.sum() < 10 or np.ptp(x[ok]) == 0:
+        return float("nan"), float("nan"), float("nan"), float("nan")
+    xo, ro = x[ok], r[ok]
+    lo, hi = np.percentile(xo, [5, 95])
+    slope = float(np.polyfit(xo, ro, 1)[0])
+    c, m, _ = _binned(xo, ro, 10)
+    change = float(m[-1] - m[0]) if len(m) > 1 else float("nan")
+    return slope, float(lo), float(hi), change
+
+
+def describe_effect(ev: Evaluation, effect: dict[str, Any]) -> dict[str, Any]:
+    """Kind, form and size of a finding in the metric's units, measured on the held-out readings of ``ev``.
+
+    A main effect: the OLS slope of the residual metric per unit of the candidate and the change of its
+    binned mean from the candidate's lowest to highest tenth. An interaction with a state feature: the
+    same slope within each quarter of that feature (e.g. bearing sector), so the sign pattern shows.
+    """
+    name, metric = effect["name"], effect["metric"]
+    x, r = ev.candidates[name], ev.residuals[metric]
+    unit = UNITS.get(metric, "")
+    slope, lo, hi, change = _slope(x, r)
+    out: dict[str, Any] = {
+        "name": name,
+        "kind": effect.get("kind", "mean"),
+        "form": effect.get("form", "main"),
+        "metric": metric,
+        "unit": unit,
+        "p_value": effect["p_value"],
+        "slope_per_unit": slope,
+        "range_of_cause": [lo, hi],
+        "change_across_range": change,
+    }
+    text = (
+        f"{metric} changes by {change:+.3g} {unit} from {name} = {lo:.3g} to {hi:.3g} "
+        f"(slope {slope:+.3g} {unit} per unit of {name})"
+    )
+    form = effect.get("form", "main")
+    if form.startswith("x ") and form[2:] in ev.state:
+        s = ev.state[form[2:]]
+        edges = np.nanpercentile(s, [0, 25, 50, 75, 100])
+        parts = []
+        for k in range(4):  # the slope within each quarter of the state feature
+            sel = (s >= edges[k]) & (s <= edges[k + 1])
+            sl = _slope(x[sel], r[sel])[0]
+            parts.append({"state_from": float(edges[k]), "state_to": float(edges[k + 1]), "slope_per_unit": sl})
+        out["by_state"] = parts
+        text = f"slope of {metric} per unit of {name}, by {form[2:]} quarter: " + ", ".join(
+            f"{p['slope_per_unit']:+.3g} {unit} ({form[2:]} {p['state_from']:.3g}..{p['state_to']:.3g})" for p in parts
+        )
+    out["text"] = text
+    return out
 
 
 def plot_effect(before: Evaluation, after: Evaluation, name: str, metric: str, path: Path) -> Path:
@@ -85,6 +154,16 @@ def write_report(result: DiagnoseResult, out: Path, source: str = "") -> dict[st
         plot_effect(result.before, result.after, name, metric, out / fname)
         figs.append((name, metric, fname))
     data["details"]["figures"] = [f for _, _, f in figs]
+    findings = [e for e in result.effects if e["significant"]] or result.effects[:1]
+    data["details"]["findings"] = [describe_effect(result.before, e) for e in findings]
+    data["details"]["metrics_before_after"] = {
+        m: {
+            "rms_before": data["details"]["metrics_before"][m]["rms"],
+            "rms_after": data["details"]["metrics_after"][m]["rms"],
+        }
+        for m in data["details"]["metrics_before"]
+        if m in data["details"]["metrics_after"]
+    }
     write_json(out / "report.json", data)
     (out / "report.md").write_text(_markdown(result, data, figs, source), encoding="utf-8")
     return data
@@ -97,8 +176,9 @@ def _markdown(result: DiagnoseResult, data: dict[str, Any], figs: list[tuple[str
         "",
         f"Log: `{source}`. Held-out readings: {data['details']['readings_held_out']}.",
         "",
-        f"Significance: max-T adjusted p < {s['alpha']} (Westfall-Young, {s['n_permutations']} permutations, "
-        f"family-wise over all candidates and residual metrics) and cross-fitted R^2 >= {s['min_score']}.",
+        f"Significance: max-T adjusted p < {s['alpha']} (Westfall-Young, {s['n_permutations']} block sign-flips "
+        f"of the residuals, family-wise over all candidates, regressors and residual metrics) and held-out "
+        f"R^2 >= {s['min_score']}.",
         "",
     ]
     if not any(e["significant"] for e in result.effects):
@@ -119,12 +199,29 @@ def _markdown(result: DiagnoseResult, data: dict[str, Any], figs: list[tuple[str
             f"| Gaussian baseline, same state before | {result.baseline_before:.4f} |",
             f"| Gaussian baseline, same state after | {result.baseline_after:.4f} |",
         ]
+    lines += ["", "## Findings", ""]
+    for f in data["details"]["findings"]:
+        added = "added" if f["name"] in result.added else "not added"
+        lines.append(
+            f"- **{f['name']}** ({f['kind']} effect, form {f['form']}, p {f['p_value']:.3g}, {added}): {f['text']}"
+        )
+    for u in data["details"].get("unrepresented", []):
+        lines.append(f"- cannot be represented: {u['why']}")
+    for u in data["details"].get("refused", []):
+        lines.append(f"- candidate {u['name']} {u['reason']}")
+    lines += ["", "| residual metric | RMS before | RMS after |", "|---|---|---|"]
+    for m, v in data["details"]["metrics_before_after"].items():
+        lines.append(f"| {m} | {v['rms_before']:.4g} | {v['rms_after']:.4g} |")
     lines += ["", "## Candidate effects (residuals of the base model), best first", ""]
-    lines += ["| effect | score (R^2) | p (max-T) | p (raw) | metric | significant |", "|---|---|---|---|---|---|"]
+    lines += [
+        "| effect | score (R^2) | p (max-T) | p (raw) | metric | kind | form | significant |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for e in result.effects:
+        sig = "yes" if e["significant"] else (f"no (proxy of {e['proxy_of']})" if e.get("proxy_of") else "no")
         lines.append(
             f"| {e['name']} | {e['score']:.4f} | {e['p_value']:.4f} | {e['p_raw']:.4f} | {e['metric']} | "
-            f"{'yes' if e['significant'] else 'no'} |"
+            f"{e.get('kind', '')} | {e.get('form', '')} | {sig} |"
         )
     if result.state_misfit:
         lines += [

@@ -40,6 +40,7 @@ from sensor_envs.envs.neato_render import render_world
 from sensor_envs.geometry import nearest_wall_distance, raycast_pose, sample_free_poses, to_frame, wrap_angle
 from sensor_envs.inputs import InputError, check_array
 from sensor_envs.jit import compiled
+from sensor_envs.lidar.extra_state import modify, split_term
 from sensor_envs.lidar.sensors import GaussianLidar, IdealLidar, LidarSensor, make_lidar
 from sensor_envs.maps import SegmentMap, load_map
 from sensor_envs.modelio import Constraint, Interval, validate_params
@@ -82,7 +83,84 @@ NEATO_CONSTRAINTS: dict[str, list[Constraint]] = {
 
 
 class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
-    """A Neato-like robot (radius 0.17 m) with a planar lidar, driving to a goal in a segment map."""
+    """A Neato-like robot (radius 0.17 m) with a planar lidar, driving to a goal in a segment map.
+
+    ## Description
+
+    A differential-drive robot must reach a goal position (and, if ``goal_heading_tolerance`` is set, a
+    heading) without touching a wall, seeing the world only through its lidar. The lidar is the ideal
+    raycast, the seed paper's Gaussian lidar or a learned model fitted to a real unit's readings, so a policy
+    meets the nulls, biases and spurious returns of a real sensor.
+
+    ## Action space
+
+    ``Box(-1, 1, (2,), float32)``: ``a[0]`` scales the forward speed ``v = a[0] * v_max`` [m/s] (negative:
+    backwards), ``a[1]`` the turn rate ``omega = a[1] * omega_max`` [rad/s]; held for ``dt`` seconds.
+
+    ## Observation space
+
+    ``Box((n_bearings + 3,), float32)``: the lidar's ``n_bearings`` ranges [m] (bearing ``k`` at
+    ``k * 360 / n_bearings`` degrees counter-clockwise from the robot's heading; nulls read ``null_value``),
+    then the goal's x, y in the robot frame [m] and the heading error [rad], wrapped to ``[-pi, pi)``.
+
+    ## Rewards
+
+    ``progress_reward`` per metre of progress toward the goal, ``-step_penalty`` per step, ``+goal_reward`` on
+    reaching the goal, ``-collision_penalty`` on touching a wall.
+
+    ## Episode end
+
+    Terminated on reaching the goal (``info["is_success"]``) or touching a wall (``info["collision"]``);
+    truncated after 500 steps (the registration's ``max_episode_steps``).
+
+    ## Starting state
+
+    Start and goal are drawn from the free space of the map by the world's random stream (``reset(seed=...)``),
+    at least ``min_goal_distance`` apart; ``reset(options={"start": [x, y, theta], "goal": [x, y, theta]})``
+    sets them. The lidar draws from its own stream derived from the same seed, so the lidar never changes the
+    world.
+
+    Args:
+        map: the world: a built-in name (``"seed_room"``, ``"corridor"``, ``"cluttered"``), a map file (text,
+            JSON/YAML, ROS map_server YAML), a :class:`~sensor_envs.maps.SegmentMap` or an ``(M, 2, 2)`` array of
+            segment end points [m].
+        lidar: ``"ideal"``, ``"gaussian"``, ``"learned"``, or any object with ``measure(nominal_range,
+            incidence, rng)`` (the :class:`~sensor_envs.lidar.sensors.LidarSensor` protocol).
+        model: model file of the learned lidar (``None``: the shipped ``models/neato_lidar.npz``); must have
+            ``n_bearings`` bearings.
+        lidar_kwargs: keyword arguments of the lidar's constructor (e.g. ``{"sigma0": 0.01}`` for the Gaussian
+            lidar).
+        n_bearings: bearings per scan, evenly spaced over 360 degrees (> 0).
+        max_range: the lidar's maximum range [m] (> 0): readings beyond it are nulls.
+        null_value: what a null reads in the observation: ``"zero"``, ``"max"`` (``max_range``) or ``"nan"``
+            (outside the Box: for perception work, not for RL checkers).
+        dt: seconds per step (> 0).
+        v_max: forward speed at ``a[0] = 1`` [m/s] (> 0).
+        omega_max: turn rate at ``a[1] = 1`` [rad/s] (> 0).
+        robot_radius: the robot's radius [m] (> 0): a wall nearer than this to its centre is a collision.
+        goal_tolerance: distance to the goal that counts as reached [m].
+        goal_heading_tolerance: if set, the heading must also be within this of the goal's [rad].
+        min_goal_distance: least distance between a drawn start and goal [m].
+        progress_reward: reward per metre of progress toward the goal.
+        step_penalty: penalty per step.
+        goal_reward: reward on reaching the goal.
+        collision_penalty: penalty on touching a wall.
+        render_mode: ``"rgb_array"`` (map, robot, goal, rays and returns) or ``None``.
+
+    Raises:
+        ValueError: for a bad argument (naming it), or a learned model whose extra state the world cannot supply.
+
+    Examples:
+        >>> import gymnasium as gym
+        >>> import sensor_envs
+        >>> env = gym.make("sensor_envs/Neato-v0", lidar="learned", map="cluttered")
+        >>> obs, info = env.reset(seed=0)
+        >>> obs.shape  # 360 ranges [m], goal x, y [m], heading error [rad]
+        (363,)
+        >>> obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        >>> sorted(info)[:4]
+        ['collision', 'distance_to_goal', 'goal', 'ideal_scan']
+    """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
 
@@ -136,7 +214,7 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         self.world_map = load_map(map)
         self.lidar = make_lidar(lidar, model=model, **(lidar_kwargs or {}))
         self._extra_names = lidar_extra_state(self.lidar)
-        missing = [n for n in self._extra_names if n not in WORLD_STATE]
+        missing = [n for n in self._extra_names if split_term(n)[0] not in WORLD_STATE]
         if missing:
             raise InputError(
                 f"lidar: the learned model's state names {missing}, which Neato-v0 cannot supply "
@@ -241,7 +319,9 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         """``(1, K, d)`` values of the learned lidar's extra state variables (see :data:`WORLD_STATE`)."""
         k = self.bearings.size
         cols = {"v": self._motion[0], "omega": self._motion[1], "t": self._motion[2], "prev_residual": self._prev_res}
-        return np.stack([np.broadcast_to(cols[n], (k,)) for n in self._extra_names], axis=-1)[None]
+        terms = [split_term(n) for n in self._extra_names]  # a term may interact with the bearing
+        vals = [modify(np.broadcast_to(cols[n], (k,)).astype(np.float64), m, self.bearings) for n, m in terms]
+        return np.stack(vals, axis=-1)[None]
 
     def _residual(
         self, nominal: NDArray[np.float64], incidence: NDArray[np.float64], scan: NDArray[np.float64]

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm.auto import tqdm
 
-from sensor_envs.evaluate.detection import (
+from sensor_envs.evaluate.lidar_detection import (
     TRAJECTORY_STEPS,
     flatten_repeats,
     present_targets,
@@ -55,7 +55,7 @@ def simulate(
     """``(P, K, repeats)`` readings [m] (``0`` = null) of a sensor at ``(P, 3)`` poses in a map.
 
     The learned model samples with its pose uncertainty (:meth:`LidarLWLR.sample`, as for a log's
-    approximate poses: each cell's mean drawn independently, ``mu + tau z`` or a uniform outlier) or,
+    approximate poses: one rigid pose error per pose, then the worlds' draw at the perturbed pose) or,
     with ``pose_uncertainty=False``, as the worlds' sensor does (:class:`~sensor_envs.lidar.lwlr.LearnedLidar`:
     the poses taken as true). The Gaussian and ideal lidars measure the nominal raycast.
     """
@@ -72,13 +72,12 @@ def simulate(
 
 
 LIDAR_NOTES = (
-    "'model' is LidarLWLR.sample at the log's approximate poses: each pose-bearing cell's mean is drawn "
-    "independently (mu + tau z, tau ~ 4 cm, or a uniform outlier with p_out), which turns straight walls "
-    "and boards into jagged points; a real pose error shifts the whole scan rigidly instead. The line "
-    "detector's gap and line-fit checks then reject most boards, so this source is far from the real one.",
+    "'model' is LidarLWLR.sample at the log's approximate poses: one rigid pose error per pose (the model's "
+    "pose_sd_, fitted from the training poses' corrections), shared by all bearings and repeats, then the "
+    "worlds' per-reading draw at the perturbed pose, with persistent nulls per cell over the repeats (since "
+    "issue 43; before, each cell's mean was drawn independently, which turned walls and boards jagged).",
     "'model_world' is the same fitted model sampled as the worlds' LearnedLidar does (poses taken as true, "
-    "no per-cell pose spread): the learned per-bearing noise, nulls and spurious returns without the "
-    "independent pose term.",
+    "no pose error): the learned per-bearing noise, nulls and spurious returns.",
     "'baseline' is the Gaussian lidar (refitted on the same training poses when the model is fitted): no "
     "persistent nulls, so boards are seen whole more often than on the real sensor (recall too high at the "
     "recall steps).",
@@ -268,7 +267,7 @@ def boxworld_experiment(
         segs = boxworld_map(rng)
         n_boards.append(len(segs) - 4)
         log, _ = rig.record(segs, rng, n_poses=poses_per_config, repeats=repeats)
-        sources = {"real": np.nan_to_num(log.ranges, nan=0.0)}
+        sources = {"rig": np.nan_to_num(log.ranges, nan=0.0)}  # the rig plays reality: named for what it is
         for name, sensor in _SOURCES(model, g):
             sources[name] = simulate(
                 sensor, log.poses, log.bearings, segs, repeats, rng, max_range, name != "model_world"
@@ -294,7 +293,7 @@ def boxworld_experiment(
         "target_length_m": length,
         "steps": steps_table(),
         "trajectories": totals,
-        "distance_to_real": summarise(totals),
+        "distance_to_rig": summarise(totals, reference="rig"),
         "notes": list(LIDAR_NOTES),
         "data": {
             "configurations": n_configs,

@@ -17,11 +17,16 @@ __all__ = ["write_report", "plot_trajectories", "report_markdown", "closeness_se
 
 _STYLE: dict[str, dict[str, Any]] = {
     "real": dict(color="k", marker="o", lw=2.0),
+    "rig": dict(color="k", marker="o", lw=2.0),
     "reference": dict(color="k", marker="o", lw=2.0),
     "model": dict(color="tab:blue", marker="s"),
     "model_world": dict(color="tab:green", marker="d", ls="--"),
     "baseline": dict(color="tab:orange", marker="^"),
     "ideal": dict(color="tab:gray", marker="x", ls=":"),
+    # the same sources under the names the demo's report uses
+    "learned (sample)": dict(color="tab:blue", marker="s"),
+    "learned": dict(color="tab:green", marker="d", ls="--"),
+    "gaussian": dict(color="tab:orange", marker="^"),
 }
 
 
@@ -32,7 +37,7 @@ def plot_trajectories(trajs: dict[str, list[dict[str, Any]]], path: Path, title:
         r = [s["recall"] for s in steps]
         p = [s["precision"] for s in steps]
         ax.plot(r, p, label=name, ms=5, **_STYLE.get(name, {}))
-        if name in ("real", "reference"):
+        if name in ("real", "rig", "reference"):
             for s in steps:
                 ax.annotate(
                     str(s["step"]), (s["recall"], s["precision"]), fontsize=7, xytext=(3, 3), textcoords="offset points"
@@ -63,7 +68,7 @@ def closeness_sentence(dist: dict[str, float], reference: str = "real") -> str:
 
 def report_markdown(report: dict[str, Any]) -> str:
     """Markdown summary of a detection-style report (trajectories table, distances, notes)."""
-    ref = "real" if "real" in report["trajectories"] else "reference"
+    ref = next((k for k in ("real", "rig") if k in report["trajectories"]), "reference")
     lines = [f"# {report['experiment']}", ""]
     if report.get("command"):
         lines += [f"Command: `{report['command']}`", ""]

@@ -331,7 +331,7 @@ NULL_SLOPE_RIDGES = (float("inf"), 0.1, 0.01, 0.003)
 """Candidate ridges on the per-bearing range slopes of logit ``p_null`` (``inf`` = no slopes), one chosen per log
 by leave-poses-out CV (:func:`choose_slope_ridge`). On the real Neato log: held-out MAE p_null 0.117 without
 slopes, 0.105 at 0.1, 0.099 at 0.01, 0.098 at 0.003 (0.097 at 0.001, slower to fit and not kept;
-``benchmarks/real_lidar_null_law_cv.py``)."""
+``docs/history/scripts/real_lidar_null_law_cv.py``)."""
 NULL_SLOPE_CV_FOLDS = 5
 """Leave-poses-out folds of the ridge choice."""
 NULL_SLOPE_CV_TOLERANCE = 0.01

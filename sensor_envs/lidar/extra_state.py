@@ -16,7 +16,11 @@ State variables (names):
 * ``prev_residual``: the same bearing's residual ``x - mu_table`` [m] at the previous scan (clipped to
   +-:data:`PREV_CLIP`; 0 after a null, a missing reading, a ray without hit, the first scan or a time
   gap of more than 1.5 median scan periods), ``mu_table`` being the tables' mean (without extra terms);
-* any other name: the log's per-scan covariate ``cov_<name>`` (e.g. ``v``, ``omega``).
+* any other name: the log's per-scan covariate ``cov_<name>`` (e.g. ``v``, ``omega``);
+* ``<name>@cos_bearing`` / ``<name>@sin_bearing``: an interaction term, the variable ``<name>`` times
+  the cosine / sine of the reading's bearing (an effect whose sign follows the bearing, e.g. a range
+  bias from translating during the scan: its mean over the scan is zero); ``<name>@sq``: its square
+  (a U-shaped effect, standardised like every term).
 
 The terms are fitted after the tables (on the same readings), so the tables stay what they were.
 """
@@ -36,7 +40,18 @@ from sensor_envs.lidar.log import LidarLog
 if TYPE_CHECKING:
     from sensor_envs.lidar.lwlr import LidarLWLR
 
-__all__ = ["PREV", "TIME", "PREV_CLIP", "check_extra_state", "scan_features", "fit_extra_terms", "apply_extra"]
+__all__ = [
+    "PREV",
+    "TIME",
+    "PREV_CLIP",
+    "MODIFIERS",
+    "check_extra_state",
+    "split_term",
+    "modify",
+    "scan_features",
+    "fit_extra_terms",
+    "apply_extra",
+]
 
 PREV = "prev_residual"
 TIME = "t"
@@ -45,6 +60,31 @@ PREV_CLIP = 1.0
 MAX_COEF = 50.0
 """Largest magnitude of a fitted coefficient (logit, m, log m per standard deviation) in a model file."""
 _RIDGE = 1.0
+MODIFIERS = ("cos_bearing", "sin_bearing", "sq")
+"""Interaction / shape modifiers of a state term ``<name>@<modifier>``."""
+
+
+def split_term(name: str) -> tuple[str, str | None]:
+    """``(variable, modifier)`` of a state term name (``modifier`` ``None`` for a plain variable).
+
+    Raises:
+        ValueError: an unknown modifier, naming ``extra_state``.
+    """
+    base, sep, mod = name.partition("@")
+    if not sep:
+        return name, None
+    if mod not in MODIFIERS or not base:
+        raise InputError(f"extra_state: term {name!r}: expected <name>@<modifier> with a modifier in {MODIFIERS}")
+    return base, mod
+
+
+def modify(values: NDArray[np.float64], mod: str | None, bearings: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A variable's values ``(..., K)`` with the modifier applied (``bearings`` ``(K,)`` [rad])."""
+    if mod is None:
+        return values
+    if mod == "sq":
+        return values**2
+    return values * (np.cos(bearings) if mod == "cos_bearing" else np.sin(bearings))
 
 
 def check_extra_state(names: Any) -> tuple[str, ...]:
@@ -53,6 +93,8 @@ def check_extra_state(names: Any) -> tuple[str, ...]:
         raise InputError(f"extra_state: expected a tuple of variable names, got {names!r}")
     if len(set(names)) != len(names):
         raise InputError(f"extra_state: duplicate names in {names!r}")
+    for n in names:
+        split_term(n)
     return tuple(names)
 
 
@@ -86,7 +128,8 @@ def scan_features(log: LidarLog, names: tuple[str, ...], mu_table: NDArray[np.fl
     """
     s, k = log.n_poses, log.n_bearings
     out = np.zeros((s, k, len(names)))
-    for i, n in enumerate(names):
+    for i, term in enumerate(names):
+        n, mod = split_term(term)
         if n == TIME:
             if log.t is None:
                 raise InputError(f"{log.source}: field 't' is missing, but the lidar's extra state names 't'")
@@ -106,6 +149,7 @@ def scan_features(log: LidarLog, names: tuple[str, ...], mu_table: NDArray[np.fl
                     f"(covariates: {sorted(log.covariates)})"
                 )
             out[:, :, i] = np.asarray(log.covariates[n], dtype=np.float64)[:, None]
+        out[:, :, i] = modify(out[:, :, i], mod, log.bearings)
     if not np.isfinite(out).all():
         bad = names[int(np.argmin(np.isfinite(out).all(axis=(0, 1))))]
         raise InputError(f"{log.source}: extra state variable {bad!r} holds NaN or infinite values")

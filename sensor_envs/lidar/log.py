@@ -24,6 +24,7 @@ from __future__ import annotations
 import os
 import re
 import struct
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -73,6 +74,14 @@ class LidarLog:
         t: ``(P,)`` times [s] or ``None``.
         covariates: per-scan covariates, each ``(P,)``.
         source: where the log came from (used in error messages).
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import LidarLog
+        >>> log = LidarLog(ranges=np.full((2, 4, 3), 1.5), bearings=np.linspace(0, np.pi, 4),
+        ...                poses=np.zeros((2, 3)), map_segments=np.array([[[2.0, -1.0], [2.0, 1.0]]]))
+        >>> log.n_poses, log.n_bearings, log.ranges.shape
+        (2, 4, (2, 4, 3))
     """
 
     ranges: NDArray[np.float64]
@@ -275,6 +284,17 @@ def load_log(path: PathLike, **kwargs: Any) -> LidarLog:
     Raises:
         LidarLogError: for a malformed log, naming the file and the field.
         FileNotFoundError: when ``path`` does not exist.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import load_log
+        >>> from sensor_envs.lidar.log import save_log
+        >>> from sensor_envs import LidarLog
+        >>> scans = np.full((2, 4, 1), 1.5)  # 2 scans x 4 bearings, one reading each [m]
+        >>> wall = np.array([[[2.0, -1.0], [2.0, 1.0]]])  # the map: one segment [m]
+        >>> path = save_log(LidarLog(scans, np.linspace(0, np.pi, 4), np.zeros((2, 3)), wall), "example_log.npz")
+        >>> load_log(path).ranges.shape  # (scans, bearings, 1): one reading per scan and bearing
+        (2, 4, 1)
     """
     p = Path(path)
     if not p.exists():
@@ -362,7 +382,7 @@ def _parse_robotlaser1(
 
 
 def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = None) -> LidarLog:
-    """Read ``FLASER`` and ``ROBOTLASER1`` lines of a CARMEN log (optionally gzipped) into a log.
+    r"""Read ``FLASER`` and ``ROBOTLASER1`` lines of a CARMEN log (optionally gzipped) into a log.
 
     FLASER bearing ``i`` of ``n`` is ``-pi/2 + i * pi / (n - 1)`` [rad] (``n`` beams over the 180 degrees
     field of view, both ends included: 361 beams are 0.5 degree steps); ROBOTLASER1 uses its start angle and
@@ -378,6 +398,14 @@ def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = No
     Raises:
         LidarLogError: when the file holds no laser line, a line is malformed, scans differ in size, or
             the file is unreadable (truncated or non-gzip ``.gz``, bytes that are not UTF-8 text).
+
+    Examples:
+        >>> from pathlib import Path
+        >>> from sensor_envs import read_carmen
+        >>> _ = Path("example.log").write_text("FLASER 3 1.0 2.0 0.0 0.0 0.0 0.0 0.0 0.0 0.0 0.5 robot 0.5\n")
+        >>> log = read_carmen("example.log")  # FLASER n ranges... x y theta odom_x odom_y odom_theta t host t_local
+        >>> log.ranges.shape, log.bearings.round(3).tolist()
+        ((1, 3, 1), [-1.571, 0.0, 1.571])
     """
     p = Path(path)
     try:
@@ -386,7 +414,7 @@ def read_carmen(path: PathLike, *, map: Any = None, max_range: float | None = No
         raise LidarLogError(str(exc)) from None
     if not scans:
         raise LidarLogError(f"{p}: field 'ranges': no FLASER or ROBOTLASER1 line found")
-    ps, ts = np.stack(poses), np.asarray(times)
+    ps, ts = np.stack(poses), scan_times(np.asarray(times), str(p))
     return log_from_arrays(
         np.stack(scans), bearings, ps, _map_or_none(map), ts, motion_covariates(ts, ps, str(p)), source=str(p)
     )
@@ -484,6 +512,14 @@ def read_rosbag(
     Raises:
         LidarLogError: naming the bag and topic when a topic is absent or scans differ in size, or when
             the bag is empty, truncated or damaged.
+
+    Examples:
+        >>> import os
+        >>> from sensor_envs import read_rosbag
+        >>> data = os.environ.get("SENSOR_ENVS_REAL_DATA", "../shared/data/real")
+        >>> log = read_rosbag(os.path.join(data, "neato_ros1_bags", "middle.bag"))  # doctest: +SKIP
+        >>> log.ranges.shape[1]  # doctest: +SKIP
+        360
     """
     p = Path(path)
     try:
@@ -572,6 +608,26 @@ def _read_bag_messages(
             scans.append(np.where(null, 0.0, r))
             st.append(t * 1e-9)
     return scans, st, pts, pt, twists, bearings
+
+
+def scan_times(t: NDArray[np.float64], source: str) -> NDArray[np.float64]:
+    """Scan times [s] a user can trust: the logged ones, or evenly spread ones when those are too coarse.
+
+    Too coarse: fewer distinct values than half the scans (e.g. timestamps cut to 6 significant digits).
+    Then the times are spread evenly over the logged span at the scan rate it implies, and a
+    ``UserWarning`` names the file and field ``t``.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    if t.size < 3 or not np.isfinite(t).all() or np.unique(t).size >= 0.5 * t.size:
+        return t
+    span = float(t[-1] - t[0])
+    period = span / (t.size - 1) if span > 0 else 0.2
+    warnings.warn(
+        f"{source}: field 't': {np.unique(t).size} distinct times for {t.size} scans; time, speed and turn "
+        f"rate derived from the scan rate instead ({1 / period:.3g} Hz{'' if span > 0 else ', assumed'})",
+        stacklevel=3,
+    )
+    return t[0] + period * np.arange(t.size)
 
 
 def motion_covariates(

@@ -13,9 +13,12 @@ the ray, computed from the (approximate) sensor pose and the nominal map.
   cross-validation, 0 = the seed's strictly per-bearing fit); cells whose mean or spread is an
   outlier of a pilot fit are down-weighted (LOWESS bisquare); and ``tau`` [m], the spread of a
   cell's mean around ``mu`` when the pose is approximate (regressed on the squared out-of-fold
-  residuals), widens the density of :meth:`LidarLWLR.log_prob` and :meth:`LidarLWLR.sample` to
-  ``sqrt(sigma^2 + tau^2)``. The world's sensor (:class:`LearnedLidar`) knows the true pose and
-  samples without ``tau``. Nulls persist per cell: the readings of one pose and bearing are
+  residuals), widens the density of :meth:`LidarLWLR.log_prob` to ``sqrt(sigma^2 + tau^2)`` (a marginal
+  per reading). Sampling has one semantics (issue 43): the world's sensor (:class:`LearnedLidar`) knows the
+  true pose; :meth:`LidarLWLR.sample` at approximate poses draws ONE rigid pose error per pose
+  (``pose_sd_``, the robust spread of the training log's pose corrections) and then the world's draw at
+  the perturbed pose, so neighbouring rays move together as on the real unit. Nulls persist per cell:
+  the readings of one pose and bearing are
   not independent Bernoulli draws (on the real Neato log most cells are all-null or never null), so
   the extended variant also fits ``null_rho_``, the intra-cell correlation of nulls (a beta-binomial
   over a cell's repeats with mean ``p_null``, chosen by leave-poses-out likelihood). :meth:`LidarLWLR.sample`
@@ -44,6 +47,10 @@ logs with repeats) first corrects every training pose by least squares of its ce
 map's raycast, jointly with a per-bearing constant bias (:mod:`sensor_envs.lidar.pose_correction`,
 the seed's remedy for approximate poses), and learns the tables at the corrected poses; the
 shrinkage CV and ``tau`` still score the held-out poses at their approximate poses, as a user's are.
+``bias_model="pooled"`` (the default since format 6) learns the bias as a trend over ``(r, alpha)``
+pooled over all bearings plus a per-bearing part whose weight is chosen with ``s`` on the same folds
+(:mod:`sensor_envs.lidar.bias_transfer`: what one bearing learns at a few poses is mostly those poses'
+registration and map errors); ``"per_bearing"`` is the seed's per-bearing bias alone.
 
 Model files hold only the tables, hyperparameters and the card (never training readings).
 """
@@ -70,6 +77,15 @@ from tqdm.auto import tqdm
 from sensor_envs.geometry import as_segments, raycast_pose
 from sensor_envs.inputs import InputError, load_npz
 from sensor_envs.jit import compiled
+from sensor_envs.lidar.bias_transfer import (
+    BIAS_MODELS,
+    choose_bias,
+    choose_global_widths,
+    global_lookup,
+    global_table,
+    pooled_oof,
+    support_gate,
+)
 from sensor_envs.lidar.extra_state import MAX_COEF, apply_extra, check_extra_state, fit_extra_terms
 from sensor_envs.lidar.kernel import (
     P_EPS,
@@ -83,7 +99,7 @@ from sensor_envs.lidar.kernel import (
     lwlr,
 )
 from sensor_envs.lidar.log import LidarLog, check_model_call
-from sensor_envs.lidar.pose_correction import correct_poses
+from sensor_envs.lidar.pose_correction import correct_poses, pose_error_sd
 from sensor_envs.modelio import (
     RANDOM_STATE,
     Constraint,
@@ -131,12 +147,14 @@ __all__ = [
 """Cell-mean residuals [m] are clipped to this before their variance ``tau^2`` is regressed."""
 VARIANTS = ("seed", "extended")
 MODEL_KIND = "sensor_envs.lidar_lwlr"  # the file format's kind string (kept: shipped files carry it)
-FORMAT_VERSION = 5
+FORMAT_VERSION = 6
 """2 adds ``null_rho`` to the header (version 1 files load with ``null_rho = 0``, independent nulls); 3 adds the
 extra state (``params.extra_state``, arrays ``extra_mean``, ``extra_scale``, ``extra_coef``; older files load
 with no extra state); 4 adds the bias shrinkage (header ``bias_shrinkage``, ``params.bias_shrinkage``,
 ``params.pose_correction``; older files load with shrinkage 0 and no pose correction, their old behaviour);
-5 adds ``spur_rho`` (persistent spurious returns; older files load with ``spur_rho = 0``, independent ones)."""
+5 adds ``spur_rho`` (persistent spurious returns; older files load with ``spur_rho = 0``, independent ones);
+6 adds ``params.bias_model`` (older files load with ``"per_bearing"``, the bias they were fitted with) and the header's
+``pose_sd`` (older files load with ``None``: see :meth:`LidarLWLR.sample`)."""
 RHO_GRID = (0.0, 0.01, 0.03, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95)
 """Candidate intra-cell correlations of nulls and of spurious returns (extended variant)."""
 _PARAMS = {"seed": ("p_null", "bias", "sigma"), "extended": ("p_null", "p_spur", "bias", "log_sigma")}
@@ -289,6 +307,20 @@ class LidarLWLR(BaseEstimator):
             in EVERY fold, so the chosen ``mu`` is never worse than the raycast in any CV fold.
         pose_correction: correct the training poses (dx, dy, dtheta each) jointly with a per-bearing bias
             before learning the tables (:mod:`sensor_envs.lidar.pose_correction`; static logs with repeats).
+        bias_model: ``"pooled"`` (default): bias = a trend pooled over bearings + ``lam`` x the per-bearing
+            residual fit, ``lam`` chosen with the shrinkage by the folds (:mod:`sensor_envs.lidar.bias_transfer`);
+            ``"per_bearing"``: the per-bearing fit alone (the behaviour before format 6). Scan logs fitted per
+            reading (:mod:`sensor_envs.lidar.readings`) always use the per-bearing bias.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import LidarLWLR
+        >>> from sensor_envs.modelio import default_model_path
+        >>> model = LidarLWLR.load(default_model_path("neato_lidar.npz"))  # the shipped model
+        >>> r, alpha = np.full((1, 360), 2.0), np.zeros((1, 360))  # nominal range [m], incidence [rad]
+        >>> scan = model.sample_scan(r, alpha, np.random.default_rng(0))  # readings [m], 0 = null
+        >>> scan.shape, bool((scan == 0).any())
+        ((1, 360), True)
     """
 
     _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
@@ -307,6 +339,7 @@ class LidarLWLR(BaseEstimator):
         "extra_state": [InstanceOf(tuple, list)],  # details: check_extra_state
         "bias_shrinkage": [Options("cv"), Interval(0, 1)],
         "pose_correction": [InstanceOf(bool)],
+        "bias_model": [Options(*BIAS_MODELS)],
     }
     """One declarative check of every hyperparameter, used by :meth:`fit` and :meth:`load`."""
 
@@ -328,6 +361,7 @@ class LidarLWLR(BaseEstimator):
         extra_state: tuple[str, ...] = (),
         bias_shrinkage: str | float = "cv",
         pose_correction: bool = False,
+        bias_model: str = "pooled",
     ) -> None:
         self.variant = variant
         self.n_folds = n_folds
@@ -344,6 +378,7 @@ class LidarLWLR(BaseEstimator):
         self.extra_state = extra_state
         self.bias_shrinkage = bias_shrinkage
         self.pose_correction = pose_correction
+        self.bias_model = bias_model
 
     # ---------------------------------------------------------------------------------------- fitting
     def _check_hyper(self, log: LidarLog) -> None:
@@ -388,25 +423,36 @@ class LidarLWLR(BaseEstimator):
         segs = log.require_map()
         r_ap, a_ap = lidar_features(log.poses, log.bearings, segs, self.max_range)
         stats = cell_statistics(log, self.spur_above, split_spurious=self.variant == "extended")
-        corr_info = None
+        poses, _, corr_info = correct_poses(log, stats["mean"], stats["n_ok"], self.max_range)
+        sd = pose_error_sd(log.poses, poses)
+        self.pose_sd_: NDArray[np.float64] | None = sd  # the rigid pose error of :meth:`sample`
         if self.pose_correction:
-            poses, _, corr_info = correct_poses(log, stats["mean"], stats["n_ok"], self.max_range)
             r, a = lidar_features(poses, log.bearings, segs, self.max_range)
         else:
             r, a = r_ap, a_ap
         groups = self._groups(stats, r)
         r0, a0 = np.where(np.isfinite(r), r, 0.0), np.nan_to_num(a)
         fold = self._folds(log)
+        pooled = self._pool_bias(r0, a0, groups, fold) if self.bias_model == "pooled" else None
         self.h_, self.cv_scores_ = self._cross_validate(r0, a0, groups, fold)
         held_out = self._held_out_bias(stats, r_ap, a_ap, r0, a0, groups, fold)
-        self.bias_shrinkage_, self.cv_scores_["bias_shrinkage"] = choose_shrinkage(*held_out, fold, self.bias_shrinkage)
-        if corr_info is not None:
+        if pooled is None:
+            self.bias_shrinkage_, self.cv_scores_["bias_shrinkage"] = choose_shrinkage(
+                *held_out, fold, self.bias_shrinkage
+            )
+        else:
+            held_out = self._choose_pooled(pooled, held_out, r_ap, a_ap, r0, a0, fold)
+        if self.pose_correction:
             self.cv_scores_["pose_correction"] = corr_info
+        self.cv_scores_["pose_error_sd"] = {"sd": [float(v) for v in sd], "rms_corrections": corr_info}
         self.bearings_ = log.bearings.copy()
         if self.variant == "extended":
             groups.append(self._tau_group(r0, a0, groups, stats["n_ok"], held_out))
             self.h_["tau2"] = list(self.h_["bias"])
         self._tabulate(r, a, groups)
+        if pooled is not None:  # bias = G + lam L (L where bearing k has cells), same grid, float32 values
+            j = self.param_names_.index("bias")
+            self.tables_[j] = self._combined_bias(pooled, self.tables_[j], r0, a0)
         del self._bias_oof
         if self.variant == "seed":
             self.p_out_ = 0.0
@@ -441,6 +487,71 @@ class LidarLWLR(BaseEstimator):
                 (grp, np.stack(ys, axis=-1), ms[0].astype(np.float64), self.variant == "extended" and grp[0] == "bias")
             )
         return out
+
+    def _pool_bias(
+        self, r: NDArray[np.float64], a: NDArray[np.float64], groups: list[Any], fold: NDArray[np.int64]
+    ) -> dict[str, Any]:
+        """The pooled trend ``G`` of the bias (``bias_model="pooled"``, :mod:`sensor_envs.lidar.bias_transfer`).
+
+        Chooses ``G``'s kernel widths on the folds, tabulates it on all cells, and replaces the bias target of
+        ``groups`` by its residual ``bias - G`` (the per-bearing part ``L`` the usual fit then learns). Returns
+        ``G``'s widths, CV score and table, and the original target and cell weights.
+        """
+        i = next(j for j, g in enumerate(groups) if g[0][0] == "bias")
+        names, y, weight, robust = groups[i]
+        yb = y[..., 0].copy()
+        w = _robust_weights(r, a, y[..., :1], weight) if robust else weight
+        grid = self._grid()
+        h, score = choose_global_widths(r, a, yb, w, fold, grid)
+        table = global_table(r, a, yb, w, (h[0], h[1]), (int(h[3]),), grid)[0]
+        y2 = y.copy()
+        y2[..., 0] = np.where(weight > 0, yb - global_lookup(table, grid, r, a), 0.0)
+        groups[i] = (names, y2, weight, robust)
+        return {"h": h, "score": score, "table": table, "y": yb, "weight": weight, "robust": robust}
+
+    def _combined_bias(
+        self, pooled: dict[str, Any], local: NDArray[np.float64], r: NDArray[np.float64], a: NDArray[np.float64]
+    ) -> NDArray[np.float64]:
+        """The bias table ``(K, n_r, n_alpha)``: ``G + lam L``, ``L`` gated to each bearing's training span."""
+        rg, ag = self.range_grid_, self.alpha_grid_
+        qr, qa = (v.ravel() for v in np.meshgrid(rg, ag, indexing="ij"))
+        gate = support_gate(qr[:, None], qa[:, None], r, a, pooled["weight"])  # (Q, K)
+        lam = self.cv_scores_["bias_shrinkage"]["local_weight"]
+        combined = pooled["table"][None] + lam * np.where(gate.T.reshape(local.shape), local, 0.0)
+        return np.asarray(combined.astype(np.float32), dtype=np.float64)
+
+    def _choose_pooled(
+        self,
+        pooled: dict[str, Any],
+        held_out: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]],
+        r_ap: NDArray[np.float64],
+        a_ap: NDArray[np.float64],
+        r: NDArray[np.float64],
+        a: NDArray[np.float64],
+        fold: NDArray[np.int64],
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+        """Local weight and shrinkage of the pooled bias by the folds; returns the held-out target, ``mu - r``, mask.
+
+        The held-out ``G`` and ``L`` are refitted per fold on its training poses
+        (:func:`~sensor_envs.lidar.bias_transfer.pooled_oof`) and read at the log's approximate poses.
+        """
+        y_ev, _, m_ev = held_out
+        if not self.pose_correction:  # the groups' bias target is now the residual of G: score the bias itself
+            y_ev, m_ev = pooled["y"], pooled["weight"] > 0
+        query = (np.where(m_ev, r_ap, 0.0), np.nan_to_num(a_ap)) if self.pose_correction else (r, a)
+        g_oof, l_oof = pooled_oof(
+            (r, a, pooled["y"], pooled["weight"]),
+            query,
+            fold,
+            pooled["h"],
+            self.h_["bias"],
+            self._grid(),
+            _robust_weights if pooled["robust"] else None,
+        )
+        lam, s, report = choose_bias(y_ev, g_oof, l_oof, m_ev, fold, self.bias_shrinkage)
+        report["global"] = {"h": pooled["h"], **pooled["score"]}
+        self.bias_shrinkage_, self.cv_scores_["bias_shrinkage"] = s, report
+        return y_ev, g_oof + lam * l_oof, m_ev
 
     def _tau_group(
         self,
@@ -837,19 +948,33 @@ class LidarLWLR(BaseEstimator):
     ) -> NDArray[np.float64]:
         """Sample a log at ``(S, 3)`` approximate poses: ``(S, K)`` or ``(S, K, n_repeats)`` [m], ``0`` = null.
 
-        Each cell's mean is drawn once (``mu + tau z``, the extended variant's spread of cell means
-        around ``mu`` at an approximate pose) and shared by its repeats; this matches :meth:`log_prob`
-        reading by reading. So is each cell's null probability (``Beta`` with mean ``p_null`` and
-        intra-cell correlation ``null_rho_``): the null counts of the cells follow
-        :func:`null_count_log_prob`, while each reading's marginal null probability stays ``p_null``.
+        One sampling semantics with the worlds' sensor (:class:`LearnedLidar`): each pose gets ONE rigid pose error
+        ``(dx, dy, dtheta) ~ Normal(0, pose_sd_)`` [m, m, rad], shared by all its bearings and repeats (a real
+        static pose's registration error shifts the whole scan; see ``docs/results/lidar_sampling.md``), drawn first
+        from ``rng`` (``S x 3`` normals, none when ``pose_sd_`` is 0 or absent); the readings at the perturbed pose
+        are then drawn as the worlds' sensor draws them (:meth:`sample_from_params`: null, spurious return or
+        ``Normal(mu, sigma)`` per reading; no per-cell ``tau`` or ``p_out`` draw). So with ``n_repeats=None`` and no
+        pose error this is :meth:`sample_scan` at the poses' features, bit for bit. With ``n_repeats``, each cell's
+        null and spurious probabilities are drawn once (``Beta`` with means ``p_null``/``p_spur`` and intra-cell
+        correlations ``null_rho_``/``spur_rho_``) and shared by its repeats (persistent nulls of a static pose); the
+        cell counts then follow :func:`null_count_log_prob`.
+
+        Files of format < 6 have no ``pose_sd_`` (read as 0): their ``sample`` is the worlds' draw at the given poses.
         """
         self._check_fitted()
         check_model_call(poses, map_segments, rng)
-        p = self.params_full(poses, map_segments, extra)
+        p0 = np.atleast_2d(np.asarray(poses, dtype=np.float64))
+        sd = getattr(self, "pose_sd_", None)
+        sd = np.zeros(3) if sd is None else np.asarray(sd, dtype=np.float64)
+        if np.any(sd > 0):
+            p0 = p0 + rng.standard_normal(p0.shape) * sd
+        p = self.params_full(p0, map_segments, extra)
         if n_repeats is None:
-            return self.sample_from_params(p, rng, pose_uncertainty=True)
+            return self.sample_from_params(p, rng)
         p = {k: v[..., None] for k, v in p.items()}
-        return self.sample_from_params(p, rng, p["mu"].shape[:2] + (int(n_repeats),), pose_uncertainty=True)
+        p["p_null"] = _cell_probability(p["p_null"], p["null_rho"], rng)
+        p["p_spur"] = np.minimum(_cell_probability(p["p_spur"], p["spur_rho"], rng), 1 - p["p_null"])
+        return self.sample_from_params(p, rng, p["mu"].shape[:2] + (int(n_repeats),))
 
     def log_prob(
         self, ranges: ArrayLike, poses: ArrayLike, map_segments: ArrayLike, extra: ArrayLike | None = None
@@ -893,6 +1018,7 @@ class LidarLWLR(BaseEstimator):
             "null_rho": self.null_rho_,
             "spur_rho": self.spur_rho_,
             "bias_shrinkage": self.bias_shrinkage_,
+            "pose_sd": None if (sd := getattr(self, "pose_sd_", None)) is None else [float(v) for v in sd],
             "card": card,
         }
 
@@ -930,10 +1056,12 @@ class LidarLWLR(BaseEstimator):
         version = _peek_version(path)
         if version >= 3:
             schema.update({"extra_mean": ("f", 1, True), "extra_scale": ("f", 1, True), "extra_coef": ("f", 2, True)})
-        header, arr = load_model_file(path, MODEL_KIND, (1, 2, 3, 4, FORMAT_VERSION), schema)
+        header, arr = load_model_file(path, MODEL_KIND, (1, 2, 3, 4, 5, FORMAT_VERSION), schema)
         defaults: dict[str, Any] = {"extra_state": ()}
         if version < 4:  # before the shrinkage: the learned bias as is, no pose correction (their old behaviour)
             defaults.update(bias_shrinkage=0.0, pose_correction=False)
+        if version < 6:  # before the pooled bias: the per-bearing one
+            defaults.update(bias_model="per_bearing")
         try:
             params = params_from_header(path, header, cls._hyperparameter_constraints, defaults=defaults)
             try:
@@ -948,6 +1076,7 @@ class LidarLWLR(BaseEstimator):
             model.spur_rho_ = float(header["spur_rho"]) if version >= 5 else 0.0
             shrink = header["bias_shrinkage"] if version >= 4 else 0.0
             model.bias_shrinkage_ = float(check_range(path, "bias_shrinkage", shrink, 0.0, 1.0))
+            model.pose_sd_ = _load_pose_sd(path, header.get("pose_sd") if version >= 6 else None)
             card = dict(header["card"])
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             if isinstance(exc, ModelFileError):
@@ -1046,6 +1175,20 @@ def _check_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dict[str,
         check_shape(path, f"h[{name}]", h, (4,))
         check_positive(path, f"h[{name}]", h[:2], high=MAX_SIGMA)
         check_range(path, f"h[{name}]", h[2:], 0.0, None)
+
+
+def _load_pose_sd(path: str | os.PathLike[str], value: Any) -> NDArray[np.float64] | None:
+    """The header's ``pose_sd`` (3 standard deviations ``dx, dy`` [m] <= 1 m, ``dtheta`` [rad] <= pi, or absent)."""
+    if value is None:
+        return None
+    try:
+        sd = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ModelFileError(f"{path}: field 'pose_sd' is not numeric") from None
+    check_shape(path, "pose_sd", sd, (3,))
+    check_range(path, "pose_sd", sd[:2], 0.0, 1.0)
+    check_range(path, "pose_sd", sd[2:], 0.0, np.pi)
+    return sd
 
 
 def _cell_probability(
@@ -1247,7 +1390,15 @@ def _scan_readings(
 # ---------------------------------------------------------------------------------------- the adapter
 @dataclass(frozen=True)
 class LearnedLidar:
-    """:class:`~sensor_envs.lidar.sensors.LidarSensor` adapter around a fitted :class:`LidarLWLR`."""
+    """:class:`~sensor_envs.lidar.sensors.LidarSensor` adapter around a fitted :class:`LidarLWLR`.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import make_lidar
+        >>> lidar = make_lidar("learned")  # a LearnedLidar around the shipped LidarLWLR
+        >>> lidar.measure(np.full(360, 2.0), np.zeros(360), np.random.default_rng(0)).shape
+        (360,)
+    """
 
     model: LidarLWLR
 

@@ -28,7 +28,7 @@ from scipy.optimize import least_squares
 from sensor_envs.geometry import as_segments, raycast_pose
 from sensor_envs.lidar.log import LidarLog
 
-__all__ = ["correct_poses", "MAX_SHIFT", "MAX_TURN", "LOSS_SCALE", "RES_CLIP"]
+__all__ = ["correct_poses", "pose_error_sd", "MAX_SHIFT", "MAX_TURN", "LOSS_SCALE", "RES_CLIP"]
 
 MAX_SHIFT = 0.3
 """Largest correction of a pose's position per axis [m]."""
@@ -122,3 +122,21 @@ def correct_poses(
         "n_iter": int(n_iter),
     }
     return poses, bias, info
+
+
+def pose_error_sd(approx: NDArray[np.float64], corrected: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Spread of a log's rigid pose errors: robust sd (``1.4826`` x median absolute deviation) of ``dx, dy, dtheta``.
+
+    Args:
+        approx: ``(P, 3)`` the log's approximate poses [m, m, rad].
+        corrected: ``(P, 3)`` their corrections by :func:`correct_poses`.
+
+    Returns:
+        ``(3,)`` standard deviations [m, m, rad] around the median correction (a common offset, e.g. the sensor's
+        mounting yaw, is the bias's business, not a random pose error); zeros with fewer than 3 poses.
+    """
+    d = np.asarray(corrected, dtype=np.float64) - np.asarray(approx, dtype=np.float64)
+    if d.shape[0] < 3:
+        return np.zeros(3)
+    d[:, 2] = (d[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    return np.asarray(1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0), dtype=np.float64)

@@ -1,26 +1,23 @@
 """A reference Neato lidar "rig": a simulated sensor richer than the learned model.
 
 It stands in for recorded scans when no real data is at hand, and is the ground truth of the
-recovery tests (its per-bearing bias and blocked bearings are known). Its effects and their
-figures were calibrated on the real log ``neato_mar27_train.npz`` (29 static poses x 200 repeats;
-reproduce with ``python benchmarks/real_neato_report.py --data ../shared/data/real``, which prints
-the real and rig statistics side by side):
+recovery tests (its per-bearing bias and blocked bearings are known). Its default effects were set
+from the real log ``neato_mar27_train.npz`` (``python benchmarks/real_neato_report.py --data
+../shared/data/real`` prints the real and rig statistics side by side; the figures measured when each
+effect was added are in the documentation, concepts/rigs.md):
 
-* per-bearing bias ``b_k ~ Normal(3.8 mm, 7.6 mm)`` (the real per-bearing median of mean - nominal);
-* 26 bearings blocked by the casing's posts (the real never-returning bearings);
-* noise standard deviation growing with range: interpolated from the real cells' median standard
-  deviation per 0.5 m range bin, plus ``k_far * (r - 4)^2`` past 4 m;
-* dropout ``p_null = logistic(-4.03 + 1.38 r + 1.36 alpha)`` (logistic fit to the real cells),
-  independent per reading by default (``null_rho = 0``). Real nulls persist per cell: only 6 % of the
-  real cells are neither always nor never null (``mixed_null_cells`` of the report), 88 % of the
-  rig's. With ``null_rho > 0``, :meth:`NeatoRig.record` draws each pose and bearing's null
-  probability from ``Beta(p_null c, (1 - p_null) c)``, ``c = 1 / null_rho - 1`` (0.9 matches the real
-  mixed share), but the real persistent nulls also follow the bearing and come in arcs of a few
-  bearings, which this draw lacks, so it is not the default (it makes ``p_null`` less predictable
-  than on the real log: held-out MAE p_null of the extended model 0.24 on such a rig vs 0.10 on the
-  real log). :meth:`NeatoRig.measure` (one scan, no pose identity) uses ``p_null`` itself;
-* spurious far returns near the post bearings: 9 % of the cells within 15 bearings of a post are
-  prone, and read ``Normal(16.9 m, 0.1 m)`` in a fraction ``Uniform(0.4, 1)`` of their readings;
+* per-bearing bias ``b_k ~ Normal(3.8 mm, 7.6 mm)``;
+* 26 bearings blocked by the casing's posts (they never return);
+* noise standard deviation growing with range: a table per 0.5 m range bin, plus ``k_far * (r - 4)^2``
+  past 4 m;
+* dropout ``p_null = logistic(-4.03 + 1.38 r + 1.36 alpha)`` (``r`` [m], ``alpha`` [rad]), independent per
+  reading by default (``null_rho = 0``). With ``null_rho > 0``, :meth:`NeatoRig.record` draws each pose and
+  bearing's null probability from ``Beta(p_null c, (1 - p_null) c)``, ``c = 1 / null_rho - 1`` (persistent
+  nulls, but not along the bearings: the copula below does that). :meth:`NeatoRig.measure` (one scan, no pose
+  identity) uses ``p_null`` itself;
+* spurious far returns near the post bearings: a share ``spur_prone`` (9 %) of the cells within
+  ``spur_window`` (15) bearings of a post are prone, and read ``Normal(16.9 m, 0.1 m)`` in a fraction
+  ``Uniform(0.4, 1)`` of their readings;
 * 1 mm range quantisation;
 * pose error: ``Normal(0, 1.77 cm)`` per axis (2.5 cm rms) and ``Normal(0, 2 deg)`` in heading,
   fixed per pose; map error: segment end points moved by ``Normal(0, 1 cm)``.
@@ -28,51 +25,38 @@ the real and rig statistics side by side):
 Effects off by default, set by a calibrated rig file (``sensor-envs calibrate lidar``, shipped as
 ``models/neato_rig.json``; :meth:`NeatoRig.from_file` / :meth:`NeatoRig.to_file`):
 
-* ``null_bearing_logit`` ``(K,)``: the unit's per-bearing offsets of logit ``p_null`` (the real sensor's
-  null rate depends strongly on the bearing: held-out MAE p_null of a bearing-blind logistic on the
-  real log 0.23, with per-bearing offsets 0.12);
+* ``null_bearing_logit`` ``(K,)``: the unit's per-bearing offsets of logit ``p_null``;
 * ``null_cell_corr``, ``null_arc``: persistent nulls by a Gaussian copula: a reading is null when
   ``sqrt(c) u + sqrt(1 - c) e < Phi^-1(p_null)``, ``u`` a per-cell standard normal shared by the cell's
   readings, ``e`` per reading, ``c = null_cell_corr``; the null rate stays ``p_null`` on average and cells
-  become all-or-nothing as ``c -> 1`` (real: 6 % of the cells are neither always nor never null). ``u``
-  is correlated along the bearings of a pose by a Gaussian kernel of ``null_arc`` bearings (standard
-  deviation): the real persistent nulls come in arcs of a few bearings. Unlike ``null_rho`` (a Beta
+  become all-or-nothing as ``c -> 1``. ``u`` is correlated along the bearings of a pose by a Gaussian kernel
+  of ``null_arc`` bearings (standard deviation), so persistent nulls come in arcs. Unlike ``null_rho`` (a Beta
   draw) it uses a fixed number of normal draws, so simulations with common random numbers change
   smoothly with the parameters (simulation-based calibration);
-* ``spur_bearing_weight`` ``(K,)``: relative proneness of each bearing to spurious far returns (the
-  real spurious cells recur at some bearings); a cell is prone with probability
-  ``min(spur_prone * weight, 1)`` instead of ``spur_prone`` within ``spur_window`` of a post;
+* ``spur_bearing_weight`` ``(K,)``: relative proneness of each bearing to spurious far returns; a cell is
+  prone with probability ``min(spur_prone * weight, 1)`` instead of ``spur_prone`` within ``spur_window`` of
+  a post;
 * ``null_range_knots`` / ``null_range_logit`` and ``null_incidence_knots`` / ``null_incidence_logit``:
   piecewise-linear tables [m -> logit] and [rad -> logit] ADDED to the linear law of logit ``p_null``
-  (constant beyond the end knots). The real null rate is not logistic-linear: it is flat up to
-  0.9 rad of incidence and then rises steeply (0.15 -> 0.9 at 1.45 rad), and it levels off at about
-  0.6 beyond 2.5 m (a linear logit keeps rising to 0.8);
+  (constant beyond the end knots), for a null rate that is not logistic-linear;
 * ``null_bearing_range_slope`` ``(K,)``: per-bearing slopes [logit / m] of logit ``p_null`` versus the range
   about :data:`NULL_SLOPE_CENTRE` (added to the shared range table): how fast the null rate rises with the
-  range differs between the real unit's bearings (leave-poses-out MAE of the rig's null law on the real
-  cells 0.117 without them, 0.098 with them at the default ridge; ``benchmarks/real_lidar_null_law_cv.py``);
+  range, per bearing;
 * ``spur_range_knots`` / ``spur_range_weight``: a piecewise-linear factor [m -> 1] on the probability
-  that a cell is spurious-prone, by its true range (the real spurious cells are all within 1 m; range
-  ``inf``, no hit, takes the last weight);
-* ``spur_near_range``: the spurious-prone cells lie nearer than this true range [m] (0: no cut). The real
-  unit's spurious cells are all within 0.7 m but four of 329, and at a given bearing they are nearly all or none
-  of the near cells (a per-bearing rate on the near cells, chosen by leave-poses-out CV, predicts the real
-  held-out cells' spurious fractions as well as a model fitted on the real readings; a rate spread over
-  0.5 m range bins does not); with it, ``spur_bearing_weight`` is that per-bearing rate over
-  ``spur_prone`` (:func:`sensor_envs.lidar.calibrate.fit_spur_near_law`);
+  that a cell is spurious-prone, by its true range (range ``inf``, no hit, takes the last weight);
+* ``spur_near_range``: the spurious-prone cells lie nearer than this true range [m] (0: no cut); with it,
+  ``spur_bearing_weight`` is a per-bearing rate on the near cells over ``spur_prone``
+  (:func:`sensor_envs.lidar.calibrate.fit_spur_near_law`);
 * ``pose_sd_spread``: the pose error's standard deviations ``pose_sd`` are multiplied per pose by
-  ``exp(pose_sd_spread * z)``, ``z`` a standard normal per pose (a log-normal scale mixture: the real
-  poses are either precise or clearly off; median per-pose mean |cell mean - nominal| 0.03 m, 10 %
-  of the poses above 0.11 m);
+  ``exp(pose_sd_spread * z)``, ``z`` a standard normal per pose (a log-normal scale mixture: poses either
+  precise or clearly off);
 * ``bias_range_knots`` / ``bias_range`` and ``bias_incidence_knots`` / ``bias_incidence``: piecewise-linear
   tables [m -> m] and [rad -> m] of a range bias shared by all bearings, added to the per-bearing bias
-  (constant beyond the end knots): the real readings fall short of the nominal range far away (median
-  cell mean - nominal -0.03 m at 2.5-3 m, -0.17 m at 3.5-4 m) and at grazing incidence;
+  (constant beyond the end knots);
 * ``out_cell_rate``, ``out_cell_arc``: outlying cells, whose ray meets a surface the map lacks or
-  passes a gap the map closes (the real log's cells with |cell mean - nominal| > 0.2 m: 4.4 %, in runs of
-  about 3 bearings, nearly 3 in 4 longer than nominal): a share ``out_cell_rate`` of a pose's hit cells,
-  chosen by a unit normal field smoothed over ``out_cell_arc`` bearings (as the persistent nulls), read
-  around a true range drawn uniformly on ``[0, max_range]`` instead of the map's.
+  passes a gap the map closes: a share ``out_cell_rate`` of a pose's hit cells, chosen by a unit normal field
+  smoothed over ``out_cell_arc`` bearings (as the persistent nulls), read around a true range drawn
+  uniformly on ``[0, max_range]`` instead of the map's.
 
 Frames and units: metres and radians; bearings counter-clockwise from the sensor's x axis.
 """
@@ -206,6 +190,15 @@ class NeatoRig:
 
     The unit's own properties (per-bearing bias, spurious-prone cells) come from ``unit_seed``;
     the noise of each recording from the generator passed to :meth:`record` / :meth:`measure`.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import NeatoRig
+        >>> from sensor_envs.maps import load_map
+        >>> rig = NeatoRig(unit_seed=0)
+        >>> log, truth = rig.record(load_map("seed_room").segments, np.random.default_rng(0), n_poses=2, repeats=3)
+        >>> log.ranges.shape  # poses x bearings x repeats [m], 0 = null
+        (2, 360, 3)
     """
 
     unit_seed: int = 0

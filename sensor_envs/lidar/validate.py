@@ -189,9 +189,10 @@ def validate(
         "gaussian_baseline": vars(gaussian) if gaussian else vars(GaussianLidar()),
         "definitions": __doc__.split("Definitions (written into every ``report.json``):")[1].strip(),
         "metrics": metrics,
+        "verdict": verdict_markdown(metrics),
     }
     write_json(out / "report.json", report)
-    (out / "report.md").write_text(metrics_markdown(metrics))
+    (out / "report.md").write_text(metrics_markdown(metrics) + "\n" + verdict_markdown(metrics))
     plot_scan(model, log, params, out / "scan.png", rng or np.random.default_rng(0))
     plot_per_bearing(log, params, out / "per_bearing_error.png", model.spur_above)
     return report
@@ -216,6 +217,31 @@ def metrics_markdown(metrics: dict[str, dict[str, Any]]) -> str:
             f"{m['ll_spur_counts_per_reading']:.4g} | "
             f"{m['ll_spur_counts_per_reading_independent']:.4g} |"
         )
+    return "\n".join(lines) + "\n"
+
+
+VERDICT_TOL = 1e-5
+"""MAEs within this of each other [m, or probability] are called the same by :func:`verdict_markdown`."""
+
+
+def verdict_markdown(metrics: dict[str, dict[str, Any]]) -> str:
+    """One line per Table I parameter: the learned model against its baseline, in words (all cells).
+
+    ``mu`` against the raycast (``ideal``: ``mu = r``), ``sigma`` and ``p_null`` against the Gaussian baseline:
+    "better" (lower MAE), "the same" (within :data:`VERDICT_TOL`) or "WORSE". Empty without a ``model_*`` entry.
+    """
+    name = next((k for k in metrics if k.startswith("model")), None)
+    if name is None or "ideal" not in metrics or "gaussian" not in metrics:
+        return ""
+    lines = ["Verdict (MAE on all cells, lower is better):", ""]
+    for key, base, label in (
+        ("mae_mu", "ideal", "mean mu vs the raycast"),
+        ("mae_sigma", "gaussian", "spread sigma vs the Gaussian baseline"),
+        ("mae_p_null", "gaussian", "null probability vs the Gaussian baseline"),
+    ):
+        m, b = metrics[name]["all"][key], metrics[base]["all"][key]
+        word = "the same" if abs(m - b) <= VERDICT_TOL else ("better" if m < b else "WORSE")
+        lines.append(f"- {label}: {m:.4f} vs {b:.4f}: {word}")
     return "\n".join(lines) + "\n"
 
 
@@ -366,6 +392,25 @@ def _shrinkage_markdown(model: LidarLWLR) -> list[str]:
         maes = " | ".join(f"{p[k]:.5f}" for k in ("mae_raycast", "mae_unshrunk", "mae_chosen"))
         lines.append(f"| {p['fold']} | {p['n_cells']} | {maes} |")
     lines.append(f"| pooled | | {sc['cv_mae_raycast']:.5f} | {sc['cv_mae_unshrunk']:.5f} | {sc['cv_mae_chosen']:.5f} |")
+    if "local_weight" in sc:  # bias_model="pooled": bias = G + lam L (sensor_envs.lidar.bias_transfer)
+        g = sc["global"]
+        lines += [
+            "",
+            f"Pooled bias (`bias_model` pooled): bias = G + lam L, G pooled over bearings (h_range {g['h'][0]} m, "
+            f"h_alpha {g['h'][1]} rad, degree {int(g['h'][3])}), L the per-bearing remainder; lam = "
+            f"{sc['local_weight']} chosen with s on the same folds. Pooled CV MAE of mu per lam: "
+            + ", ".join(
+                f"{row['local_weight']}: {row['cv_mae']:.5f} (s {row['shrinkage']})" for row in sc["per_local_weight"]
+            )
+            + ".",
+        ]
+    sd = model.cv_scores_.get("pose_error_sd")
+    if sd:
+        lines += [
+            "",
+            f"Rigid pose error of `sample` (robust spread of the training poses' corrections): dx {sd['sd'][0]:.4f} m,"
+            f" dy {sd['sd'][1]:.4f} m, dtheta {sd['sd'][2]:.4f} rad.",
+        ]
     pc = model.cv_scores_.get("pose_correction")
     if pc:
         lines += [

@@ -209,6 +209,14 @@ def load_astyx(
 
     Raises:
         FileNotFoundError: when ``root`` lacks the ``radar_6455`` folder.
+
+    Examples:
+        >>> import os
+        >>> from sensor_envs import load_astyx
+        >>> root = os.path.join(os.environ.get("SENSOR_ENVS_REAL_DATA", "../shared/data/real"), "astyx_hires2019")
+        >>> log = load_astyx(root, frames=range(10))  # doctest: +SKIP
+        >>> int(log["frame"].max())  # doctest: +SKIP
+        9
     """
     root = Path(root)
     if not (root / "radar_6455").is_dir():
@@ -249,6 +257,12 @@ def load_astyx(
     data = np.concatenate(out) if out else np.zeros((0, 17))
     names_all = [*REQUIRED_COLUMNS, "ref_z", "occlusion", "label_certainty", "n_points", "class_code", "aspect"]
     return RadarLog({n: data[:, j] for j, n in enumerate(names_all)}, source=f"astyx {root}")
+
+
+OUTCOME_COLUMNS = ("n_points",)
+"""Columns this converter writes that are OUTCOMES of the measurement, not causes: ``n_points`` (radar
+points inside the box) is 0 exactly when the target is missed. ``diagnose radar`` never offers them (nor
+any column named ``outcome_*``) as candidate causes."""
 
 
 def detection_statistics(log: RadarLog, range_edges: NDArray, azimuth_edges: NDArray) -> dict[str, Any]:

@@ -11,8 +11,7 @@ data:
   frame's boxes: :func:`sensor_envs.geometry.occluded_fraction`; 0, (0, 0.5), [0.5, 1]);
 * ``det_cells``: detection rate per (corner range x signed azimuth) cell (:data:`CELL_AZIMUTH_EDGES`;
   the joint the marginals hide);
-* ``det_occlusion_range``: detection rate per (corner range x occluded-fraction) cell (added 2026-11-27: on
-  Astyx a mostly hidden box is detected 0.57 of the time within 15 m and 0.95 at 50-75 m, a joint the
+* ``det_occlusion_range``: detection rate per (corner range x occluded-fraction) cell (a joint the
   ``det_occlusion`` marginal pools);
 * ``offset``: the radial and OUTWARD cross-range components of ``z = measured - closest corner``
   [m] of the detected rows per corner-range bin (their distribution: spread and shape; outward =
@@ -28,12 +27,10 @@ data:
 * ``offset``: ``sum_b (n_b / N) ED_b`` [m], ``ED_b`` the energy distance between the rig's and the
   real polar offsets (radial, outward cross-range) of the detected rows in range bin ``b``
   (``n_b``: real detected rows; a proper distance between distributions, so point masses and
-  shape count, which matching a few quantiles missed: the rig calibrated on quantiles had
-  near-zero cross-range noise at several knots);
+  shape count);
 * ``offset_signed``: the same with a SIGNED cross-range (counter-clockwise positive on both sides). The
   outward frame mirrors the right side, so it cannot see a rotation of every detection (a mounting yaw
-  error: outward on one side, inward on the other); this term can (added 2026-11-25, when the closed loop
-  found one on Astyx, see :func:`fit_azimuth_bias`);
+  error: outward on one side, inward on the other); this term can (see :func:`fit_azimuth_bias`);
 * ``clutter_count``: ``((mean_sim - mean_real) / mean_real)^2 + ((std_sim - std_real) / std_real)^2``;
 * clutter density terms: ``sum_b (share_sim_b - share_real_b)^2``.
 
@@ -50,10 +47,7 @@ the discrepancy is a deterministic function of the parameters):
    left-right SYMMETRIC (knots ``0, 15, ..., 90`` deg of ``|azimuth|``, factor 1 at 0 deg); with
    ``signed_azimuth=True`` it is SIGNED (:data:`DETECT_AZIMUTH_KNOTS` over ``[-90, 90]`` deg,
    ``detect_azimuth_signed``): left and right of the boresight fitted apart. The signed table is not
-   the default because it generalises worse across frames on Astyx HiRes2019: held out on 10-frame
-   blocks (``benchmarks/real_radar_calibration_cv.py``, 5 folds, ridge 0.002) its detection
-   discrepancy is 252.9e-4 vs the symmetric table's 238.2e-4 (worse in 4 of 5 folds): the pooled
-   left-right difference comes from a few scenes, not from the sensor;
+   the default: it generalises worse across held-out frames (measured: docs/concepts/rigs.md);
 2. offset parameters (radial/cross-range spread per range knot, radial bias, outlier share and
    scale, closest-corner share, reflection spread and reflection centre along the face):
    ``scipy.optimize.minimize(method="Powell")`` on the ``offset`` term (derivative-free; under
@@ -70,10 +64,9 @@ exactly a draw of that mixture, so its discrepancy to the real offsets is minimi
 (maximum likelihood by EM, i.e. the Kullback-Leibler discrepancy), and the ``offset`` energy-distance
 term is reported as the check. It is a few dozen numbers of statistics (weights, means and Cholesky
 factors per bin), no real rows. The reflection-point law can only place the point on a face, at a
-Gaussian-plus-tail spread; on Astyx HiRes2019 the real offsets' shape is not that (see the card of
-``models/radar_rig.json``). With ``mixture_min_range`` (``--mixture-min-range M``) the mixture applies from
-that closest-corner range on and steps 2-3 run after it is set, so the reflection-point law is fitted on
-the nearer boxes, which keep it (the shipped rig: 50 m).
+Gaussian-plus-tail spread, a shape real offsets need not have. With ``mixture_min_range``
+(``--mixture-min-range M``) the mixture applies from that closest-corner range on and steps 2-3 run after
+it is set, so the reflection-point law is fitted on the nearer boxes, which keep it.
 
 **Mounting yaw error** (``azimuth_bias=True``, ``calibrate radar --azimuth-bias``): a radar mounted a
 fraction of a degree off its reference frame reports every detection rotated about the sensor, a
@@ -82,7 +75,7 @@ offset frame above mirrors the right side, so the ``offset`` term cannot see it,
 absorbs it as extra spread. :func:`fit_azimuth_bias` finds it by a 1-D search on the ``offset_signed`` term
 (signed cross-range), with the current laws; the real frames are then de-rotated by it
 (:func:`rotate_frames`) and steps 1-4 fitted on them, so the laws describe the reflection alone; two rounds
-(search, laws, search, laws). On Astyx HiRes2019 it finds -0.13 deg (models/radar_kde.md).
+(search, laws, search, laws).
 
 The rig's time-series parameters (latency, tracker and reflection time constants) cannot be seen in
 single frames and keep their generic values. All lengths in metres, angles in radians.

@@ -66,6 +66,15 @@ class GaussianRadar(BaseEstimator):
         min_count: minimum detections per bin before falling back to the pooled estimate.
         cov_floor: variance [m^2] added to every covariance diagonal (keeps it positive definite).
         extra_state: names of extra numeric log columns entering the mean and detection linearly.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import GaussianRadar
+        >>> from sensor_envs.radar.rig import record_rig_log
+        >>> model = GaussianRadar().fit(record_rig_log(4, 10, 4, np.random.default_rng(0)))
+        >>> z, source = model.sample(np.array([[15.0, 1.0]]), np.random.default_rng(1))
+        >>> z.shape
+        (1, 2)
     """
 
     _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {

@@ -88,6 +88,15 @@ relevance dimensions, in both the main and the start tree. Their relevance varia
 ``extra_candidates`` (``std`` of the column in the training log). Missing values (NaN) are replaced
 by the training median. Queries must then pass ``extra=(n, len(extra_state))``; the sampler is the
 ball sampler (the bucket grid is kept for the 2-D/4-D states).
+
+**Tails** (``tail_weight`` ``w``, ``tail_scale`` ``c``, format 8): a defensive mixture of the contribution
+kernels, ``p(z | x, detected) = (1 - w) KDE_h(z | x) + w KDE_{c h}(z | x)``: the same relevance weights and
+tuples, a share ``w`` of the kernel mass ``c`` times wider. A detection far from every recorded tuple then
+costs ``-log w`` plus a wide kernel's log density instead of the narrow kernel's quadratic penalty. ``sample``
+draws the same mixture (after the tuple is picked and the Gaussian offset drawn, a detection's offset is
+scaled by ``c`` with probability ``w``); ``log_prob`` and ``bin_probabilities`` score it. ``w = 0`` (the
+default, and every file before format 8) is the paper's model and draws exactly what it drew before. The
+pair is chosen on real held-out rows by :mod:`sensor_envs.radar.tune` (``sensor-envs tune radar``).
 """
 
 from __future__ import annotations
@@ -147,7 +156,7 @@ from sensor_envs.radar.relevance import (
 __all__ = ["KDERadarModel", "corner_features", "cv_bandwidth_table"]
 
 KIND = "radar_kde"
-FORMAT_VERSION = 7
+FORMAT_VERSION = 8
 """Model file format: 1 = up to the ball sampler; 2 adds ``sampler``/``bucket_cell``, the relevance
 selection (``relevance*`` params, the fitted ``rel_variance_``) and ``start_split``; 3 adds the extra
 state (``extra_*`` params, the ``extra`` array, ``state_variables`` in the header); 4 adds the
@@ -155,9 +164,10 @@ per-tuple ``new_track`` flags (uint8 0/1; new-track vs after-miss start trees); 
 ``state_transform`` parameter (cartesian or polar corner features of the relevance kernel) and
 ``relevance_candidates_azimuth``; 6 adds ``output_frame`` (outputs and previous outputs stored in
 the sensor frame or in the corner's polar frame); 7 adds ``azimuth_bias`` (the mounting yaw error undone
-before the kernels, and its fitted value ``azimuth_bias_fitted``) and ``start_bandwidth_scale``. Older files
-load with the defaults of the new parameters (no extra state; one combined start tree; cartesian corner
-features; sensor-frame outputs; no yaw error; one bandwidth factor), so they behave exactly as before."""
+before the kernels, and its fitted value ``azimuth_bias_fitted``) and ``start_bandwidth_scale``; 8 adds the
+defensive tail mixture ``tail_weight``/``tail_scale``. Older files load with the defaults of the new parameters
+(no extra state; one combined start tree; cartesian corner features; sensor-frame outputs; no yaw error; one
+bandwidth factor; no tail component), so they behave exactly as before."""
 STATE_TRANSFORMS = ("cartesian", "polar")
 """Corner features of the relevance kernel: ``(c_x, c_y)`` [m] or ``(range [m], azimuth [rad])``."""
 OUTPUT_FRAMES = ("cartesian", "polar")
@@ -184,6 +194,10 @@ MAX_POSITION = 1e3
 MAX_CLUTTER_POSITIONS = 200_000
 """Most clutter positions a fitted model stores (a uniform subsample beyond that)."""
 """Largest sensor-frame coordinate, output offset, bandwidth or relevance sigma [m] a model file may hold."""
+MAX_TAIL_WEIGHT = 0.5
+"""Largest share of the detection density the tail component may hold."""
+MAX_TAIL_SCALE = 100.0
+"""Largest factor of the tail component's bandwidths over the main kernels'."""
 _LOG_2PI = np.log(2.0 * np.pi)
 _POSITIVE = Interval(0, None, open_low=True)
 _NOT_FITTED = "This %(name)s is not fitted yet; call fit(log) or KDERadarModel.load(path) first"
@@ -396,7 +410,7 @@ class KDERadarModel(BaseEstimator):
         relevance_candidates_prev: ``z_{t-1}`` variances [m^2] tried by ``relevance="cv_state"``.
         bandwidth_scale: factor on every contribution bandwidth the leave-one-track-out CV chose (1: the
             seed's CV bandwidths). A KDE fitted on a SIMULATED log (the rig) may need narrower kernels
-            for the real sensor than that log's CV picks: ``benchmarks/real_radar_bandwidth_scale.py``
+            for the real sensor than that log's CV picks: :mod:`sensor_envs.radar.tune` (``sensor-envs tune radar``)
             chooses the factor by held-out likelihood on real frames (model card).
         start_bandwidth_scale: the same factor for the START trees (queries without ``z_{t-1}``: new tracks,
             after a miss), or ``None`` (default): ``bandwidth_scale``. A start tuple is drawn once, while a
@@ -422,6 +436,19 @@ class KDERadarModel(BaseEstimator):
             kernels and applied to samples (see the module docstring), or ``"fit"``: estimated from the
             training log's detections (``azimuth_bias_``; :func:`~sensor_envs.radar.alignment.estimate_azimuth_bias`).
             ``0`` (the default, and every file before format 7) is the paper's model.
+        tail_weight: share ``w`` in ``[0, 0.5]`` of the detection density in the wide (tail) component (see
+            the module docstring); ``0`` (the default, and every file before format 8): none.
+        tail_scale: factor ``c`` in ``[1, 100]`` of the tail component's bandwidths over the main kernels'.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import KDERadarModel
+        >>> from sensor_envs.radar.rig import record_rig_log
+        >>> log = record_rig_log(8, 20, 6, np.random.default_rng(0))  # sequences x cycles x targets of the rig
+        >>> model = KDERadarModel(random_state=0).fit(log, cycle_time=1.0)
+        >>> z, source = model.sample(np.array([[15.0, 1.0]]), np.random.default_rng(1))
+        >>> z.shape
+        (1, 2)
     """
 
     _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
@@ -454,6 +481,8 @@ class KDERadarModel(BaseEstimator):
         "bandwidth_scale": [Interval(0.01, 100)],
         "start_bandwidth_scale": [None, Interval(0.01, 100)],
         "azimuth_bias": [Options("fit"), Interval(-MAX_AZIMUTH_BIAS, MAX_AZIMUTH_BIAS)],
+        "tail_weight": [Interval(0, MAX_TAIL_WEIGHT)],
+        "tail_scale": [Interval(1, MAX_TAIL_SCALE)],
     }
     """One declarative check of every hyperparameter, used by :meth:`fit` and :meth:`load`."""
 
@@ -489,6 +518,8 @@ class KDERadarModel(BaseEstimator):
         start_bandwidth_scale: float | None = None,
         output_frame: str = "cartesian",
         azimuth_bias: float | str = 0.0,
+        tail_weight: float = 0.0,
+        tail_scale: float = 4.0,
     ) -> None:
         self.rel_variance = rel_variance
         self.use_prev = use_prev
@@ -519,6 +550,8 @@ class KDERadarModel(BaseEstimator):
         self.start_bandwidth_scale = start_bandwidth_scale
         self.output_frame = output_frame
         self.azimuth_bias = azimuth_bias
+        self.tail_weight = tail_weight
+        self.tail_scale = tail_scale
 
     # ------------------------------------------------------------------ fit
     def _check_params(self) -> None:
@@ -971,7 +1004,10 @@ class KDERadarModel(BaseEstimator):
         else:
             miss, src = self._draw_ball(corners, prev, rng, ex, grp)
         h = self.bandwidth(corners, start=grp != GROUP_MAIN)
-        z = np.where(miss[:, None], np.nan, self.z_[np.maximum(src, 0)] + h * rng.standard_normal((n, 2)))
+        noise = rng.standard_normal((n, 2))
+        if self.tail_weight > 0:  # the tail component: drawn after the offsets, so w = 0 draws as before
+            noise *= np.where(rng.random(n) < self.tail_weight, self.tail_scale, 1.0)[:, None]
+        z = np.where(miss[:, None], np.nan, self.z_[np.maximum(src, 0)] + h * noise)
         return self._to_sensor_frame(z, corners), src
 
     def _draw_ball(
@@ -1103,14 +1139,27 @@ class KDERadarModel(BaseEstimator):
         gi, w, q, p_miss = self._outcome(st[:, :2], prev, self._extra_query(extra, n), grp)
         gi, w, q = self._with_detected_fallback(gi, w, q, st[:, :2])
         h = self.bandwidth(st[:, :2], start=grp != GROUP_MAIN)
+        dens = self._log_density(z, gi, w, q, h)
+        if self.tail_weight > 0:  # the defensive mixture: the same tuples, a share w of c-times wider kernels
+            wide = self._log_density(z, gi, w, q, h * self.tail_scale)
+            with np.errstate(invalid="ignore"):  # a miss row: -inf in both parts
+                dens = np.logaddexp(np.log1p(-self.tail_weight) + dens, np.log(self.tail_weight) + wide)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(np.isnan(z[:, 0]), np.log(p_miss), np.log1p(-p_miss) + dens)
+
+    def _log_density(self, z: NDArray, gi: NDArray, w: NDArray, q: NDArray, h: NDArray) -> NDArray[np.float64]:
+        """``log p(z | x, detected)`` ``(n,)`` of one kernel mixture: neighbours ``(gi, w, q)``, bandwidths ``h``.
+
+        Model-frame outputs ``z (n, 2)`` [m]; ``-inf`` for a ``NaN`` row (a miss).
+        """
+        n = z.shape[0]
         det_t = ~self.miss_[gi]
         r = (z[q] - np.where(det_t[:, None], self.z_[gi], 0.0)) / h[q]
         logk = -0.5 * np.sum(r**2, axis=1) - _LOG_2PI - np.log(h[q]).sum(axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
             logk = np.where(det_t & ~np.isnan(z[q, 0]), logk + np.log(w), -np.inf)
             log_wdet = np.log(np.bincount(q, weights=w * det_t, minlength=n))
-            dens = _group_logsumexp(logk, q, n) - log_wdet
-            return np.where(np.isnan(z[:, 0]), np.log(p_miss), np.log1p(-p_miss) + dens)
+            return _group_logsumexp(logk, q, n) - log_wdet
 
     def _with_detected_fallback(
         self, gi: NDArray, w: NDArray, q: NDArray, corners: NDArray
@@ -1162,9 +1211,14 @@ class KDERadarModel(BaseEstimator):
         h = self.bandwidth(st[:, :2], start=grp != GROUP_MAIN)[0]
         det = ~self.miss_[gi]
         zi, wd = self.z_[gi[det]], w[det] / w[det].sum()
-        px = np.diff(ndtr((np.asarray(edges_x)[None, :] - zi[:, :1]) / h[0]), axis=1)
-        py = np.diff(ndtr((np.asarray(edges_y)[None, :] - zi[:, 1:]) / h[1]), axis=1)
-        return (1.0 - p_miss[0]) * np.einsum("i,ia,ib->ab", wd, px, py), float(p_miss[0])
+        ex, ey = np.asarray(edges_x)[None, :], np.asarray(edges_y)[None, :]
+        p = np.zeros((ex.size - 1, ey.size - 1))
+        parts = ((1.0 - self.tail_weight, 1.0), (self.tail_weight, self.tail_scale))
+        for share, c in parts if self.tail_weight > 0 else parts[:1]:  # the main kernels, then the tail's
+            px = np.diff(ndtr((ex - zi[:, :1]) / (c * h[0])), axis=1)
+            py = np.diff(ndtr((ey - zi[:, 1:]) / (c * h[1])), axis=1)
+            p += share * np.einsum("i,ia,ib->ab", wd, px, py)
+        return (1.0 - p_miss[0]) * p, float(p_miss[0])
 
     # ------------------------------------------------------------------ files
     def with_bandwidth_scale(self, factor: float) -> KDERadarModel:
@@ -1196,6 +1250,20 @@ class KDERadarModel(BaseEstimator):
         validate_params({"start_bandwidth_scale": value}, self._hyperparameter_constraints)
         out = copy.deepcopy(self)
         out.start_bandwidth_scale = None if value is None else float(value)
+        return out
+
+    def with_tail(self, weight: float, scale: float) -> KDERadarModel:
+        """A copy with the tail mixture ``tail_weight = weight``, ``tail_scale = scale`` (checked).
+
+        The same model as a fit with them: the pair acts only at :meth:`sample`/:meth:`log_prob` time, and no
+        random draw of :meth:`fit` depends on it.
+        """
+        import copy
+
+        self._check_fitted()
+        validate_params({"tail_weight": weight, "tail_scale": scale}, self._hyperparameter_constraints)
+        out = copy.deepcopy(self)
+        out.tail_weight, out.tail_scale = float(weight), float(scale)
         return out
 
     def save(self, path: str | os.PathLike[str], card: dict[str, Any] | None = None) -> Path:
@@ -1253,7 +1321,7 @@ class KDERadarModel(BaseEstimator):
             "clutter_counts": ("iu", 1, True),
             "clutter_xy": ("f", 2, True),
         }
-        header, a = load_model_file(path, KIND, (1, 2, 3, 4, 5, 6, FORMAT_VERSION), schema)
+        header, a = load_model_file(path, KIND, (1, 2, 3, 4, 5, 6, 7, FORMAT_VERSION), schema)
         defaults = {  # parameters older formats lack: 1 has no prior_rate, 1 and 2 no extra state
             "prior_rate": "global",
             "extra_state": (),
@@ -1268,6 +1336,8 @@ class KDERadarModel(BaseEstimator):
             defaults.update(output_frame="cartesian")
         if int(header.get("format_version", 0)) < 7:  # format 7 must state its yaw error and start factor
             defaults.update(azimuth_bias=0.0, start_bandwidth_scale=None)
+        if int(header.get("format_version", 0)) < 8:  # format 8 must state its tail mixture
+            defaults.update(tail_weight=0.0, tail_scale=4.0)
         not_saved = ("random_state", "cv_candidates")  # the candidates are stored as an array
         model = cls(**params_from_header(path, header, cls._hyperparameter_constraints, defaults, not_saved))
         _check_arrays(path, a)

@@ -96,6 +96,14 @@ class RadarLog:
         columns: name -> ``(n,)`` array; ``sequence``, ``frame``, ``target`` are int64, all others
             float64 with ``NaN`` for empty fields.
         source: where the log came from (file name or a description), used in error messages.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import RadarLog
+        >>> from sensor_envs.radar.rig import record_rig_log
+        >>> log = record_rig_log(2, 5, 3, np.random.default_rng(0))
+        >>> isinstance(log, RadarLog), int(log["frame"].max())
+        (True, 4)
     """
 
     columns: dict[str, NDArray] = field(default_factory=dict)
@@ -274,6 +282,15 @@ def read_log(path: str | os.PathLike[str]) -> RadarLog:
     Raises:
         RadarLogError: naming the file, the column and the row of the first problem.
         FileNotFoundError: when ``path`` does not exist.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import read_log
+        >>> from sensor_envs.radar.log import write_log
+        >>> from sensor_envs.radar.rig import record_rig_log
+        >>> path = write_log(record_rig_log(2, 5, 3, np.random.default_rng(0)), "example_radar.csv")
+        >>> sorted(read_log(path).columns)[:4]
+        ['frame', 'meas_x', 'meas_y', 'ref_heading']
     """
     path = Path(path)
     src = str(path)

@@ -608,6 +608,15 @@ class RadarRig:
 
     Args:
         config: rig parameters.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import RadarRig
+        >>> from sensor_envs.radar.rig import record_rig_log
+        >>> rig = RadarRig()  # the generic rig (a rig file gives the calibrated one: sensor_envs.radar.rig.load_rig)
+        >>> log = record_rig_log(2, 5, 3, np.random.default_rng(0))
+        >>> len(log) > 0
+        True
     """
 
     def __init__(self, config: RigConfig | None = None) -> None:

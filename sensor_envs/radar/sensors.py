@@ -38,7 +38,15 @@ __all__ = [
 
 @runtime_checkable
 class RadarSensor(Protocol):
-    """What a wrapper needs from a radar model (one call per radar cycle)."""
+    """What a wrapper needs from a radar model (one call per radar cycle).
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import RadarSensor, make_radar
+        >>> radar = make_radar("gaussian")
+        >>> isinstance(radar, RadarSensor)  # anything with sample_cycle(corners, prev_z, rng) and sample_clutter(rng)
+        True
+    """
 
     def sample_cycle(
         self, corners: NDArray[np.float64], prev_z: NDArray[np.float64], rng: np.random.Generator
@@ -70,7 +78,16 @@ class RadarSensor(Protocol):
 
 @dataclass(frozen=True)
 class IdealRadar:
-    """Perfect radar: reports every visible target exactly at its closest corner, no clutter."""
+    """Perfect radar: reports every visible target exactly at its closest corner, no clutter.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import IdealRadar
+        >>> corners, prev_z = np.array([[10.0, 1.0]]), np.full((1, 2), np.nan)  # [m]
+        >>> z, source = IdealRadar().sample_cycle(corners, prev_z, np.random.default_rng(0))
+        >>> z.tolist(), source.tolist()  # zero offsets from the closest corner, no source tuple
+        ([[0.0, 0.0]], [-1])
+    """
 
     def sample_cycle(
         self,
@@ -124,6 +141,15 @@ def make_radar(name: str, model: str | os.PathLike[str] | None = None) -> RadarS
 
     Raises:
         ValueError: naming ``name`` when it is unknown, or when ``"ideal"`` is given a model file.
+
+    Examples:
+        >>> import numpy as np
+        >>> from sensor_envs import make_radar
+        >>> radar = make_radar("kde")  # the shipped KDE radar
+        >>> z, source = radar.sample_cycle(np.array([[20.0, 2.0], [60.0, -4.0]]), np.full((2, 2), np.nan),
+        ...                                np.random.default_rng(0))
+        >>> z.shape  # offsets from the closest corners [m], NaN = missed
+        (2, 2)
     """
     if name not in RADAR_NAMES:
         raise InputError(f"unknown radar {name!r}; expected one of {list(RADAR_NAMES)}")

@@ -2,14 +2,25 @@
 
 Modules: ``wrapper`` (:class:`RadarObservation`, :func:`make_highway`), ``sensor`` (what the radar can
 see: model loading, field of view, occlusion, reference points), ``frame`` (one step's output and
-``info["radar"]``), ``observation`` (highway-env's ``Kinematics`` layout), ``render`` (the overlay).
+``info["radar"]``), ``observation`` (highway-env's ``Kinematics`` layout), ``render`` (the overlay),
+``clutter`` (object-level clutter and the Doppler stationary filter), ``tracker`` (the multi-target
+tracker of ``tracks=True``).
 """
 
+from sensor_envs.envs.highway.clutter import CLUTTER_LEVELS, STATIONARY_MODES
 from sensor_envs.envs.highway.frame import RadarFrame, RadarInfo
 from sensor_envs.envs.highway.observation import SUPPORTED_FEATURES, KinematicsLayout
 from sensor_envs.envs.highway.render import draw_radar
 from sensor_envs.envs.highway.sensor import DEFAULT_FOV, DEFAULT_MAX_RANGE, SensorSpec, load_radar
-from sensor_envs.envs.highway.wrapper import IDEAL_KINEMATICS, RNG_TAG, RadarObservation, make_highway
+from sensor_envs.envs.highway.tracker import MultiTargetTracker, TrackerConfig, TrackList
+from sensor_envs.envs.highway.wrapper import (
+    IDEAL_KINEMATICS,
+    RNG_TAG,
+    ObservedRows,
+    RadarObservation,
+    StackedRows,
+    make_highway,
+)
 from sensor_envs.radar.sensors import RADAR_NAMES
 
 __all__ = [
@@ -22,6 +33,13 @@ __all__ = [
     "SensorSpec",
     "KinematicsLayout",
     "RadarObservation",
+    "ObservedRows",
+    "StackedRows",
+    "CLUTTER_LEVELS",
+    "STATIONARY_MODES",
+    "TrackerConfig",
+    "TrackList",
+    "MultiTargetTracker",
     "RadarFrame",
     "RadarInfo",
     "draw_radar",

@@ -44,6 +44,8 @@ class RadarFrame:
     det_target: NDArray[np.int64]
     det_source: NDArray[np.int64]
     det_obstacle: NDArray[np.bool_]
+    det_radial: NDArray[np.float64]
+    det_track: NDArray[np.int64] | None = None
 
     @classmethod
     def assemble(
@@ -61,11 +63,15 @@ class RadarFrame:
         source: NDArray[np.int64],
         clutter_s: NDArray[np.float64],
         clutter_w: NDArray[np.float64],
+        radial: NDArray[np.float64],
+        clutter_radial: NDArray[np.float64] | None = None,
     ) -> RadarFrame:
         """Stack the ``k`` target detections and ``m`` clutter points (stationary, heading 0, target and source -1).
 
         ``det_s``/``clutter_s`` are sensor-frame points [m], ``det_w``/``clutter_w`` world points [m],
-        ``velocity`` world velocities [m/s] and ``heading`` [rad] of the target detections.
+        ``velocity`` world velocities [m/s] and ``heading`` [rad] of the target detections, ``radial``
+        their radial speed over ground [m/s] (the Doppler the radar measures, minus the ego's own
+        motion), ``clutter_radial`` the clutter's (``None``: stationary, 0).
         """
         m = len(clutter_s)
         return cls(
@@ -81,6 +87,7 @@ class RadarFrame:
             det_target=np.concatenate([target, np.full(m, -1)]).astype(np.int64),
             det_source=np.concatenate([np.asarray(source, dtype=np.int64), np.full(m, -1, dtype=np.int64)]),
             det_obstacle=np.concatenate([truth.obstacle[target], np.zeros(m, dtype=bool)]),
+            det_radial=np.concatenate([radial, np.zeros(m) if clutter_radial is None else clutter_radial]),
         )
 
     def info(self) -> dict[str, RadarInfo]:

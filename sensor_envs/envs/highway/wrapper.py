@@ -37,6 +37,13 @@ log range) is a NEW track (``new_track=True``); a vehicle seen before without an
 is a LOST track (``False``). Models with separate start trees (:class:`~sensor_envs.radar.kde.KDERadarModel`
 format 4) detect the two differently, as recorded; others ignore the flag.
 
+Clutter level, stationary filter and tracks (``clutter=``, ``stationary=``, ``tracks=``): see
+:mod:`sensor_envs.envs.highway.clutter` and :mod:`sensor_envs.envs.highway.tracker`. The target
+detections carry their radial speed over ground (``RadarFrame.det_radial``: the true world velocity
+along the line of sight, a noise-free Doppler; clutter 0), used by the stationary filter and by the
+tracker's Doppler gate. Both options draw nothing from the world's generator; the object-level clutter
+thinning draws one number per in-view clutter point from the wrapper's generator.
+
 Rate (``radar_rate=``):
 
 * ``"policy"`` (default): one radar cycle per policy step, when highway-env observes; ``z_{t-1}`` is
@@ -106,6 +113,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -115,6 +123,15 @@ from gymnasium import spaces
 from numpy.typing import NDArray
 
 from sensor_envs.envs.checks import check_action, check_highway_config
+from sensor_envs.envs.highway.clutter import (
+    CLUTTER_LEVELS,
+    STATIONARY_MODES,
+    STATIONARY_SPEED,
+    clutter_keep_probability,
+    law_edges,
+    radial_speed,
+    range_bins,
+)
 from sensor_envs.envs.highway.frame import RadarFrame, Truth
 from sensor_envs.envs.highway.observation import (
     KinematicsLayout,
@@ -137,6 +154,7 @@ from sensor_envs.envs.highway.sensor import (
     visible_targets,
     world_state,
 )
+from sensor_envs.envs.highway.tracker import MultiTargetTracker, TrackerConfig, tracked_frame, tracker_config
 from sensor_envs.geometry import from_frame
 from sensor_envs.radar.sensors import NEW_TRACK_KEYWORD, RADAR_NAMES, RadarSensor, takes_new_track
 from sensor_envs.rng import sensor_rng
@@ -147,6 +165,8 @@ __all__ = [
     "RADAR_RATES",
     "IDEAL_KINEMATICS",
     "RadarObservation",
+    "ObservedRows",
+    "StackedRows",
     "make_highway",
     "cycle_period",
     "check_cycle_time",
@@ -192,12 +212,35 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         clutter_fraction: share of the model's clutter detections kept, each independently, in [0, 1].
             The calibrated KDE radar reports the Astyx rate, ~94 clutter detections per cycle (every
             unannotated cluster, static infrastructure included), which crowds the nearest observation
-            rows; lower it to model a radar whose tracker suppresses more of them.
+            rows; lower it to model a radar whose tracker suppresses more of them. Applied after ``clutter``.
+        clutter: ``"objects"`` (default): the model's clutter thinned, per range bin, to the object-level
+            rate measured on Astyx (clusters of >= 2 detections outside the boxes,
+            ``models/radar_object_clutter.json``); ``"model"``: the model's own (point-level) clutter.
+            See :mod:`sensor_envs.envs.highway.clutter`.
+        stationary: ``"keep"`` (default): report stationary detections; ``"drop"``: the Doppler
+            stationary filter of radar object lists (drops every detection whose radial speed over ground
+            is within 0.5 m/s: clutter, and stopped vehicles or obstacles too).
+        tracks: ``True``: the agent sees the confirmed tracks of a multi-target tracker fed with the
+            detections (:mod:`sensor_envs.envs.highway.tracker`) in the same layout: filtered positions and
+            velocities, ``presence`` = the track's existence (share of hits in the confirmation window);
+            ``info["tracks"]`` holds the confirmed :class:`~sensor_envs.envs.highway.tracker.TrackList`.
+        tracker: tracker settings (a :class:`~sensor_envs.envs.highway.tracker.TrackerConfig` or a dict of
+            its fields; ``None`` = the defaults); only with ``tracks=True``.
 
     Raises:
         TypeError: when ``env`` is not a highway-env environment with a ``Kinematics`` observation.
         ValueError: naming the bad argument or observation key, or when the model's cycle time does
             not match the radar rate.
+
+    Examples:
+        >>> import gymnasium as gym
+        >>> import highway_env  # registers highway-env's ids
+        >>> from sensor_envs import RadarObservation
+        >>> env = RadarObservation(gym.make("highway-fast-v0"), radar="gaussian")
+        >>> obs, info = env.reset(seed=0)
+        >>> obs, reward, terminated, truncated, info = env.step(1)
+        >>> obs.shape == env.observation_space.shape and bool(info["radar"].visible.any())
+        True
     """
 
     def __init__(
@@ -214,6 +257,10 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         velocity: str = "difference",
         radar_rate: str = "policy",
         clutter_fraction: float = 1.0,
+        clutter: str = "objects",
+        stationary: str = "keep",
+        tracks: bool = False,
+        tracker: TrackerConfig | dict[str, Any] | None = None,
     ) -> None:
         gym.utils.RecordConstructorArgs.__init__(
             self,
@@ -227,6 +274,10 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             velocity=velocity,
             radar_rate=radar_rate,
             clutter_fraction=clutter_fraction,
+            clutter=clutter,
+            stationary=stationary,
+            tracks=tracks,
+            tracker=tracker,
         )
         if radar_rate not in RADAR_RATES:
             raise ValueError(f"radar_rate: expected one of {RADAR_RATES}, got {radar_rate!r}")
@@ -235,6 +286,16 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if not (ok and 0.0 <= float(clutter_fraction) <= 1.0):
             raise ValueError(f"clutter_fraction: expected a number in [0, 1], got {clutter_fraction!r}")
         self.clutter_fraction = float(clutter_fraction)
+        if clutter not in CLUTTER_LEVELS:
+            raise ValueError(f"clutter: expected one of {CLUTTER_LEVELS}, got {clutter!r}")
+        if stationary not in STATIONARY_MODES:
+            raise ValueError(f"stationary: expected one of {STATIONARY_MODES}, got {stationary!r}")
+        if not isinstance(tracks, (bool, np.bool_)):
+            raise ValueError(f"tracks: expected True or False, got {tracks!r}")
+        self.clutter, self.stationary, self.tracks = clutter, stationary, bool(tracks)
+        self.tracker: MultiTargetTracker | None = MultiTargetTracker(tracker_config(tracker)) if tracks else None
+        if tracker is not None and not tracks:
+            raise ValueError("tracker: tracker settings need tracks=True")
         gym.Wrapper.__init__(self, env)
         base: Any = env.unwrapped
         if not hasattr(base, "road") or not hasattr(base, "PERCEPTION_DISTANCE"):
@@ -260,6 +321,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._state_names = model_state_names(self.radar)
         self._takes_new_track = takes_new_track(self.radar)
         check_cycle_time(self.radar, base.config, radar_rate)
+        self._clutter_keep = clutter_keep_probability(self.radar) if clutter == "objects" else None
         low, high = self.layout.bounds()
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self._rng = sensor_rng(None, RNG_TAG, None)
@@ -269,6 +331,8 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._features_range: dict[str, tuple[float, float]] | None = None
         self.last_frame: RadarFrame | None = None
         self._last_obs: NDArray[np.float32] | None = None
+        self._track_truth: dict[int, Any] = {}
+        self.last_rows: ObservedRows | None = None
 
     # -- gymnasium API ------------------------------------------------------------------------------
 
@@ -290,13 +354,16 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._tracks = {}
         self._seen = set()
         self._features_range = None
+        if self.tracker is not None:
+            self.tracker.reset()
+        self._track_truth = {}
         base.observation_type = _ObservationHook(base.observation_type, self._on_observe)
         if self.radar_rate == "simulation":
             _RoadStepHook.install(base.road, self._cycle)
         self.last_frame = self.sense()
         obs = self._observe()
         assert self.last_frame is not None  # set by _observe
-        info.update(self.last_frame.info())
+        info.update(self._info())
         return obs, info
 
     def step(self, action: Any) -> tuple[NDArray[np.float32], float, bool, bool, dict[str, Any]]:
@@ -316,7 +383,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 "radar_rate='simulation': highway-env did not call road.step() during this step; "
                 "this highway-env version simulates differently (see the wrapper's module docstring)"
             )
-        info.update(self.last_frame.info())
+        info.update(self._info())
         return self._last_obs, reward, terminated, truncated, info
 
     def render(self) -> Any:
@@ -360,29 +427,56 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if spec.velocity == "truth":
             vel, head = truth.velocity[vis[ok]], truth.heading[vis[ok]]
         else:
-            dt = cycle_period(base.config, self.radar_rate)
+            dt = self._period(base)
             vel, head = track_velocities(
                 base.vehicle.velocity, truth.velocity[vis[ok]], pose, meas_w[ok], prev_w[ok], dt
             )
+        radial = radial_speed(truth.velocity[vis[ok]], meas_w[ok], pose)
         clut_s = np.asarray(self.radar.sample_clutter(self._rng), dtype=np.float64).reshape(-1, 2)
         clut_s = clut_s[spec.in_view(clut_s)]
+        if self._clutter_keep is not None and len(clut_s):  # object level (one draw per in-view point)
+            p = self._clutter_keep[range_bins(np.hypot(clut_s[:, 0], clut_s[:, 1]), law_edges())]
+            clut_s = clut_s[self._rng.random(len(clut_s)) < p]
         if self.clutter_fraction < 1.0:  # independent thinning (draws nothing at the default 1.0)
             clut_s = clut_s[self._rng.random(len(clut_s)) < self.clutter_fraction]
-        return RadarFrame.assemble(
+        keep = np.flatnonzero(ok)
+        if self.stationary == "drop":  # Doppler filter: clutter is stationary infrastructure
+            moving = np.abs(radial) > STATIONARY_SPEED
+            keep, radial = keep[moving], radial[moving]
+            clut_s = clut_s[:0]
+            detected = np.zeros(len(truth.objects), dtype=bool)
+            detected[vis[keep]] = True
+            vel, head = vel[moving], head[moving]
+        frame = RadarFrame.assemble(
             truth,
             pose,
             ref_s,
             visible,
             detected,
-            vis[ok],
-            meas_s[ok],
-            meas_w[ok],
+            vis[keep],
+            meas_s[keep],
+            meas_w[keep],
             vel,
             head,
-            source[ok],
+            source[keep],
             clut_s,
             from_frame(clut_s, pose),
+            radial,
         )
+        if self.tracker is not None:
+            heading = float(base.vehicle.lane.heading_at(base.vehicle.lane.local_coordinates(base.vehicle.position)[0]))
+            frame.det_track = self.tracker.step(frame.det_w, frame.det_radial, pose, self._period(base), heading)
+            self._label_tracks(frame)
+        return frame
+
+    def _label_tracks(self, frame: RadarFrame) -> None:
+        """Remember, per live track, the object whose detection last updated it (``None``: clutter)."""
+        assert self.tracker is not None and frame.det_track is not None
+        objs = frame.truth.objects
+        labels = self._track_truth
+        for t, j in zip(frame.det_track.tolist(), frame.det_target.tolist(), strict=True):
+            labels[t] = objs[j] if j >= 0 else None
+        self._track_truth = {t: labels[t] for t in self.tracker.ids.tolist()}
 
     def _measure_targets(
         self,
@@ -459,8 +553,18 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         base: Any = self.env.unwrapped
         ego = base.vehicle
         lay = self.layout
+        tracks = self.tracker.confirmed() if self.tracker is not None else None
+        if tracks is not None:
+            frame = tracked_frame(frame, tracks)[0]
         rows = select(base, frame, lay)
         table = feature_table(ego, frame, rows, lay)
+        if tracks is None:
+            objects = [frame.truth.objects[i] if i >= 0 else None for i in frame.det_target[rows]]
+        else:
+            objects = [self._track_truth.get(int(t)) for t in tracks.ids[rows]]
+            if "presence" in lay.features:
+                table[1:, lay.features.index("presence")] = tracks.existence[rows]
+        self.last_rows = ObservedRows(objects, frame.det_w[rows].copy(), frame.det_v[rows].copy())
         if lay.normalize:
             table = normalise(table, lay, self._default_range(base))
         obs = np.zeros((lay.vehicles_count, len(lay.features)), dtype=np.float64)
@@ -473,6 +577,18 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._last_obs = np.clip(obs.astype(np.float32), low, high)
         return self._last_obs.copy()
 
+    def _info(self) -> dict[str, Any]:
+        """``info["radar"]`` and, with ``tracks=True``, ``info["tracks"]`` (the confirmed :class:`TrackList`)."""
+        assert self.last_frame is not None
+        info: dict[str, Any] = dict(self.last_frame.info())
+        if self.tracker is not None:
+            info["tracks"] = self.tracker.confirmed()
+        return info
+
+    def _period(self, base: Any) -> float:
+        """Seconds between radar cycles."""
+        return cycle_period(base.config, self.radar_rate)
+
     def _default_range(self, base: Any) -> dict[str, tuple[float, float]]:
         """Normalisation ranges: the layout's, or highway-env's defaults fixed at the first observation after reset."""
         if self.layout.features_range:
@@ -480,6 +596,50 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self._features_range is None:
             self._features_range = default_features_range(base)
         return self._features_range
+
+
+@dataclass(frozen=True)
+class ObservedRows:
+    """What the non-ego rows of the last observation hold (ground truth, for diagnostics), in row order.
+
+    With ``order="shuffled"`` the order is before the shuffle.
+
+    Attributes:
+        objects: the highway-env object behind each row (``None``: clutter, or a track last updated by
+            clutter); with ``tracks=True`` the object whose detection last updated the track.
+        position: ``(r, 2)`` the rows' world positions [m] before normalisation.
+        velocity: ``(r, 2)`` the rows' world velocities [m/s] before normalisation.
+    """
+
+    objects: list[Any]
+    position: NDArray[np.float64]
+    velocity: NDArray[np.float64]
+
+
+class StackedRows(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
+    """Turn a ``(k, rows, features)`` stack of observations into one ``(k * rows, features)`` table.
+
+    The 2-D layout of ``Kinematics`` is kept (a 3-D float array would be taken for an image by SB3's
+    checker); the oldest observation's rows come first. Picklable, unlike a lambda-based reshape.
+
+    Raises:
+        TypeError: when the observation space is not a 3-D ``Box``.
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self)
+        gym.ObservationWrapper.__init__(self, env)
+        space = env.observation_space
+        if not isinstance(space, spaces.Box) or len(space.shape) != 3:
+            raise TypeError(f"env: expected a 3-D Box observation space, got {space}")
+        k, rows, feats = space.shape
+        self.observation_space = spaces.Box(
+            space.low.reshape(k * rows, feats), space.high.reshape(k * rows, feats), dtype=space.dtype
+        )
+
+    def observation(self, observation: NDArray[np.float32]) -> NDArray[np.float32]:
+        """The stack as one table (a view, rows of the oldest observation first)."""
+        return np.asarray(observation).reshape(self.observation_space.shape)
 
 
 class _RoadStepHook:
@@ -574,6 +734,11 @@ def make_highway(
     velocity: str = "difference",
     radar_rate: str = "policy",
     clutter_fraction: float = 1.0,
+    clutter: str = "objects",
+    stationary: str = "keep",
+    tracks: bool = False,
+    tracker: TrackerConfig | dict[str, Any] | None = None,
+    history: int = 1,
 ) -> gym.Env:
     """Build highway-env's ``base_id`` (e.g. ``"highway-fast-v0"``) and put a radar in front of it.
 
@@ -593,13 +758,33 @@ def make_highway(
             must match (e.g. ``radar_model=default_model_path("radar_kde_fast.npz")`` at 15 Hz).
         clutter_fraction: share of the model's clutter detections kept, each independently, in [0, 1]
             (1 = the model's calibrated clutter; 0 = none).
+        clutter: ``"objects"`` (object-level clutter rate) or ``"model"`` (see :class:`RadarObservation`).
+        stationary: ``"keep"`` or ``"drop"`` (Doppler stationary filter; see :class:`RadarObservation`).
+        tracks: the agent sees the confirmed tracks of a multi-target tracker instead of raw detections.
+        tracker: tracker settings (:class:`~sensor_envs.envs.highway.tracker.TrackerConfig` or a dict of
+            its fields); only with ``tracks=True``.
+        history: the observation stacks the last ``history`` observations (gymnasium's
+            ``FrameStackObservation``, zero-padded after ``reset``, then :class:`StackedRows`): a
+            ``(history * vehicles_count, n_features)`` table, the oldest observation's rows first and the
+            latest's last; 1 = no stacking.
 
     Raises:
         ValueError: naming an unknown ``config`` key or a bad sensor argument.
+
+    Examples:
+        >>> from sensor_envs import make_highway
+        >>> env = make_highway("highway-fast-v0", radar="kde")
+        >>> obs, info = env.reset(seed=0)
+        >>> obs, reward, terminated, truncated, info = env.step(1)
+        >>> radar = info["radar"]
+        >>> int(radar.detected.sum()) <= int(radar.visible.sum())
+        True
     """
     import highway_env  # noqa: F401  (registers highway-env's ids)
 
     check_highway_config(config)  # declared ranges (policy_frequency 0 would divide by zero)
+    if not isinstance(history, (int, np.integer)) or isinstance(history, bool) or not 1 <= history <= 64:
+        raise ValueError(f"history: expected an integer in [1, 64], got {history!r}")
 
     with warnings.catch_warnings():  # the sensor_envs id is current even when its base id has newer versions
         warnings.filterwarnings("ignore", message=".*is out of date.*", category=DeprecationWarning)
@@ -608,7 +793,7 @@ def make_highway(
     unknown = sorted(set(config or {}) - set(base.default_config()))
     if unknown:
         raise ValueError(f"config.{unknown[0]}: unknown highway-env key for {base_id}")
-    return RadarObservation(
+    wrapped = RadarObservation(
         env,
         radar,
         radar_model,
@@ -620,4 +805,11 @@ def make_highway(
         velocity=velocity,
         radar_rate=radar_rate,
         clutter_fraction=clutter_fraction,
+        clutter=clutter,
+        stationary=stationary,
+        tracks=tracks,
+        tracker=tracker,
     )
+    if history == 1:
+        return wrapped
+    return StackedRows(gym.wrappers.FrameStackObservation(wrapped, int(history), padding_type="zero"))

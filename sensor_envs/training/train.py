@@ -1,10 +1,13 @@
 """Train a stable-baselines3 agent on a sensor_envs env from a YAML config keyed by env id.
 
-    python training/train.py --env sensor_envs/Neato-v0 --out runs/neato [--seed 1] [--algo sac]
-        [--sensor gaussian] [--device auto] [--set n_timesteps=5000] [--set vec_env=subproc|vector]
+    sensor-envs train --env sensor_envs/Neato-v0 --out runs/neato [--seed 1] [--algo sac] [--force]
+        [--sensor gaussian] [--device auto] [--config my.yaml] [--set n_timesteps=5000]
+        [--set vec_env=subproc|vector]
 
-Writes into ``--out``: ``config.json`` (the resolved config, the seed and the command line), SB3
-checkpoints (``checkpoints/``), TensorBoard logs (``tb/``; ``tensorboard --logdir runs``), ``best_model.zip``
+The default config is ``configs/default.yaml`` beside this module (package data). An existing ``--out`` is
+refused unless ``--force`` (then its files are overwritten). Writes into ``--out``: ``config.json`` (the
+resolved config, the seed and the command line), SB3 checkpoints (``checkpoints/``), TensorBoard logs
+(``tb/``; ``tensorboard --logdir runs``), ``best_model.zip``
 and ``evaluations.npz`` from ``EvalCallback``, ``final_model.zip`` and ``result.json`` (mean and std of the
 final evaluation return). A seed is drawn and logged when absent. ``--algo`` picks another algorithm's
 block (``algos:``) of the env's config; ``--sensor`` sets the env's ``radar`` (highway ids) or ``lidar``
@@ -27,6 +30,19 @@ from tqdm import TqdmExperimentalWarning
 
 import sensor_envs  # noqa: F401  (registers the ids)
 
+__all__ = [
+    "ALGOS",
+    "VEC_ENVS",
+    "DEFAULT_CONFIG",
+    "ConfigError",
+    "load_config",
+    "make_env",
+    "train",
+    "add_arguments",
+    "run",
+    "main",
+]
+
 ALGOS = ("ppo", "sac", "a2c", "dqn")
 VEC_ENVS = ("dummy", "subproc", "vector")
 KEYS = {
@@ -44,6 +60,7 @@ KEYS = {
 }
 ALGO_KEYS = {"policy", "hyperparams", "n_timesteps", "n_envs", "eval_freq", "eval_episodes"}
 DEFAULT_CONFIG = Path(__file__).with_name("configs") / "default.yaml"
+"""The shipped config (package data ``sensor_envs/training/configs/default.yaml``)."""
 
 
 class ConfigError(ValueError):
@@ -194,8 +211,8 @@ def train(
     return {
         "env_id": env_id,
         "seed": seed,
-        "mean_return": float(mean),
-        "std_return": float(std),
+        "mean_return": float(np.asarray(mean)),
+        "std_return": float(np.asarray(std)),
         "n_timesteps": int(cfg["n_timesteps"]),
         "algo": cfg["algo"],
         "device": str(model.device),
@@ -209,30 +226,33 @@ def _has_tensorboard() -> bool:
     return importlib.util.find_spec("tensorboard") is not None
 
 
-def main(argv: list[str] | None = None) -> dict[str, Any]:
-    """Parse arguments, resolve the config, log it, train, and write ``result.json``."""
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of ``sensor-envs train``."""
     parser.add_argument("--env", required=True, help="registered env id, e.g. sensor_envs/Neato-v0")
-    parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG)
-    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG, help="YAML config (default: the shipped one)")
+    parser.add_argument("--out", type=Path, required=True, help="run folder (refused if it exists, unless --force)")
     parser.add_argument("--seed", type=int, default=None, help="drawn and logged when absent")
     parser.add_argument("--algo", choices=ALGOS, default=None, help="use the config's block for this algorithm")
     parser.add_argument("--sensor", default=None, help="the env's radar (highway ids) or lidar (Neato) name")
     parser.add_argument("--device", default=None, help="torch device: auto (default), cpu, cuda, cuda:1, ...")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config entry")
-    parser.add_argument("--force", action="store_true", help="write into an --out folder that holds files")
-    args = parser.parse_args(argv)
-    if args.out.exists() and (not args.out.is_dir() or (any(args.out.iterdir()) and not args.force)):
-        _fail(f"--out: {args.out} already exists and is not empty; pass --force or choose another folder")
+    parser.add_argument("--force", action="store_true", help="write into an existing --out (its files are replaced)")
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    """Resolve the config, log it, train, and write ``result.json`` (``args`` from :func:`add_arguments`)."""
+    from sensor_envs.outputs import check_output
+
     if args.env not in gym.registry:
         _fail(f"--env: {args.env!r} is not a registered env id")
     try:
         cfg = load_config(args.config, args.env, args.set, algo=args.algo, sensor=args.sensor)
-    except ConfigError as err:
+        check_output(args.out, force=args.force, folder=True)
+    except ValueError as err:  # ConfigError, OutputError
         _fail(str(err))
     if args.device is not None:
         cfg["device"] = args.device
-    seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 2**31)
+    seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy) % 2**31  # type: ignore[arg-type]
     args.out.mkdir(parents=True, exist_ok=True)
     resolved = {"env_id": args.env, "seed": seed, "config": cfg, "command": [sys.executable, *sys.argv]}
     (args.out / "config.json").write_text(json.dumps(resolved, indent=2))
@@ -242,9 +262,18 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     return result
 
 
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    """``sensor-envs train`` with ``argv`` (default: ``sys.argv[1:]``); returns the final evaluation summary."""
+    parser = argparse.ArgumentParser(
+        prog="sensor-envs train", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    add_arguments(parser)
+    return run(parser.parse_args(argv))
+
+
 def _fail(message: str) -> None:
     """Print one line to stderr and exit with status 2."""
-    print(f"train.py: error: {message}", file=sys.stderr)
+    print(f"sensor-envs train: error: {message}", file=sys.stderr)
     raise UsageExit(message)
 
 

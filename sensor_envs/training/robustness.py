@@ -1,20 +1,22 @@
 """The robustness matrix: train on one sensor, evaluate on every sensor.
 
-    python training/robustness.py --domain neato --preset short --out runs/robust_neato
-    python training/robustness.py --domain highway --preset full --out runs/robust_hw --backend ray [--address auto]
+    sensor-envs robustness --domain neato --preset short --out runs/robust_neato
+    sensor-envs robustness --domain highway --preset full --out runs/robust_hw --backend ray [--address auto]
         [--real-data ../shared/data/real] [--workers 2]
 
-Rows are the sensor trained on, columns the sensor evaluated on. Cells: mean episode return and collision
-rate (highway), success and collision rate (Neato), each with a 95 % confidence interval: a Student-t
-interval over the per-seed means (each seed's mean averages its evaluation episodes, so the interval
-carries both seed and episode variation; with a single seed it falls back to a t-interval over episodes,
-and the report says so).
+Rows are the sensor trained on, columns the sensor evaluated on. Cells, per metric (episode return and
+collision rate on highway; success, collision and return on Neato), rliable-style
+(:mod:`sensor_envs.training.stats`): the interquartile mean (IQM) and the mean of the seeds x episodes scores,
+each with a 95 % percentile bootstrap interval, stratified by cell (seeds resampled whole with their episodes;
+with a single seed, the episodes are resampled, and the report says so); rates' intervals stay inside [0, 1]. The tables
+show the IQM of returns and the mean of rates (a rate's IQM drops its rare events). Between the rows, per
+column and metric: the probability of improvement P(row a better than row b) with its interval.
 
-Jobs: one per (training sensor, seed); a job trains (training/train.py's ``train``), then evaluates the
-final policy on every column with the same evaluation seeds (common random numbers). Each job is the
-command ``python training/robustness.py job ...`` so the local process pool (default) and a Ray cluster
-(``--backend ray``) run the same code; outputs land in ``--out`` whichever backend ran them (on a cluster
-``--out`` and the repository must sit on a shared filesystem at the same path). A job writes its
+Jobs: one per (training sensor, seed); a job trains (:func:`sensor_envs.training.train.train`), then evaluates
+the final policy on every column with the same evaluation seeds (common random numbers). Each job is the
+command ``python -m sensor_envs.training.robustness job ...`` so the local process pool (default) and a Ray
+cluster (``--backend ray``) run the same code; outputs land in ``--out`` whichever backend ran them (on a
+cluster ``--out`` must sit on a shared filesystem at the same path, and sensor_envs be installed). A job writes its
 ``eval.json`` and then, atomically, its ``done`` marker; a rerun skips jobs that have one. ``--real-data``
 adds a column with a model fitted on real data (KDE radar on Astyx; learned lidar on
 ``neato_mar27_train.npz``), fitted once and cached in ``<out>/real_models/`` (never in the repository).
@@ -37,10 +39,25 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
-sys.path[:0] = [str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parents[1])]  # train.py, repo
+from sensor_envs.training import stats
 
-SCRIPT = Path(__file__).resolve()
+__all__ = [
+    "DOMAINS",
+    "PRESETS",
+    "DEFAULT_CONFIG",
+    "UsageError",
+    "run_job",
+    "run_jobs",
+    "build_matrix",
+    "write_reports",
+    "add_arguments",
+    "run",
+    "main",
+]
+
+DEFAULT_CONFIG = Path(__file__).with_name("configs") / "default.yaml"
 
 DOMAINS: dict[str, dict[str, Any]] = {
     "neato": {
@@ -136,7 +153,7 @@ def evaluate(model: Any, env_id: str, kwargs: dict[str, Any], episodes: int, max
     """Per-episode return, collision and success of ``model`` (deterministic actions) on ``env_id(**kwargs)``."""
     import gymnasium as gym
 
-    extra = {"max_episode_steps": max_steps} if max_steps else {}
+    extra: dict[str, Any] = {"max_episode_steps": max_steps} if max_steps else {}
     env = gym.make(env_id, **kwargs, **extra)
     out: dict[str, list] = {"return": [], "collision": [], "success": []}
     for e in range(episodes):
@@ -157,7 +174,8 @@ def evaluate(model: Any, env_id: str, kwargs: dict[str, Any], episodes: int, max
 def run_job(spec: dict[str, Any]) -> dict[str, Any]:
     """Train one (sensor, seed) run and evaluate it on every column; writes ``eval.json`` then ``done``."""
     import torch
-    import train as train_mod
+
+    from sensor_envs.training import train as train_mod
 
     torch.set_num_threads(1)  # one core per job; also keeps the numbers reproducible
     run_dir = Path(spec["run_dir"])
@@ -200,7 +218,7 @@ def _write_atomic(path: Path, text: str) -> None:
 
 
 def _job_command(spec: dict[str, Any]) -> list[str]:
-    return [sys.executable, str(SCRIPT), "job", json.dumps(spec)]
+    return [sys.executable, "-m", "sensor_envs.training.robustness", "job", json.dumps(spec)]
 
 
 def _check(proc: subprocess.CompletedProcess[str], cmd: list[str]) -> None:
@@ -219,12 +237,12 @@ def run_jobs(specs: list[dict[str, Any]], backend: str, workers: int, address: s
     if not cmds:
         return
     bar = tqdm(total=len(cmds), desc=f"jobs ({backend})", unit="job")
-    run = {"capture_output": True, "text": True, "check": False}
+    run: dict[str, Any] = {"capture_output": True, "text": True, "check": False}
     # The task is the job's command line (subprocess.run pickles by reference on both backends): the job
-    # process puts the repository first on its path, so workers need no package state of the driver.
+    # process imports the installed sensor_envs, so workers need no package state of the driver.
     if backend == "process":
         with cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
-            futures = {pool.submit(subprocess.run, c, **run): c for c in cmds}
+            futures = {pool.submit(subprocess.run, c, **run): c for c in cmds}  # type: ignore[arg-type]
             for fut in cf.as_completed(futures):
                 _check(fut.result(), futures[fut])
                 bar.update()
@@ -246,33 +264,53 @@ def run_jobs(specs: list[dict[str, Any]], backend: str, workers: int, address: s
 
 
 # ---------------------------------------------------------------------------------------------- the matrix
-def t_interval(values: list[float]) -> tuple[float, float, float]:
-    """Mean and 95 % Student-t interval ``(mean, low, high)``; a single value gives a zero-width interval."""
-    from scipy import stats
+HIGHER_IS_BETTER = {"return": True, "success": True, "collision": False}
+BOOTSTRAP_REPS = 2000
 
-    x = np.asarray(values, dtype=np.float64)
-    m = float(x.mean())
-    if x.size < 2:
-        return m, m, m
-    half = float(stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
-    return m, m - half, m + half
+
+def score_matrix(evals: list[dict[str, Any]], column: str, metric: str) -> NDArray[np.float64]:
+    """(seeds, episodes) scores of one cell: row ``i`` the evaluation episodes of seed ``i``'s policy."""
+    return np.array([e["cells"][column][metric] for e in evals], dtype=np.float64)
+
+
+def cell_statistics(scores: NDArray[np.float64]) -> dict[str, Any]:
+    """IQM and mean with 95 % bootstrap intervals, seeds resampled whole (seeded: same scores, same numbers)."""
+    return {
+        "iqm": stats.iqm(scores),
+        "iqm_ci95": list(stats.bootstrap_ci(scores, stats.iqm, reps=BOOTSTRAP_REPS)),
+        "mean": stats.mean(scores),
+        "mean_ci95": list(stats.bootstrap_ci(scores, stats.mean, reps=BOOTSTRAP_REPS)),
+        "per_seed": [float(v) for v in scores.mean(axis=1)],
+    }
+
+
+def improvement(a: NDArray[np.float64], b: NDArray[np.float64], metric: str) -> dict[str, Any]:
+    """P(a policy of row ``a`` does better than one of row ``b``) on one cell's episodes, with its interval."""
+    sign = 1.0 if HIGHER_IS_BETTER[metric] else -1.0
+    if a.shape[0] == 1:  # one seed: the episodes are the runs, one stratum
+        a, b = a.T, b.T
+    p = stats.probability_of_improvement(sign * a, sign * b)
+    lo, hi = stats.probability_of_improvement_ci(sign * a, sign * b, reps=BOOTSTRAP_REPS)
+    return {"p": p, "ci95": [lo, hi]}
 
 
 def build_matrix(out: Path, domain: str, rows: list[str], columns: list[str], seeds: list[int]) -> dict[str, Any]:
-    """Aggregate the jobs' ``eval.json`` into cells with 95 % intervals."""
+    """The jobs' ``eval.json`` as cells (IQM, mean, intervals) and the rows' probabilities of improvement."""
     metrics = DOMAINS[domain]["metrics"]
-    over = "seed means" if len(seeds) > 1 else "episodes (single seed)"
-    cells: dict[str, dict[str, Any]] = {}
-    for r in rows:
-        evals = [json.loads((out / "runs" / r / f"seed{s}" / "eval.json").read_text()) for s in seeds]
-        for c in columns:
-            cell: dict[str, Any] = {}
-            for m in metrics:
-                per_seed = [float(np.mean(e["cells"][c][m])) for e in evals]
-                values = per_seed if len(seeds) > 1 else evals[0]["cells"][c][m]
-                mean, lo, hi = t_interval(values)
-                cell[m] = {"mean": mean, "ci95": [lo, hi], "per_seed": per_seed}
-            cells[f"{r}->{c}"] = cell
+    over = "seeds resampled whole, with their episodes" if len(seeds) > 1 else "episodes resampled (single seed)"
+    evals = {r: [json.loads((out / "runs" / r / f"seed{s}" / "eval.json").read_text()) for s in seeds] for r in rows}
+    cells = {
+        f"{r}->{c}": {m: cell_statistics(score_matrix(evals[r], c, m)) for m in metrics} for r in rows for c in columns
+    }
+    better = {
+        m: {
+            f"{a} vs {b} @ {c}": improvement(score_matrix(evals[a], c, m), score_matrix(evals[b], c, m), m)
+            for i, a in enumerate(rows)
+            for b in rows[i + 1 :]
+            for c in columns
+        }
+        for m in metrics
+    }
     return {
         "domain": domain,
         "env_id": DOMAINS[domain]["env_id"],
@@ -280,9 +318,15 @@ def build_matrix(out: Path, domain: str, rows: list[str], columns: list[str], se
         "columns_evaluated_on": columns,
         "seeds": seeds,
         "metrics": metrics,
-        "interval": f"95 % Student-t interval over {over}",
+        "interval": f"95 % bootstrap per cell ({over}; {BOOTSTRAP_REPS} replicates, percentile)",
         "cells": cells,
+        "probability_of_improvement": better,
     }
+
+
+def headline(metric: str) -> str:
+    """The statistic a table shows: the mean for rates (0/1 per episode), the IQM otherwise."""
+    return "mean" if metric in ("success", "collision") else "iqm"
 
 
 def write_reports(out: Path, matrix: dict[str, Any], meta: dict[str, Any]) -> None:
@@ -295,22 +339,26 @@ def write_reports(out: Path, matrix: dict[str, Any], meta: dict[str, Any]) -> No
     lines = [
         f"# Robustness matrix: {matrix['env_id']}",
         "",
-        f"Rows: sensor trained on; columns: sensor evaluated on. Cells: mean [95 % CI] ({matrix['interval']}).",
+        "Rows: sensor trained on; columns: sensor evaluated on. Cells: IQM of returns, mean of rates, "
+        f"[95 % CI] ({matrix['interval']}).",
         f"Seeds {matrix['seeds']}, {meta['eval_episodes']} evaluation episodes per seed and column; "
         f"preset {meta['preset']!r}; algo {meta['algo']}; wall time {meta['wall_seconds']:.0f} s.",
         f"Command: `{meta['command']}`",
         "",
     ]
     for m in matrix["metrics"]:
-        lines += [f"## {m}", "", "| trained on \\ evaluated on | " + " | ".join(cols) + " |"]
-        lines.append("|---" * (len(cols) + 1) + "|")
+        stat = headline(m)
+        lines += [f"## {m} ({stat.upper() if stat == 'iqm' else stat})", ""]
+        lines += ["| trained on \\ evaluated on | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
         for r in rows:
             vals = [matrix["cells"][f"{r}->{c}"][m] for c in cols]
-            lines.append(
-                f"| {r} | "
-                + " | ".join(f"{v['mean']:.2f} [{v['ci95'][0]:.2f}, {v['ci95'][1]:.2f}]" for v in vals)
-                + " |"
-            )
+            cells = [f"{v[stat]:.2f} [{v[stat + '_ci95'][0]:.2f}, {v[stat + '_ci95'][1]:.2f}]" for v in vals]
+            lines.append(f"| {r} | " + " | ".join(cells) + " |")
+        pairs = matrix["probability_of_improvement"][m]
+        if pairs:
+            better = "higher" if HIGHER_IS_BETTER[m] else "lower"
+            lines += ["", f"Probability of improvement ({better} {m} is better), P(first row better) [95 % CI]:", ""]
+            lines += [f"- {k}: {v['p']:.2f} [{v['ci95'][0]:.2f}, {v['ci95'][1]:.2f}]" for k, v in pairs.items()]
         lines.append("")
     _write_atomic(out / "matrix.md", "\n".join(lines))
     matplotlib.use("Agg")
@@ -318,7 +366,7 @@ def write_reports(out: Path, matrix: dict[str, Any], meta: dict[str, Any]) -> No
 
     fig, axes = plt.subplots(1, len(matrix["metrics"]), figsize=(4.2 * len(matrix["metrics"]), 3.6), squeeze=False)
     for ax, m in zip(axes[0], matrix["metrics"], strict=True):
-        grid = np.array([[matrix["cells"][f"{r}->{c}"][m]["mean"] for c in cols] for r in rows])
+        grid = np.array([[matrix["cells"][f"{r}->{c}"][m][headline(m)] for c in cols] for r in rows])
         im = ax.imshow(grid, cmap="viridis")
         for (i, j), v in np.ndenumerate(grid):
             ax.text(j, i, f"{v:.2f}", ha="center", va="center", color="w", fontsize=8)
@@ -407,34 +455,55 @@ def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[di
     return specs, settings
 
 
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of ``sensor-envs robustness``."""
+    parser.add_argument("--domain", choices=sorted(DOMAINS), default="neato", help="world (default neato)")
+    parser.add_argument(
+        "--preset", choices=sorted(PRESETS), default="short", help="training budget and evaluation size (default short)"
+    )
+    parser.add_argument("--out", type=Path, required=True, help="output folder (a rerun with its settings resumes)")
+    parser.add_argument(
+        "--backend", choices=("process", "ray"), default="process", help="local process pool or Ray (default process)"
+    )
+    parser.add_argument("--address", default=None, help="Ray cluster address (default: start a local instance)")
+    parser.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 2)), help="parallel jobs (local)")
+    parser.add_argument("--algo", default=None, help="algorithm block of the config (default: the env's algo)")
+    parser.add_argument("--sensors", nargs="+", default=None, help="training sensors (rows); default: all")
+    parser.add_argument("--seeds", type=int, default=None, help="number of seeds (default: the preset's)")
+    parser.add_argument("--seed0", type=int, default=0, help="first training seed (default 0)")
+    parser.add_argument("--device", default="auto", help="torch device: auto (default), cpu, cuda, ...")
+    parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG, help="YAML config (default: the shipped one)")
+    parser.add_argument(
+        "--real-data", type=Path, default=None, help="e.g. ../shared/data/real: adds a real-data column"
+    )
+    parser.add_argument("--force", action="store_true", help="reuse an --out folder made with other settings")
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    """Run (or resume) the matrix of ``args`` (from :func:`add_arguments`) and write its reports.
+
+    Raises:
+        UsageError: a bad argument or an ``--out`` made with other settings (one line naming the key).
+    """
+    argv = list(getattr(args, "argv", None) or sys.argv[1:])
+    return _run(args, argv[1:] if argv[:1] == ["robustness"] else argv)
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any] | None:
     """Run (or resume) the matrix and write its reports; ``job SPEC`` runs one job (used by the backends)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["job"]:
         run_job(json.loads(argv[1]))
         return None
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--domain", choices=sorted(DOMAINS), default="neato")
-    parser.add_argument("--preset", choices=sorted(PRESETS), default="short")
-    parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--backend", choices=("process", "ray"), default="process")
-    parser.add_argument("--address", default=None, help="Ray cluster address (default: start a local instance)")
-    parser.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 2)), help="parallel jobs (local)")
-    parser.add_argument("--algo", default=None, help="algorithm block of the config (default: the env's algo)")
-    parser.add_argument("--sensors", nargs="+", default=None, help="training sensors (rows); default: all")
-    parser.add_argument("--seeds", type=int, default=None, help="number of seeds (default: the preset's)")
-    parser.add_argument("--seed0", type=int, default=0)
-    parser.add_argument("--device", default="auto")
-    parser.add_argument("--config", type=Path, default=SCRIPT.with_name("configs") / "default.yaml")
-    parser.add_argument(
-        "--real-data", type=Path, default=None, help="e.g. ../shared/data/real: adds a real-data column"
+    parser = argparse.ArgumentParser(
+        prog="sensor-envs robustness", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--force", action="store_true", help="reuse an --out folder made with other settings")
+    add_arguments(parser)
     args = parser.parse_args(argv)
     try:
         return _run(args, argv)
     except UsageError as err:
-        print(f"robustness.py: error: {err}", file=sys.stderr)
+        print(f"sensor-envs robustness: error: {err}", file=sys.stderr)
         raise SystemExit(2) from None
 
 
@@ -470,7 +539,7 @@ def _run(args: argparse.Namespace, argv: list[str]) -> dict[str, Any]:
         "backend": args.backend,
         "jobs_run": len(todo),
         "wall_seconds": time.perf_counter() - t0,
-        "command": " ".join(["python", "training/robustness.py", *argv]),
+        "command": " ".join(["sensor-envs", "robustness", *argv]),
     }
     write_reports(args.out, matrix, meta)
     print((args.out / "matrix.md").read_text())

@@ -1,0 +1,542 @@
+"""The search of ``diagnose``: score candidate causes against a model's held-out residuals, test them.
+
+**Targets.** Every residual metric of the :class:`~sensor_envs.diagnose.core.Evaluation` is a target;
+the adapter states each metric's kind (``mean``: a signed residual; ``spread``: a transform of its
+size such as ``sqrt(|residual| / sigma)``; ``rate``: ``1{event} - P(event)``; ``score``: per-reading
+excess NLL), so an effect on the spread or on a rate is as visible as one on the mean.
+
+**Learner.** For a candidate ``c`` and a target ``r``, two regressors are cross-fitted by folds:
+
+* main: ``r ~ a + b c + g(bin(c))``, a linear trend (it extrapolates a real trend, e.g. in time,
+  to the other fold) plus a binned correction (10 quantile bins, bin means of the trend's remainder
+  shrunk toward 0 with ``10 x D`` pseudo-readings, ``D`` the mean run length of equal consecutive
+  values: a per-scan covariate repeated over K bearings carries one scan's information, not K
+  readings'): monotone, U-shaped and step effects alike;
+* interaction with each of the model's state features ``s`` (e.g. bearing sector, range, azimuth):
+  ``r ~ h(bin(c), bin(s))`` on a 6 x 8 grid, so an effect whose sign follows the bearing (zero mean
+  over the scan) is seen.
+
+Every target is first freed of the additive binned pattern of the state features (misfit along the
+model's own state, e.g. a kernel width, is not credited to a candidate that correlates with the state).
+
+The score of a candidate is the largest held-out ``R^2`` over its regressors and the targets.
+
+**Folds with gaps.** The held-out readings, in time order, are cut into :data:`N_SEGMENTS`
+contiguous segments dealt alternately to the two folds, and the readings within :data:`GAP` of a
+segment boundary are left out of both: a candidate that follows time cannot interpolate slow drift
+between neighbouring blocks, it must carry over to a distant part of the log.
+
+**Significance.** A block sign-flip test (a wild block bootstrap): the centred residual targets are
+multiplied by random signs, one sign per contiguous time block (:data:`N_BLOCKS` blocks of the
+held-out readings in time order), all candidates alike. Within a block the residuals keep their
+correlation (slow drift, AR(1), a scan's shared offset), across blocks any alignment with a candidate
+is broken, and the candidates keep their own time structure (a random walk stays a random walk, a
+trend stays a trend), so the null spread of a score is that of a time-correlated residual. Each
+(candidate, target, regressor) score is studentised by its own null distribution (``z``), so a
+target whose scores vary widely under the null (e.g. a drifting range residual) does not drown the
+others; the adjusted p-value is Westfall-Young max-T of ``z`` over all of them. Candidates are ranked
+by ``z`` (significant ones first).
+
+**Conditional check.** Among the top candidates, ``i`` is a *proxy* of ``j`` when, once ``j``'s fit
+is removed, ``i`` explains less than a fifth of its own score and less than ``j`` does given ``i``;
+a proxy is not significant and is ranked below its cause.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from tqdm import tqdm
+
+__all__ = ["Ranking", "bin_candidate", "rank_candidates", "time_folds", "N_SEGMENTS", "GAP"]
+
+N_SEGMENTS = 6
+"""Contiguous time segments of the held-out readings, dealt alternately to the two cross-fitting folds."""
+GAP = 0.08
+"""Share of each segment's length left out at either end (the gap between fit and scored readings)."""
+N_BLOCKS = 32
+"""Most contiguous time blocks of the held-out readings whose residual signs are flipped together; fewer
+(down to :data:`MIN_BLOCKS`) when the residuals are correlated over longer times (:func:`n_flip_blocks`)."""
+MIN_BLOCKS = 16
+_SHRINK = 10.0
+_MAIN_BINS = 10
+_INT_BINS = (6, 8)
+_TOP_COND = 5
+
+
+def bin_candidate(x: NDArray, n_bins: int = 16) -> NDArray[np.int64]:
+    """Bin index ``(n,)``: one bin per value (at most ``n_bins`` values), else quantile bins; NaN last."""
+    x = np.asarray(x, dtype=np.float64)
+    ok = np.isfinite(x)
+    out = np.full(x.shape, n_bins, dtype=np.int64)
+    if not ok.any():
+        return out
+    vals = np.unique(x[ok])
+    if vals.size <= n_bins:
+        out[ok] = np.searchsorted(vals, x[ok])
+    else:
+        edges = np.unique(np.quantile(x[ok], np.linspace(0, 1, n_bins + 1)[1:-1]))
+        out[ok] = np.searchsorted(edges, x[ok], side="right")
+    return out
+
+
+def time_folds(order: NDArray, n_segments: int = N_SEGMENTS, gap: float = GAP) -> NDArray[np.int64]:
+    """Fold ``(n,)`` of each reading: 0 or 1 by contiguous time segment, -1 in the gaps at segment ends."""
+    rank = np.argsort(np.argsort(np.asarray(order, dtype=np.float64), kind="stable"), kind="stable")
+    q = (rank + 0.5) / max(rank.size, 1) * n_segments
+    seg = np.minimum(np.floor(q).astype(np.int64), n_segments - 1)
+    frac = q - seg
+    return np.where((frac < gap) | (frac > 1 - gap), -1, seg % 2).astype(np.int64)
+
+
+def _standardise(x: NDArray) -> NDArray[np.float64]:
+    """``(x - mean) / sd`` with NaN set to 0 (NaN readings get their own bin)."""
+    x = np.asarray(x, dtype=np.float64)
+    ok = np.isfinite(x)
+    if not ok.any():
+        return np.zeros(x.shape)
+    m, s = x[ok].mean(), x[ok].std()
+    return np.where(ok, (x - m) / (s if s > 0 else 1.0), 0.0)
+
+
+def _r2_from_stats(
+    cnt: NDArray, sx: NDArray, sxx: NDArray, sr: NDArray, sxr: NDArray, rr: NDArray, shrink: NDArray
+) -> NDArray[np.float64]:
+    """Cross-fitted ``R^2`` ``(..., R)`` from per-(row, fold, bin) sufficient statistics.
+
+    ``cnt``, ``sx``, ``sxx`` ``(R, 2, nb)`` (counts, sums of ``x``, ``x^2``); ``sr``, ``sxr``
+    ``(..., R, 2, nb)`` (sums of ``r``, ``x r``; leading axes: sign-flip draws); ``rr (2,)``: sum of
+    ``r^2`` per fold; ``shrink (R,)``: pseudo-readings pulling bin means toward the trend.
+    """
+    out = np.zeros(sr.shape[:-2])
+    for a in (0, 1):  # fit on fold a, score on the other
+        b = 1 - a
+        na = cnt[:, a].sum(-1)
+        if na.min() < 10 or cnt[:, b].sum(-1).min() < 10:
+            return np.full(sr.shape[:-2], -np.inf)
+        mean_a = sr[..., a, :].sum(-1) / na
+        xm = sx[:, a].sum(-1) / na
+        slope = (sxr[..., a, :].sum(-1) - na * xm * mean_a) / (sxx[:, a].sum(-1) - na * xm**2 + 1.0)
+        rem = sr[..., a, :] - cnt[:, a] * mean_a[..., None] - slope[..., None] * (sx[:, a] - cnt[:, a] * xm[:, None])
+        alpha = (mean_a - slope * xm)[..., None] + rem / (cnt[:, a] + shrink[:, None])
+        beta = slope[..., None]
+        srb, sxrb = sr[..., b, :], sxr[..., b, :]
+        sse = rr[b] + np.sum(
+            -2 * alpha * srb
+            - 2 * beta * sxrb
+            + alpha**2 * cnt[:, b]
+            + 2 * alpha * beta * sx[:, b]
+            + beta**2 * sxx[:, b],
+            axis=-1,
+        )
+        sst = rr[b] - 2 * mean_a * srb.sum(-1) + cnt[:, b].sum(-1) * mean_a**2
+        out += 0.5 * (1.0 - sse / np.maximum(sst, 1e-300))
+    return out
+
+
+def _block_stats(
+    bins: NDArray, xs: NDArray | None, r: NDArray, fold: NDArray, block: NDArray, nb: int, n_blocks: int
+) -> tuple[NDArray, ...]:
+    """Sufficient statistics of rows ``bins (R, n)`` (+ ``xs``) against ``r``: fixed ones and per time block.
+
+    Returns ``cnt, sx, sxx`` ``(R, 2, nb)`` and ``sr_b, sxr_b`` ``(n_blocks, R, 2, nb)`` (sums of ``r`` and
+    ``x r`` within each block), so that any block sign-flip of ``r`` is a product with the flips.
+    """
+    k, n = bins.shape
+    size = k * 2 * nb
+    ids = (bins + nb * fold[None] + (np.arange(k) * 2 * nb)[:, None]).ravel()
+    idb = ids + size * np.tile(block, k)
+
+    def sums(w: NDArray | None, by_block: bool) -> NDArray[np.float64]:
+        wf = None if w is None else np.ravel(np.broadcast_to(w, (k, n)))
+        if by_block:
+            return np.asarray(np.bincount(idb, wf, size * n_blocks), dtype=np.float64).reshape(n_blocks, k, 2, nb)
+        return np.asarray(np.bincount(ids, wf, size), dtype=np.float64).reshape(k, 2, nb)
+
+    cnt = sums(None, False)
+    sr_b = sums(r[None], True)
+    if xs is None:
+        z = np.zeros_like(cnt)
+        return cnt, z, z, sr_b, np.zeros_like(sr_b)
+    return cnt, sums(xs, False), sums(xs * xs, False), sr_b, sums(xs * r[None], True)
+
+
+@dataclass
+class _Design:
+    """The regressors of one ranking: main rows (one per candidate) and interaction rows (candidate x state)."""
+
+    names: list[str]
+    main_bins: NDArray[np.int64]  # (C, n)
+    main_x: NDArray[np.float64]  # (C, n)
+    int_cbins: NDArray[np.int64]  # (C, n) coarse candidate bins
+    deff: NDArray[np.float64]  # (C,) readings per run of equal values (design effect of repeated values)
+    state_bins: list[NDArray[np.int64]]  # per state feature (n,)
+    state_names: list[str]
+
+
+def _design(cands: dict[str, NDArray], names: list[str], state: dict[str, NDArray]) -> _Design:
+    nc, ns = _INT_BINS
+    return _Design(
+        names=names,
+        main_bins=np.stack([bin_candidate(cands[c], _MAIN_BINS) for c in names]),
+        main_x=np.stack([_standardise(cands[c]) for c in names]),
+        int_cbins=np.stack([bin_candidate(cands[c], nc) for c in names]),
+        deff=np.array([_design_effect(cands[c]) for c in names]),
+        state_bins=[bin_candidate(v, ns) for v in state.values()],
+        state_names=list(state),
+    )
+
+
+def _design_effect(x: NDArray) -> float:
+    """Readings per independent unit of information in a candidate's values, in time order.
+
+    The mean run length of equal consecutive values (e.g. the bearings of a scan sharing a covariate)
+    times the AR(1) variance inflation ``(1 + rho) / (1 - rho)`` of the run values (capped at 20): a slow
+    candidate's bins gather neighbouring times, whose residuals share drift, so their means are noisier
+    than their counts suggest.
+    """
+    x = np.nan_to_num(np.asarray(x, dtype=np.float64), nan=np.inf)
+    change = np.flatnonzero(x[1:] != x[:-1]) + 1
+    runs = x[np.concatenate([[0], change])]
+    runs = runs[np.isfinite(runs)]
+    infl = 1.0
+    if runs.size > 10 and runs.std() > 0:
+        rho = float(np.clip(np.corrcoef(runs[1:], runs[:-1])[0, 1], 0.0, 0.95))
+        infl = min((1 + rho) / (1 - rho), 20.0)
+    return x.size / (1 + change.size) * infl
+
+
+def _within_instant(r: NDArray, instant: NDArray) -> NDArray[np.float64]:
+    """``r`` minus the mean of its time instant (where an instant has more than one reading)."""
+    _, inv, cnt = np.unique(instant, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    mean = np.bincount(inv, weights=r) / cnt
+    return np.where(cnt[inv] > 1, r - mean[inv], r)
+
+
+def n_flip_blocks(series: list[NDArray], chunks: int = 96) -> int:
+    """Blocks for the sign-flip test: each block at least twice the residuals' correlation length.
+
+    Each residual series (in time order) is averaged in ``chunks`` equal parts and freed of a linear
+    trend; the largest lag-1 autocorrelation ``rho`` of those means over the series gives a
+    correlation length of ``(1 + rho) / (1 - rho)`` chunks. At least :data:`MIN_BLOCKS`: with fewer,
+    no sign pattern is rare enough for p < 0.01.
+    """
+    length = 1.0
+    for r in series:
+        if r.size < 4 * chunks:
+            continue
+        m = np.array([c.mean() for c in np.array_split(r, chunks)])  # one mean per chunk
+        u = np.arange(chunks, dtype=np.float64)
+        m = m - np.polyval(np.polyfit(u, m, 1), u)  # a trend is a candidate's effect, not correlation
+        if m.std() > 0:
+            rho = float(np.clip(np.corrcoef(m[1:], m[:-1])[0, 1], 0.0, 0.98))
+            length = max(length, (1 + rho) / (1 - rho))
+    return int(np.clip(round(chunks / (2 * length)), MIN_BLOCKS, N_BLOCKS))
+
+
+def _free_of_state(r: NDArray, state_bins: list[NDArray], mask: NDArray, passes: int = 2) -> NDArray[np.float64]:
+    """``r`` freed of the state features' additive binned pattern (backfitting).
+
+    Misfit along the model's own state is then not credited to a candidate that correlates with the state.
+    """
+    out = np.asarray(r, dtype=np.float64).copy()
+    for _ in range(passes if state_bins else 0):
+        for sb in state_bins:
+            b = sb[mask]
+            s = np.bincount(b, weights=out, minlength=b.max() + 1)
+            c = np.bincount(b, minlength=b.max() + 1)
+            out -= (s / np.maximum(c, 1))[b]
+    return out
+
+
+def _all_stats(d: _Design, targets: list, n_blocks: tuple[int, int]) -> list[list[tuple[NDArray, ...]]]:
+    """Per target, per regressor (main, then each state interaction): the block statistics.
+
+    ``n_blocks``: blocks of the main regressors' and of the interactions' targets.
+    """
+    nc, ns = _INT_BINS
+    nbi = (nc + 1) * (ns + 1)
+    sh_main = _SHRINK * d.deff
+    sh_int = _SHRINK * np.maximum(1.0, d.deff / ns)
+    out = []
+    for r, mask, variants, fold, block, block_int in targets:
+        row = [
+            (
+                *_block_stats(d.main_bins[:, mask], d.main_x[:, mask], r, fold, block, _MAIN_BINS + 1, n_blocks[0]),
+                np.array([np.sum(r[fold == f] ** 2) for f in (0, 1)]),
+                sh_main,
+            )
+        ]
+        for sb, rv in zip(d.state_bins, variants, strict=True):
+            joint = d.int_cbins[:, mask] * (ns + 1) + sb[mask][None]
+            row.append(
+                (
+                    *_block_stats(joint, None, rv, fold, block_int, nbi, n_blocks[1]),
+                    np.array([np.sum(rv[fold == f] ** 2) for f in (0, 1)]),
+                    sh_int,
+                )
+            )
+        out.append(row)
+    return out
+
+
+def _scores(stats: list, flips: tuple[NDArray, NDArray], n_cand: int) -> NDArray[np.float64]:
+    """``(P, C, m, 1 + S)`` scores for block sign-flips of the residual targets.
+
+    ``flips``: ``(P, blocks)`` signs for the main regressors' targets and for the interactions' targets
+    (drawn independently: the max over cells is then, if anything, conservative).
+    """
+    m, f = len(stats), len(stats[0])
+    out = np.full((flips[0].shape[0], n_cand, m, f), -np.inf)
+    for j, row in enumerate(stats):
+        for g, (cnt, sx, sxx, sr_b, sxr_b, rr, shrink) in enumerate(row):
+            fl = flips[0] if g == 0 else flips[1]
+            sr = np.tensordot(fl, sr_b, axes=(1, 0))
+            sxr = np.tensordot(fl, sxr_b, axes=(1, 0))
+            out[:, :, j, g] = _r2_from_stats(cnt, sx, sxx, sr, sxr, rr, shrink)
+    return out
+
+
+@dataclass
+class Ranking:
+    """Candidate effects scored on one evaluation, best first (``refused``: candidates not tested, with why)."""
+
+    effects: list[dict[str, Any]]
+    alpha: float
+    min_score: float
+    n_permutations: int
+    refused: list[dict[str, str]]
+    n_blocks: int = 0
+
+    def significant(self) -> list[dict[str, Any]]:
+        """The effects with ``p_value < alpha`` and ``score >= min_score`` (proxies excluded), best first."""
+        return [e for e in self.effects if e["significant"]]
+
+
+def _refusal(x: NDArray) -> str | None:
+    """Why a candidate cannot be tested (too few distinct values), or ``None``."""
+    f = np.asarray(x, dtype=np.float64)
+    f = f[np.isfinite(f)]
+    if f.size == 0:
+        return "no finite value"
+    vals, counts = np.unique(f, return_counts=True)
+    if vals.size < 2:
+        return f"a single distinct value ({vals[0]:.6g})"
+    if counts.max() > 0.99 * f.size:
+        return f"{counts.max() / f.size:.1%} of its values equal {vals[np.argmax(counts)]:.6g}"
+    return None
+
+
+def _cond(d: _Design, i: int, j: int, r: NDArray, mask: NDArray, fold: NDArray) -> float:
+    """Held-out ``R^2`` that candidate ``i``'s main regressor adds once ``j``'s is removed (relative to ``j``'s SSE)."""
+    out = 0.0
+    for a in (0, 1):
+        fa, fb = fold == a, fold == 1 - a
+        pj = _fit_predict(d.main_bins[j, mask], d.main_x[j, mask], r, fa, _SHRINK * d.deff[j])
+        u = r - pj
+        pi = _fit_predict(d.main_bins[i, mask], d.main_x[i, mask], u, fa, _SHRINK * d.deff[i])
+        sse_j = np.sum(u[fb] ** 2)
+        sse_ij = np.sum((u[fb] - pi[fb]) ** 2)
+        out += 0.5 * (1 - sse_ij / max(sse_j, 1e-300))
+    return float(out)
+
+
+def _fit_predict(bins: NDArray, x: NDArray, r: NDArray, fa: NDArray, shrink: float) -> NDArray[np.float64]:
+    """The main regressor (trend + binned correction) fitted on ``fa``, predicted at every reading."""
+    ra = r[fa]
+    m = ra.mean()
+    xm = x[fa].mean()
+    slope = float((x[fa] - xm) @ (ra - m) / (np.sum((x[fa] - xm) ** 2) + 1.0))
+    rem = ra - m - slope * (x[fa] - xm)
+    nb = int(bins.max()) + 1
+    s = np.bincount(bins[fa], weights=rem, minlength=nb)
+    c = np.bincount(bins[fa], minlength=nb)
+    return m + slope * (x - xm) + (s / (c + shrink))[bins]
+
+
+def rank_candidates(
+    ev: Any,
+    exclude: tuple[str, ...] = (),
+    *,
+    n_permutations: int = 199,
+    alpha: float = 0.05,
+    min_score: float = 0.001,
+    max_readings: int = 20_000,
+    rng: np.random.Generator | None = None,
+    progress: bool = False,
+) -> Ranking:
+    """Score every candidate of ``ev`` (except ``exclude``) on every residual target; block sign-flip test.
+
+    Args:
+        ev: held-out :class:`~sensor_envs.diagnose.core.Evaluation`.
+        exclude: candidate names not to rank (e.g. already in the model's state).
+        n_permutations: block sign-flips (p-values resolve down to ``1 / (P + 1)``).
+        alpha: family-wise level of the max-T adjusted p-value.
+        min_score: minimum held-out ``R^2`` of a significant effect.
+        max_readings: readings used (an even subsample in time order beyond this).
+        rng: generator of the flips (default seed 0).
+        progress: tqdm bar over the flips.
+
+    Returns:
+        The :class:`Ranking`; each effect dict holds ``name``, ``score``, ``p_value``, ``p_raw``,
+        ``metric``, ``kind`` (the metric's kind), ``form`` (``main`` or ``x <state feature>``),
+        ``metric_scores``, ``significant``, ``proxy_of``.
+    """
+    rng = rng if rng is not None else np.random.default_rng(0)
+    order = np.asarray(ev.order if getattr(ev, "order", None) is not None else ev.blocks, dtype=np.float64)
+    idx = np.argsort(order, kind="stable")
+    if idx.size > max_readings:
+        idx = idx[np.linspace(0, idx.size - 1, max_readings).astype(np.int64)]
+    refused = []
+    names = []
+    for c in ev.candidates:
+        if c in exclude:
+            continue
+        why = _refusal(ev.candidates[c][idx])
+        if why is None:
+            names.append(c)
+        else:
+            refused.append({"name": c, "reason": f"not tested: {why}"})
+    if not names:
+        return Ranking([], alpha, min_score, n_permutations, refused)
+    cands = {c: np.asarray(ev.candidates[c], dtype=np.float64)[idx] for c in names}
+    state = {s: np.asarray(v, dtype=np.float64)[idx] for s, v in getattr(ev, "state", {}).items()}
+    d = _design(cands, names, state)
+    fold_all = time_folds(order[idx])
+    rank = np.argsort(np.argsort(order[idx], kind="stable"), kind="stable")
+    instant = np.floor(order[idx])  # readings of one time instant (a scan, a radar cycle)
+    metrics = list(ev.residuals)
+    kinds = getattr(ev, "metric_kinds", {}) or {}
+    freed, within = [], []
+    for m in metrics:
+        r = np.asarray(ev.residuals[m], dtype=np.float64)[idx]
+        mask = np.isfinite(r) & (fold_all >= 0)
+        rc = r[mask] - r[mask].mean()  # centred: a sign flip must not create structure from the mean
+        rc = _free_of_state(rc, d.state_bins, mask)
+        freed.append((rc, mask))
+        within.append(_within_instant(rc, instant[mask]))
+    # main regressors see drift shared by an instant's readings; interactions see the within-instant part
+    n_blocks = (n_flip_blocks([f[0] for f in freed]), n_flip_blocks(within))
+    blocks = [(rank * b // max(rank.size, 1)).astype(np.int64) for b in n_blocks]
+    targets = [
+        (rc, mask, [w] * len(d.state_bins), fold_all[mask], blocks[0][mask], blocks[1][mask])
+        for (rc, mask), w in zip(freed, within, strict=True)
+    ]
+    stats = _all_stats(d, targets, n_blocks)
+    obs = _scores(stats, (np.ones((1, n_blocks[0])), np.ones((1, n_blocks[1]))), len(names))[0]  # (C, m, 1 + S)
+    perm = np.empty((n_permutations, *obs.shape))
+    bar = tqdm(total=n_permutations, disable=not progress, desc="block sign-flip test")
+    for p0 in range(0, n_permutations, 50):  # batches of flips, vectorised inside
+        k = min(50, n_permutations - p0)
+        fl = (rng.choice([-1.0, 1.0], size=(k, n_blocks[0])), rng.choice([-1.0, 1.0], size=(k, n_blocks[1])))
+        perm[p0 : p0 + k] = _scores(stats, fl, len(names))
+        bar.update(k)
+    bar.close()
+    # studentise every (candidate, target, regressor) cell by its own null distribution, then max-T
+    finite = np.isfinite(perm).all(axis=0) & np.isfinite(obs)
+    # centre and scale of each cell's null from its upper tail (median, 95th percentile): the scores
+    # are skewed (an overfitting regressor's R^2 is bounded above by chance alignment, not below)
+    q50, q95 = np.percentile(np.nan_to_num(perm, neginf=0.0), [50, 95], axis=0)
+    mu = np.where(finite, q50, 0.0)
+    sd = np.where(finite, (q95 - q50) / 1.645, 1.0)
+    # floor: half the median spread of the same (target, regressor) over the candidates, so a degenerate
+    # cell (e.g. time's interaction cells, which cannot carry over between time segments) cannot dominate
+    med = np.array(
+        [
+            [np.median(sd[:, j, f][finite[:, j, f]]) if finite[:, j, f].any() else 0.0 for f in range(sd.shape[2])]
+            for j in range(sd.shape[1])
+        ]
+    )
+    sd = np.maximum(sd, np.maximum(0.5 * med[None], 1e-9))
+    z_obs = np.where(finite, (obs - mu) / sd, -np.inf).reshape(len(names), -1)
+    z_perm = np.where(finite[None], (np.nan_to_num(perm) - mu) / sd, -np.inf).reshape(n_permutations, len(names), -1)
+    best_z = z_obs.max(axis=1)
+    perm_best = z_perm.max(axis=2)  # (P, C)
+    p_raw = (1 + np.sum(perm_best >= best_z[None], axis=0)) / (1 + n_permutations)
+    p_adj = (1 + np.sum(perm_best.max(axis=1)[:, None] >= best_z[None], axis=0)) / (1 + n_permutations)
+    forms = ["main", *(f"x {s}" for s in d.state_names)]
+    effects: list[dict[str, Any]] = []
+    for i, c in enumerate(names):
+        j, f = np.unravel_index(int(np.argmax(z_obs[i])), obs[i].shape)
+        score = float(obs[i, j, f])
+        effects.append(
+            {
+                "name": c,
+                "score": score,
+                "z": float(best_z[i]),
+                "p_value": float(p_adj[i]),
+                "p_raw": float(p_raw[i]),
+                "metric": metrics[j],
+                "kind": kinds.get(metrics[j], "mean"),
+                "form": forms[f],
+                "metric_scores": {m: float(obs[i, jj].max()) for jj, m in enumerate(metrics)},
+                "significant": bool(p_adj[i] < alpha and score >= min_score),
+                "proxy_of": None,
+            }
+        )
+    _settle_forms(effects, obs, d, targets, metrics, forms, alpha)
+    _mark_proxies(effects, d, names, targets, metrics)
+    effects.sort(key=lambda e: (e["proxy_of"] is not None, not e["significant"], -float(e["z"])))
+    return Ranking(effects, alpha, min_score, n_permutations, refused, n_blocks[0])
+
+
+def _interaction_gain(d: _Design, i: int, s: int, r: NDArray, mask: NDArray, fold: NDArray) -> float:
+    """Held-out ``R^2`` the candidate x state grid adds beyond the candidate's main effect and the state's pattern."""
+    nc, ns = _INT_BINS
+    sb = d.state_bins[s][mask]
+    joint = d.int_cbins[i, mask] * (ns + 1) + sb
+    out = 0.0
+    for a in (0, 1):
+        fa, fb = fold == a, fold == 1 - a
+        u = r - _fit_predict(d.main_bins[i, mask], d.main_x[i, mask], r, fa, _SHRINK * d.deff[i])
+        st = np.bincount(sb[fa], weights=u[fa], minlength=ns + 1) / np.maximum(np.bincount(sb[fa], minlength=ns + 1), 1)
+        u = u - st[sb]
+        size = (nc + 1) * (ns + 1)
+        g = np.bincount(joint[fa], weights=u[fa], minlength=size) / (
+            np.bincount(joint[fa], minlength=size) + _SHRINK * max(1.0, d.deff[i] / ns)
+        )
+        out += 0.5 * (1 - np.sum((u[fb] - g[joint[fb]]) ** 2) / max(np.sum(u[fb] ** 2), 1e-300))
+    return float(out)
+
+
+def _settle_forms(
+    effects: list[dict[str, Any]], obs: NDArray, d: _Design, targets: list, metrics: list, forms: list, alpha: float
+) -> None:
+    """An effect found through an interaction regressor keeps that form only if the grid adds to its main effect.
+
+    Otherwise (a main effect that the interaction grid also fits) the form is ``main`` on the same target.
+    """
+    for i, e in enumerate(effects):
+        if e["form"] == "main" or not e["p_raw"] < max(alpha, 0.05):
+            continue
+        j = metrics.index(e["metric"])
+        r, mask, _, fold, _b, _bi = targets[j]
+        s = forms.index(e["form"]) - 1
+        gain = _interaction_gain(d, i, s, r, mask, fold)
+        e["interaction_gain"] = gain
+        main = float(obs[i, j, 0])
+        if gain < max(0.001, 0.1 * max(main, 0.0)):
+            e["form"], e["score"] = "main", max(main, e["score"] if main <= 0 else main)
+
+
+def _mark_proxies(effects: list[dict[str, Any]], d: _Design, names: list[str], targets: list, metrics: list) -> None:
+    """Mark a top candidate whose effect another top candidate explains (``proxy_of``; no longer significant)."""
+    top = sorted(range(len(effects)), key=lambda i: -effects[i]["z"])[:_TOP_COND]
+    top = [i for i in top if effects[i]["p_raw"] < 0.05 and effects[i]["form"] == "main"]
+    for i in top:
+        ei = effects[i]
+        r, mask, _, fold, _b, _bi = targets[metrics.index(ei["metric"])]
+        for j in top:
+            if j == i or effects[j]["proxy_of"] is not None:
+                continue
+            ci = _cond(d, i, j, r, mask, fold)
+            cj = _cond(d, j, i, r, mask, fold)
+            if ci < 0.2 * ei["score"] and cj > ci:
+                ei["proxy_of"] = names[j]
+                ei["conditional_score"] = ci
+                ei["significant"] = False
+                break
