@@ -164,6 +164,13 @@ INT_RANGES: dict[str, tuple[int, int]] = {
     "steps": (1, 100_000),
     "configs": (1, 100_000),
     "draws": (1, 10_000),
+    "seed": (0, 2**63 - 1),
+    "seed0": (0, 2**63 - 1),
+    "seeds": (1, 1_000),
+    "workers": (1, 1_024),
+    "block": (1, 100_000),
+    "chains": (1, 10_000),
+    "n_boot": (1, 100_000),
 }
 """Declared range of every integer option (by ``dest``): counts have upper bounds (``--repeats 1e9`` is refused)."""
 FLOAT_RANGES: dict[str, tuple[float, float]] = {
