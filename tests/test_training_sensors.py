@@ -134,8 +134,40 @@ def test_tiny_highway_matrix_trains_and_evaluates_the_radar_variants(tmp_path):
     assert "| kde_tracks |" in md and "SHA-256" in md
     digests = json.loads((out / "matrix.json").read_text())["run"]["sha256"]
     assert set(digests["policies"]) == {"kde_drop/seed0/final_model.zip", "kde_tracks/seed0/final_model.zip"}
-    assert all(len(d) == 64 for d in digests["policies"].values())
+    assert all(len(d) == 64 for d in digests["policies"].values()) and digests["hashed_at"] == "jobs"
     assert set(digests["sensor_models"]) == {
+        "radar_gaussian.npz",
+        "radar_kde.npz",
+        "radar_object_clutter.json",
+        "radar_rig.json",
+    }
+
+
+def _fake_job(out, row, seed, sensor_hashes, policy=b"policy"):
+    job = out / "runs" / row / f"seed{seed}"
+    job.mkdir(parents=True)
+    (job / "final_model.zip").write_bytes(policy)
+    record = {} if sensor_hashes is None else {"sensor_models_sha256": sensor_hashes}
+    (job / "eval.json").write_text(json.dumps(record))
+
+
+def test_model_hashes_come_from_the_jobs_and_flag_jobs_that_used_other_models(tmp_path):
+    import hashlib
+
+    _fake_job(tmp_path, "ideal", 0, {"radar_kde.npz": "a"})
+    _fake_job(tmp_path, "kde_tracks", 0, {"radar_kde.npz": "a"}, policy=b"other")
+    got = robustness.model_hashes("highway", tmp_path, ["ideal", "kde_tracks"], [0], {})
+    assert got["hashed_at"] == "jobs" and got["sensor_models"] == {"radar_kde.npz": "a"}
+    assert "sensor_models_by_job" not in got
+    assert got["policies"]["kde_tracks/seed0/final_model.zip"] == hashlib.sha256(b"other").hexdigest()
+    _fake_job(tmp_path, "ideal", 1, {"radar_kde.npz": "b"})  # a resumed run after the model changed
+    _fake_job(tmp_path, "kde_tracks", 1, {"radar_kde.npz": "a"})
+    got = robustness.model_hashes("highway", tmp_path, ["ideal", "kde_tracks"], [0, 1], {})
+    assert got["sensor_models_by_job"]["ideal/seed1"] == {"radar_kde.npz": "b"}
+    _fake_job(tmp_path, "ideal", 2, None)  # a job from before jobs recorded them: hashed at report time
+    _fake_job(tmp_path, "kde_tracks", 2, None)
+    got = robustness.model_hashes("highway", tmp_path, ["ideal"], [2], {})
+    assert got["hashed_at"] == "report" and set(got["sensor_models"]) == {
         "radar_gaussian.npz",
         "radar_kde.npz",
         "radar_object_clutter.json",

@@ -228,6 +228,7 @@ def run_job(spec: dict[str, Any]) -> dict[str, Any]:
         for col in spec["columns"]
     }
     result = {"spec": spec, "train_seconds": train_s, "eval_seconds": time.perf_counter() - t0 - train_s}
+    result["sensor_models_sha256"] = sensor_model_hashes(domain, spec["real_models"])
     result["cells"] = cells
     _write_atomic(run_dir / "eval.json", json.dumps(result, indent=1))
     _write_atomic(run_dir / "done", "done\n")
@@ -372,9 +373,15 @@ def write_reports(out: Path, matrix: dict[str, Any], meta: dict[str, Any]) -> No
         "",
     ]
     if "sha256" in meta:
-        lines += [f"Report written {meta['date_utc']}. SHA-256 of the files used:", ""]
+        digests = meta["sha256"]
+        when = (
+            "as the jobs recorded them" if digests.get("hashed_at") == "jobs" else "hashed when the report was written"
+        )
+        if "sensor_models_by_job" in digests:
+            when += "; the jobs used DIFFERENT sensor models (matrix.json: sensor_models_by_job)"
+        lines += [f"Report written {meta['date_utc']}. SHA-256 of the sensor models ({when}) and policies:", ""]
         for group in ("sensor_models", "policies"):
-            lines += [f"- {name}: `{digest}`" for name, digest in meta["sha256"][group].items()]
+            lines += [f"- {name}: `{digest}`" for name, digest in digests[group].items()]
         lines.append("")
     for m in matrix["metrics"]:
         stat = headline(m)
@@ -425,20 +432,34 @@ def sha256(path: Path) -> str | None:
     return digest.hexdigest()
 
 
-def model_hashes(
-    domain: str, out: Path, rows: list[str], seeds: list[int], real_models: dict[str, str]
-) -> dict[str, dict[str, str | None]]:
-    """SHA-256 of the shipped sensor models the domain's envs load, the real-data models and every policy."""
+def sensor_model_hashes(domain: str, real_models: dict[str, str]) -> dict[str, str | None]:
+    """SHA-256 of the shipped sensor models the domain's envs load and of the real-data models."""
     from sensor_envs.modelio import default_model_path
 
-    sensors = {name: sha256(default_model_path(name)) for name in DOMAINS[domain]["model_files"]}
-    sensors.update({Path(path).name: sha256(Path(path)) for path in real_models.values()})
-    policies = {
-        f"{r}/seed{s}/final_model.zip": sha256(out / "runs" / r / f"seed{s}" / "final_model.zip")
-        for r in rows
-        for s in seeds
-    }
-    return {"sensor_models": sensors, "policies": policies}
+    hashes = {name: sha256(default_model_path(name)) for name in DOMAINS[domain]["model_files"]}
+    hashes.update({Path(path).name: sha256(Path(path)) for path in real_models.values()})
+    return hashes
+
+
+def model_hashes(
+    domain: str, out: Path, rows: list[str], seeds: list[int], real_models: dict[str, str]
+) -> dict[str, Any]:
+    """SHA-256 of the sensor models the jobs used and of every policy.
+
+    The sensor models' hashes are the ones the jobs recorded when they ran (``hashed_at: "jobs"``; a
+    ``sensor_models_by_job`` entry when jobs disagree, e.g. a resumed run after a model changed); jobs
+    written before jobs recorded them are hashed now (``hashed_at: "report"``).
+    """
+    jobs = {f"{r}/seed{s}": out / "runs" / r / f"seed{s}" for r in rows for s in seeds}
+    recorded = {k: json.loads((d / "eval.json").read_text()).get("sensor_models_sha256") for k, d in jobs.items()}
+    policies = {f"{k}/final_model.zip": sha256(d / "final_model.zip") for k, d in jobs.items()}
+    if any(v is None for v in recorded.values()):
+        return {"hashed_at": "report", "sensor_models": sensor_model_hashes(domain, real_models), "policies": policies}
+    distinct = {json.dumps(v, sort_keys=True) for v in recorded.values()}
+    result: dict[str, Any] = {"hashed_at": "jobs", "sensor_models": next(iter(recorded.values())), "policies": policies}
+    if len(distinct) > 1:
+        result["sensor_models_by_job"] = recorded
+    return result
 
 
 # ---------------------------------------------------------------------------------------------- real data
