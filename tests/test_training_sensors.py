@@ -173,3 +173,13 @@ def test_model_hashes_come_from_the_jobs_and_flag_jobs_that_used_other_models(tm
         "radar_object_clutter.json",
         "radar_rig.json",
     }
+
+
+def test_a_model_file_set_in_the_config_is_hashed_by_its_path(tmp_path):
+    import hashlib
+
+    model = tmp_path / "radar_kde.npz"  # same name as the shipped model: must not hide it
+    model.write_bytes(b"not the shipped model")
+    got = robustness.sensor_model_hashes("highway", {str(model): str(model)})
+    assert got[str(model)] == hashlib.sha256(b"not the shipped model").hexdigest()
+    assert got["radar_kde.npz"] != got[str(model)]

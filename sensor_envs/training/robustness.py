@@ -137,6 +137,8 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
         },
     },
 }
+MODEL_KWARGS = ("radar_model", "model")
+"""Env keywords that name a sensor model file (hashed with the shipped ones when a config sets them)."""
 EVAL_SEED = 1_000_000  # evaluation episode e of every cell resets with seed EVAL_SEED + e
 
 
@@ -228,7 +230,11 @@ def run_job(spec: dict[str, Any]) -> dict[str, Any]:
         for col in spec["columns"]
     }
     result = {"spec": spec, "train_seconds": train_s, "eval_seconds": time.perf_counter() - t0 - train_s}
-    result["sensor_models_sha256"] = sensor_model_hashes(domain, spec["real_models"])
+    kwargs = [cfg.get("env_kwargs") or {}] + [
+        column_kwargs(domain, col, spec["real_models"], spec["config"]) for col in spec["columns"]
+    ]
+    given = {str(k[key]) for k in kwargs for key in MODEL_KWARGS if isinstance(k.get(key), str)}
+    result["sensor_models_sha256"] = sensor_model_hashes(domain, {**spec["real_models"], **{p: p for p in given}})
     result["cells"] = cells
     _write_atomic(run_dir / "eval.json", json.dumps(result, indent=1))
     _write_atomic(run_dir / "done", "done\n")
@@ -433,11 +439,15 @@ def sha256(path: Path) -> str | None:
 
 
 def sensor_model_hashes(domain: str, real_models: dict[str, str]) -> dict[str, str | None]:
-    """SHA-256 of the shipped sensor models the domain's envs load and of the real-data models."""
+    """SHA-256 of the sensor model files a job uses.
+
+    The shipped models the domain's envs load are keyed by file name, every file of ``real_models`` (any
+    model file a job used besides the shipped ones) by its path.
+    """
     from sensor_envs.modelio import default_model_path
 
     hashes = {name: sha256(default_model_path(name)) for name in DOMAINS[domain]["model_files"]}
-    hashes.update({Path(path).name: sha256(Path(path)) for path in real_models.values()})
+    hashes.update({str(path): sha256(Path(path)) for path in real_models.values()})
     return hashes
 
 
