@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 from numpy.typing import NDArray
 
 from sensor_envs.training import stats
@@ -48,6 +49,8 @@ __all__ = [
     "PRESETS",
     "DEFAULT_CONFIG",
     "UsageError",
+    "column_kwargs",
+    "sensor_names",
     "run_job",
     "run_jobs",
     "build_matrix",
@@ -64,12 +67,14 @@ DOMAINS: dict[str, dict[str, Any]] = {
         "env_id": "sensor_envs/Neato-v0",
         "sensors": ["ideal", "gaussian", "learned"],
         "real": "learned-real",
+        "model_files": ["neato_lidar.npz", "neato_rig.json"],
         "metrics": ["success", "collision", "return"],
     },
     "highway": {
         "env_id": "sensor_envs/HighwayFast-v0",
         "sensors": ["ideal", "gaussian", "kde"],
         "real": "kde-astyx",
+        "model_files": ["radar_gaussian.npz", "radar_kde.npz", "radar_object_clutter.json", "radar_rig.json"],
         "metrics": ["return", "collision"],
     },
 }
@@ -132,6 +137,8 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
         },
     },
 }
+MODEL_KWARGS = ("radar_model", "model")
+"""Env keywords that name a sensor model file (hashed with the shipped ones when a config sets them)."""
 EVAL_SEED = 1_000_000  # evaluation episode e of every cell resets with seed EVAL_SEED + e
 
 
@@ -140,13 +147,31 @@ class UsageError(ValueError):
 
 
 # ---------------------------------------------------------------------------------------------- a job
-def column_kwargs(domain: str, column: str, real_models: dict[str, str]) -> dict[str, Any]:
-    """Env keyword arguments for evaluation column ``column``."""
+def column_kwargs(
+    domain: str, column: str, real_models: dict[str, str], config: str | Path = DEFAULT_CONFIG
+) -> dict[str, Any]:
+    """Env keyword arguments for evaluation column ``column``.
+
+    A name of the config's ``sensors`` table gets that entry (over the block's ``env_kwargs``, as for
+    training: :func:`sensor_envs.training.train.sensor_kwargs`); the real-data column the fitted model.
+    """
+    from sensor_envs.training import train as train_mod
+
+    env_id = DOMAINS[domain]["env_id"]
     if column == DOMAINS[domain]["real"]:
         if domain == "neato":
             return {"lidar": "learned", "model": real_models[column]}
         return {"radar": "kde", "radar_model": real_models[column]}
-    return {("lidar" if domain == "neato" else "radar"): column}
+    return dict(train_mod.load_config(Path(config), env_id, [], sensor=column)["env_kwargs"])
+
+
+def sensor_names(domain: str, config: str | Path) -> list[str]:
+    """The rows and columns a matrix may use: the domain's defaults, then the config's ``sensors`` table."""
+    from sensor_envs.training import train as train_mod
+
+    cfg = train_mod.load_config(Path(config), DOMAINS[domain]["env_id"], [])
+    names = list(DOMAINS[domain]["sensors"])
+    return names + [n for n in train_mod.sensor_table(cfg) if n not in names]
 
 
 def evaluate(model: Any, env_id: str, kwargs: dict[str, Any], episodes: int, max_steps: int | None) -> dict[str, list]:
@@ -186,6 +211,8 @@ def run_job(spec: dict[str, Any]) -> dict[str, Any]:
         overrides.append(f"hyperparams={json.dumps(spec['hyperparams'])}")
     cfg = train_mod.load_config(Path(spec["config"]), env_id, overrides, algo=spec["algo"], sensor=spec["sensor"])
     cfg["device"] = spec["device"]
+    resolved = {"env_id": env_id, "seed": spec["seed"], "sensor": spec["sensor"], "config": cfg}
+    _write_atomic(run_dir / "config.json", json.dumps(resolved, indent=1))
     t0 = time.perf_counter()
     train_mod.train(env_id, cfg, run_dir, spec["seed"], progress_bar=False)
     train_s = time.perf_counter() - t0
@@ -196,13 +223,18 @@ def run_job(spec: dict[str, Any]) -> dict[str, Any]:
         col: evaluate(
             model,
             env_id,
-            column_kwargs(domain, col, spec["real_models"]),
+            column_kwargs(domain, col, spec["real_models"], spec["config"]),
             spec["eval_episodes"],
             spec["max_episode_steps"],
         )
         for col in spec["columns"]
     }
     result = {"spec": spec, "train_seconds": train_s, "eval_seconds": time.perf_counter() - t0 - train_s}
+    kwargs = [cfg.get("env_kwargs") or {}] + [
+        column_kwargs(domain, col, spec["real_models"], spec["config"]) for col in spec["columns"]
+    ]
+    given = {str(k[key]) for k in kwargs for key in MODEL_KWARGS if isinstance(k.get(key), str)}
+    result["sensor_models_sha256"] = sensor_model_hashes(domain, {**spec["real_models"], **{p: p for p in given}})
     result["cells"] = cells
     _write_atomic(run_dir / "eval.json", json.dumps(result, indent=1))
     _write_atomic(run_dir / "done", "done\n")
@@ -346,6 +378,17 @@ def write_reports(out: Path, matrix: dict[str, Any], meta: dict[str, Any]) -> No
         f"Command: `{meta['command']}`",
         "",
     ]
+    if "sha256" in meta:
+        digests = meta["sha256"]
+        when = (
+            "as the jobs recorded them" if digests.get("hashed_at") == "jobs" else "hashed when the report was written"
+        )
+        if "sensor_models_by_job" in digests:
+            when += "; the jobs used DIFFERENT sensor models (matrix.json: sensor_models_by_job)"
+        lines += [f"Report written {meta['date_utc']}. SHA-256 of the sensor models ({when}) and policies:", ""]
+        for group in ("sensor_models", "policies"):
+            lines += [f"- {name}: `{digest}`" for name, digest in digests[group].items()]
+        lines.append("")
     for m in matrix["metrics"]:
         stat = headline(m)
         lines += [f"## {m} ({stat.upper() if stat == 'iqm' else stat})", ""]
@@ -382,6 +425,53 @@ def write_reports(out: Path, matrix: dict[str, Any], meta: dict[str, Any]) -> No
     os.replace(tmp, out / "matrix.png")
 
 
+def sha256(path: Path) -> str | None:
+    """SHA-256 of a file in 1 MiB blocks (``None`` when it is absent)."""
+    import hashlib
+
+    if not path.is_file():
+        return None
+    digest = hashlib.sha256()
+    with path.open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def sensor_model_hashes(domain: str, real_models: dict[str, str]) -> dict[str, str | None]:
+    """SHA-256 of the sensor model files a job uses.
+
+    The shipped models the domain's envs load are keyed by file name, every file of ``real_models`` (any
+    model file a job used besides the shipped ones) by its path.
+    """
+    from sensor_envs.modelio import default_model_path
+
+    hashes = {name: sha256(default_model_path(name)) for name in DOMAINS[domain]["model_files"]}
+    hashes.update({str(path): sha256(Path(path)) for path in real_models.values()})
+    return hashes
+
+
+def model_hashes(
+    domain: str, out: Path, rows: list[str], seeds: list[int], real_models: dict[str, str]
+) -> dict[str, Any]:
+    """SHA-256 of the sensor models the jobs used and of every policy.
+
+    The sensor models' hashes are the ones the jobs recorded when they ran (``hashed_at: "jobs"``; a
+    ``sensor_models_by_job`` entry when jobs disagree, e.g. a resumed run after a model changed); jobs
+    written before jobs recorded them are hashed now (``hashed_at: "report"``).
+    """
+    jobs = {f"{r}/seed{s}": out / "runs" / r / f"seed{s}" for r in rows for s in seeds}
+    recorded = {k: json.loads((d / "eval.json").read_text()).get("sensor_models_sha256") for k, d in jobs.items()}
+    policies = {f"{k}/final_model.zip": sha256(d / "final_model.zip") for k, d in jobs.items()}
+    if any(v is None for v in recorded.values()):
+        return {"hashed_at": "report", "sensor_models": sensor_model_hashes(domain, real_models), "policies": policies}
+    distinct = {json.dumps(v, sort_keys=True) for v in recorded.values()}
+    result: dict[str, Any] = {"hashed_at": "jobs", "sensor_models": next(iter(recorded.values())), "policies": policies}
+    if len(distinct) > 1:
+        result["sensor_models_by_job"] = recorded
+    return result
+
+
 # ---------------------------------------------------------------------------------------------- real data
 def fit_real_models(domain: str, data: Path, out: Path) -> dict[str, str]:
     """Fit the real-data sensor model once and cache it in ``<out>/real_models/``; returns column -> path."""
@@ -416,14 +506,30 @@ def fit_real_models(domain: str, data: Path, out: Path) -> dict[str, str]:
 def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """The job specs of the matrix and the settings that define the output folder."""
     preset = PRESETS[args.preset][args.domain]
-    rows = list(DOMAINS[args.domain]["sensors"])
-    columns = rows + list(real_models)  # every sensor is evaluated, whichever rows are trained
-    if args.sensors:
-        bad = sorted(set(args.sensors) - set(rows))
+    try:
+        known = sensor_names(args.domain, args.config)
+    except ValueError as err:  # ConfigError
+        raise UsageError(f"--config: {err}") from None
+    rows = list(args.sensors or DOMAINS[args.domain]["sensors"])
+    for flag, names in (("--sensors", rows), ("--columns", args.columns or [])):
+        bad = sorted(set(names) - set(known))
         if bad:
-            raise UsageError(f"--sensors: unknown {bad} for domain {args.domain!r}; choose from {rows}")
-        rows = [r for r in rows if r in args.sensors]
+            raise UsageError(f"{flag}: unknown {bad} for domain {args.domain!r}; choose from {known}")
+    # every default sensor and every trained row is evaluated unless --columns names the columns
+    columns = list(
+        args.columns or DOMAINS[args.domain]["sensors"] + [r for r in rows if r not in DOMAINS[args.domain]["sensors"]]
+    )
+    columns += list(real_models)
     seeds = list(range(args.seed0, args.seed0 + (args.seeds or preset["seeds"])))
+    train_set = dict(preset["set"])
+    for item in args.set:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise UsageError(f"--set {item!r}: expected key=value")
+        train_set[key] = yaml.safe_load(value)
+    eval_episodes = preset["eval_episodes"] if args.eval_episodes is None else args.eval_episodes
+    if eval_episodes < 1:
+        raise UsageError(f"--eval-episodes: must be >= 1, got {eval_episodes}")
     algo = args.algo or preset.get("algo")  # the preset's algorithm unless --algo names one
     settings = {
         "domain": args.domain,
@@ -432,9 +538,9 @@ def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[di
         "seeds": seeds,
         "rows": rows,
         "columns": columns,
-        "eval_episodes": preset["eval_episodes"],
+        "eval_episodes": eval_episodes,
         "max_episode_steps": preset["max_episode_steps"],
-        "set": preset["set"],
+        "set": train_set,
         "hyperparams": preset["hyperparams"],
         "config": str(Path(args.config).resolve()),
     }
@@ -468,7 +574,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--address", default=None, help="Ray cluster address (default: start a local instance)")
     parser.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 2)), help="parallel jobs (local)")
     parser.add_argument("--algo", default=None, help="algorithm block of the config (default: the env's algo)")
-    parser.add_argument("--sensors", nargs="+", default=None, help="training sensors (rows); default: all")
+    parser.add_argument(
+        "--sensors",
+        nargs="+",
+        default=None,
+        help="training sensors (rows): the domain's or the config's `sensors` names",
+    )
+    parser.add_argument(
+        "--columns", nargs="+", default=None, help="evaluation sensors (columns); default: the domain's and the rows"
+    )
+    parser.add_argument(
+        "--eval-episodes", type=int, default=None, help="episodes per seed and cell (default: preset's)"
+    )
+    parser.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="override a training config entry of the preset"
+    )
     parser.add_argument("--seeds", type=int, default=None, help="number of seeds (default: the preset's)")
     parser.add_argument("--seed0", type=int, default=0, help="first training seed (default 0)")
     parser.add_argument("--device", default="auto", help="torch device: auto (default), cpu, cuda, ...")
@@ -540,6 +660,8 @@ def _run(args: argparse.Namespace, argv: list[str]) -> dict[str, Any]:
         "jobs_run": len(todo),
         "wall_seconds": time.perf_counter() - t0,
         "command": " ".join(["sensor-envs", "robustness", *argv]),
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "sha256": model_hashes(args.domain, args.out, settings["rows"], settings["seeds"], real),
     }
     write_reports(args.out, matrix, meta)
     print((args.out / "matrix.md").read_text())

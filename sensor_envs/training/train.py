@@ -36,6 +36,8 @@ __all__ = [
     "DEFAULT_CONFIG",
     "ConfigError",
     "load_config",
+    "sensor_table",
+    "sensor_kwargs",
     "make_env",
     "train",
     "add_arguments",
@@ -57,6 +59,7 @@ KEYS = {
     "vec_env",
     "device",
     "algos",
+    "sensors",
 }
 ALGO_KEYS = {"policy", "hyperparams", "n_timesteps", "n_envs", "eval_freq", "eval_episodes"}
 DEFAULT_CONFIG = Path(__file__).with_name("configs") / "default.yaml"
@@ -83,13 +86,45 @@ def sensor_key(env_id: str) -> str:
     return "lidar" if "Neato" in env_id else "radar"
 
 
+def sensor_table(cfg: dict[str, Any], where: str = "config") -> dict[str, dict[str, Any]]:
+    """The named sensors of an env's config block (``sensors:``): name -> env keyword arguments.
+
+    Raises :class:`ConfigError` naming ``where`` when the table or an entry is not a mapping.
+    """
+    table = cfg.get("sensors") or {}
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: sensors must be a mapping of name -> env keyword arguments, got {table!r}")
+    for name, kwargs in table.items():
+        if not isinstance(kwargs, dict) or not kwargs:
+            raise ConfigError(f"{where}: sensors.{name} must be a non-empty mapping of env keyword arguments")
+    return table
+
+
+def sensor_kwargs(cfg: dict[str, Any], env_id: str, sensor: str, where: str = "config") -> dict[str, Any]:
+    """``cfg``'s ``env_kwargs`` with the sensor ``sensor`` selected.
+
+    A name of the block's ``sensors`` table replaces every keyword any entry of the table sets (so
+    ``kde_tracks`` after a config default of ``radar: ideal`` carries no stale option, and ``ideal`` after a
+    default with ``tracks: true`` carries no tracker); any other name sets the env's ``radar`` (highway
+    ids) or ``lidar`` (Neato) keyword, as before the table existed.
+    """
+    table = sensor_table(cfg, where)
+    kwargs = dict(cfg.get("env_kwargs") or {})
+    if sensor not in table:
+        return {**kwargs, sensor_key(env_id): sensor}
+    owned = {key for entry in table.values() for key in entry}
+    return {**{k: v for k, v in kwargs.items() if k not in owned}, **table[sensor]}
+
+
 def load_config(
     path: Path, env_id: str, overrides: list[str], algo: str | None = None, sensor: str | None = None
 ) -> dict[str, Any]:
     """The config block of ``env_id`` in ``path`` with ``key=value`` overrides applied; unknown keys are errors.
 
     ``algo`` merges that algorithm's entry of the block's ``algos`` over the block; ``sensor`` sets the
-    env's sensor keyword. Raises :class:`ConfigError` naming the file and the key.
+    env's sensor: a name of the block's ``sensors`` table selects that entry's env keyword arguments,
+    any other name sets the ``radar`` / ``lidar`` keyword (:func:`sensor_kwargs`).
+    Raises :class:`ConfigError` naming the file and the key.
     """
     try:
         doc = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
@@ -116,8 +151,6 @@ def load_config(
             cfg[key] = yaml.safe_load(value)
         except yaml.YAMLError as err:
             raise ConfigError(f"--set {key}: not a YAML value: {value!r}") from err
-    if sensor is not None:
-        cfg["env_kwargs"] = {**(cfg.get("env_kwargs") or {}), sensor_key(env_id): sensor}
     unknown = set(cfg) - KEYS
     if unknown:
         raise ConfigError(f"{path} [{env_id}]: unknown keys {sorted(unknown)}; expected {sorted(KEYS)}")
@@ -135,6 +168,10 @@ def load_config(
     for key in ("env_kwargs", "hyperparams"):
         if not isinstance(cfg.get(key) or {}, dict):
             raise ConfigError(f"{path} [{env_id}]: {key} must be a mapping, got {cfg[key]!r}")
+    if sensor is not None:
+        cfg["env_kwargs"] = sensor_kwargs(cfg, env_id, sensor, where=f"{path} [{env_id}]")
+    else:
+        sensor_table(cfg, where=f"{path} [{env_id}]")
     return cfg
 
 

@@ -1,0 +1,111 @@
+"""The highway robustness matrix's results page, generated from a finished `sensor-envs robustness` run.
+
+    python benchmarks/highway_matrix_report.py --run runs/highway_matrix \
+        --md docs/results/highway_matrix.md --png docs/results/highway_matrix.png --force
+
+Reads the run folder (``matrix.json``, ``matrix.md``, ``matrix.png``, and per job ``eval.json``,
+``config.json`` and the ``EvalCallback`` learning curve ``evaluations.npz``) and writes below the marker
+line of ``--md`` (the text above it, written by hand, is kept): the command, date and SHA-256 of the sensor
+models and policies (from ``matrix.json``), the matrix tables with their intervals (``matrix.md`` as the
+command wrote it), each job's learning curve (mean return and episode length of the curve's evaluation
+episodes at each evaluation step) and its cost (training and evaluation seconds,
+training steps per second). Prints the same figures. ``--md`` / ``--png`` are refused when they exist
+unless ``--force``; both are written through a temporary file and a rename.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+MARKER = "<!-- generated below by benchmarks/highway_matrix_report.py: do not edit below this line -->"
+
+
+def learning_curves(run: Path, rows: list[str], seeds: list[int]) -> list[str]:
+    """Markdown table of each job's EvalCallback curve (return, episode length) and its cost."""
+    lines = [
+        "| job | steps | eval return (mean of 5) | eval episode length (of 30) | train s | steps/s | matrix eval s |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        for s in seeds:
+            job = run / "runs" / r / f"seed{s}"
+            ev = json.loads((job / "eval.json").read_text())
+            steps = int(ev["spec"]["set"]["n_timesteps"])
+            curve = np.load(job / "evaluations.npz")
+            t = curve["timesteps"].tolist()
+            ret = curve["results"].mean(axis=1)
+            length = curve["ep_lengths"].mean(axis=1)
+            lines.append(
+                f"| {r} seed {s} | {', '.join(f'{v:,}' for v in t)} | {', '.join(f'{v:.1f}' for v in ret)} | "
+                f"{', '.join(f'{v:.1f}' for v in length)} | {ev['train_seconds']:.0f} | "
+                f"{steps / ev['train_seconds']:.1f} | {ev['eval_seconds']:.0f} |"
+            )
+    return lines
+
+
+def render(run: Path) -> str:
+    """The generated part of the page."""
+    matrix = json.loads((run / "matrix.json").read_text())
+    meta = matrix["run"]
+    table = (run / "matrix.md").read_text().split("\n", 2)[2]  # without the title line
+    lines = [
+        MARKER,
+        "",
+        f"## The run ({meta.get('date_utc', 'date not recorded')})",
+        "",
+        f"Command: `{meta['command']}` (backend {meta['backend']}, wall time {meta['wall_seconds'] / 60:.0f} min "
+        "for the jobs it ran). Page: `python benchmarks/highway_matrix_report.py --run <out> --md ... --force`.",
+        "",
+        table.replace("\n## ", "\n### "),
+        "## Learning curves and cost per job",
+        "",
+        "`EvalCallback` during training: 5 deterministic episodes on the job's own sensor at each evaluation step "
+        "(highway-fast episodes last at most 30 policy steps; a shorter mean length means crashes).",
+        "",
+        *learning_curves(run, matrix["rows_trained_on"], matrix["seeds"]),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def write_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to a temporary file beside ``path`` and rename it into place."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--run", type=Path, required=True, help="the --out folder of a finished robustness run")
+    parser.add_argument("--md", type=Path, required=True, help="results page (text above the marker is kept)")
+    parser.add_argument("--png", type=Path, default=None, help="copy of the run's matrix.png")
+    parser.add_argument("--force", action="store_true", help="replace existing --md / --png")
+    args = parser.parse_args(argv)
+    if not (args.run / "matrix.json").is_file():
+        print(f"highway_matrix_report: error: {args.run / 'matrix.json'}: not found", file=sys.stderr)
+        raise SystemExit(2)
+    for out in (args.md, args.png):
+        if out is not None and out.exists() and not args.force:
+            print(f"highway_matrix_report: error: {out} exists (use --force)", file=sys.stderr)
+            raise SystemExit(2)
+    head = ""
+    if args.md.is_file():
+        head = args.md.read_text(encoding="utf-8").split(MARKER)[0]
+    body = render(args.run)
+    write_atomic(args.md, (head + body).encode("utf-8"))
+    if args.png is not None:
+        write_atomic(args.png, (args.run / "matrix.png").read_bytes())
+    print(body)
+
+
+if __name__ == "__main__":
+    main()
