@@ -15,7 +15,8 @@ Packages: ``lidar`` and ``radar`` (the sensor models), ``envs`` (the worlds), ``
 ``training`` (tools), ``cli`` (the ``sensor-envs`` command). Shared modules: ``geometry`` (rays and segments), ``maps``
 (2D segment maps), ``modelio`` (model files), ``outputs`` (safe output files), ``rng`` (seeded generators),
 ``trig`` and ``jit`` (compiled kernels), ``heap`` (opt-in malloc tuning), ``lazy`` (lazy public names),
-``cards`` (model cards from a file's header and measured metrics).
+``cards`` (model cards from a file's header and measured metrics), ``inputs`` (the input layer: bounded reads,
+declared ranges, ``InputError``).
 """
 
 from __future__ import annotations

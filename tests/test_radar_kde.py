@@ -106,6 +106,7 @@ def test_source_tuple_is_traceable(model, distinct):
 def _uniform_miss_log(rate, rng, n=4000):
     cols = {c: np.zeros(n) for c in REQUIRED_COLUMNS}
     cols["frame"] = np.arange(n)
+    cols["t"] = cols["frame"] * 1.0  # one cycle per second: later frames, later times
     cols["target"] = np.arange(n)  # no z_{t-1}
     cols["ref_x"], cols["ref_y"] = rng.uniform(10, 30, n), rng.uniform(-5, 5, n)
     cols["ref_length"], cols["ref_width"] = np.full(n, 4.0), np.full(n, 2.0)
@@ -155,6 +156,7 @@ def _offset_log(rng, sharp, n=800):
     """Outputs independent of position (``sharp=False``) or flipping sign every 2 m of ``ref_y``."""
     cols = {c: np.zeros(n) for c in REQUIRED_COLUMNS}
     cols["sequence"], cols["frame"], cols["target"] = np.arange(n) % 8, np.arange(n), np.zeros(n)
+    cols["t"] = cols["frame"] * 1.0  # one cycle per second: later frames, later times
     cols["ref_x"], cols["ref_y"] = rng.uniform(10, 40, n), rng.uniform(-8, 8, n)
     cols["ref_length"], cols["ref_width"] = np.full(n, 4.0), np.full(n, 2.0)
     sign = np.where(np.floor(cols["ref_y"] / 2) % 2 == 0, 1.0, -1.0) if sharp else rng.choice([-1.0, 1.0], n)

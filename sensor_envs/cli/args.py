@@ -89,6 +89,11 @@ def path_arg(text: str) -> str:
     return text
 
 
+def path_object(text: str) -> Path:
+    """:func:`path_arg` as a :class:`~pathlib.Path` (for options declared with ``type=Path``)."""
+    return Path(path_arg(text))
+
+
 def positive_float(text: str) -> float:
     """A finite number ``> 0`` (argparse ``type=``); ``nan``, ``inf``, ``0`` and negatives are refused."""
     value = float(text) if _DECIMAL.fullmatch(text) else math.nan
@@ -188,7 +193,7 @@ FLOAT_RANGES: dict[str, tuple[float, float]] = {
 }
 """Declared range of every real-valued option (by ``dest``): finite, sane magnitudes."""
 PATH_OPTIONS = frozenset(
-    {"out", "log", "model", "map", "real_data", "real", "rig", "baseline", "baseline_out", "astyx", "base"}
+    {"out", "log", "model", "map", "real_data", "real", "rig", "baseline", "baseline_out", "astyx", "base", "config"}
     | {"spurious_only"}
 )
 """Options naming files: an empty name (``--rig ''``) is an error, never a silent fall-back to the default."""
@@ -211,6 +216,8 @@ def declare_ranges(parser: argparse.ArgumentParser) -> None:
         if action.dest in PATH_OPTIONS and action.type is None and action.choices is None:
             if not (action.dest == "model" and action.default == "fit"):
                 action.type = path_arg
+        if action.dest in PATH_OPTIONS and action.type is Path:
+            action.type = path_object
         if action.type not in _UNBOUNDED or action.type is nonneg_int:
             continue
         if action.type in (positive_int, int):

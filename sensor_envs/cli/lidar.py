@@ -255,12 +255,13 @@ def lwlr_from_args(args: argparse.Namespace) -> Any:
     """The unfitted :class:`~sensor_envs.lidar.lwlr.LidarLWLR` that ``fit lidar`` with ``args`` fits."""
     from sensor_envs.lidar.lwlr import LidarLWLR
 
+    max_range, spur_above = range_options(args.log, args.max_range, args.spur_above, args.table_range_step)
     return LidarLWLR(
         variant=args.variant,
         n_folds=args.folds,
         random_state=args.seed,
-        max_range=args.max_range,
-        spur_above=args.spur_above,
+        max_range=max_range,
+        spur_above=spur_above,
         table_range_step=args.table_range_step,
         bias_model=args.bias_model,
     )
@@ -277,7 +278,6 @@ def _fit(args: argparse.Namespace) -> int:
     )
     log, prep = _prepared_log(args, max_range)
     t0 = time.perf_counter()
-    args.max_range, args.spur_above = max_range, spur_above  # as range_options resolved them from the log
     model = lwlr_from_args(args)
     with about(args.log):
         if log.ranges.shape[2] == 1:

@@ -2,7 +2,8 @@
 
 Modules: ``neato`` (the 2D Neato robot, :class:`~sensor_envs.envs.neato.NeatoEnv`, drawn by
 ``neato_render``), ``neato_vector`` (N Neato robots stepped together, the vector entry point), ``sb3_vec``
-(that vector env as a stable-baselines3 ``VecEnv``) and ``highway`` (highway-env with a radar, a package).
+(that vector env as a stable-baselines3 ``VecEnv``), ``checks`` (declared ranges of env arguments and actions)
+and ``highway`` (highway-env with a radar, a package).
 
 The public names below are importable from here, each imported on first use.
 """
