@@ -308,9 +308,9 @@ class RigConfig:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
 
 
-_POS = Interval(0, 1e4, open_low=True)  # rig values are metres, seconds, rates: sane magnitudes
+_POS = Interval(0, 1e6, open_low=True)  # rig values: finite, sane magnitudes (a calibration search may try wide ones)
 _PROB = Interval(0, 1)
-_NONNEG = Interval(0, 1e4)
+_NONNEG = Interval(0, 1e6)
 RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
     "cycle_time": [_POS],
     "latency": [_NONNEG],
