@@ -534,7 +534,7 @@ def read_rosbag(
         check_regular_file(p, "ROS bag")
     try:
         scans, st, pts, pt, twists, bearings = _read_bag_messages(p, scan_topic, pose_topic)
-    except (AnyReaderError, Ros1Error, Ros2Error, EOFError, OSError, struct.error) as exc:  # empty/truncated bag
+    except (AnyReaderError, Ros1Error, Ros2Error, EOFError, OSError, struct.error, UnicodeDecodeError) as exc:
         raise LidarLogError(f"{p}: not a readable ROS bag ({' '.join(str(exc).split())})") from None
     if not scans:
         raise LidarLogError(f"{p}: field 'ranges': no message on {scan_topic!r}")
