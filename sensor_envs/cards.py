@@ -35,9 +35,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, load_npz, parse_json
 from sensor_envs.modelio import ModelFileError
 
 __all__ = ["read_header", "read_metrics", "render_card", "write_card", "MetricsFileError"]
@@ -94,17 +92,18 @@ def read_header(path: str | os.PathLike[str]) -> dict[str, Any]:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such model file")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            if "__header__" not in z.files:
-                raise ModelFileError(f"{path}: field '__header__' is missing (not a sensor_envs model file)")
-            raw = z["__header__"]
-            if raw.nbytes > MAX_HEADER_BYTES:
-                raise ModelFileError(f"{path}: field '__header__' is larger than {MAX_HEADER_BYTES} bytes")
-            header = json.loads(raw.tobytes().decode("utf-8"))
-    except (OSError, ValueError, UnicodeDecodeError) as exc:
-        if isinstance(exc, ModelFileError):
-            raise
-        raise ModelFileError(f"{path}: not a readable model file ({exc})") from exc
+        arrays = load_npz(path, "model file")  # bounded: the inflated size is checked before inflating
+    except InputError as exc:
+        raise ModelFileError(str(exc)) from None
+    if "__header__" not in arrays:
+        raise ModelFileError(f"{path}: field '__header__' is missing (not a sensor_envs model file)")
+    raw = arrays["__header__"]
+    if raw.nbytes > MAX_HEADER_BYTES:
+        raise ModelFileError(f"{path}: field '__header__' is larger than {MAX_HEADER_BYTES} bytes")
+    try:
+        header = parse_json(raw.tobytes(), f"{path}: field '__header__'")
+    except InputError as exc:
+        raise ModelFileError(str(exc)) from None
     if not isinstance(header, dict) or not isinstance(header.get("kind"), str):
         raise ModelFileError(f"{path}: field '__header__' must be a JSON object with a 'kind'")
     return header
