@@ -203,3 +203,32 @@ def test_a_log_whose_name_is_not_utf8_is_fitted_and_carded(tmp_path):
     )
     assert r.returncode == 0, r.stderr[-400:]
     assert "log\ufffd.npz" in (tmp_path / "m.md").read_text(encoding="utf-8")
+
+
+def test_new_commands_refuse_bad_inputs_before_writing(tmp_path, capsys):
+    """card on an empty file, rebuild-models with no recipes, robustness with a config of no env: exit 2,
+    one line naming the file or option, and no output made."""
+    from sensor_envs.cli.main import main
+
+    empty = tmp_path / "empty.npz"
+    empty.write_bytes(b"")
+    config = tmp_path / "config.yaml"
+    config.write_text("x\n")
+    cases = [
+        (["card", str(empty), "--out", str(tmp_path / "c.md")], "empty.npz", tmp_path / "c.md"),
+        (
+            ["rebuild-models", "--recipes", str(tmp_path / "none"), "--out", str(tmp_path / "r")],
+            "--recipes",
+            tmp_path / "r",
+        ),
+        (
+            ["robustness", "--domain", "highway", "--config", str(config), "--out", str(tmp_path / "rr")],
+            "--config",
+            tmp_path / "rr",
+        ),
+    ]
+    for argv, named, out in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and named in err and "Traceback" not in err, (argv, err)
+        assert not out.exists(), argv

@@ -126,6 +126,8 @@ def rebuild(out: Path, only: list[str] | None, force: bool, recipes: Path | None
 
     folder = recipes or recipes_folder()
     names = recipe_names(folder)
+    if not names:
+        raise InputError(f"--recipes: no recipe (*.yaml) in {folder}")
     unknown = sorted(set(only or []) - set(names))
     if unknown:
         raise InputError(f"--only: no recipe named {unknown} in {folder} (have {names})")

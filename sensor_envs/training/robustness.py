@@ -42,6 +42,7 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from sensor_envs.inputs import InputError
 from sensor_envs.training import stats
 
 __all__ = [
@@ -142,7 +143,7 @@ MODEL_KWARGS = ("radar_model", "model")
 EVAL_SEED = 1_000_000  # evaluation episode e of every cell resets with seed EVAL_SEED + e
 
 
-class UsageError(ValueError):
+class UsageError(InputError):
     """A bad argument or an output folder made with other settings (one line naming the key)."""
 
 
@@ -637,9 +638,12 @@ def _run(args: argparse.Namespace, argv: list[str]) -> dict[str, Any]:
             import ray  # noqa: F401
         except ImportError:
             raise UsageError("--backend ray: ray is not installed (pip install 'sensor_envs[ray]')") from None
+    real: dict[str, str] = {}
+    if args.real_data:  # the real-data models are cached in --out
+        args.out.mkdir(parents=True, exist_ok=True)
+        real = fit_real_models(args.domain, args.real_data, args.out)
+    specs, settings = plan(args, real)  # a bad config or option is refused before --out is made
     args.out.mkdir(parents=True, exist_ok=True)
-    real = fit_real_models(args.domain, args.real_data, args.out) if args.real_data else {}
-    specs, settings = plan(args, real)
     stamp = args.out / "settings.json"
     if stamp.is_file() and not args.force:
         old = json.loads(stamp.read_text())
