@@ -34,9 +34,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -48,6 +46,7 @@ import numpy as np
 
 import sensor_envs  # noqa: F401  (registers the ids)
 from sensor_envs.geometry import from_frame
+from sensor_envs.outputs import atomic_write
 
 CONFIGS: dict[str, dict[str, Any]] = {
     "ideal": {"radar": "ideal"},
@@ -370,20 +369,13 @@ def plot(results: dict[str, dict[str, Any]], path: Path) -> None:
     axes[0].set_yticks(y, names, fontsize=8)
     axes[0].invert_yaxis()
     fig.tight_layout()
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=100)
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, path)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
 
 
 def _write(path: Path, text: str, force: bool) -> None:
     if path.exists() and not force:
         sys.exit(f"{path}: exists (use --force)")
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(fd, "w", encoding="utf-8") as fh:
-        fh.write(text)
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, path)
+    atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
 
 
 def main() -> None:

@@ -14,24 +14,19 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from sensor_envs.outputs import atomic_write
 from sensor_envs.radar.object_clutter import FORMAT_VERSION, measure_object_clutter
 
 
 def _write(path: Path, text: str, force: bool) -> None:
     if path.exists() and not force:
         sys.exit(f"{path}: exists (use --force)")
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(fd, "w", encoding="utf-8") as fh:
-        fh.write(text)
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, path)
+    atomic_write(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
 
 
 def _markdown(runs: dict[int, dict], law_mp: int, command: str) -> str:
