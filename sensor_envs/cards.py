@@ -35,8 +35,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from sensor_envs.inputs import InputError, load_npz, parse_json
-from sensor_envs.modelio import ModelFileError
+from sensor_envs.inputs import InputError
+from sensor_envs.modelio import ModelFileError, read_header_and_arrays
 
 __all__ = ["read_header", "read_metrics", "render_card", "write_card", "MetricsFileError"]
 
@@ -82,7 +82,7 @@ class MetricsFileError(InputError):
 
 
 def read_header(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """The JSON header of a model file (``.npz`` with ``__header__``), without loading its arrays.
+    """The JSON header of a model file (``.npz`` with ``__header__``), read through the bounded model reader.
 
     Raises:
         ModelFileError: when the file is not a model file or its header is malformed.
@@ -91,20 +91,8 @@ def read_header(path: str | os.PathLike[str]) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such model file")
-    try:
-        arrays = load_npz(path, "model file")  # bounded: the inflated size is checked before inflating
-    except InputError as exc:
-        raise ModelFileError(str(exc)) from None
-    if "__header__" not in arrays:
-        raise ModelFileError(f"{path}: field '__header__' is missing (not a sensor_envs model file)")
-    raw = arrays["__header__"]
-    if raw.nbytes > MAX_HEADER_BYTES:
-        raise ModelFileError(f"{path}: field '__header__' is larger than {MAX_HEADER_BYTES} bytes")
-    try:
-        header = parse_json(raw.tobytes(), f"{path}: field '__header__'")
-    except InputError as exc:
-        raise ModelFileError(str(exc)) from None
-    if not isinstance(header, dict) or not isinstance(header.get("kind"), str):
+    header, _ = read_header_and_arrays(path, MAX_HEADER_BYTES)
+    if not isinstance(header.get("kind"), str):
         raise ModelFileError(f"{path}: field '__header__' must be a JSON object with a 'kind'")
     return header
 

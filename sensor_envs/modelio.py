@@ -25,6 +25,7 @@ __all__ = [
     "ModelFileError",
     "save_model_file",
     "load_model_file",
+    "read_header_and_arrays",
     "read_model",
     "save_rig_file",
     "load_rig_file",
@@ -91,6 +92,42 @@ def save_model_file(
     return path
 
 
+def read_header_and_arrays(
+    path: str | os.PathLike[str], max_header_bytes: int | None = None
+) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
+    """The JSON header (a dict) and the other arrays of a model file, read without pickle, bounded.
+
+    Raises:
+        ModelFileError: naming the file and the field (a folder, a missing or unreadable file, no or a
+            malformed ``__header__``, one larger than ``max_header_bytes``).
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise ModelFileError(f"{path}: is a folder, expected a model file (.npz)")
+    try:
+        data = load_npz(path, "model file")  # bounded: regular file, size, inflated size before inflating
+    except FileNotFoundError:
+        raise ModelFileError(f"{path}: model file not found") from None
+    except InputError as exc:
+        raise ModelFileError(str(exc)) from None
+    if "__header__" not in data:
+        raise ModelFileError(f"{path}: field '__header__' is missing (not a sensor_envs model file)")
+    blob = data.pop("__header__")
+    if max_header_bytes is not None and blob.nbytes > max_header_bytes:
+        raise ModelFileError(f"{path}: field '__header__' is larger than {max_header_bytes} bytes")
+    if blob.dtype != np.uint8 or blob.ndim != 1:
+        raise ModelFileError(f"{path}: field '__header__' must be 1-D uint8 (UTF-8 JSON bytes), got {blob.dtype}")
+    try:
+        header = parse_json(blob.tobytes().decode("utf-8"), f"{path}: field '__header__'")
+    except UnicodeDecodeError as exc:
+        raise ModelFileError(f"{path}: field '__header__' is not valid JSON ({exc})") from None
+    except InputError as exc:
+        raise ModelFileError(str(exc)) from None
+    if not isinstance(header, dict):
+        raise ModelFileError(f"{path}: field '__header__' must be a JSON object, got a JSON {type(header).__name__}")
+    return header, data
+
+
 def load_model_file(
     path: str | os.PathLike[str],
     kind: str,
@@ -113,27 +150,7 @@ def load_model_file(
         ModelFileError: naming the file and the field at fault.
     """
     path = Path(path)
-    if path.is_dir():
-        raise ModelFileError(f"{path}: is a folder, expected a model file (.npz)")
-    try:
-        data = load_npz(path, "model file")  # bounded: regular file, size, inflated size before inflating
-    except FileNotFoundError:
-        raise ModelFileError(f"{path}: model file not found") from None
-    except InputError as exc:
-        raise ModelFileError(str(exc)) from None
-    if "__header__" not in data:
-        raise ModelFileError(f"{path}: field '__header__' is missing (not a sensor_envs model file)")
-    blob = data.pop("__header__")
-    if blob.dtype != np.uint8 or blob.ndim != 1:
-        raise ModelFileError(f"{path}: field '__header__' must be 1-D uint8 (UTF-8 JSON bytes), got {blob.dtype}")
-    try:
-        header = parse_json(blob.tobytes().decode("utf-8"), f"{path}: field '__header__'")
-    except UnicodeDecodeError as exc:
-        raise ModelFileError(f"{path}: field '__header__' is not valid JSON ({exc})") from None
-    except InputError as exc:
-        raise ModelFileError(str(exc)) from None
-    if not isinstance(header, dict):
-        raise ModelFileError(f"{path}: field '__header__' must be a JSON object, got a JSON {type(header).__name__}")
+    header, data = read_header_and_arrays(path)
     if header.get("kind") != kind:
         raise ModelFileError(f"{path}: field 'kind' is {header.get('kind')!r}, expected {kind!r}")
     version = header.get("format_version")
