@@ -18,7 +18,7 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.inputs import InputError, load_npz, parse_json, read_text
+from sensor_envs.inputs import InputError, check_path, load_npz, parse_json, read_text
 from sensor_envs.outputs import atomic_write, check_suffix
 
 __all__ = [
@@ -101,7 +101,10 @@ def read_header_and_arrays(
         ModelFileError: naming the file and the field (a folder, a missing or unreadable file, no or a
             malformed ``__header__``, one larger than ``max_header_bytes``).
     """
-    path = Path(path)
+    try:
+        path = check_path(path, "model file")
+    except InputError as exc:
+        raise ModelFileError(str(exc)) from None
     if path.is_dir():
         raise ModelFileError(f"{path}: is a folder, expected a model file (.npz)")
     try:
@@ -133,6 +136,7 @@ def load_model_file(
     kind: str,
     supported_versions: tuple[int, ...],
     schema: Mapping[str, tuple[str, int | None, bool]],
+    header_schema: Mapping[str, list[Constraint]] | None = None,
 ) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
     """Read a model file written by :func:`save_model_file`, without pickle, and check it.
 
@@ -142,6 +146,8 @@ def load_model_file(
         supported_versions: format versions this loader understands.
         schema: ``name -> (dtype kinds, ndim or None, must be finite)``; dtype kinds as numpy
             ``dtype.kind`` letters, e.g. ``"f"``, ``"iu"``, ``"b"``.
+        header_schema: ``header field -> accepted forms`` of the fitted values the header holds besides
+            ``kind``, ``format_version``, ``params`` and ``card`` (see :func:`check_header`); ``None``: not checked.
 
     Returns:
         ``(header, arrays)``.
@@ -149,8 +155,8 @@ def load_model_file(
     Raises:
         ModelFileError: naming the file and the field at fault.
     """
+    header, data = read_header_and_arrays(path)  # checks that path is a path
     path = Path(path)
-    header, data = read_header_and_arrays(path)
     if header.get("kind") != kind:
         raise ModelFileError(f"{path}: field 'kind' is {header.get('kind')!r}, expected {kind!r}")
     version = header.get("format_version")
@@ -164,6 +170,8 @@ def load_model_file(
             raise ModelFileError(f"{path}: field '__header__' lacks {key!r}")
         if key in header and not isinstance(header[key], typ):
             raise ModelFileError(f"{path}: field '__header__' entry {key!r} must be a JSON object")
+    if header_schema is not None:
+        check_header(path, header, header_schema)
     for name, (kinds, ndim, finite) in schema.items():
         if name not in data:
             raise ModelFileError(f"{path}: field {name!r} is missing")
@@ -177,6 +185,34 @@ def load_model_file(
     return header, data
 
 
+HEADER_KEYS = ("kind", "format_version", "params", "card")
+"""Header fields of every model file (checked by :func:`load_model_file` itself)."""
+
+
+def check_header(
+    path: str | os.PathLike[str], header: dict[str, Any], header_schema: Mapping[str, list[Constraint]]
+) -> None:
+    """Every header field besides :data:`HEADER_KEYS` is declared in ``header_schema`` and takes a declared form.
+
+    Fields a format does not have may be absent (the loader asks for those its version needs); an
+    undeclared field is an error (a misspelled or foreign field would otherwise be ignored silently).
+
+    Raises:
+        ModelFileError: ``"<file>: field '<name>' ..."``.
+    """
+    for name, value in header.items():
+        if name in HEADER_KEYS:
+            continue
+        if name not in header_schema:
+            raise ModelFileError(f"{path}: field {name!r} is not a field of this model's files")
+        forms = [_NoneConstraint() if c is None else c for c in header_schema[name]]
+        if not any(c.accepts(value) for c in forms):
+            raise ModelFileError(
+                f"{path}: field {name!r} is invalid: expected {' or '.join(str(c) for c in forms)}, "
+                f"got {_shown(value, forms)}"
+            )
+
+
 # ------------------------------------------------------------------------------- hyperparameter tables
 class Options:
     """Constraint: the value is one of ``values`` (compared with ``==``, booleans kept apart from numbers)."""
@@ -187,7 +223,7 @@ class Options:
     def accepts(self, value: Any) -> bool:
         """Whether ``value`` satisfies the constraint."""
         return any(type(value) is type(v) and value == v for v in self.values) or any(
-            isinstance(v, str) and value == v for v in self.values
+            isinstance(v, str) and isinstance(value, str) and value == v for v in self.values
         )
 
     def __str__(self) -> str:
@@ -195,11 +231,13 @@ class Options:
 
 
 MAX_MAGNITUDE = 1e9
-"""Largest ``|value|`` of a real hyperparameter even where its interval is unbounded (sane magnitudes)."""
+"""Largest ``|value|`` of a number (real or integer) on a side where its interval is unbounded (sane magnitudes)."""
 
 
 class Interval:
     """Constraint: a real (or, with ``integer``, a whole) number in ``[low, high]`` (``None``: up to 1e9 in size).
+
+    A declared bound may exceed 1e9 (e.g. a seed up to 2**63 - 1).
 
     ``open_low``/``open_high`` exclude the bound. Booleans are not numbers here.
     """
@@ -223,16 +261,18 @@ class Interval:
         if self.integer and not isinstance(value, (int, np.integer)):
             return False
         v = float(value)
-        if not np.isfinite(v) or (not self.integer and abs(v) > MAX_MAGNITUDE):
+        if not np.isfinite(v):
             return False
+        if (self.high is None and v > MAX_MAGNITUDE) or (self.low is None and v < -MAX_MAGNITUDE):
+            return False  # an unbounded side still has a sane magnitude (counts too: 10**19 tuples is no count)
         if self.low is not None and (v < self.low or (self.open_low and v == self.low)):
             return False
         return not (self.high is not None and (v > self.high or (self.open_high and v == self.high)))
 
     def __str__(self) -> str:
         kind = "an integer" if self.integer else "a finite number"
-        lo = "(-inf" if self.low is None else f"{'(' if self.open_low else '['}{self.low:g}"
-        hi = "inf)" if self.high is None else f"{self.high:g}{')' if self.open_high else ']'}"
+        lo = f"[{-MAX_MAGNITUDE:g}" if self.low is None else f"{'(' if self.open_low else '['}{self.low:g}"
+        hi = f"{MAX_MAGNITUDE:g}]" if self.high is None else f"{self.high:g}{')' if self.open_high else ']'}"
         return f"{kind} in {lo}, {hi}"
 
 
@@ -247,9 +287,16 @@ class Numbers:
     """
 
     def __init__(
-        self, item: Interval, *, length: int | None = None, min_length: int = 1, increasing: bool = False
+        self,
+        item: Interval,
+        *,
+        length: int | None = None,
+        min_length: int = 1,
+        increasing: bool = False,
+        nan: bool = False,
     ) -> None:
         self.item, self.length, self.min_length, self.increasing = item, length, min_length, increasing
+        self.nan = nan
 
     def accepts(self, value: Any) -> bool:
         """Whether ``value`` satisfies the constraint."""
@@ -257,14 +304,40 @@ class Numbers:
             return False
         if len(value) < self.min_length or (self.length is not None and len(value) != self.length):
             return False
-        if not all(self.item.accepts(v) for v in value):
+        if not all(self.item.accepts(v) or (self.nan and _is_nan(v)) for v in value):
             return False
         return not (self.increasing and not bool(np.all(np.diff(np.asarray(value, dtype=np.float64)) > 0)))
 
     def __str__(self) -> str:
         n = f"{self.length}" if self.length is not None else f">= {self.min_length}"
         inc = " strictly increasing" if self.increasing else ""
-        return f"a sequence of {n}{inc} values, each {self.item}"
+        return f"a sequence of {n}{inc} values, each {self.item}" + (" or NaN" if self.nan else "")
+
+
+def _is_nan(v: Any) -> bool:
+    return isinstance(v, (float, np.floating)) and bool(np.isnan(v))
+
+
+class Names:
+    """Constraint: a sequence (tuple or list) of distinct non-empty strings (column or variable names).
+
+    Args:
+        max_length: most names.
+    """
+
+    def __init__(self, max_length: int = 64) -> None:
+        self.max_length = max_length
+
+    def accepts(self, value: Any) -> bool:
+        """Whether ``value`` satisfies the constraint."""
+        if not isinstance(value, (tuple, list)) or len(value) > self.max_length:
+            return False
+        if not all(isinstance(v, str) and v.strip() and "\x00" not in v for v in value):
+            return False
+        return len(set(value)) == len(value)
+
+    def __str__(self) -> str:
+        return f"a sequence of at most {self.max_length} distinct non-empty names"
 
 
 class InstanceOf:
@@ -283,6 +356,17 @@ class InstanceOf:
         return "an instance of " + " or ".join(t.__name__ for t in self.types)
 
 
+class IsNaN:
+    """Constraint: a NaN float (JSON ``NaN``: an absent fitted value, e.g. a model fitted without a cycle time)."""
+
+    def accepts(self, value: Any) -> bool:
+        """Whether ``value`` satisfies the constraint."""
+        return _is_nan(value)
+
+    def __str__(self) -> str:
+        return "NaN"
+
+
 class _NoneConstraint:
     def accepts(self, value: Any) -> bool:
         return value is None
@@ -291,10 +375,12 @@ class _NoneConstraint:
         return "None"
 
 
-Constraint = Options | Interval | Numbers | InstanceOf | _NoneConstraint | None
+Constraint = Options | Interval | Numbers | Names | InstanceOf | IsNaN | _NoneConstraint | None
 """One accepted form of a hyperparameter; ``None`` in a constraint list accepts ``None``."""
-RANDOM_STATE: list[Constraint] = [None, Interval(0, None, integer=True), InstanceOf(np.random.Generator)]
+RANDOM_STATE: list[Constraint] = [None, Interval(0, 2**63 - 1, integer=True), InstanceOf(np.random.Generator)]
 """The constraints of a ``random_state`` hyperparameter (seed, generator or ``None``)."""
+CYCLE_TIME: list[Constraint] = [None, IsNaN(), Interval(0, 1e4, open_low=True)]
+"""The header field ``cycle_time`` [s] of a radar model: absent (``None``/NaN) or a positive duration."""
 
 
 def validate_params(
@@ -337,8 +423,8 @@ def _shown(value: Any, forms: list[Any]) -> str:
     Whole when short; a long sequence by its length and the first entry that no :class:`Numbers` form's item
     accepts.
     """
-    if not isinstance(value, (tuple, list, np.ndarray)) or len(value) <= SHOWN_ITEMS:
-        return repr(value)
+    if not isinstance(value, (tuple, list, np.ndarray)) or np.ndim(value) == 0 or len(value) <= SHOWN_ITEMS:
+        return f"{value!r:.200}"
     items = [c.item for c in forms if isinstance(c, Numbers)]
     bad = next((i for i, v in enumerate(value) if items and not any(it.accepts(v) for it in items)), None)
     return f"{len(value)} values" + (f", first rejected entry [{bad}] = {value[bad]!r}" if bad is not None else "")

@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, quaternion_yaw
-from sensor_envs.inputs import InputError, check_regular_file, load_npz, open_gzip_lines
+from sensor_envs.inputs import InputError, bad_name, check_regular_file, load_npz, open_gzip_lines
 from sensor_envs.outputs import atomic_write, check_suffix
 
 __all__ = [
@@ -190,33 +190,54 @@ def _check_bearings(source: str, b: NDArray[np.float64]) -> None:
 _UNSET: Any = object()
 
 
+MAX_REPEATS = 10_000
+"""Most repeated readings per cell a lidar model samples in one call (``n_repeats``)."""
+
+
 def check_model_call(
-    poses: Any, map_segments: Any = None, rng: Any = _UNSET, ranges: Any = None, log: Any = _UNSET
+    poses: Any,
+    map_segments: Any = None,
+    rng: Any = _UNSET,
+    ranges: Any = None,
+    log: Any = _UNSET,
+    *,
+    n_bearings: int | None = None,
+    extra: Any = None,
+    extra_names: tuple[str, ...] | None = None,
+    n_repeats: Any = None,
 ) -> None:
     """The checked arguments of a lidar model's ``fit``/``sample``/``log_prob`` (a validation line at their top).
 
     ``poses`` ``(3,)`` or ``(S, 3)`` finite within :data:`MAX_COORD`; ``map_segments`` valid segments;
-    ``rng`` a Generator; ``ranges`` readings ``>= 0`` (NaN = missing) up to :data:`MAX_RANGE` with ``S``
-    leading; ``log`` (for ``fit``) a :class:`LidarLog`.
+    ``rng`` a Generator; ``ranges`` readings ``>= 0`` (NaN = missing) up to :data:`MAX_RANGE`, ``(S, K)``
+    or ``(S, K, R)`` with ``K = n_bearings`` when given; ``log`` (for ``fit``) a :class:`LidarLog`;
+    ``extra`` ``None`` for a model without extra state variables (``extra_names`` empty), else real
+    numbers (NaN = missing); ``n_repeats`` ``None`` or an integer in ``[1, MAX_REPEATS]``.
 
     Raises:
         InputError: naming the argument.
     """
-    from sensor_envs.inputs import check_array, check_rng
+    from sensor_envs.inputs import check_array, check_count, check_rng
 
     if log is not _UNSET and not isinstance(log, LidarLog):
         raise InputError(f"log: expected a LidarLog (sensor_envs.lidar.log.load_log), got {type(log).__name__}")
     if rng is not _UNSET:
         check_rng(rng)
+    if n_repeats is not None:
+        check_count(n_repeats, "n_repeats", 1, MAX_REPEATS)
     if poses is not None:
         ps = check_array(np.atleast_2d(poses), "poses", (None, 3), low=-MAX_COORD, high=MAX_COORD)
         if ranges is not None:
             r = np.asarray(ranges)
-            check_array(
-                r, "ranges", (ps.shape[0], None) + ((None,) if r.ndim == 3 else ()), low=0, high=MAX_RANGE, nan=True
-            )
+            shape = (ps.shape[0], n_bearings) + ((None,) if r.ndim == 3 else ())
+            check_array(r, "ranges", shape, low=0, high=MAX_RANGE, nan=True)
     if map_segments is not None:
         as_segments(map_segments, name="map_segments")
+    if extra_names is not None and extra is not None:
+        if not extra_names and np.size(extra):
+            raise InputError("extra: this model has no extra state variables; pass None")
+        if extra_names:
+            check_array(np.asarray(extra), "extra", (None,) * np.ndim(extra), low=-1e12, high=1e12, nan=True)
 
 
 def _check_times(source: str, t: NDArray[np.float64]) -> None:
@@ -267,9 +288,9 @@ def log_from_arrays(
     tt = None if t is None else _check_per_pose(source, "t", t, p, None)
     if tt is not None:
         _check_times(source, tt)
-    empty = [k2 for k2 in (covariates or {}) if not str(k2).strip()]
+    empty = [k2 for k2 in (covariates or {}) if bad_name(k2)]
     if empty:
-        raise _err(source, "cov_", "is a covariate without a name")
+        raise _err(source, f"cov_{empty[0]}", f"is no covariate name: it {bad_name(empty[0])}")
     cov = {k2: _check_per_pose(source, f"cov_{k2}", v, p, None) for k2, v in (covariates or {}).items()}
     return LidarLog(r, b, ps, segs, tt, cov, source)
 

@@ -106,6 +106,7 @@ from sensor_envs.modelio import (
     InstanceOf,
     Interval,
     ModelFileError,
+    Names,
     Numbers,
     Options,
     check_finite,
@@ -161,6 +162,19 @@ _PARAMS = {"seed": ("p_null", "bias", "sigma"), "extended": ("p_null", "p_spur",
 _TABLES = {"seed": _PARAMS["seed"], "extended": _PARAMS["extended"] + ("tau2",)}
 MAX_SIGMA = 1e3
 """Largest standard deviation [m] (and bias magnitude) a model file may give: beyond it the file is corrupt."""
+_RHO: list[Constraint] = [Interval(0.0, 0.999)]
+HEADER_SCHEMA: dict[str, list[Constraint]] = {
+    "h": [InstanceOf(dict)],  # parameter name -> 4 kernel widths, checked against param_names by _check_values
+    "param_names": [Names(max_length=8)],
+    "spur_mu": [Interval(0.0, MAX_SIGMA)],  # mean range of spurious returns [m]
+    "spur_sigma": [Interval(0.0, MAX_SIGMA, open_low=True)],
+    "p_out": [Interval(0.0, 1.0)],
+    "null_rho": _RHO,
+    "spur_rho": _RHO,
+    "bias_shrinkage": [Interval(0.0, 1.0)],
+    "pose_sd": [None, Numbers(Interval(0.0, np.pi), length=3)],
+}
+"""Declared fitted fields of a lidar model file's header (their consistency with the tables: the loader)."""
 DEFAULT_MODEL_FILE = "neato_lidar.npz"
 """File name of the shipped rig-fitted model in ``models/``."""
 
@@ -336,7 +350,7 @@ class LidarLWLR(BaseEstimator):
         "table_alpha_steps": [Interval(2, None, integer=True)],
         "random_state": RANDOM_STATE,
         "progress": [InstanceOf(bool)],
-        "extra_state": [InstanceOf(tuple, list)],  # details: check_extra_state
+        "extra_state": [Names()],  # each a term of the extra-state grammar: check_extra_state
         "bias_shrinkage": [Options("cv"), Interval(0, 1)],
         "pose_correction": [InstanceOf(bool)],
         "bias_model": [Options(*BIAS_MODELS)],
@@ -409,6 +423,8 @@ class LidarLWLR(BaseEstimator):
             ValueError: for bad hyperparameters or a log without map.
         """
         check_model_call(None, log=log)  # a LidarLog (fit(None) is an InputError, not an AttributeError)
+        if per_reading is not None and not isinstance(per_reading, (bool, np.bool_)):
+            raise InputError(f"per_reading: expected True, False or None, got {per_reading!r:.40}")
         if per_reading or (per_reading is None and log.ranges.shape[2] < 2):
             from sensor_envs.lidar.readings import fit_per_reading
 
@@ -962,7 +978,8 @@ class LidarLWLR(BaseEstimator):
         Files of format < 6 have no ``pose_sd_`` (read as 0): their ``sample`` is the worlds' draw at the given poses.
         """
         self._check_fitted()
-        check_model_call(poses, map_segments, rng)
+        names = tuple(getattr(self, "extra_state_", ()))
+        check_model_call(poses, map_segments, rng, extra=extra, extra_names=names, n_repeats=n_repeats)
         p0 = np.atleast_2d(np.asarray(poses, dtype=np.float64))
         sd = getattr(self, "pose_sd_", None)
         sd = np.zeros(3) if sd is None else np.asarray(sd, dtype=np.float64)
@@ -991,7 +1008,12 @@ class LidarLWLR(BaseEstimator):
             Same shape as ``ranges``; ``NaN`` where missing.
         """
         self._check_fitted()
-        check_model_call(poses, map_segments, ranges=ranges)
+        if ranges is None:
+            raise InputError("ranges: expected (S, K) or (S, K, R) readings [m], got None")
+        names = tuple(getattr(self, "extra_state_", ()))
+        check_model_call(
+            poses, map_segments, ranges=ranges, n_bearings=self.bearings_.size, extra=extra, extra_names=names
+        )
         x = np.asarray(ranges, dtype=np.float64)
         p = self.params_full(poses, map_segments, extra)
         if x.ndim == 3:
@@ -1056,7 +1078,7 @@ class LidarLWLR(BaseEstimator):
         version = _peek_version(path)
         if version >= 3:
             schema.update({"extra_mean": ("f", 1, True), "extra_scale": ("f", 1, True), "extra_coef": ("f", 2, True)})
-        header, arr = load_model_file(path, MODEL_KIND, (1, 2, 3, 4, 5, FORMAT_VERSION), schema)
+        header, arr = load_model_file(path, MODEL_KIND, (1, 2, 3, 4, 5, FORMAT_VERSION), schema, HEADER_SCHEMA)
         defaults: dict[str, Any] = {"extra_state": ()}
         if version < 4:  # before the shrinkage: the learned bias as is, no pose correction (their old behaviour)
             defaults.update(bias_shrinkage=0.0, pose_correction=False)

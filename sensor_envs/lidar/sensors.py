@@ -117,8 +117,8 @@ class GaussianLidar:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
                 raise InputError(f"GaussianLidar: {name} must be a number, got {v!r}")
-            if not (np.isfinite(v) and v >= 0):
-                raise InputError(f"GaussianLidar: {name} must be finite and >= 0, got {v!r}")
+            if not (np.isfinite(v) and 0 <= v <= 100):
+                raise InputError(f"GaussianLidar: {name} must be finite and in [0, 100], got {v!r}")
         if not self.alpha_max < np.pi / 2:
             raise InputError(f"GaussianLidar: alpha_max must be < pi/2 [rad], got {self.alpha_max!r}")
         if not self.p_null_floor <= 1:
@@ -231,7 +231,7 @@ def make_lidar(name: str | LidarSensor, model: str | PathLike[str] | None = None
     """
     if not isinstance(name, str):
         if not isinstance(name, LidarSensor):
-            raise TypeError(f"lidar: expected a name in {LIDAR_NAMES} or a LidarSensor, got {type(name).__name__}")
+            raise InputError(f"lidar: expected a name in {LIDAR_NAMES} or a LidarSensor, got {type(name).__name__}")
         return name
     if name not in LIDAR_NAMES:
         raise InputError(f"lidar: unknown lidar {name!r}; choose one of {LIDAR_NAMES}")
@@ -242,6 +242,14 @@ def make_lidar(name: str | LidarSensor, model: str | PathLike[str] | None = None
             raise InputError(f"lidar: the ideal lidar takes no parameters, got {sorted(kwargs)}")
         return IdealLidar()
     if name == "gaussian":
+        import inspect
+
+        known = set(inspect.signature(GaussianLidar).parameters)
+        unknown = sorted(str(k) for k in set(kwargs) - known)
+        if unknown:
+            raise InputError(
+                f"lidar_kwargs: unknown parameters {unknown} of the Gaussian lidar (known: {sorted(known)})"
+            )
         return GaussianLidar(**kwargs)
     from sensor_envs.lidar.lwlr import DEFAULT_MODEL_FILE, load_learned_lidar  # heavy: only when asked for
 

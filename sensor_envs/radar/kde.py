@@ -117,11 +117,13 @@ from sklearn.utils.validation import check_is_fitted
 from sensor_envs.geometry import from_polar_frame, to_polar_frame
 from sensor_envs.inputs import InputError
 from sensor_envs.modelio import (
+    CYCLE_TIME,
     RANDOM_STATE,
     Constraint,
     InstanceOf,
     Interval,
     ModelFileError,
+    Names,
     Numbers,
     Options,
     check_finite,
@@ -200,6 +202,19 @@ MAX_TAIL_SCALE = 100.0
 """Largest factor of the tail component's bandwidths over the main kernels'."""
 _LOG_2PI = np.log(2.0 * np.pi)
 _POSITIVE = Interval(0, None, open_low=True)
+MAX_EXTRA_FACTOR = 100.0
+"""Largest factor of an extra state variable's standard deviation among ``extra_candidates``."""
+HEADER_SCHEMA: dict[str, list[Constraint]] = {
+    "cycle_time": CYCLE_TIME,
+    "rel_variance_fitted": [Numbers(Interval(0, MAX_POSITION**2, open_low=True), length=4)],
+    "relevance_scores": [Numbers(Interval(None, None), min_length=0, nan=True)],
+    "state_variables": [Names()],
+    "extra_variance_fitted": [Numbers(_POSITIVE, min_length=0)],
+    "extra_fill": [Numbers(Interval(None, None), min_length=0)],
+    "new_track_flags": [InstanceOf(bool)],
+    "azimuth_bias_fitted": [Interval(-MAX_AZIMUTH_BIAS, MAX_AZIMUTH_BIAS)],
+}
+"""Declared fitted fields of a KDE model file's header (their consistency with the arrays: the loader)."""
 _NOT_FITTED = "This %(name)s is not fitted yet; call fit(log) or KDERadarModel.load(path) first"
 
 
@@ -475,9 +490,9 @@ class KDERadarModel(BaseEstimator):
         "relevance_folds": [Interval(2, None, integer=True)],
         "prior_rate": [Options("tree", "global")],
         "random_state": RANDOM_STATE,
-        "extra_state": [InstanceOf(tuple, list)],  # details: _check_extra_params
-        "extra_variance": [None, InstanceOf(tuple, list)],
-        "extra_candidates": [InstanceOf(tuple, list)],
+        "extra_state": [Names()],  # names of log columns; relations to the other two: _check_extra_params
+        "extra_variance": [None, Numbers(_POSITIVE, min_length=0, nan=True)],  # NaN: chosen by CV
+        "extra_candidates": [Numbers(Interval(0, MAX_EXTRA_FACTOR, open_low=True))],
         "bandwidth_scale": [Interval(0.01, 100)],
         "start_bandwidth_scale": [None, Interval(0.01, 100)],
         "azimuth_bias": [Options("fit"), Interval(-MAX_AZIMUTH_BIAS, MAX_AZIMUTH_BIAS)],
@@ -925,7 +940,7 @@ class KDERadarModel(BaseEstimator):
             ``z (n, 2)`` [m] (``NaN`` rows = missed) and ``source (n,)`` the picked tuple's index.
         """
         self._check_fitted()
-        check_states(state, rng=rng)
+        check_states(state, rng=rng, extra=extra, new_track=new_track, extra_names=self.extra_state_)
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
         return self.sample_cycle(st[:, :2], prev, rng, extra=extra, new_track=new_track)
@@ -990,7 +1005,8 @@ class KDERadarModel(BaseEstimator):
         tuple is in reach). Identical states in a large batch share one neighbour/bucket search.
         """
         self._check_fitted()
-        check_states(corners if prev_z is None else np.column_stack([np.atleast_2d(corners), prev_z]), rng=rng)
+        state = corners if prev_z is None else np.column_stack([np.atleast_2d(corners), prev_z])
+        check_states(state, rng=rng, extra=extra, new_track=new_track, extra_names=self.extra_state_)
         corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
         n = corners.shape[0]
         if n == 0:
@@ -1115,7 +1131,7 @@ class KDERadarModel(BaseEstimator):
             ``log P(miss | x)`` for misses.
         """
         self._check_fitted()
-        check_states(state, z)
+        check_states(state, z, extra=extra, new_track=new_track, extra_names=self.extra_state_)
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))
         n = st.shape[0]
@@ -1321,7 +1337,7 @@ class KDERadarModel(BaseEstimator):
             "clutter_counts": ("iu", 1, True),
             "clutter_xy": ("f", 2, True),
         }
-        header, a = load_model_file(path, KIND, (1, 2, 3, 4, 5, 6, 7, FORMAT_VERSION), schema)
+        header, a = load_model_file(path, KIND, (1, 2, 3, 4, 5, 6, 7, FORMAT_VERSION), schema, HEADER_SCHEMA)
         defaults = {  # parameters older formats lack: 1 has no prior_rate, 1 and 2 no extra state
             "prior_rate": "global",
             "extra_state": (),

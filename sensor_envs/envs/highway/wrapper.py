@@ -61,7 +61,7 @@ Rate (``radar_rate=``):
 
 The model's ``cycle_time`` (file header) must equal the period of the rate used (``1 /
 policy_frequency`` or ``1 / simulation_frequency``, relative tolerance 1e-3); a mismatch raises
-``ValueError`` at construction and at ``reset`` (models without a cycle time are not checked).
+``InputError`` at construction and at ``reset`` (models without a cycle time are not checked).
 
 Velocities (``velocity=``):
 
@@ -114,6 +114,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
+from os import PathLike
 from pathlib import Path
 from typing import Any
 
@@ -122,7 +123,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from sensor_envs.envs.checks import check_action, check_highway_config
+from sensor_envs.envs.checks import check_action, check_highway_config, check_options, check_seed
 from sensor_envs.envs.highway.clutter import (
     CLUTTER_LEVELS,
     STATIONARY_MODES,
@@ -156,6 +157,8 @@ from sensor_envs.envs.highway.sensor import (
 )
 from sensor_envs.envs.highway.tracker import MultiTargetTracker, TrackerConfig, tracked_frame, tracker_config
 from sensor_envs.geometry import from_frame
+from sensor_envs.inputs import InputError
+from sensor_envs.modelio import Constraint, InstanceOf, Interval, Options, validate_params
 from sensor_envs.radar.sensors import NEW_TRACK_KEYWORD, RADAR_NAMES, RadarSensor, takes_new_track
 from sensor_envs.rng import sensor_rng
 
@@ -168,6 +171,8 @@ __all__ = [
     "ObservedRows",
     "StackedRows",
     "make_highway",
+    "WRAPPER_CONSTRAINTS",
+    "MAKE_HIGHWAY_CONSTRAINTS",
     "cycle_period",
     "check_cycle_time",
 ]
@@ -188,6 +193,24 @@ IDEAL_KINEMATICS: dict[str, Any] = {
 """Keyword arguments of :func:`make_highway` under which the observation equals highway-env's ``Kinematics``."""
 
 _NAN2 = np.full(2, np.nan)
+_NAME = InstanceOf(str)
+WRAPPER_CONSTRAINTS: dict[str, list[Constraint]] = {
+    "radar": [Options(*RADAR_NAMES)],  # or a RadarSensor instance
+    "radar_model": [None, InstanceOf(str, PathLike)],
+    "radar_rate": [Options(*RADAR_RATES)],
+    "clutter_fraction": [Interval(0.0, 1.0)],
+    "clutter": [Options(*CLUTTER_LEVELS)],
+    "stationary": [Options(*STATIONARY_MODES)],
+    "tracks": [InstanceOf(bool)],
+    "tracker": [None, InstanceOf(TrackerConfig, dict)],  # fields: TrackerConfig's own checks
+}
+"""Declared types and ranges of :class:`RadarObservation`'s arguments (the mount: ``SENSOR_CONSTRAINTS``)."""
+MAKE_HIGHWAY_CONSTRAINTS: dict[str, list[Constraint]] = {
+    "base_id": [_NAME],
+    "history": [Interval(1, 64, integer=True)],
+    "render_mode": [None, Options("rgb_array", "human")],
+}
+"""Declared :func:`make_highway` arguments besides the wrapper's (``config``: :func:`check_highway_config`)."""
 
 
 # ---------------------------------------------------------------------------------------- the wrapper
@@ -229,7 +252,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     Raises:
         TypeError: when ``env`` is not a highway-env environment with a ``Kinematics`` observation.
-        ValueError: naming the bad argument or observation key, or when the model's cycle time does
+        InputError: naming the bad argument or observation key, or when the model's cycle time does
             not match the radar rate.
 
     Examples:
@@ -279,23 +302,25 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             tracks=tracks,
             tracker=tracker,
         )
-        if radar_rate not in RADAR_RATES:
-            raise ValueError(f"radar_rate: expected one of {RADAR_RATES}, got {radar_rate!r}")
+        validate_params(
+            {
+                "radar": radar if isinstance(radar, str) else "ideal",  # an instance: checked below
+                "radar_model": radar_model,
+                "radar_rate": radar_rate,
+                "clutter_fraction": clutter_fraction,
+                "clutter": clutter,
+                "stationary": stationary,
+                "tracks": tracks,
+                "tracker": tracker,
+            },
+            WRAPPER_CONSTRAINTS,
+        )
         self.radar_rate = radar_rate
-        ok = isinstance(clutter_fraction, (int, float)) and not isinstance(clutter_fraction, bool)
-        if not (ok and 0.0 <= float(clutter_fraction) <= 1.0):
-            raise ValueError(f"clutter_fraction: expected a number in [0, 1], got {clutter_fraction!r}")
         self.clutter_fraction = float(clutter_fraction)
-        if clutter not in CLUTTER_LEVELS:
-            raise ValueError(f"clutter: expected one of {CLUTTER_LEVELS}, got {clutter!r}")
-        if stationary not in STATIONARY_MODES:
-            raise ValueError(f"stationary: expected one of {STATIONARY_MODES}, got {stationary!r}")
-        if not isinstance(tracks, (bool, np.bool_)):
-            raise ValueError(f"tracks: expected True or False, got {tracks!r}")
         self.clutter, self.stationary, self.tracks = clutter, stationary, bool(tracks)
         self.tracker: MultiTargetTracker | None = MultiTargetTracker(tracker_config(tracker)) if tracks else None
         if tracker is not None and not tracks:
-            raise ValueError("tracker: tracker settings need tracks=True")
+            raise InputError("tracker: tracker settings need tracks=True")
         gym.Wrapper.__init__(self, env)
         base: Any = env.unwrapped
         if not hasattr(base, "road") or not hasattr(base, "PERCEPTION_DISTANCE"):
@@ -315,7 +340,9 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._radar_key: tuple[str, str | None] | None = (radar, path)
         else:
             if not isinstance(radar, RadarSensor):
-                raise TypeError(f"radar: expected a name in {RADAR_NAMES} or a RadarSensor, got {type(radar).__name__}")
+                raise InputError(
+                    f"radar: expected a name in {RADAR_NAMES} or a RadarSensor, got {type(radar).__name__}"
+                )
             self._radar_key = None
             self.radar = radar
         self._state_names = model_state_names(self.radar)
@@ -345,10 +372,22 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         radar samples exactly when highway-env would observe (before, e.g., the intersection spawns
         vehicles) and highway-env's own ``Kinematics`` is not computed a second time.
         """
-        _, info = self.env.reset(seed=seed, options=options)
+        seed = check_seed(seed)
+        options = check_options(options, ("config",)) or None
         base: Any = self.env.unwrapped
-        if options and "config" in options and KinematicsLayout.from_config(base.config["observation"]) != self.layout:
-            raise ValueError("options.config.observation: the observation layout is fixed when the wrapper is built")
+        if options and "config" in options:  # checked before highway-env applies it
+            if not isinstance(options["config"], dict):
+                raise InputError(f"options.config: expected a dict, got {type(options['config']).__name__}")
+            try:
+                check_highway_config(options["config"], dict(base.default_config()))
+            except InputError as exc:
+                raise InputError(f"options.{exc}") from None
+            new = options["config"].get("observation")
+            if new is not None and KinematicsLayout.from_config(new) != self.layout:
+                raise InputError(
+                    "options.config.observation: the observation layout is fixed when the wrapper is built"
+                )
+        _, info = self.env.reset(seed=seed, options=options)
         check_cycle_time(self.radar, base.config, self.radar_rate)
         self._rng = sensor_rng(seed, RNG_TAG, self._rng)
         self._tracks = {}
@@ -703,7 +742,7 @@ def check_cycle_time(radar: Any, config: dict[str, Any], radar_rate: str) -> Non
     Models without a cycle time (``None``/NaN, or no attribute: the ideal radar, test doubles) pass.
 
     Raises:
-        ValueError: naming ``radar_rate``, both periods and the remedies.
+        InputError: naming ``radar_rate``, both periods and the remedies.
     """
     cycle = getattr(radar, "cycle_time_", None)
     if cycle is None or not math.isfinite(float(cycle)):  # NaN: fitted without a cycle time
@@ -711,7 +750,7 @@ def check_cycle_time(radar: Any, config: dict[str, Any], radar_rate: str) -> Non
     period = cycle_period(config, radar_rate)
     if not math.isclose(float(cycle), period, rel_tol=CYCLE_TIME_RTOL):
         key = "policy_frequency" if radar_rate == "policy" else "simulation_frequency"
-        raise ValueError(
+        raise InputError(
             f"radar_rate: the radar model is fitted at a cycle time of {float(cycle):.4g} s, but radar_rate="
             f"{radar_rate!r} samples it every {period:.4g} s (1 / {key} = 1 / {config[key]}); use a model "
             f"fitted at {period:.4g} s (e.g. radar_kde_fast.npz at 1/15 s with radar_rate='simulation' and "
@@ -769,7 +808,9 @@ def make_highway(
             latest's last; 1 = no stacking.
 
     Raises:
-        ValueError: naming an unknown ``config`` key or a bad sensor argument.
+        InputError: naming the argument (``config.<key>`` for a configuration key) outside its declared
+            type or range (``WRAPPER_CONSTRAINTS``, ``SENSOR_CONSTRAINTS``, ``MAKE_HIGHWAY_CONSTRAINTS``,
+            :func:`~sensor_envs.envs.checks.check_highway_config`).
 
     Examples:
         >>> from sensor_envs import make_highway
@@ -782,17 +823,12 @@ def make_highway(
     """
     import highway_env  # noqa: F401  (registers highway-env's ids)
 
-    check_highway_config(config)  # declared ranges (policy_frequency 0 would divide by zero)
-    if not isinstance(history, (int, np.integer)) or isinstance(history, bool) or not 1 <= history <= 64:
-        raise ValueError(f"history: expected an integer in [1, 64], got {history!r}")
+    validate_params({"base_id": base_id, "history": history, "render_mode": render_mode}, MAKE_HIGHWAY_CONSTRAINTS)
+    check_highway_config(config, _default_config(base_id))  # every key declared, before the env is built
 
     with warnings.catch_warnings():  # the sensor_envs id is current even when its base id has newer versions
         warnings.filterwarnings("ignore", message=".*is out of date.*", category=DeprecationWarning)
         env = gym.make(base_id, render_mode=render_mode, config=config, disable_env_checker=True)
-    base: Any = env.unwrapped
-    unknown = sorted(set(config or {}) - set(base.default_config()))
-    if unknown:
-        raise ValueError(f"config.{unknown[0]}: unknown highway-env key for {base_id}")
     wrapped = RadarObservation(
         env,
         radar,
@@ -813,3 +849,19 @@ def make_highway(
     if history == 1:
         return wrapped
     return StackedRows(gym.wrappers.FrameStackObservation(wrapped, int(history), padding_type="zero"))
+
+
+def _default_config(base_id: str) -> dict[str, Any]:
+    """highway-env's ``default_config()`` of ``base_id``, read from its class without building the env.
+
+    Raises:
+        InputError: naming ``base_id`` when gymnasium knows no such id.
+    """
+    try:
+        entry = gym.spec(base_id).entry_point
+    except gym.error.Error as exc:
+        raise InputError(f"base_id: {' '.join(str(exc).split())[:200]}") from None
+    creator: Any = gym.envs.registration.load_env_creator(entry) if isinstance(entry, str) else entry
+    if not callable(getattr(creator, "default_config", None)):
+        raise InputError(f"base_id: {base_id!r} is not a highway-env environment")
+    return dict(creator.default_config())
