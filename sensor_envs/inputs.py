@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 
 __all__ = [
     "InputError",
+    "InputTypeError",
     "Limits",
     "LIMITS",
     "check_path",
@@ -65,6 +66,10 @@ class InputError(ValueError):
     The one exception the command line shows as one line with exit status 2 (subclasses:
     ``ModelFileError``, ``LidarLogError``, ``RadarLogError``, ``OutputError``).
     """
+
+
+class InputTypeError(InputError, TypeError):
+    """Bad input of the wrong kind (e.g. another observation type): an :class:`InputError` and a ``TypeError``."""
 
 
 @dataclass(frozen=True)

@@ -271,9 +271,10 @@ class Interval:
 
     def __str__(self) -> str:
         kind = "an integer" if self.integer else "a finite number"
-        lo = f"[{-MAX_MAGNITUDE:g}" if self.low is None else f"{'(' if self.open_low else '['}{self.low:g}"
-        hi = f"{MAX_MAGNITUDE:g}]" if self.high is None else f"{self.high:g}{')' if self.open_high else ']'}"
-        return f"{kind} in {lo}, {hi}"
+        lo = "(-inf" if self.low is None else f"{'(' if self.open_low else '['}{self.low:g}"
+        hi = "inf)" if self.high is None else f"{self.high:g}{')' if self.open_high else ']'}"
+        sane = f" within +-{MAX_MAGNITUDE:g}" if self.low is None or self.high is None else ""
+        return f"{kind} in {lo}, {hi}{sane}"
 
 
 class Numbers:
@@ -353,6 +354,8 @@ class InstanceOf:
         return isinstance(value, self.types)
 
     def __str__(self) -> str:
+        if self.types == (bool,):
+            return "True or False"
         return "an instance of " + " or ".join(t.__name__ for t in self.types)
 
 
@@ -384,7 +387,10 @@ CYCLE_TIME: list[Constraint] = [None, IsNaN(), Interval(0, 1e4, open_low=True)]
 
 
 def validate_params(
-    params: dict[str, Any], constraints: dict[str, list[Constraint]], source: str | os.PathLike[str] | None = None
+    params: dict[str, Any],
+    constraints: dict[str, list[Constraint]],
+    source: str | os.PathLike[str] | None = None,
+    what: str = "hyperparameter",
 ) -> None:
     """Check hyperparameters against a declarative table (one table per model, used by ``fit`` and ``load``).
 
@@ -392,6 +398,7 @@ def validate_params(
         params: ``name -> value`` (e.g. ``estimator.get_params()`` or a model file's header ``params``).
         constraints: ``name -> list of accepted forms`` (any one suffices; ``None`` accepts ``None``).
         source: the model file the values come from, or ``None`` for constructor arguments.
+        what: what a name is, for the message of an unknown one (``"hyperparameter"``, ``"key"``).
 
     Raises:
         ValueError: ``"<name>: expected ..., got ..."`` for a bad constructor argument.
@@ -400,7 +407,7 @@ def validate_params(
     """
     for name, value in params.items():
         if name not in constraints:
-            msg = f"unknown hyperparameter (known: {sorted(constraints)})"
+            msg = f"unknown {what} (known: {sorted(constraints)})"
             if source is not None:
                 raise ModelFileError(f"{source}: field 'params.{name}': {msg}")
             raise InputError(f"{name}: {msg}")

@@ -252,7 +252,7 @@ def test_every_env_argument_has_a_declared_check() -> None:
     from sensor_envs.envs.neato import NEATO_CONSTRAINTS
 
     highway = set(WRAPPER_CONSTRAINTS) | set(SENSOR_CONSTRAINTS) | set(MAKE_HIGHWAY_CONSTRAINTS)
-    own = {"config"}  # check_highway_config: every highway-env key, declared or by its default's type
+    own = {"config", "tracker"}  # check_highway_config (every highway-env key); tracker_config (TrackerConfig)
     assert set(fa._signature("sensor_envs/Highway-v0")) <= highway | own
     neato_own = {"map", "lidar", "model", "lidar_kwargs", "null_value", "render_mode"}  # name/file checks
     assert set(fa._signature("sensor_envs/Neato-v0")) <= set(NEATO_CONSTRAINTS) | neato_own

@@ -202,6 +202,6 @@ def _check_mapping(value: Any, table: dict[str, list[Constraint]], name: str, re
     if missing:
         raise InputError(f"{name}.{missing[0]}: missing")
     try:
-        validate_params(value, table)
+        validate_params(value, table, what="key")
     except InputError as exc:
         raise InputError(f"{name}.{exc}") from None

@@ -918,7 +918,7 @@ class LidarLWLR(BaseEstimator):
         r = np.asarray(r, dtype=np.float64)
         k = self.tables_.shape[1]
         if r.shape[-1] != k:
-            raise ValueError(f"nominal_range: last axis has {r.shape[-1]} bearings, the model has {k}")
+            raise InputError(f"nominal_range: last axis has {r.shape[-1]} bearings, the model has {k}")
         return r
 
     def _scan_tables(self, with_bias: bool = True) -> tuple[NDArray[np.floating[Any]], NDArray[np.int64]]:

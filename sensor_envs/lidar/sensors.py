@@ -117,8 +117,8 @@ class GaussianLidar:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
                 raise InputError(f"GaussianLidar: {name} must be a number, got {v!r}")
-            if not (np.isfinite(v) and 0 <= v <= 100):
-                raise InputError(f"GaussianLidar: {name} must be finite and in [0, 100], got {v!r}")
+            if not (np.isfinite(v) and v >= 0):
+                raise InputError(f"GaussianLidar: {name} must be finite and >= 0, got {v!r}")
         if not self.alpha_max < np.pi / 2:
             raise InputError(f"GaussianLidar: alpha_max must be < pi/2 [rad], got {self.alpha_max!r}")
         if not self.p_null_floor <= 1:

@@ -328,6 +328,11 @@ def _read_rows(reader: Any, src: str) -> RadarLog:
                 )
     if len(set(header)) != len(header):
         raise RadarLogError(f"{src}: duplicate column names in the header")
+    missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    if missing:  # before any row: an Astyx point cloud or another table is named as such, not by a row count
+        astyx = Path(src).parent.name.startswith("radar_") or not any(header)
+        hint = " (an Astyx frame? convert the folder with: sensor-envs record radar --astyx FOLDER --out LOG.csv)"
+        raise RadarLogError(f"{src}: required column {missing[0]!r} is missing from the header{hint if astyx else ''}")
     rows = [r for r in reader if r]
     req = [h in REQUIRED_COLUMNS for h in header]
     cols: dict[str, list[float]] = {h: [] for h in header}

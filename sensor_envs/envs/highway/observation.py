@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.envs.highway.frame import RadarFrame
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, InputTypeError
 from sensor_envs.modelio import Constraint, InstanceOf, Interval, Numbers, Options, validate_params
 
 __all__ = [
@@ -73,8 +73,12 @@ class KinematicsLayout:
         """
         if not isinstance(config, dict):
             raise InputError(f"observation: expected a dict, got {type(config).__name__}")
+        if config.get("type") != "Kinematics":
+            raise InputTypeError(
+                f"observation type: the radar wrapper needs 'Kinematics', got {config.get('type')!r:.60}"
+            )
         try:
-            validate_params(config, OBSERVATION_CONSTRAINTS)
+            validate_params(config, OBSERVATION_CONSTRAINTS, what="key")
         except InputError as exc:
             raise InputError(f"observation.{exc}") from None
         features = tuple(config.get("features") or cls.features)
@@ -87,7 +91,7 @@ class KinematicsLayout:
             if not isinstance(ranges, dict):
                 raise InputError(f"observation.features_range: expected a dict, got {type(ranges).__name__}")
             try:
-                validate_params(ranges, dict.fromkeys(SUPPORTED_FEATURES, [_RANGE]))
+                validate_params(ranges, dict.fromkeys(SUPPORTED_FEATURES, [_RANGE]), what="feature")
             except InputError as exc:
                 raise InputError(f"observation.features_range.{exc}") from None
             ranges = {k: (float(v[0]), float(v[1])) for k, v in ranges.items()}

@@ -202,9 +202,9 @@ WRAPPER_CONSTRAINTS: dict[str, list[Constraint]] = {
     "clutter": [Options(*CLUTTER_LEVELS)],
     "stationary": [Options(*STATIONARY_MODES)],
     "tracks": [InstanceOf(bool)],
-    "tracker": [None, InstanceOf(TrackerConfig, dict)],  # fields: TrackerConfig's own checks
 }
-"""Declared types and ranges of :class:`RadarObservation`'s arguments (the mount: ``SENSOR_CONSTRAINTS``)."""
+"""Declared types and ranges of :class:`RadarObservation`'s arguments (the mount: ``SENSOR_CONSTRAINTS``;
+``tracker``: :func:`~sensor_envs.envs.highway.tracker.tracker_config` and ``TrackerConfig``'s own checks)."""
 MAKE_HIGHWAY_CONSTRAINTS: dict[str, list[Constraint]] = {
     "base_id": [_NAME],
     "history": [Interval(1, 64, integer=True)],
@@ -311,7 +311,6 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 "clutter": clutter,
                 "stationary": stationary,
                 "tracks": tracks,
-                "tracker": tracker,
             },
             WRAPPER_CONSTRAINTS,
         )
