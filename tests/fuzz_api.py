@@ -89,7 +89,7 @@ def certainly_bad(value: Any, default: Any, hint: str = "") -> bool:
     ``"str"``, ``"pose"`` (three numbers), ``"map"``, ``"lidar"``, ``"radar"``.
     """
     if value is None:
-        return default is not None and hint not in ("number", "path", "dict", "str", "pose")
+        return default is not None and hint not in ("number", "path", "dict", "str", "pose", "seed")
     if isinstance(default, bool):
         return not isinstance(value, (bool, np.bool_))
     if _real(default):
@@ -411,7 +411,8 @@ def _radar_state(c: Chooser) -> np.ndarray:
 
 
 def _radar_state_sane(s: Any) -> bool:
-    a = np.asarray(s)
+    """A state the contract takes: ``(n, 2|4)`` or one row ``(2|4,)`` of real numbers, corners finite."""
+    a = np.atleast_2d(np.asarray(s))
     if a.dtype.kind not in "fiu" or a.ndim != 2 or a.shape[1] not in (2, 4):
         return False
     a = a.astype(np.float64)
