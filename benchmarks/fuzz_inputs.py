@@ -1,7 +1,9 @@
 """Generated malformed inputs across every reader and option, each run in a child process under limits.
 
-    PYTHONPATH=. nice -n 10 python benchmarks/fuzz_inputs.py --examples 2000 [--seed 0] [--timeout 20]
-        [--memory-gb 8] [--family "map file"] [--show 5]
+    PYTHONPATH=. nice -n 10 python benchmarks/fuzz_inputs.py --examples 2000 [--api 1000] [--seed 0]
+        [--timeout 20] [--memory-gb 8] [--family "map file"] [--show 5] [--json counts.json]
+
+Run it under ``ulimit -v 8000000`` to bound the parent too: the children never raise their limit above it.
 
 For each case (``tests/fuzz_cases.py``: a valid piece, one generated mutation, the command that reads
 it and the loader behind it), a forked child process (the package imported once in the parent) with
@@ -15,6 +17,14 @@ an address-space limit (``RLIMIT_AS``, ``ulimit -v``) of ``--memory-gb`` and a w
 * ``accepted``: a mutation that may well be valid (a truncation at a line end, a duplicated line...) taken;
 * ``hang``: killed at the time limit; ``memory``: ``MemoryError`` or killed under the memory limit;
 * ``files changed``: an input changed, or a file left behind by a failed command.
+
+With ``--api N``, N generated Python API calls follow (``tests/fuzz_api.py``: env constructors of every
+registered env id with their keyword arguments and highway-env config keys, ``reset`` and ``step`` with bad
+seeds, options and actions, the vector Neato entry, and ``fit`` / constructor / ``sample`` / ``log_prob`` /
+``load`` of every model class), each in a forked child under the same limits, counted per call class.
+A call must raise ``InputError`` or return a sane result (observations finite and in the observation space,
+finite rewards, finite samples or NaN miss rows, log-probabilities that are not NaN); any other exception is
+a traceback, a certainly-invalid argument taken is accepted nonsense.
 
 Prints a table of counts per family and class, then the first ``--show`` cases of every bad class.
 """

@@ -1450,7 +1450,7 @@ def load_learned_lidar(model: str | os.PathLike[str] | LidarLWLR | None = None, 
         ModelFileError: when the file is missing or malformed.
     """
     if kwargs:
-        raise ValueError(f"lidar: the learned lidar takes only 'model', got {sorted(kwargs)}")
+        raise InputError(f"lidar_kwargs: the learned lidar takes only 'model', got {sorted(kwargs)}")
     if isinstance(model, LidarLWLR):
         return LearnedLidar(model)
     return LearnedLidar(LidarLWLR.load(default_model_path(DEFAULT_MODEL_FILE) if model is None else model))
