@@ -788,7 +788,7 @@ CASES += [
         "object 0",
     ),
     C(ASTYX, "center3d-1e12", lambda d: record_astyx(astyx_obj(d, center3d=[1e12, 1.0, 0.5])), "'center3d'"),
-    C(ASTYX, "dimension3d-1e9", lambda d: record_astyx(astyx_obj(d, dimension3d=[1e9, 1.8, 1.5])), "'ref_length'"),
+    C(ASTYX, "dimension3d-1e9", lambda d: record_astyx(astyx_obj(d, dimension3d=[1e9, 1.8, 1.5])), "'dimension3d'"),
     C(
         ASTYX,
         "radar-four-columns",
