@@ -443,7 +443,7 @@ def _model_sample(c: Chooser, d: Path) -> Case:
                         or (isinstance(reps, (int, np.integer)) and not isinstance(reps, bool) and reps >= 1)
                     ),
                 )
-                if not must and reps > 1000:
+                if not must and reps is not None and reps > 1000:
                     must = True  # 10^30 repeats of a 360-bearing scan cannot be memory
         elif what == "rng":
             rng_v = any_value(c)

@@ -403,7 +403,7 @@ def _model(c: Chooser, d: Path) -> Case:
         else:
             old = header[where]
             header[where] = value
-            must = _changes_meaning(old, value, where)
+            must = _changes_meaning(old, value, where) and not (value is None and where in OPTIONAL_FIELDS)
         if c.integers(0, 4) == 0:
             text = json.dumps(header).replace('"kind"', '"x": ' + deep(100_000) + ', "kind"', 1)
             name, must = "header nested 100000 deep", True
@@ -445,6 +445,8 @@ def _changes_meaning(old: Any, value: Any, key: str = "") -> bool:
     return type(old) is not type(value)
 
 
+OPTIONAL_FIELDS = ("cycle_time", "pose_sd")
+"""Header fields whose ``null`` means "absent" (a radar fitted without a cycle time, a lidar without pose noise)."""
 LIST_OR_NONE = ("extra_variance",)
 """Hyperparameters that are ``None`` or a list: an empty list is the explicit form of "none" there."""
 
