@@ -99,6 +99,8 @@ def certainly_bad(value: Any, default: Any, hint: str = "") -> bool:
     if hint == "numbers" or (isinstance(default, (tuple, list)) and all(map(_real, default))):
         flat = isinstance(value, (list, tuple)) and all(map(plausible_number, value))
         return not (flat and (len(value) > 0 or hint != "numbers"))
+    if hint.startswith("number or "):  # a number in [0, 1] (shrinkage) or within 1e6, or the named word
+        return not ((isinstance(value, str) and value == hint.split()[-1]) or plausible_number(value))
     if hint == "seed":
         return not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and 0 <= value < 2**32)
     if hint == "pose":
@@ -180,6 +182,8 @@ HINTS = {
     "cv_candidates": "numbers",
     "extra_variance": "numbers",
     "random_state": "seed",
+    "bias_shrinkage": "number or cv",
+    "azimuth_bias": "number or fit",
 }
 """Kinds of the constructor arguments that default to ``None`` or take a name (see :func:`certainly_bad`)."""
 

@@ -221,6 +221,8 @@ def check_model_call(
 
     if log is not _UNSET and not isinstance(log, LidarLog):
         raise InputError(f"log: expected a LidarLog (sensor_envs.lidar.log.load_log), got {type(log).__name__}")
+    if log is _UNSET and (poses is None or map_segments is None):  # sample / log_prob: both required
+        raise InputError(f"{'poses' if poses is None else 'map_segments'}: required, got None")
     if rng is not _UNSET:
         check_rng(rng)
     if n_repeats is not None:
