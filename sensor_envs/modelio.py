@@ -206,11 +206,14 @@ def check_header(
         if name not in header_schema:
             raise ModelFileError(f"{path}: field {name!r} is not a field of this model's files")
         forms = [_NoneConstraint() if c is None else c for c in header_schema[name]]
-        if not any(c.accepts(value) for c in forms):
-            raise ModelFileError(
-                f"{path}: field {name!r} is invalid: expected {' or '.join(str(c) for c in forms)}, "
-                f"got {_shown(value, forms)}"
-            )
+        if any(c.accepts(value) for c in forms):
+            continue
+        expected = " or ".join(str(c) for c in forms)
+        if any(isinstance(c, Interval) for c in forms):  # a scalar field: the wording of check_range
+            number = isinstance(value, (int, float)) and not isinstance(value, bool)
+            what = f"holds {value!r}" if number else f"is not numeric ({_shown(value, forms)})"
+            raise ModelFileError(f"{path}: field {name!r} {what}; expected {expected}")
+        raise ModelFileError(f"{path}: field {name!r} is invalid: expected {expected}, got {_shown(value, forms)}")
 
 
 # ------------------------------------------------------------------------------- hyperparameter tables
