@@ -59,7 +59,6 @@ from __future__ import annotations
 
 import hashlib
 import itertools
-import json
 import math
 import os
 import warnings
@@ -70,12 +69,10 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats as sps
-from sklearn.base import BaseEstimator
-from sklearn.utils.validation import check_is_fitted
 from tqdm.auto import tqdm
 
 from sensor_envs.geometry import as_segments, raycast_pose
-from sensor_envs.inputs import InputError, load_npz
+from sensor_envs.inputs import InputError
 from sensor_envs.jit import compiled
 from sensor_envs.lidar.bias_transfer import (
     BIAS_MODELS,
@@ -110,17 +107,15 @@ from sensor_envs.modelio import (
     Options,
     check_finite,
     check_increasing,
+    check_model_arrays,
     check_positive,
     check_probability,
     check_range,
     check_shape,
     default_model_path,
-    load_model_file,
-    params_from_header,
-    save_model_file,
-    validate_params,
 )
 from sensor_envs.rng import fold_ids
+from sensor_envs.sensor_model import Arrays, Header, SensorModel, set_param_defaults
 
 __all__ = [
     "LidarLWLR",
@@ -280,7 +275,7 @@ def pose_fold_groups(poses: ArrayLike, decimals: int = 4) -> NDArray[np.int64]:
 
 
 # ------------------------------------------------------------------------------------------------ model
-class LidarLWLR(BaseEstimator):
+class LidarLWLR(SensorModel):
     """Per-bearing LWLR lidar model (a scikit-learn estimator: ``get_params``/``set_params``/``clone``).
 
     Args:
@@ -296,7 +291,6 @@ class LidarLWLR(BaseEstimator):
         table_range_step: range step of the parameter tables [m].
         table_alpha_steps: number of incidence knots of the tables over ``[0, pi/2]``.
         random_state: seed or Generator for the fold assignment.
-        progress: show tqdm progress bars.
         extra_state: names of extra state variables of scan logs (``t``, ``prev_residual``, covariate
             names such as ``v``, ``omega``), linear terms on top of the tables
             (:mod:`sensor_envs.lidar.extra_state`); queries then pass ``extra``.
@@ -311,6 +305,25 @@ class LidarLWLR(BaseEstimator):
             residual fit, ``lam`` chosen with the shrinkage by the folds (:mod:`sensor_envs.lidar.bias_transfer`);
             ``"per_bearing"``: the per-bearing fit alone (the behaviour before format 6). Scan logs fitted per
             reading (:mod:`sensor_envs.lidar.readings`) always use the per-bearing bias.
+        verbose: show tqdm progress bars of the fit.
+        **deprecated: ``progress`` (the name of ``verbose`` before the model contract; a ``FutureWarning``).
+
+    Attributes:
+        tables_: ``(n_params, K, n_r, n_alpha)`` parameter tables per bearing on the ``(r, alpha)`` grid.
+        param_names_: the parameters of ``tables_`` (``p_null``, ``bias``, ``sigma`` or ``log_sigma``, ...).
+        range_grid_: ``(n_r,)`` nominal ranges [m]; alpha_grid_: ``(n_alpha,)`` incidences [rad] of the tables.
+        bearings_: ``(K,)`` bearings [rad].
+        h_: per parameter, ``[h_range [m], h_alpha [rad], h_bearing [steps], degree]`` chosen by CV.
+        cv_scores_: the CV's scores and choices (kernel widths, shrinkage, pose error).
+        spur_mu_, spur_sigma_: mean and std [m] of the spurious far returns.
+        p_out_: share of outlying cells; null_rho_, spur_rho_: intra-cell correlations of nulls and spurious
+            returns (0: independent readings).
+        bias_shrinkage_: the shrinkage ``s`` of the bias in use.
+        pose_sd_: ``(3,)`` rigid pose error sd ``(dx [m], dy [m], dtheta [rad])`` of :meth:`sample`, or ``None``.
+        extra_state_, extra_mean_, extra_scale_, extra_coef_: the extra state's names, standardisation and
+            linear terms (:mod:`sensor_envs.lidar.extra_state`).
+        training_: a summary of the training log (no readings).
+        card_: the model card entries (:class:`~sensor_envs.sensor_model.SensorModel`), e.g. ``gaussian_baseline``.
 
     Examples:
         >>> import numpy as np
@@ -323,7 +336,18 @@ class LidarLWLR(BaseEstimator):
         ((1, 360), True)
     """
 
-    _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
+    KIND = MODEL_KIND
+    FORMAT_VERSION = FORMAT_VERSION
+    CAPABILITIES = frozenset({"extra_state", "log_prob"})
+    _FITTED = "tables_"
+    _SCHEMA: ClassVar[dict[str, tuple[str, int | None, bool]]] = {
+        "tables": ("f", 4, True),
+        "bearings": ("f", 1, True),
+        "range_grid": ("f", 1, True),
+        "alpha_grid": ("f", 1, True),
+    }
+    _PARAM_DEFAULTS: ClassVar[dict[str, Any]] = {"extra_state": ()}
+    _parameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
         "variant": [Options(*VARIANTS)],
         "n_folds": [Interval(2, None, integer=True)],
         "h_range_grid": [Numbers(Interval(0, None, open_low=True))],
@@ -335,7 +359,7 @@ class LidarLWLR(BaseEstimator):
         "table_range_step": [Interval(1e-3, 10)],  # at most spur_above / 1e-3 table cells
         "table_alpha_steps": [Interval(2, None, integer=True)],
         "random_state": RANDOM_STATE,
-        "progress": [InstanceOf(bool)],
+        "verbose": [InstanceOf(bool)],
         "extra_state": [InstanceOf(tuple, list)],  # details: check_extra_state
         "bias_shrinkage": [Options("cv"), Interval(0, 1)],
         "pose_correction": [InstanceOf(bool)],
@@ -357,11 +381,12 @@ class LidarLWLR(BaseEstimator):
         table_range_step: float = 0.125,
         table_alpha_steps: int = 9,
         random_state: int | np.random.Generator | None = 0,
-        progress: bool = True,
         extra_state: tuple[str, ...] = (),
         bias_shrinkage: str | float = "cv",
         pose_correction: bool = False,
         bias_model: str = "pooled",
+        verbose: bool = False,
+        **deprecated: Any,
     ) -> None:
         self.variant = variant
         self.n_folds = n_folds
@@ -374,16 +399,23 @@ class LidarLWLR(BaseEstimator):
         self.table_range_step = table_range_step
         self.table_alpha_steps = table_alpha_steps
         self.random_state = random_state
-        self.progress = progress
         self.extra_state = extra_state
         self.bias_shrinkage = bias_shrinkage
         self.pose_correction = pose_correction
         self.bias_model = bias_model
+        unknown = sorted(set(deprecated) - {"progress"})
+        if unknown:
+            raise TypeError(f"LidarLWLR got unexpected keyword arguments {unknown}")
+        self.verbose = self._deprecated_progress(deprecated.get("progress"), verbose)
 
     # ---------------------------------------------------------------------------------------- fitting
-    def _check_hyper(self, log: LidarLog) -> None:
-        validate_params(self.get_params(), self._hyperparameter_constraints)
+    def _check_params_relations(self, source: str | os.PathLike[str] | None) -> None:
+        """The ``extra_state`` names are valid (``InputError`` naming the parameter)."""
         check_extra_state(self.extra_state)
+
+    def _check_params_for(self, log: LidarLog) -> None:
+        """The hyperparameters (:meth:`_check_params`) and ``n_folds`` within the log's distinct poses."""
+        self._check_params()
         n = int(pose_fold_groups(log.poses).max(initial=-1)) + 1
         if not 2 <= self.n_folds <= n:
             what = "number of poses" if n == log.n_poses else "number of distinct poses"
@@ -414,10 +446,11 @@ class LidarLWLR(BaseEstimator):
 
             fit_per_reading(self, log, **reading_options)
             fit_extra_terms(self, log)
+            self.card_ = {}
             return self
         if reading_options:
             raise TypeError(f"fit: options {sorted(reading_options)} apply to the per-reading fit only")
-        self._check_hyper(log)
+        self._check_params_for(log)
         if self.extra_state:
             raise InputError(f"{log.source}: extra_state needs a scan log (one reading per scan and bearing)")
         segs = log.require_map()
@@ -470,6 +503,7 @@ class LidarLWLR(BaseEstimator):
             "sha256_of_ranges": hashlib.sha256(np.ascontiguousarray(log.ranges).tobytes()).hexdigest(),
         }
         fit_extra_terms(self, log)
+        self.card_ = {}
         return self
 
     def _groups(
@@ -645,7 +679,7 @@ class LidarLWLR(BaseEstimator):
         counts = ("p_null", "p_spur")  # out-of-fold probabilities of the counted outcomes (for null_rho, spur_rho)
         oof_p = {n: np.zeros((len(grid),) + r.shape) for g in groups for n in g[0] if n in counts}
         cnt = {n: np.zeros(len(grid)) for g in groups for n in g[0]}
-        for f in tqdm(range(self.n_folds), desc=f"CV lidar LWLR ({self.variant})", disable=not self.progress):
+        for f in tqdm(range(self.n_folds), desc=f"CV lidar LWLR ({self.variant})", disable=not self.verbose):
             tr, te = fold != f, fold == f
             for names, y, weight, robust in groups:
                 w_tr = _robust_weights(r[tr], a[tr], y[tr], weight[tr]) if robust else weight[tr]
@@ -689,7 +723,7 @@ class LidarLWLR(BaseEstimator):
         hit = np.isfinite(r)
         r0, a0 = np.where(hit, r, 0.0), np.nan_to_num(a)
         tables, names = [], []
-        for grp, y, weight, robust in tqdm(groups, desc="tabulating", disable=not self.progress):
+        for grp, y, weight, robust in tqdm(groups, desc="tabulating", disable=not self.verbose):
             w = _robust_weights(r0, a0, y, weight) if robust else weight
             for j, n in enumerate(grp):
                 h_r, h_a, h_b, deg = self.h_[n]
@@ -722,7 +756,27 @@ class LidarLWLR(BaseEstimator):
     def _check_fitted(self) -> None:
         """Raise sklearn's ``NotFittedError`` unless the model is fitted or loaded (fast when it is: scans call it)."""
         if "tables_" not in self.__dict__:
-            check_is_fitted(self, "tables_", msg=_NOT_FITTED)
+            super()._check_fitted()
+
+    def baseline(self) -> dict[str, float] | None:
+        """Keyword arguments of the :class:`~sensor_envs.lidar.sensors.GaussianLidar` fitted with this model.
+
+        From the card's ``gaussian_baseline``; ``None`` when the model keeps none.
+        """
+        g = self.__dict__.get("card_", {}).get("gaussian_baseline")
+        if not isinstance(g, dict):
+            return None
+        keys = ("sigma0", "k_range", "k_incidence", "alpha_max", "p_null_floor")
+        return {k: float(g[k]) for k in keys if k in g}
+
+    @property
+    def card_extra_(self) -> dict[str, Any]:
+        """Card entries beyond ``training_`` and ``cv_scores_`` (the name of ``card_`` before the contract)."""
+        return self.__dict__.setdefault("card_", {})
+
+    @card_extra_.setter
+    def card_extra_(self, value: dict[str, Any]) -> None:
+        self.card_ = dict(value)
 
     def params_from_features(
         self, r: ArrayLike, alpha: ArrayLike, extra: ArrayLike | None = None, base_only: bool = False
@@ -1002,14 +1056,14 @@ class LidarLWLR(BaseEstimator):
     def to_header(self) -> dict[str, Any]:
         """JSON header of the model file: hyperparameters, fitted scalars and the card."""
         self._check_fitted()
-        hyper = {
-            k: (list(v) if isinstance(v, tuple) else v)
-            for k, v in self.get_params().items()
-            if k not in ("random_state", "progress")
-        }
-        card = {"training": self.training_, "cv_scores": self.cv_scores_, **getattr(self, "card_extra_", {})}
-        return {
-            "params": hyper,
+        header, _ = self._to_file()
+        header["card"] = {**header["card"], **self.card_}
+        return header
+
+    def _to_file(self) -> tuple[Header, Arrays]:
+        """Header and arrays of the current format (:class:`~sensor_envs.sensor_model.SensorModel`)."""
+        header = {
+            "params": self._saved_params(self),
             "h": self.h_,
             "param_names": self.param_names_,
             "spur_mu": self.spur_mu_,
@@ -1019,51 +1073,25 @@ class LidarLWLR(BaseEstimator):
             "spur_rho": self.spur_rho_,
             "bias_shrinkage": self.bias_shrinkage_,
             "pose_sd": None if (sd := getattr(self, "pose_sd_", None)) is None else [float(v) for v in sd],
-            "card": card,
+            "card": {"training": self.training_, "cv_scores": self.cv_scores_},
         }
-
-    def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write the model file (tables + JSON header, no pickle, no training readings)."""
-        return save_model_file(
-            path,
-            MODEL_KIND,
-            FORMAT_VERSION,
-            self.to_header(),
-            {
-                "tables": self.tables_.astype(np.float32),
-                "bearings": self.bearings_,
-                "range_grid": self.range_grid_,
-                "alpha_grid": self.alpha_grid_,
-                "extra_mean": np.asarray(self.extra_mean_, dtype=np.float64),
-                "extra_scale": np.asarray(self.extra_scale_, dtype=np.float64),
-                "extra_coef": np.asarray(self.extra_coef_, dtype=np.float64),
-            },
-        )
+        arrays = {
+            "tables": self.tables_.astype(np.float32),
+            "bearings": self.bearings_,
+            "range_grid": self.range_grid_,
+            "alpha_grid": self.alpha_grid_,
+            "extra_mean": np.asarray(self.extra_mean_, dtype=np.float64),
+            "extra_scale": np.asarray(self.extra_scale_, dtype=np.float64),
+            "extra_coef": np.asarray(self.extra_coef_, dtype=np.float64),
+        }
+        return header, arrays
 
     @classmethod
-    def load(cls, path: str | os.PathLike[str]) -> LidarLWLR:
-        """Read a model file written by :meth:`save`.
-
-        Raises:
-            ModelFileError: naming the file and the field when it is malformed.
-        """
-        schema = {
-            "tables": ("f", 4, True),
-            "bearings": ("f", 1, True),
-            "range_grid": ("f", 1, True),
-            "alpha_grid": ("f", 1, True),
-        }
-        version = _peek_version(path)
-        if version >= 3:
-            schema.update({"extra_mean": ("f", 1, True), "extra_scale": ("f", 1, True), "extra_coef": ("f", 2, True)})
-        header, arr = load_model_file(path, MODEL_KIND, (1, 2, 3, 4, 5, FORMAT_VERSION), schema)
-        defaults: dict[str, Any] = {"extra_state": ()}
-        if version < 4:  # before the shrinkage: the learned bias as is, no pose correction (their old behaviour)
-            defaults.update(bias_shrinkage=0.0, pose_correction=False)
-        if version < 6:  # before the pooled bias: the per-bearing one
-            defaults.update(bias_model="per_bearing")
+    def _from_file(cls, path: Path, header: Header, arrays: Arrays) -> LidarLWLR:
+        """The model of a current-format file (values checked)."""
+        arr = arrays
         try:
-            params = params_from_header(path, header, cls._hyperparameter_constraints, defaults=defaults)
+            params = cls._params_from(path, header)
             try:
                 params["extra_state"] = check_extra_state(params["extra_state"])
             except ValueError as exc:
@@ -1073,10 +1101,9 @@ class LidarLWLR(BaseEstimator):
             model.spur_mu_, model.spur_sigma_ = float(header["spur_mu"]), float(header["spur_sigma"])
             model.p_out_ = float(header["p_out"])
             model.null_rho_ = float(header.get("null_rho", 0.0))
-            model.spur_rho_ = float(header["spur_rho"]) if version >= 5 else 0.0
-            shrink = header["bias_shrinkage"] if version >= 4 else 0.0
-            model.bias_shrinkage_ = float(check_range(path, "bias_shrinkage", shrink, 0.0, 1.0))
-            model.pose_sd_ = _load_pose_sd(path, header.get("pose_sd") if version >= 6 else None)
+            model.spur_rho_ = float(header["spur_rho"])
+            model.bias_shrinkage_ = float(check_range(path, "bias_shrinkage", header["bias_shrinkage"], 0.0, 1.0))
+            model.pose_sd_ = _load_pose_sd(path, header.get("pose_sd"))
             card = dict(header["card"])
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             if isinstance(exc, ModelFileError):
@@ -1088,22 +1115,55 @@ class LidarLWLR(BaseEstimator):
         want = (len(model.param_names_), arr["bearings"].size, arr["range_grid"].size, arr["alpha_grid"].size)
         if t.shape != want:
             raise ModelFileError(f"{path}: field 'tables' has shape {t.shape}, expected {want}")
+        check_model_arrays(
+            path, arr, {"extra_mean": ("f", 1, True), "extra_scale": ("f", 1, True), "extra_coef": ("f", 2, True)}
+        )
         _check_extra_values(path, model, arr)
         _check_values(path, model, arr)
         model.tables_, model.bearings_ = t.astype(np.float64), arr["bearings"]
         model.range_grid_, model.alpha_grid_ = arr["range_grid"], arr["alpha_grid"]
         model.training_, model.cv_scores_ = card.pop("training", {}), card.pop("cv_scores", {})
-        model.card_extra_ = card
+        model.card_ = card
         return model
 
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> LidarLWLR:
+        """Read a model file of any supported format (:meth:`SensorModel.load`); ``card_`` without ``training``."""
+        header, arrays = cls.read_current(Path(path))
+        return cls._from_file(Path(path), header, arrays)
 
-def _peek_version(path: str | os.PathLike[str]) -> int:
-    """The file's ``format_version`` (0 when unreadable: :func:`load_model_file` then names the fault)."""
-    try:
-        v = json.loads(load_npz(path)["__header__"].tobytes().decode("utf-8")).get("format_version", 0)
-        return int(v) if isinstance(v, int) else 0
-    except Exception:
-        return 0
+
+# ------------------------------------------------------------------------------- format upgrades
+def _upgrade_1(path: Path, header: Header, arrays: Arrays) -> None:
+    """Format 1 has independent nulls."""
+    header.setdefault("null_rho", 0.0)
+
+
+def _upgrade_2(path: Path, header: Header, arrays: Arrays) -> None:
+    """Format 2 has no extra state."""
+    set_param_defaults(header, extra_state=[])
+    if "extra_coef" not in arrays:
+        arrays.update(extra_mean=np.zeros(0), extra_scale=np.ones(0), extra_coef=np.zeros((3, 1)))
+
+
+def _upgrade_3(path: Path, header: Header, arrays: Arrays) -> None:
+    """Format 3 uses the learned bias as is (no shrinkage) and no pose correction."""
+    set_param_defaults(header, bias_shrinkage=0.0, pose_correction=False)
+    header["bias_shrinkage"] = 0.0
+
+
+def _upgrade_4(path: Path, header: Header, arrays: Arrays) -> None:
+    """Format 4 has independent spurious returns."""
+    header["spur_rho"] = 0.0
+
+
+def _upgrade_5(path: Path, header: Header, arrays: Arrays) -> None:
+    """Format 5 has the per-bearing bias and no rigid pose error in :meth:`LidarLWLR.sample`."""
+    set_param_defaults(header, bias_model="per_bearing")
+    header["pose_sd"] = None
+
+
+LidarLWLR._UPGRADES = {1: _upgrade_1, 2: _upgrade_2, 3: _upgrade_3, 4: _upgrade_4, 5: _upgrade_5}
 
 
 def _check_extra_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dict[str, NDArray[Any]]) -> None:
@@ -1127,9 +1187,6 @@ def _check_extra_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dic
     model.extra_state_ = tuple(model.extra_state)
     model.extra_mean_, model.extra_scale_ = arr["extra_mean"].astype(np.float64), arr["extra_scale"].astype(np.float64)
     model.extra_coef_ = arr["extra_coef"].astype(np.float64)
-
-
-_NOT_FITTED = "This %(name)s is not fitted yet; call fit(log) or LidarLWLR.load(path) first"
 
 
 def _check_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dict[str, NDArray[Any]]) -> None:

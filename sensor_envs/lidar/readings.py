@@ -284,7 +284,7 @@ def fit_per_reading(
     Raises:
         ValueError: for bad hyperparameters, a log without map or a map that does not cover the scans.
     """
-    model._check_hyper(log)
+    model._check_params_for(log)
     if model.pose_correction:
         raise InputError(f"{log.source}: pose_correction needs a static log with repeats (the per-cell fit)")
     segs = log.require_map()
@@ -317,7 +317,7 @@ def fit_per_reading(
     bar = tqdm(
         total=(len(binary) + 2) * folds.size * stages,
         desc=f"CV lidar LWLR per reading ({model.variant})",
-        disable=not model.progress,
+        disable=not model.verbose,
     )
 
     def cv(kind: str, y: NDArray[np.float64], w: NDArray[np.float64]) -> tuple[list[float], dict[str, Any]]:

@@ -111,8 +111,6 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 from scipy.special import ndtr
-from sklearn.base import BaseEstimator
-from sklearn.utils.validation import check_is_fitted
 
 from sensor_envs.geometry import from_polar_frame, to_polar_frame
 from sensor_envs.inputs import InputError
@@ -129,10 +127,7 @@ from sensor_envs.modelio import (
     check_positive,
     check_range,
     check_shape,
-    load_model_file,
     optional_positive,
-    params_from_header,
-    save_model_file,
     validate_params,
 )
 from sensor_envs.radar.alignment import MAX_AZIMUTH_BIAS, derotate_offsets, estimate_azimuth_bias, rotate_offsets
@@ -152,6 +147,7 @@ from sensor_envs.radar.relevance import (
     select_extra_variances,
     select_prev_variance,
 )
+from sensor_envs.sensor_model import Arrays, Header, SensorModel, set_param_defaults
 
 __all__ = ["KDERadarModel", "corner_features", "cv_bandwidth_table"]
 
@@ -200,7 +196,6 @@ MAX_TAIL_SCALE = 100.0
 """Largest factor of the tail component's bandwidths over the main kernels'."""
 _LOG_2PI = np.log(2.0 * np.pi)
 _POSITIVE = Interval(0, None, open_low=True)
-_NOT_FITTED = "This %(name)s is not fitted yet; call fit(log) or KDERadarModel.load(path) first"
 
 
 @dataclass(frozen=True)
@@ -363,7 +358,7 @@ def relevance_features(states: NDArray, state_transform: str) -> NDArray[np.floa
     return np.concatenate([corner_features(states[:, :2], state_transform), states[:, 2:]], axis=1)
 
 
-class KDERadarModel(BaseEstimator):
+class KDERadarModel(SensorModel):
     """Joint-KDE radar model with two-stage sampling (implements ``RadarSensor``; a scikit-learn estimator).
 
     Args:
@@ -439,6 +434,30 @@ class KDERadarModel(BaseEstimator):
         tail_weight: share ``w`` in ``[0, 0.5]`` of the detection density in the wide (tail) component (see
             the module docstring); ``0`` (the default, and every file before format 8): none.
         tail_scale: factor ``c`` in ``[1, 100]`` of the tail component's bandwidths over the main kernels'.
+        verbose: show progress bars of the relevance CV (``relevance != "paper"``, the extra-state CV).
+
+    Attributes:
+        states_: ``(N, 4)`` stored tuple states: corner [m] (sensor frame) and previous output ``z_{t-1}`` [m]
+            in the stored frame (``NaN``: none).
+        z_: ``(N, 2)`` stored outputs [m] in the stored frame (``NaN`` rows: misses).
+        log_row_: ``(N,)`` row of the training log each tuple comes from.
+        new_track_: ``(N,)`` True where the tuple's target is first seen, or ``None`` (files without the flags).
+        rel_variance_: the relevance variances used (``rel_variance``, or those the CV chose).
+        relevance_scores_: held-out scores of the relevance CV candidates (empty for ``"paper"``).
+        scale_: ``(4,)`` relevance sigmas ``sqrt(rel_variance_)``.
+        extra_state_: names of the extra state variables; extra_: ``(N, E)`` their values;
+            extra_fill_: ``(E,)`` training medians (NaN fill); extra_variance_, extra_scale_: their relevance
+            variances and sigmas; extra_scores_: the extra-state CV's scores.
+        azimuth_bias_: the mounting yaw error [rad] undone before the kernels.
+        grid_x_, grid_y_: the CV bandwidth grid over corner x, y [m]; log_h_: ``(nx, ny, 2)`` log
+            bandwidths [log m] (``bandwidth_scale`` included); cv_counts_: tuples per grid node; cand_: the
+            candidate bandwidths [m].
+        clutter_counts_: clutter detections per training cycle; clutter_xy_: ``(M, 2)`` clutter positions [m].
+        cycle_time_: seconds between the frames of the training log (NaN: unknown).
+        miss_rate_: the log's miss rate; prior_rate_main_, prior_rate_start_, prior_rate_new_,
+            prior_rate_lost_: each tree's prior miss rate ``m``.
+        median_neighbours_: median tuples in the ball of a stored state (``sampler="auto"``).
+        card_: the model card entries (:class:`~sensor_envs.sensor_model.SensorModel`).
 
     Examples:
         >>> import numpy as np
@@ -451,7 +470,27 @@ class KDERadarModel(BaseEstimator):
         (1, 2)
     """
 
-    _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
+    KIND = KIND
+    FORMAT_VERSION = FORMAT_VERSION
+    CAPABILITIES = frozenset({"new_track", "extra_state", "prev_output", "log_prob", "clutter"})
+    _FITTED = "states_"
+    _SCHEMA: ClassVar[dict[str, tuple[str, int | None, bool]]] = {
+        "states": ("f", 2, False),
+        "z": ("f", 2, False),
+        "log_row": ("iu", 1, True),
+        "grid_x": ("f", 1, True),
+        "grid_y": ("f", 1, True),
+        "log_h": ("f", 3, True),
+        "cv_counts": ("iu", 2, True),
+        "cv_candidates": ("f", 1, True),
+        "clutter_counts": ("iu", 1, True),
+        "clutter_xy": ("f", 2, True),
+    }
+    _PARAM_DEFAULTS: ClassVar[dict[str, Any]] = {  # files written before the factors and the prev CV
+        "relevance_candidates_prev": PREV_CANDIDATES,
+        "bandwidth_scale": 1.0,
+    }
+    _parameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
         "rel_variance": [Numbers(Interval(0, MAX_POSITION**2, open_low=True), length=4)],
         "use_prev": [InstanceOf(bool)],
         "radius": [_POSITIVE],
@@ -483,6 +522,7 @@ class KDERadarModel(BaseEstimator):
         "azimuth_bias": [Options("fit"), Interval(-MAX_AZIMUTH_BIAS, MAX_AZIMUTH_BIAS)],
         "tail_weight": [Interval(0, MAX_TAIL_WEIGHT)],
         "tail_scale": [Interval(1, MAX_TAIL_SCALE)],
+        "verbose": [InstanceOf(bool)],
     }
     """One declarative check of every hyperparameter, used by :meth:`fit` and :meth:`load`."""
 
@@ -520,6 +560,7 @@ class KDERadarModel(BaseEstimator):
         azimuth_bias: float | str = 0.0,
         tail_weight: float = 0.0,
         tail_scale: float = 4.0,
+        verbose: bool = False,
     ) -> None:
         self.rel_variance = rel_variance
         self.use_prev = use_prev
@@ -552,26 +593,27 @@ class KDERadarModel(BaseEstimator):
         self.azimuth_bias = azimuth_bias
         self.tail_weight = tail_weight
         self.tail_scale = tail_scale
+        self.verbose = verbose
 
     # ------------------------------------------------------------------ fit
-    def _check_params(self) -> None:
-        """Check every hyperparameter against the class's table (``ValueError`` naming the bad one)."""
-        validate_params(self.get_params(), self._hyperparameter_constraints)
+    def _check_params_relations(self, source: str | os.PathLike[str] | None) -> None:
+        """The ``extra_*`` hyperparameters agree with each other (``InputError`` naming the parameter)."""
         _check_extra_params(self.extra_state, self.extra_variance, self.extra_candidates)
 
-    def fit(self, log: RadarLog, cycle_time: float | None = None, progress: bool = False) -> KDERadarModel:
+    def fit(self, log: RadarLog, cycle_time: float | None = None, progress: bool | None = None) -> KDERadarModel:
         """Fit on a radar log: store the tuples, build the trees, run the LOO-CV bandwidth table.
 
         Args:
             log: the radar object log.
-            cycle_time: seconds between consecutive frames of the log (stored in the model card).
-            progress: show a progress bar of the ``relevance="cv"`` selection.
+            cycle_time: seconds between consecutive frames of the log (stored in the model file).
+            progress: deprecated; the ``verbose`` hyperparameter.
 
         Returns:
             self.
         """
         cycle = fit_cycle_time(log, cycle_time)  # a RadarLog; the cycle time consistent with its t column
         self._check_params()
+        progress = self._deprecated_progress(progress, self.verbose)
         rng = np.random.default_rng(self.random_state)
         tt = target_tuples(log)
         det = ~np.isnan(tt.z[:, 0])
@@ -648,6 +690,7 @@ class KDERadarModel(BaseEstimator):
             xy = xy[np.sort(rng.choice(xy.shape[0], MAX_CLUTTER_POSITIONS, replace=False))]
         self.clutter_counts_, self.clutter_xy_ = counts, xy
         self.cycle_time_ = cycle
+        self.card_: dict[str, Any] = {}
         self._build()
         return self
 
@@ -836,10 +879,6 @@ class KDERadarModel(BaseEstimator):
         self.__dict__.update(state)
         if hasattr(self, "states_"):
             self._build()
-
-    def _check_fitted(self) -> None:
-        """Raise sklearn's ``NotFittedError`` unless the model is fitted or loaded."""
-        check_is_fitted(self, "states_", msg=_NOT_FITTED)
 
     # ------------------------------------------------------------------ query
     def bandwidth(self, corners: NDArray, start: NDArray | bool = False) -> NDArray[np.float64]:
@@ -1230,7 +1269,7 @@ class KDERadarModel(BaseEstimator):
         import copy
 
         self._check_fitted()
-        check = {"bandwidth_scale": self._hyperparameter_constraints["bandwidth_scale"]}
+        check = {"bandwidth_scale": self._parameter_constraints["bandwidth_scale"]}
         for value in (factor, self.bandwidth_scale * factor):  # the factor, and the model's factor after it
             validate_params({"bandwidth_scale": value}, check)
         out = copy.deepcopy(self)
@@ -1247,7 +1286,7 @@ class KDERadarModel(BaseEstimator):
         import copy
 
         self._check_fitted()
-        validate_params({"start_bandwidth_scale": value}, self._hyperparameter_constraints)
+        validate_params({"start_bandwidth_scale": value}, self._parameter_constraints)
         out = copy.deepcopy(self)
         out.start_bandwidth_scale = None if value is None else float(value)
         return out
@@ -1261,15 +1300,14 @@ class KDERadarModel(BaseEstimator):
         import copy
 
         self._check_fitted()
-        validate_params({"tail_weight": weight, "tail_scale": scale}, self._hyperparameter_constraints)
+        validate_params({"tail_weight": weight, "tail_scale": scale}, self._parameter_constraints)
         out = copy.deepcopy(self)
         out.tail_weight, out.tail_scale = float(weight), float(scale)
         return out
 
-    def save(self, path: str | os.PathLike[str], card: dict[str, Any] | None = None) -> Path:
-        """Save to a pickle-free ``.npz`` model file (:mod:`sensor_envs.modelio`)."""
-        self._check_fitted()
-        params = {k: v for k, v in self.get_params().items() if k not in ("cv_candidates", "random_state")}
+    def _to_file(self) -> tuple[Header, Arrays]:
+        """Header and arrays of the current format (:class:`~sensor_envs.sensor_model.SensorModel`)."""
+        params = self._saved_params(self, skip=("cv_candidates",))  # the candidates are stored as an array
         params["rel_variance"] = [float(v) for v in self.rel_variance]
         params["relevance_candidates"] = [float(v) for v in self.relevance_candidates]
         params["extra_state"] = [str(v) for v in self.extra_state_]
@@ -1280,7 +1318,6 @@ class KDERadarModel(BaseEstimator):
         header = {
             "params": params,
             "cycle_time": self.cycle_time_,
-            "card": card or {},
             "rel_variance_fitted": list(self.rel_variance_),
             "relevance_scores": [float(v) for v in self.relevance_scores_],
             "state_variables": list(self.state_variables),
@@ -1304,42 +1341,13 @@ class KDERadarModel(BaseEstimator):
         }
         if self.new_track_ is not None:
             arrays["new_track"] = self.new_track_.astype(np.uint8)
-        return save_model_file(path, KIND, FORMAT_VERSION, header, arrays)
+        return header, arrays
 
     @classmethod
-    def load(cls, path: str | os.PathLike[str]) -> KDERadarModel:
-        """Load a model file written by :meth:`save` (no pickle; trees rebuilt here)."""
-        schema = {
-            "states": ("f", 2, False),
-            "z": ("f", 2, False),
-            "log_row": ("iu", 1, True),
-            "grid_x": ("f", 1, True),
-            "grid_y": ("f", 1, True),
-            "log_h": ("f", 3, True),
-            "cv_counts": ("iu", 2, True),
-            "cv_candidates": ("f", 1, True),
-            "clutter_counts": ("iu", 1, True),
-            "clutter_xy": ("f", 2, True),
-        }
-        header, a = load_model_file(path, KIND, (1, 2, 3, 4, 5, 6, 7, FORMAT_VERSION), schema)
-        defaults = {  # parameters older formats lack: 1 has no prior_rate, 1 and 2 no extra state
-            "prior_rate": "global",
-            "extra_state": (),
-            "extra_variance": None,
-            "extra_candidates": (0.25, 0.5, 1.0, 2.0),
-            "relevance_candidates_prev": PREV_CANDIDATES,  # files written before relevance="cv_state"
-            "bandwidth_scale": 1.0,  # files written before the factor existed
-        }
-        if int(header.get("format_version", 0)) < 5:  # format 5 must state its corner features
-            defaults.update(state_transform="cartesian", relevance_candidates_azimuth=AZIMUTH_CANDIDATES)
-        if int(header.get("format_version", 0)) < 6:  # format 6 must state its output frame
-            defaults.update(output_frame="cartesian")
-        if int(header.get("format_version", 0)) < 7:  # format 7 must state its yaw error and start factor
-            defaults.update(azimuth_bias=0.0, start_bandwidth_scale=None)
-        if int(header.get("format_version", 0)) < 8:  # format 8 must state its tail mixture
-            defaults.update(tail_weight=0.0, tail_scale=4.0)
-        not_saved = ("random_state", "cv_candidates")  # the candidates are stored as an array
-        model = cls(**params_from_header(path, header, cls._hyperparameter_constraints, defaults, not_saved))
+    def _from_file(cls, path: Path, header: Header, arrays: Arrays) -> KDERadarModel:
+        """The model of a current-format file (values checked; trees rebuilt here)."""
+        a = arrays
+        model = cls(**cls._params_from(path, header, not_saved=("cv_candidates",)))
         _check_arrays(path, a)
         model.states_, model.z_, model.log_row_ = a["states"], a["z"], a["log_row"].astype(np.int64)
         model.grid_x_, model.grid_y_, model.log_h_ = a["grid_x"], a["grid_y"], a["log_h"]
@@ -1352,12 +1360,66 @@ class KDERadarModel(BaseEstimator):
         model.relevance_scores_ = np.asarray(header.get("relevance_scores", []), dtype=np.float64)
         model.scale_ = np.sqrt(np.asarray(model.rel_variance_, dtype=np.float64))
         model.cycle_time_ = optional_positive(path, "cycle_time", header.get("cycle_time"))
-        model.card_ = header.get("card", {})
         model.azimuth_bias_ = _load_azimuth_bias(header, path, model.azimuth_bias)
         _load_extra(model, header, a, path)
         model.new_track_ = _load_new_track(header, a, path, model.states_)
         model._build()
         return model
+
+
+# ------------------------------------------------------------------------------- format upgrades
+def _upgrade_1(path: Path, header: Header, arrays: Arrays) -> None:
+    """Format 1 matched misses against the log's overall miss rate (``prior_rate="global"``)."""
+    set_param_defaults(header, prior_rate="global")
+
+
+def _upgrade_2(path: Path, header: Header, arrays: Arrays) -> None:
+    """Format 2 has no extra state."""
+    set_param_defaults(header, extra_state=[], extra_variance=None, extra_candidates=[0.25, 0.5, 1.0, 2.0])
+    n = arrays["states"].shape[0]
+    if "extra" not in arrays:
+        arrays["extra"] = np.zeros((n, 0))
+    header.setdefault("extra_variance_fitted", [])
+    header.setdefault("extra_fill", [])
+
+
+def _upgrade_3(path: Path, header: Header, arrays: Arrays) -> None:
+    """Format 3 has no per-tuple new-track flags (one combined start tree)."""
+    if "new_track" in arrays:
+        raise ModelFileError(f"{path}: field 'new_track' is present but 'new_track_flags' is not true")
+    header["new_track_flags"] = False
+
+
+def _upgrade_4(path: Path, header: Header, arrays: Arrays) -> None:
+    """Format 4 has cartesian corner features."""
+    set_param_defaults(header, state_transform="cartesian", relevance_candidates_azimuth=list(AZIMUTH_CANDIDATES))
+
+
+def _upgrade_5(path: Path, header: Header, arrays: Arrays) -> None:
+    """Format 5 stores sensor-frame outputs."""
+    set_param_defaults(header, output_frame="cartesian")
+
+
+def _upgrade_6(path: Path, header: Header, arrays: Arrays) -> None:
+    """Format 6 has no mounting yaw error and one bandwidth factor."""
+    set_param_defaults(header, azimuth_bias=0.0, start_bandwidth_scale=None)
+    header["azimuth_bias_fitted"] = 0.0
+
+
+def _upgrade_7(path: Path, header: Header, arrays: Arrays) -> None:
+    """Format 7 has no tail mixture."""
+    set_param_defaults(header, tail_weight=0.0, tail_scale=4.0)
+
+
+KDERadarModel._UPGRADES = {
+    1: _upgrade_1,
+    2: _upgrade_2,
+    3: _upgrade_3,
+    4: _upgrade_4,
+    5: _upgrade_5,
+    6: _upgrade_6,
+    7: _upgrade_7,
+}
 
 
 def _check_arrays(path: str | os.PathLike[str], a: dict[str, NDArray[Any]]) -> None:
@@ -1398,14 +1460,12 @@ def _check_arrays(path: str | os.PathLike[str], a: dict[str, NDArray[Any]]) -> N
 
 
 def _load_azimuth_bias(header: dict[str, Any], path: Any, given: float | str) -> float:
-    """The fitted mounting yaw error [rad] of a file (0 before format 7), checked finite and within bounds.
+    """The fitted mounting yaw error [rad] of a current-format file, checked finite and within bounds.
 
     Raises:
         ModelFileError: naming the file and the field ``azimuth_bias_fitted`` (missing from a format-7 file,
             not a finite number within ``+-MAX_AZIMUTH_BIAS``, or unlike a given ``params.azimuth_bias``).
     """
-    if int(header.get("format_version", 0)) < 7:
-        return 0.0
     if "azimuth_bias_fitted" not in header:
         raise ModelFileError(f"{path}: field 'azimuth_bias_fitted' is missing")
     raw = header["azimuth_bias_fitted"]
@@ -1420,7 +1480,7 @@ def _load_azimuth_bias(header: dict[str, Any], path: Any, given: float | str) ->
 def _load_new_track(
     header: dict[str, Any], a: dict[str, NDArray[Any]], path: Any, states: NDArray
 ) -> NDArray[np.bool_] | None:
-    """The per-tuple new-track flags of a format-4 file (``None``: older files, or saved without them).
+    """The per-tuple new-track flags of a current-format file (``None``: saved without them).
 
     Raises:
         ModelFileError: when the flags are announced but missing, not ``n`` values in {0, 1}, or flag a
@@ -1429,7 +1489,7 @@ def _load_new_track(
     announced = header.get("new_track_flags", False)
     if not isinstance(announced, bool):
         raise ModelFileError(f"{path}: field 'new_track_flags' must be true or false")
-    if int(header.get("format_version", 0)) < 4 or not announced:
+    if not announced:
         if "new_track" in a:
             raise ModelFileError(f"{path}: field 'new_track' is present but 'new_track_flags' is not true")
         return None
@@ -1466,12 +1526,12 @@ def _check_extra_params(names: Any, variance: Any, candidates: Any) -> None:
 
 
 def _load_extra(model: KDERadarModel, header: dict[str, Any], a: dict[str, NDArray], path: Any) -> None:
-    """Restore and check the extra state of a loaded model (format 3; older files have none)."""
+    """Restore and check the extra state of a loaded model."""
     names = tuple(str(v) for v in header.get("params", {}).get("extra_state", ()) or ())
     n = model.states_.shape[0]
-    if int(header.get("format_version", 0)) >= 3 and "extra" not in a:
+    if "extra" not in a:
         raise ModelFileError(f"{path}: field 'extra' is missing")
-    extra = np.asarray(a.get("extra", np.zeros((n, 0))))
+    extra = np.asarray(a["extra"])
     if extra.dtype.kind != "f" or extra.ndim != 2:
         raise ModelFileError(f"{path}: field 'extra' must be a 2-D float array")
     var = np.asarray(header.get("extra_variance_fitted", []), dtype=np.float64)

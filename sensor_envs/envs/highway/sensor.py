@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from sensor_envs.envs.highway.frame import Truth
 from sensor_envs.geometry import closest_corner, from_frame, occluded_fraction, rectangle_corners, to_frame, wrap_angle
 from sensor_envs.radar.sensors import RADAR_NAMES, RadarSensor, make_radar
+from sensor_envs.sensor_model import has_capability
 
 __all__ = [
     "RADAR_NAMES",
@@ -220,7 +221,7 @@ def model_state_names(radar: Any) -> tuple[str, ...]:
     """
     from sensor_envs.radar.features import WORLD_VARIABLES
 
-    names = tuple(getattr(radar, "extra_state_", ()) or ())
+    names = tuple(radar.extra_state_) if has_capability(radar, "extra_state") else ()  # declared, not probed
     for name in names:
         if name not in WORLD_VARIABLES:
             raise ValueError(
