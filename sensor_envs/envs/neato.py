@@ -520,7 +520,7 @@ def step_reward(
 def lidar_extra_state(lidar: LidarSensor) -> tuple[str, ...]:
     """Names of a learned lidar's extra state variables (``()`` for other lidars or a model without any)."""
     model = getattr(lidar, "model", None)
-    return tuple(model.extra_state_) if has_capability(model, "extra_state") else ()  # declared, not probed
+    return tuple(model.extra_state_) if model is not None and has_capability(model, "extra_state") else ()
 
 
 def measure_rows(

@@ -1062,7 +1062,7 @@ class LidarLWLR(SensorModel):
 
     def _to_file(self) -> tuple[Header, Arrays]:
         """Header and arrays of the current format (:class:`~sensor_envs.sensor_model.SensorModel`)."""
-        header = {
+        header: Header = {
             "params": self._saved_params(self),
             "h": self.h_,
             "param_names": self.param_names_,
@@ -1075,7 +1075,7 @@ class LidarLWLR(SensorModel):
             "pose_sd": None if (sd := getattr(self, "pose_sd_", None)) is None else [float(v) for v in sd],
             "card": {"training": self.training_, "cv_scores": self.cv_scores_},
         }
-        arrays = {
+        arrays: Arrays = {
             "tables": self.tables_.astype(np.float32),
             "bearings": self.bearings_,
             "range_grid": self.range_grid_,

@@ -172,8 +172,8 @@ def validate(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     r, a = lidar_features(log.poses, log.bearings, log.require_map(), model.max_range)
-    if gaussian is None and model.baseline() is not None:
-        gaussian = GaussianLidar(**model.baseline())
+    if gaussian is None and (kwargs := model.baseline()) is not None:
+        gaussian = GaussianLidar(**kwargs)
     params = {
         f"model_{model.variant}": model.params_from_features(r, a),
         "ideal": baseline_params("ideal", r, a),
