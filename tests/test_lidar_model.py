@@ -107,10 +107,10 @@ def test_compiled_scan_gives_the_numpy_numbers(rig_fit, which, compiled_kernels)
     the grids, one and several leading axes; the draws come from the same generator states.
     """
     from sensor_envs.jit import compiled
-    from sensor_envs.lidar import kernel, lwlr
+    from sensor_envs.lidar import kernel, scan_sampler
     from sensor_envs.rng import RowGenerators
 
-    passes = (lwlr._scan_nodes, lwlr._scan_gather, lwlr._scan_readings, kernel._bilinear_loops)
+    passes = (scan_sampler.scan_nodes, scan_sampler.scan_gather, scan_sampler.scan_readings, kernel._bilinear_loops)
     assert all(compiled(f) is not None for f in passes)
     model = rig_fit[which]
     k = model.tables_.shape[1]

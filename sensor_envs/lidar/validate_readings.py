@@ -31,10 +31,10 @@ from scipy import stats as sps
 from scipy.optimize import nnls
 
 from sensor_envs.inputs import InputError
+from sensor_envs.lidar.fit_readings import check_map_covers
 from sensor_envs.lidar.log import LidarLog
 from sensor_envs.lidar.lwlr import P_EPS, SIGMA_FLOOR, LidarLWLR, mixture_log_prob
 from sensor_envs.lidar.mapping import map_features
-from sensor_envs.lidar.readings import check_map_covers
 from sensor_envs.lidar.sensors import GaussianLidar
 from sensor_envs.outputs import write_json
 
