@@ -319,7 +319,7 @@ def tau_group(
     """Target of ``tau2`` (squared out-of-fold residual of the cell means) on the non-outlying cells.
 
     The residual is that of the shrunk ``mu`` (``bias_shrinkage_``) at the held-out cells' approximate
-    poses (``held_out``: target, out-of-fold bias and mask of :meth:`_held_out_bias`). Also sets
+    poses (``held_out``: target, out-of-fold bias and mask of :func:`held_out_bias`). Also sets
     ``p_out_``: the fraction of in-range readings in cells whose mean is an outlier (bisquare weight 0),
     the weight of the uniform outlier component of :meth:`log_prob`.
     """

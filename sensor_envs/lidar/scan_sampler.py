@@ -60,7 +60,7 @@ def scan_constants(
 ]:
     """What :meth:`sample_scan`'s passes take besides the cells: ``(cells, grid, draw, log_scale)``.
 
-    ``cells``: :meth:`_scan_tables` (the bias left out when shrunk fully to zero); ``grid``: :func:`scan_nodes`'
+    ``cells``: :func:`scan_tables` (the bias left out when shrunk fully to zero); ``grid``: :func:`scan_nodes`'
     leading arguments ``(nr, na, r0, r1, r_last, a0, a1)`` (grid sizes, then nodes [m, rad]); ``draw``:
     :func:`scan_readings`' ``(bias_weight, has_spur, spurious, spur_mu, spur_sigma)`` (``bias_weight = 1 -
     shrinkage``, 0 without a bias; spurious returns only in the extended variant); ``log_scale``: whether the
@@ -144,7 +144,7 @@ def scan_nodes(
 
     ``nr, na`` are the sizes of the range and incidence grids, ``r0, r1, r_last`` and ``a0, a1`` grid nodes
     [m, rad]; ``r, alpha`` the nominal ranges [m] (``inf``/NaN = no hit) and incidences [rad] (NaN = 0).
-    Writes per cell the flat offset ``node`` of its lower node in :meth:`LidarLWLR._scan_tables`' layout
+    Writes per cell the flat offset ``node`` of its lower node in :func:`scan_tables`' layout
     ``(K, nr, na, 4)``, the weights ``wr, wa`` of the upper range and incidence nodes, and the queried range
     ``rq`` [m] (NaN for no hit, which is looked up at ``r_last``), in :func:`_bilinear_numpy`'s operations.
     Arithmetic only, no table read: the loop vectorises.
@@ -181,7 +181,7 @@ def scan_gather(
 ) -> None:
     """Pass 2 of :meth:`LidarLWLR.sample_scan`: the bilinear values of the 4 table slots of every cell.
 
-    ``flat`` is :meth:`LidarLWLR._scan_tables`' array raveled (float32 or float64, read as float64), ``row``
+    ``flat`` is :func:`scan_tables`' array raveled (float32 or float64, read as float64), ``row``
     the offset of the next range node (``4 na``), ``node, wr, wa`` :func:`scan_nodes`' output. Writes slots
     0-3 (``p_null``, bias, scale, ``p_spur``) into ``v0..v3``, each :func:`~sensor_envs.lidar.kernel._bilinear`'s
     expression. The loop does only the table reads and their weighting (two runs of 8 adjacent values per

@@ -8,7 +8,8 @@ CV table), ``kde_frames`` (yaw error and output frames), ``kde_trees`` (search t
 file format and upgrades); ``buckets`` (the bucket sampler's grid), ``relevance`` (CV of its relevance kernel),
 ``features`` (derived state columns: aspect angle, occlusion), ``alignment`` (the azimuth bias and the frame
 rotation of offsets), ``gaussian`` (the baseline), ``log`` (the CSV object log), ``astyx`` (the Astyx reader),
-``rig`` (the reference rig), ``calibrate`` (the rig fitted to real frames), ``scene_law`` (the scene the rig
+``rig`` (the reference rig), ``rig_config`` (its parameters and rig files), ``calibrate`` (the rig fitted to real
+frames: the fits and the search), ``calibrate_stats`` (the statistics it matches), ``scene_law`` (the scene the rig
 records, fitted to real reference boxes), ``object_clutter`` (object-level clutter per cycle measured on Astyx, the
 law the highway wrapper thins to), ``validate`` (reports), ``fidelity`` (real single frames: start tuple and
 stationary law, block-bootstrap intervals and verdicts against the Gaussian), ``tune`` (post-fit factors chosen on

@@ -71,7 +71,7 @@ whose ball is empty uses the ``fallback_k`` nearest tuples of the same tree (kee
 ``z_{t-1}`` in sparse regions). With ``k_max`` set, the search keeps only the ``k_max`` nearest
 tuples in the ball (constant cost in the number of tuples, but it truncates kernel mass: see the
 benchmark). ``sampler="bucket"`` draws from the same distribution by rejection sampling over grid
-buckets (:mod:`sensor_envs.radar.buckets`, :meth:`KDERadarModel._draw_bucket`), at a cost that
+buckets (:mod:`sensor_envs.radar.buckets`, :func:`sensor_envs.radar.kde_samplers.draw_bucket`), at a cost that
 follows the number of candidate buckets instead of neighbours; ``"auto"`` picks by model size.
 
 **Clutter**: the number of clutter detections per cycle is resampled from the log's per-cycle

@@ -47,7 +47,7 @@ def to_model_frame(m: KDERadarModel, z: NDArray, corners: NDArray) -> NDArray[np
 
 
 def to_sensor_frame(m: KDERadarModel, z: NDArray, corners: NDArray) -> NDArray[np.float64]:
-    """Inverse of :meth:`_to_model_frame`: stored-frame offsets back to the sensor frame [m]."""
+    """Inverse of :func:`to_model_frame`: stored-frame offsets back to the sensor frame [m]."""
     z = z if m.output_frame == "cartesian" else from_polar_frame(z, corners)
     return rotate_offsets(z, corners, m.azimuth_bias_)
 

@@ -112,7 +112,7 @@ def pick_detected_ball(m, corners: NDArray, prev: NDArray, rng: np.random.Genera
 
 
 def draw_bucket(m, corners: NDArray, prev: NDArray, rng: np.random.Generator, grp: NDArray) -> tuple[NDArray, NDArray]:
-    """Exact bucket-rejection sampler (``sampler="bucket"``), same distribution as :meth:`_draw_ball`.
+    """Exact bucket-rejection sampler (``sampler="bucket"``), same distribution as :func:`draw_ball`.
 
     One proposal stage picks tuple ``i`` with probability ``w_i / (sum w + a)`` or the ``miss_prior``
     pseudo-tuple with ``a / (sum w + a)`` (:func:`sensor_envs.radar.buckets.sample_proportional`);

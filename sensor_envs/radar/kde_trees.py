@@ -176,7 +176,7 @@ def neighbours(
 ) -> tuple[NDArray, NDArray, NDArray]:
     """Relevant tuples of each query: flat ``(global tuple index, weight, query id)``.
 
-    ``grp (n,)`` is the tree of each query (:meth:`_route`; ``None`` = by ``prev_z`` alone).
+    ``grp (n,)`` is the tree of each query (:func:`route`; ``None`` = by ``prev_z`` alone).
     """
     corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
     n = corners.shape[0]
@@ -221,7 +221,7 @@ def fallback(
 def outcome(
     m, corners: NDArray, prev_z: NDArray | None, extra: NDArray | None = None, grp: NDArray | None = None
 ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-    """Neighbours ``(gi, w, q)`` and the miss probability ``(n,)`` of each query (``grp``: see :meth:`_route`)."""
+    """Neighbours ``(gi, w, q)`` and the miss probability ``(n,)`` of each query (``grp``: see :func:`route`)."""
     n = corners.shape[0]
     grp = route(m, as_prev(prev_z, n), None) if grp is None else grp
     gi, w, q = neighbours(m, corners, prev_z, extra, grp)
