@@ -13,8 +13,8 @@ A fitted sensor model (``KDERadarModel``, ``GaussianRadar``, ``LidarLWLR``) is a
   then ONE reader of the current format (``_from_file``); :meth:`SensorModel.save` writes the current
   format only (``_to_file``), so ``load`` + ``save`` upgrades a file (``sensor-envs upgrade-model``).
 
-Shared semantics: ``random_state`` (where a fit draws at random) is a seed, a ``numpy`` Generator or ``None``
-(fresh entropy), read once per ``fit`` through ``np.random.default_rng``; ``verbose`` shows progress bars;
+Shared semantics: ``random_state`` (where a fit draws at random) is a seed (default 0), a ``numpy`` Generator or
+``None`` (fresh entropy), read once per ``fit`` through ``np.random.default_rng``; ``verbose`` shows progress bars;
 neither is saved in the file. The model card is the model's: ``card_`` (a JSON-able dict) is filled by
 ``fit``, restored by ``load``, extended by callers (:meth:`SensorModel.update_card`) and written by ``save``.
 """

@@ -232,6 +232,7 @@ def test_one_contract(cls):
 
 def test_verbose_replaces_progress():
     assert KDERadarModel().verbose is False and LidarLWLR().verbose is False
+    assert KDERadarModel().random_state == LidarLWLR().random_state == 0  # one seed semantics
     with pytest.warns(FutureWarning, match="progress"):
         assert LidarLWLR(progress=True).verbose is True
     with pytest.raises(TypeError, match="bogus"):

@@ -239,7 +239,8 @@ class KDERadarModel(SensorModel):
             and cancels). ``sample``/``log_prob`` take and return sensor-frame offsets either way
             (the change of frame is a rotation or reflection: densities are unchanged).
         relevance_folds: folds of ``relevance="cv"`` (sequences dealt round-robin).
-        random_state: seed or generator for the CV subsampling.
+        random_state: seed (default 0, as every sensor model), generator or ``None`` (fresh entropy) for the CV
+            subsampling and the clutter subsample.
         extra_state: names of extra numeric log columns appended to the state (see the module docstring).
         extra_variance: relevance variances of the extra dimensions [unit^2]; ``None`` (or a NaN entry) =
             chosen by CV.
@@ -331,7 +332,7 @@ class KDERadarModel(SensorModel):
         relevance_candidates: tuple[float, ...] = (3.0, 6.0, 12.0, 24.0, 48.0),
         relevance_folds: int = 4,
         prior_rate: str = "tree",
-        random_state: int | np.random.Generator | None = None,
+        random_state: int | np.random.Generator | None = 0,
         extra_state: tuple[str, ...] = (),
         extra_variance: tuple[float, ...] | None = None,
         extra_candidates: tuple[float, ...] = (0.25, 0.5, 1.0, 2.0),
