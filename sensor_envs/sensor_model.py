@@ -75,6 +75,13 @@ class SensorModel(BaseEstimator):
     Attributes:
         card_: the model card entries (JSON-able dict) stored in the file's header ``card``: what the model
             was fitted on and how (set by ``fit`` and :meth:`update_card`, restored by :meth:`load`).
+
+    Examples:
+        >>> from sensor_envs import GaussianRadar, KDERadarModel, LidarLWLR, SensorModel
+        >>> all(issubclass(c, SensorModel) for c in (GaussianRadar, KDERadarModel, LidarLWLR))
+        True
+        >>> KDERadarModel.KIND, KDERadarModel.FORMAT_VERSION, sorted(KDERadarModel.CAPABILITIES)[:2]
+        ('radar_kde', 8, ['clutter', 'extra_state'])
     """
 
     KIND: ClassVar[str] = ""
