@@ -113,7 +113,7 @@ def test_cv_state_chooses_the_previous_output_variance_on_the_training_log(tmp_p
 
 def test_log_prob_in_chunks_equals_all_rows_at_once(monkeypatch):
     """``log_prob`` splits long inputs into chunks of rows (bounded memory); the figures do not change."""
-    import sensor_envs.radar.kde as kde_module
+    import sensor_envs.radar.kde_density as kde_module  # log_prob reads the chunk size there
 
     log = record_rig_log(6, 15, 6, np.random.default_rng(5))
     model = KDERadarModel(rel_variance=(12.0, 12.0, 0.5, 0.5), cv_min_tuples=10, random_state=0).fit(log)
