@@ -40,7 +40,7 @@ LIDAR_FIT = {
     "n_folds": 3,
     "h_range_grid": (0.25, 1.6),
     "h_alpha_grid": (0.5, 4.0),
-    "progress": False,
+    "verbose": False,
 }
 """Table fit of the lidar cases (the fast seed variant: the suite measures the search, not the tables)."""
 

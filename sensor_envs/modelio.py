@@ -25,6 +25,7 @@ __all__ = [
     "ModelFileError",
     "save_model_file",
     "load_model_file",
+    "check_model_arrays",
     "read_header_and_arrays",
     "read_model",
     "save_rig_file",
@@ -164,6 +165,18 @@ def load_model_file(
             raise ModelFileError(f"{path}: field '__header__' lacks {key!r}")
         if key in header and not isinstance(header[key], typ):
             raise ModelFileError(f"{path}: field '__header__' entry {key!r} must be a JSON object")
+    check_model_arrays(path, data, schema)
+    return header, data
+
+
+def check_model_arrays(
+    path: str | os.PathLike[str], data: Mapping[str, NDArray[Any]], schema: Mapping[str, tuple[str, int | None, bool]]
+) -> None:
+    """Each array ``schema`` names is present, of its dtype kind and rank, finite where asked.
+
+    Raises:
+        ModelFileError: naming the file and the field.
+    """
     for name, (kinds, ndim, finite) in schema.items():
         if name not in data:
             raise ModelFileError(f"{path}: field {name!r} is missing")
@@ -174,7 +187,6 @@ def load_model_file(
             raise ModelFileError(f"{path}: field {name!r} has {arr.ndim} dimensions, expected {ndim}")
         if finite and arr.dtype.kind == "f" and not np.isfinite(arr).all():
             raise ModelFileError(f"{path}: field {name!r} holds NaN or infinite values")
-    return header, data
 
 
 # ------------------------------------------------------------------------------- hyperparameter tables

@@ -188,7 +188,7 @@ def _diagnose_lidar(args: argparse.Namespace) -> int:
     check_inputs(args.log, args.model, args.map)
     out = check_output(args.out, inputs=[args.log, args.model, args.map], force=args.force, folder=True)
     base_model, base_state = None, ()
-    params: dict[str, Any] = {"max_range": max_range, "spur_above": spur, "progress": not args.quiet}
+    params: dict[str, Any] = {"max_range": max_range, "spur_above": spur, "verbose": not args.quiet}
     params["table_range_step"] = args.table_range_step
     if args.model is not None:
         base_model = LidarLWLR.load(args.model)

@@ -264,6 +264,7 @@ def lwlr_from_args(args: argparse.Namespace) -> Any:
         spur_above=spur_above,
         table_range_step=args.table_range_step,
         bias_model=args.bias_model,
+        verbose=True,  # bars only on a terminal (cli.main)
     )
 
 
@@ -290,17 +291,17 @@ def _fit(args: argparse.Namespace) -> int:
         else:
             model = model.fit(log)
         g = fit_gaussian_lidar(log, model.spur_above, model.max_range)
-    model.card_extra_ = {
-        "log_preparation": prep,
-        "gaussian_baseline": {k: float(v) for k, v in vars(g).items()},
-        "fit_seconds": time.perf_counter() - t0,
-        "commands": [*(printable(n) for n in args.note), _command()],
-    }
+    model.update_card(
+        {
+            "log_preparation": prep,
+            "gaussian_baseline": {k: float(v) for k, v in vars(g).items()},
+            "fit_seconds": time.perf_counter() - t0,
+            "commands": [*(printable(n) for n in args.note), _command()],
+        }
+    )
     with OutputTransaction() as tx:  # model and card: both or neither
         model.save(tx.file(out))
-        tx.file(card_out).write_text(
-            printable(model_card_markdown(model, model.card_extra_["commands"])), encoding="utf-8"
-        )
+        tx.file(card_out).write_text(printable(model_card_markdown(model, model.card_["commands"])), encoding="utf-8")
     path = out
     print(f"wrote {path} and {path.with_suffix('.md')} in {time.perf_counter() - t0:.1f} s; kernel widths {model.h_}")
     return 0
@@ -334,7 +335,7 @@ def _validate(args: argparse.Namespace) -> int:
             print(metrics_markdown(report["metrics"]))
             print(report.get("verdict", ""))
         if args.card:
-            cmds = [*model.card_extra_.get("commands", ["sensor-envs fit lidar ..."]), _command()]
+            cmds = [*model.card_.get("commands", ["sensor-envs fit lidar ..."]), _command()]
             tx.file(card).write_text(printable(model_card_markdown(model, cmds, report)), encoding="utf-8")
     if args.card:
         print(f"rewrote {card}")

@@ -417,7 +417,7 @@ def _fit(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     model = kde_from_args(args)
     with about(args.log):
-        model.fit(log, cycle_time=args.cycle_time, progress=args.relevance != "paper")
+        model.set_params(verbose=args.relevance != "paper").fit(log, cycle_time=args.cycle_time)
     fit_s = time.perf_counter() - t0
     data = data_reference(args.log)  # the log's name and sha256, never the path of the machine that fitted it
     card = {

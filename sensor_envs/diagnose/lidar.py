@@ -47,7 +47,7 @@ from sensor_envs.lidar.validate_readings import _pit
 
 __all__ = ["LidarAdapter", "lidar_blocks", "DIAGNOSE_LIDAR_PARAMS"]
 
-DIAGNOSE_LIDAR_PARAMS: dict[str, Any] = {"variant": "extended", "n_folds": 5, "random_state": 0, "progress": False}
+DIAGNOSE_LIDAR_PARAMS: dict[str, Any] = {"variant": "extended", "n_folds": 5, "random_state": 0, "verbose": False}
 """Hyperparameters of the diagnosis fits unless ``--model`` gives others."""
 _RENAME = {TIME: "time"}
 _RANGE_CLIP = 1.0

@@ -172,8 +172,8 @@ def validate(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     r, a = lidar_features(log.poses, log.bearings, log.require_map(), model.max_range)
-    if gaussian is None and "gaussian_baseline" in getattr(model, "card_extra_", {}):
-        gaussian = GaussianLidar(**model.card_extra_["gaussian_baseline"])
+    if gaussian is None and (kwargs := model.baseline()) is not None:
+        gaussian = GaussianLidar(**kwargs)
     params = {
         f"model_{model.variant}": model.params_from_features(r, a),
         "ideal": baseline_params("ideal", r, a),
@@ -357,7 +357,7 @@ def cross_validate_log(
             m = LidarLWLR(
                 variant=v,
                 n_folds=min(inner_folds, int(tr.sum())),
-                progress=False,
+                verbose=False,
                 random_state=random_state,
                 **(model_kwargs or {}),
             ).fit(data)

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.envs.highway.frame import RadarFrame
+from sensor_envs.envs.highway.step_record import RadarFrame
 
 __all__ = ["SUPPORTED_FEATURES", "KinematicsLayout", "select", "feature_table", "normalise", "default_features_range"]
 
