@@ -9,8 +9,9 @@ Residuals of a fitted model on the held-out part:
 * ``range``: ``x - mu`` [m] of non-null in-range readings (NaN otherwise; spurious far returns
   ``> spur_above`` excluded), clipped to +-1 m;
 * ``pit``: the reading's PIT under the model minus 0.5 (non-null readings);
-* ``range_spread``: ``sqrt(|x - mu| / sigma)`` of the same readings as ``range`` (kind ``spread``:
-  an effect on the noise's scale or tails moves it while the mean residual stays 0).
+* ``range_spread``: ``sqrt(|z - c|)`` with ``z = (x - mu) / sigma`` of the same readings as ``range``
+  and ``c`` the scan's mean of ``z`` clipped to +-3 (kind ``spread``: an effect on the noise's scale or
+  tails moves it while the mean residual stays 0; an offset shared by a scan, e.g. slow drift, does not).
 
 Interaction features (the model's own state, see :mod:`sensor_envs.diagnose.search`): bearing,
 nominal range and incidence. A finding's form maps to state terms (:meth:`LidarAdapter.state_terms`):
@@ -56,6 +57,20 @@ _RANGE_CLIP = 1.0
 def lidar_blocks(n_scans: int, block_scans: int = 5) -> NDArray[np.int64]:
     """Block id ``(S,)`` of each scan: ``block_scans`` consecutive scans form a block."""
     return (np.arange(n_scans) // max(int(block_scans), 1)).astype(np.int64)
+
+
+def _within_scan_spread(z: NDArray[np.float64], scan: NDArray[np.int64]) -> NDArray[np.float64]:
+    """``sqrt(|z - c_scan|)`` (capped at 5): the size of each standardised residual about its scan's centre.
+
+    ``c_scan`` is the scan's mean of ``z`` clipped to +-3 (NaN readings excluded): an offset shared by a
+    scan's readings (slow drift, a pose error) is not spread, so a change of the noise's scale is not
+    buried under the drift's variance.
+    """
+    ok = np.isfinite(z)
+    zc = np.where(ok, np.clip(z, -3.0, 3.0), 0.0)
+    n = np.bincount(scan, weights=ok.astype(np.float64))
+    centre = np.bincount(scan, weights=zc) / np.maximum(n, 1.0)
+    return np.sqrt(np.minimum(np.abs(z - centre[scan]), 25.0))
 
 
 class LidarAdapter:
@@ -176,7 +191,7 @@ class LidarAdapter:
             "null": null - ps["p_null"],
             "range": rng_res,
             "pit": pit,
-            "range_spread": np.sqrt(np.minimum(np.abs(rng_res) / ps["sigma"], 25.0)),
+            "range_spread": _within_scan_spread(rng_res / ps["sigma"], s),
         }
         cand = dict(self._candidates)
         cand[PREV] = feats[s, k, -1 if PREV not in names else names.index(PREV)]
