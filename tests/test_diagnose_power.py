@@ -100,9 +100,9 @@ def test_rank_basis_depends_on_ranks_only(values, transform):
     b = rank_basis(x)
     y = np.where(np.isfinite(x), transform(np.nan_to_num(x)), np.nan)
     np.testing.assert_allclose(rank_basis(y), b, atol=1e-9)
-    assert b.shape == (x.size, 5)
-    assert np.all(np.abs(b[:, 1:4]) <= 1 + 1e-9)
-    np.testing.assert_array_equal(b[:, 4], np.isnan(x))
+    assert b.shape == (x.size, 4)
+    assert np.all(np.abs(b[:, 1:3]) <= 1 + 1e-9)
+    np.testing.assert_array_equal(b[:, 3], np.isnan(x))
 
 
 def test_the_cli_takes_its_search_defaults_from_the_package():

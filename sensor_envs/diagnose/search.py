@@ -68,9 +68,14 @@ N_BLOCKS = 32
 (down to :data:`MIN_BLOCKS`) when the residuals are correlated over longer times (:func:`n_flip_blocks`)."""
 MIN_BLOCKS = 16
 _SHRINK = 10.0
-POLY_DEGREE = 3
-"""Degree of the main regressor's Legendre polynomials of a candidate's rank scale."""
+POLY_DEGREE = 2
+"""Degree of the main regressor's Legendre polynomials of a candidate's rank scale (a cubic extrapolates wildly
+from one time fold to the next: a trend in time lost its held-out R^2 with it)."""
 _RIDGE = 1.0
+_NULL_CHUNKS = 8
+"""Most contiguous time chunks of the null residual's prediction (fewer, down to 4, when the residuals are
+correlated over longer times): each chunk is predicted by a fit that leaves out the chunk and its two
+neighbours (:func:`_main_stats`)."""
 _INT_BINS = (6, 8)
 _TOP_COND = 5
 
@@ -124,26 +129,34 @@ def _main_stats(basis: NDArray, r: NDArray, fold: NDArray, block: NDArray, n_blo
 
     Returns the Gram matrices ``(C, 2, p, p)`` per fold; the sums of ``basis * r`` ``(n_blocks, C, 2, p)``
     per time block and fold and the sums of ``r^2`` ``(C, 2)`` (the observed scores); and the same two of
-    each candidate's null residual ``e_c = r - oof_c`` (its own cross-fitted prediction removed), whose
-    block sign-flips are the candidate's null draws: the flips then do not carry the effect being tested
-    (a flipped effect would widen the null and cap the attainable z near ``sqrt(n_blocks)``), while a
-    chance alignment with slow drift, which does not carry over between time segments, stays in ``e_c``.
+    each candidate's null residual ``e_c = r - pred_c``, whose block sign-flips are the candidate's null
+    draws. ``pred_c`` predicts each of 4 to :data:`_NULL_CHUNKS` contiguous time chunks (a quarter of
+    the sign-flip blocks) from a fit that leaves out the chunk and its neighbours, clipped to the range
+    of the fit's own values (no extrapolation): an effect of the candidate carries over any distance and is
+    removed (flipped, it would widen the null and cap the attainable z near ``sqrt(n_blocks)``), while
+    a chance alignment with slow drift does not carry over a whole chunk and stays in ``e_c``
+    (removing it would narrow the null: false alarms).
     """
     c, _, p = basis.shape
     gram = np.stack([np.einsum("cni,cnj->cij", basis[:, fold == f], basis[:, fold == f]) for f in (0, 1)], axis=1)
     key = block * 2 + fold
     ids = (key[:, None] * p + np.arange(p)[None]).ravel()
     ridge = np.diag(np.r_[0.0, np.full(p - 1, _RIDGE)])
+    n_chunks = int(np.clip(n_blocks // 4, 4, _NULL_CHUNKS))  # each chunk >= ~8 correlation lengths of r
+    chunk = np.arange(r.size) * n_chunks // max(r.size, 1)  # readings are in time order
     xr = np.empty((n_blocks, c, 2, p))
     xe = np.empty((n_blocks, c, 2, p))
     ee = np.empty((c, 2))
     for i in range(c):
         xr[:, i] = np.bincount(ids, (basis[i] * r[:, None]).ravel(), n_blocks * 2 * p).reshape(n_blocks, 2, p)
         e = r.copy()
-        for a in (0, 1):  # each fold's readings minus the prediction fitted on the other fold
-            xa = basis[i, fold == a]
-            beta = np.linalg.solve(xa.T @ xa + ridge, xa.T @ r[fold == a])
-            e[fold == 1 - a] -= basis[i, fold == 1 - a] @ beta
+        for k in range(n_chunks):  # each chunk minus the prediction fitted on the chunks not next to it
+            tr, te = np.abs(chunk - k) >= 2, chunk == k
+            xa = basis[i, tr]
+            beta = np.linalg.solve(xa.T @ xa + ridge, xa.T @ r[tr])
+            pred = basis[i, te] @ beta
+            lo, hi = np.min(xa @ beta), np.max(xa @ beta)  # no extrapolation beyond the fitted values
+            e[te] -= np.clip(pred, lo, hi)
         e -= e.mean()
         xe[:, i] = np.bincount(ids, (basis[i] * e[:, None]).ravel(), n_blocks * 2 * p).reshape(n_blocks, 2, p)
         ee[i] = [np.sum(e[fold == f] ** 2) for f in (0, 1)]
@@ -560,8 +573,10 @@ def rank_candidates(
     p_adj = (1 + np.sum(perm_best.max(axis=1)[:, None] >= best_z[None], axis=0)) / (1 + n_permutations)
     forms = ["main", *(f"x {s}" for s in d.state_names)]
     effects: list[dict[str, Any]] = []
+    crit = float(np.quantile(z_perm.max(axis=(1, 2)), 1 - alpha))  # family-wise critical z of one cell
+    spread = np.array([kinds.get(m, "mean") == "spread" for m in metrics])
     for i, c in enumerate(names):
-        j, f = np.unravel_index(int(np.argmax(z_obs[i])), obs[i].shape)
+        j, f = np.unravel_index(_reported_cell(z_obs[i], spread, crit), obs[i].shape)
         score = float(obs[i, j, f])
         effects.append(
             {
@@ -582,6 +597,21 @@ def rank_candidates(
     _mark_proxies(effects, d, names, targets, metrics, forms, given_design)
     effects.sort(key=lambda e: (e["proxy_of"] is not None, not e["significant"], -float(e["z"])))
     return Ranking(effects, alpha, min_score, n_permutations, refused, n_blocks[0])
+
+
+def _reported_cell(z: NDArray, spread: NDArray, crit: float) -> int:
+    """The cell (flat index over targets x regressors) a candidate's finding is reported in.
+
+    Its best ``z``, except that a significant cell of a mean or rate target is preferred over a spread
+    target: a mean effect whose sign follows the bearing, or a U-shaped mean effect, also widens the
+    spread about the scan's centre (the spread is then a consequence, not the finding).
+    """
+    best = int(np.argmax(z))
+    n_forms = z.size // spread.size
+    ok = (z >= crit) & ~np.repeat(spread, n_forms)
+    if spread[best // n_forms] and ok.any():
+        return int(np.argmax(np.where(ok, z, -np.inf)))
+    return best
 
 
 def _interaction_gain(d: _Design, i: int, s: int, r: NDArray, mask: NDArray, fold: NDArray) -> float:
