@@ -55,9 +55,10 @@ def _shape(rng: np.random.Generator, c: np.ndarray) -> np.ndarray:
 
 
 def test_non_monotone_effects_of_slow_causes_are_found():
-    """0.4 noise sd across a slow AR(1) cause's range, U-shaped or a step, AR(1) drift beside: >= 5 of 6 found.
+    """0.4 noise sd across a slow AR(1) cause's range, U-shaped or a step, AR(1) drift beside: >= 4 of 6 found.
 
-    (A binned regressor shrunk by the cause's design effect saw a U shape at R^2 ~ 0 here.)
+    (A binned regressor shrunk by the cause's design effect saw a U shape at R^2 ~ 0 here; the
+    curvature is not extrapolated beyond a time fold's range, which costs some power at this size.)
     """
     wins = []
     for seed in range(6):
@@ -70,7 +71,7 @@ def test_non_monotone_effects_of_slow_causes_are_found():
         ev = _evaluation(resid, {"cause": cause, "walk": walk, "white": rng.normal(size=n)})
         rk = rank_candidates(ev, n_permutations=99, rng=np.random.default_rng(seed))
         wins.append(rk.effects[0]["name"] == "cause" and rk.effects[0]["significant"])
-    assert sum(wins) >= 5, wins
+    assert sum(wins) >= 4, wins
 
 
 def test_a_proxy_of_a_cause_already_added_is_not_significant():

@@ -131,58 +131,100 @@ def _main_stats(basis: NDArray, r: NDArray, fold: NDArray, block: NDArray, n_blo
     per time block and fold and the sums of ``r^2`` ``(C, 2)`` (the observed scores); and the same two of
     each candidate's null residual ``e_c = r - pred_c``, whose block sign-flips are the candidate's null
     draws. ``pred_c`` predicts each of 4 to :data:`_NULL_CHUNKS` contiguous time chunks (a quarter of
-    the sign-flip blocks) from a fit that leaves out the chunk and its neighbours, clipped to the range
-    of the fit's own values (no extrapolation): an effect of the candidate carries over any distance and is
+    the sign-flip blocks) from a fit that leaves out the chunk and its neighbours (linear beyond the
+    fitted range, :func:`_chunk_predict`): an effect of the candidate carries over any distance and is
     removed (flipped, it would widen the null and cap the attainable z near ``sqrt(n_blocks)``), while
     a chance alignment with slow drift does not carry over a whole chunk and stays in ``e_c``
     (removing it would narrow the null: false alarms).
     """
     c, _, p = basis.shape
-    gram = np.stack([np.einsum("cni,cnj->cij", basis[:, fold == f], basis[:, fold == f]) for f in (0, 1)], axis=1)
+    bases = [_clip_curvature(basis, fold == a) for a in (0, 1)]  # variant a: fitted on fold a, scores fold b
+    gram = np.stack(
+        [np.stack([np.einsum("cni,cnj->cij", x[:, fold == f], x[:, fold == f]) for f in (0, 1)], axis=1) for x in bases]
+    )
     key = block * 2 + fold
     ids = (key[:, None] * p + np.arange(p)[None]).ravel()
     ridge = np.diag(np.r_[0.0, np.full(p - 1, _RIDGE)])
     n_chunks = int(np.clip(n_blocks // 4, 4, _NULL_CHUNKS))  # each chunk >= ~8 correlation lengths of r
     chunk = np.arange(r.size) * n_chunks // max(r.size, 1)  # readings are in time order
-    xr = np.empty((n_blocks, c, 2, p))
-    xe = np.empty((n_blocks, c, 2, p))
+    xr = np.empty((n_blocks, 2, c, 2, p))
+    xe = np.empty((n_blocks, 2, c, 2, p))
     ee = np.empty((c, 2))
+    size = n_blocks * 2 * p
     for i in range(c):
-        xr[:, i] = np.bincount(ids, (basis[i] * r[:, None]).ravel(), n_blocks * 2 * p).reshape(n_blocks, 2, p)
         e = r.copy()
         for k in range(n_chunks):  # each chunk minus the prediction fitted on the chunks not next to it
             tr, te = np.abs(chunk - k) >= 2, chunk == k
-            xa = basis[i, tr]
-            beta = np.linalg.solve(xa.T @ xa + ridge, xa.T @ r[tr])
-            pred = basis[i, te] @ beta
-            lo, hi = np.min(xa @ beta), np.max(xa @ beta)  # no extrapolation beyond the fitted values
-            e[te] -= np.clip(pred, lo, hi)
+            e[te] -= _chunk_predict(basis[i, tr], r[tr], basis[i, te], ridge)
         e -= e.mean()
-        xe[:, i] = np.bincount(ids, (basis[i] * e[:, None]).ravel(), n_blocks * 2 * p).reshape(n_blocks, 2, p)
         ee[i] = [np.sum(e[fold == f] ** 2) for f in (0, 1)]
+        for v, x in enumerate(bases):
+            xr[:, v, i] = np.bincount(ids, (x[i] * r[:, None]).ravel(), size).reshape(n_blocks, 2, p)
+            xe[:, v, i] = np.bincount(ids, (x[i] * e[:, None]).ravel(), size).reshape(n_blocks, 2, p)
     rr = np.broadcast_to(np.array([np.sum(r[fold == f] ** 2) for f in (0, 1)]), (c, 2))
     return gram, xr, rr, xe, ee
+
+
+def _clip_curvature(basis: NDArray, fit: NDArray) -> NDArray[np.float64]:
+    """``basis (C, n, p)`` with its curvature column ``P2(u)`` at ``u`` clipped to the range of ``fit``'s readings.
+
+    Scoring a fit on one time fold at the other fold's readings, a candidate like time lies partly
+    beyond the fitted range there: its trend carries on (``P1``), its curvature is not extrapolated (a
+    quadratic extrapolated to the log's ends lost the held-out ``R^2`` of a plain trend in time).
+    """
+    out = basis.copy()
+    if basis.shape[2] < 4:
+        return out
+    finite = basis[:, :, -1] == 0
+    u = basis[:, :, 1]
+    lo = np.min(np.where(fit[None] & finite, u, np.inf), axis=1, keepdims=True)
+    hi = np.max(np.where(fit[None] & finite, u, -np.inf), axis=1, keepdims=True)
+    uc = np.clip(u, np.minimum(lo, hi), np.maximum(lo, hi))
+    out[:, :, 2] = np.where(finite, 1.5 * uc**2 - 0.5, 0.0)
+    return out
+
+
+def _chunk_predict(xa: NDArray, ra: NDArray, xb: NDArray, ridge: NDArray) -> NDArray[np.float64]:
+    """The main regressor fitted on ``(xa, ra)``, predicted at ``xb``; linear beyond the fitted rank range.
+
+    Inside the candidate's fitted range (its rank scale ``u``, column 1) the full polynomial; beyond it
+    the polynomial at the range's end plus the slope of a straight-line fit (a trend in time carries on,
+    a curvature is not extrapolated).
+    """
+    beta = np.linalg.solve(xa.T @ xa + ridge, xa.T @ ra)
+    lin = [0, 1, xa.shape[1] - 1]  # intercept, u, NaN indicator
+    slope = np.linalg.solve(xa[:, lin].T @ xa[:, lin] + ridge[np.ix_(lin, lin)], xa[:, lin].T @ ra)[1]
+    u = xb[:, 1]
+    finite = xa[:, -1] == 0
+    lo, hi = (xa[finite, 1].min(), xa[finite, 1].max()) if finite.any() else (0.0, 0.0)
+    uc = np.where(xb[:, -1] == 0, np.clip(u, lo, hi), 0.0)
+    inside = np.polynomial.legendre.legvander(uc, xb.shape[1] - 2)
+    inside = np.concatenate([inside, xb[:, -1:]], axis=1)
+    inside[xb[:, -1] == 1, 1:-1] = 0.0
+    return np.asarray(inside @ beta + slope * (u - uc), dtype=np.float64)
 
 
 def _main_r2(gram: NDArray, xr_b: NDArray, rr: NDArray, flips: NDArray) -> NDArray[np.float64]:
     """Cross-fitted ``R^2`` ``(P, C)`` of the main regressors (least squares, small ridge) for each sign-flip.
 
-    ``xr_b (n_blocks, C, 2, p)``: block sums of ``basis * r``; ``rr (C, 2)``: sums of ``r^2`` per fold.
+    ``gram (2, C, 2, p, p)`` and ``xr_b (n_blocks, 2, C, 2, p)`` (block sums of ``basis * r``): per basis
+    variant ``a`` (fitted on fold ``a``, :func:`_clip_curvature`) and fold; ``rr (C, 2)``: sums of ``r^2``.
     """
-    xr = np.tensordot(flips, xr_b, axes=(1, 0))  # (P, C, 2, p)
+    xr = np.tensordot(flips, xr_b, axes=(1, 0))  # (P, 2, C, 2, p)
     p = gram.shape[-1]
     ridge = np.diag(np.r_[0.0, np.full(p - 1, _RIDGE)])
-    out = np.zeros(xr.shape[:2])
+    out = np.zeros((xr.shape[0], xr.shape[2]))
     for a in (0, 1):
         b = 1 - a
-        na, nb = gram[:, a, 0, 0], gram[:, b, 0, 0]
+        g, x = gram[a], xr[:, a]
+        na, nb = g[:, a, 0, 0], g[:, b, 0, 0]
         if na.min() < 10 or nb.min() < 10:
-            return np.full(xr.shape[:2], -np.inf)
-        beta = np.einsum("cij,...cj->...ci", np.linalg.inv(gram[:, a] + ridge), xr[..., a, :])
-        quad = np.einsum("...ci,cij,...cj->...c", beta, gram[:, b], beta)
-        sse = rr[:, b] - 2 * np.sum(beta * xr[..., b, :], -1) + quad
-        mean_a = xr[..., a, 0] / na
-        sst = rr[:, b] - 2 * mean_a * xr[..., b, 0] + nb * mean_a**2
+            return np.full(out.shape, -np.inf)
+        beta = np.einsum("cij,...cj->...ci", np.linalg.inv(g[:, a] + ridge), x[..., a, :])
+        quad = np.einsum("...ci,cij,...cj->...c", beta, g[:, b], beta)
+        sse = rr[:, b] - 2 * np.sum(beta * x[..., b, :], -1) + quad
+        mean_a = x[..., a, 0] / na
+        sst = rr[:, b] - 2 * mean_a * x[..., b, 0] + nb * mean_a**2
         out += 0.5 * (1.0 - sse / np.maximum(sst, 1e-300))
     return out
 
