@@ -95,10 +95,10 @@ def diagnose_case(
     ``fit``: table options of the log (e.g. a CARMEN log's ``max_range``).
     """
     if sensor == "lidar":
-        from sensor_envs.diagnose.lidar import DIAGNOSE_LIDAR_PARAMS, LidarAdapter, lidar_blocks
+        from sensor_envs.diagnose.lidar import DIAGNOSE_LIDAR_PARAMS, DIAGNOSE_MAX_READINGS, LidarAdapter, lidar_blocks
 
         blocks = lidar_blocks(case.log.n_poses, 5)
-        params, rows = (DIAGNOSE_LIDAR_PARAMS, 300) if full_fit else (LIDAR_FIT, 150)
+        params, rows = (DIAGNOSE_LIDAR_PARAMS, DIAGNOSE_MAX_READINGS) if full_fit else (LIDAR_FIT, 150)
         params = {**params, **(fit or {})}
         adapter: Any = LidarAdapter(case.log, block_split(blocks), blocks, params=params, max_readings=rows)
     else:

@@ -1,4 +1,4 @@
-"""Power and proxies of the ``diagnose`` search, the static-pose shape, planted real-log effects, one source of defaults.
+"""Power and proxies of the ``diagnose`` search, the static-pose shape, planted real-log effects, its defaults.
 
 Seeded families of held-out evaluations (no model fit, fast): non-monotone causes of slow covariates
 (U shapes, steps) found; a proxy of a cause already added to the model not significant; the main
@@ -115,9 +115,14 @@ def test_the_cli_takes_its_search_defaults_from_the_package():
         assert args.alpha == DEFAULTS["alpha"]
         assert args.min_score == DEFAULTS["min_score"]
         assert args.max_add == DEFAULTS["max_add"]
+    from sensor_envs.cli.diagnose import DIAGNOSE_MAX_READINGS as CLI_ROWS
+    from sensor_envs.diagnose.lidar import DIAGNOSE_MAX_READINGS
+
+    assert build_parser().parse_args(["diagnose", "lidar", "x", "--out", "y"]).max_readings == DIAGNOSE_MAX_READINGS
+    assert CLI_ROWS == DIAGNOSE_MAX_READINGS
 
 
-FAST = {"variant": "seed", "n_folds": 3, "h_range_grid": (0.25, 1.6), "h_alpha_grid": (0.5, 4.0), "progress": False}
+FAST = {"variant": "seed", "n_folds": 3, "h_range_grid": (0.25, 1.6), "h_alpha_grid": (0.5, 4.0), "verbose": False}
 
 
 def test_one_static_pose_over_time_is_diagnosed():

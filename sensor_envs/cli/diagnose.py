@@ -20,6 +20,10 @@ from sensor_envs.cli.args import OneLineParser, about, add_force, nonneg_int, po
 from sensor_envs.inputs import InputError
 from sensor_envs.outputs import check_inputs, check_output, output_folder
 
+DIAGNOSE_MAX_READINGS = 240
+"""``diagnose lidar --max-readings`` default (:data:`sensor_envs.diagnose.lidar.DIAGNOSE_MAX_READINGS`; a test
+checks that they agree, the lidar adapter is not imported when the parser is built)."""
+
 
 def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     """Add ``diagnose radar`` to the top-level sub-command parser ``sub``."""
@@ -49,7 +53,12 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     q.add_argument(
         "--max-range", type=float, default=None, help="sensor's maximum range [m] (default: 5 for a .npz log)"
     )
-    q.add_argument("--max-readings", type=positive_int, default=300, help="scans used by the table fit (default 300)")
+    q.add_argument(
+        "--max-readings",
+        type=positive_int,
+        default=DIAGNOSE_MAX_READINGS,
+        help=f"scans used by the table fit (default {DIAGNOSE_MAX_READINGS})",
+    )
     q.add_argument("--spur-above", type=float, default=None, help="spurious returns beyond [m] (default max-range + 1)")
     q.add_argument("--table-range-step", type=float, default=0.125, help="range step of the tables [m] (default 0.125)")
     add_force(q)

@@ -46,10 +46,15 @@ from sensor_envs.lidar.log import LidarLog
 from sensor_envs.lidar.lwlr import LidarLWLR, lidar_features, mixture_log_prob
 from sensor_envs.lidar.validate_readings import _pit
 
-__all__ = ["LidarAdapter", "lidar_blocks", "DIAGNOSE_LIDAR_PARAMS"]
+__all__ = ["LidarAdapter", "lidar_blocks", "DIAGNOSE_LIDAR_PARAMS", "DIAGNOSE_MAX_READINGS"]
 
-DIAGNOSE_LIDAR_PARAMS: dict[str, Any] = {"variant": "extended", "n_folds": 5, "random_state": 0, "verbose": False}
-"""Hyperparameters of the diagnosis fits unless ``--model`` gives others."""
+DIAGNOSE_LIDAR_PARAMS: dict[str, Any] = {"variant": "extended", "n_folds": 3, "random_state": 0, "verbose": False}
+"""Hyperparameters of the diagnosis fits unless ``--model`` gives others (3 folds of time blocks: the
+kernel-width search is the costly part of a diagnosis, its cost grows with the folds and with the
+square of :data:`DIAGNOSE_MAX_READINGS`)."""
+DIAGNOSE_MAX_READINGS = 240
+"""Scans the table fit of ``diagnose lidar`` uses by default (evenly spaced; the held-out evaluation
+and the search use every held-out reading)."""
 _RENAME = {TIME: "time"}
 _RANGE_CLIP = 1.0
 
@@ -94,7 +99,7 @@ class LidarAdapter:
         blocks: NDArray[np.int64],
         params: dict[str, Any] | None = None,
         base_model: LidarLWLR | None = None,
-        max_readings: int | None = 300,
+        max_readings: int | None = DIAGNOSE_MAX_READINGS,
     ) -> None:
         if log.ranges.shape[2] != 1:
             raise InputError(f"{log.source}: field 'ranges': diagnose lidar needs a scan log (one reading per scan)")
