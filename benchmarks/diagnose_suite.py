@@ -2,13 +2,19 @@
 
 Draws cases from the seeded families of :mod:`sensor_envs.diagnose.families` (lidar: mean,
 interaction with bearing, spread, null rate, AR(1) correlation, null; radar: mean, interaction with
-azimuth side, spread, detection rate, null), runs the diagnosis loop on each exactly as the CLI does
-(:func:`sensor_envs.diagnose.core.run_diagnose` with the sensor's adapter and a block split), and
-prints, per sensor and kind:
+azimuth side, spread, detection rate, null; ``lidar-static``: the lidar families at one pose recorded
+over time; ``real``: causes planted into the shared real logs by :func:`~sensor_envs.diagnose.families.plant_lidar`,
+skipped when ``--real`` is absent), runs the diagnosis loop on each as the CLI does
+(:func:`sensor_envs.diagnose.core.run_diagnose` with the sensor's adapter, a block split and the
+package's search defaults, :data:`sensor_envs.diagnose.search.DEFAULTS`; the lidar tables with the
+fast seed variant unless ``--full-fit``), and prints, per sensor and kind:
 
 * recall: the cause ranked first AND added AND the held-out NLL down; the share of cases where a
   proxy, and where any column other than the cause (proxy or distractor), was added;
 * for null logs, the false-positive rate: any effect significant (and, separately, any added).
+
+On a real log only the planted columns count: "ranked first" is first among them, a false positive
+is a planted distractor significant (the log's own time, speed, turn-rate effects may be real).
 
 Writes ``suite.json`` (every case: drawn parameters, ranking head, decision) and ``suite.md``.
 
@@ -16,7 +22,8 @@ Usage (a few minutes, niced)::
 
     nice -n 10 python benchmarks/diagnose_suite.py --cases 3 --seed 0 --out /tmp/suite
 
-``--cases N`` cases per kind and sensor; ``--sensor lidar|radar|both``; ``--scans``/``--bearings``
+``--cases N`` cases per kind and sensor; ``--sensor lidar lidar-static radar both real``; ``--real DIR
+--real-cases N``; ``--scans``/``--bearings``
 and ``--sequences`` set the log sizes (the shared real logs: ~2,500 scans x 360 bearings; ~20,000
 radar rows = ``--sequences 60``).
 """
