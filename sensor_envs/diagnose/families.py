@@ -386,8 +386,8 @@ def plant_lidar(log: Any, kind: str, seed: int, strength: float | None = None) -
         x = np.where(hit & (rng.random(x.shape) < p_add[:, None]), 0.0, x)
     covariates = {**log.covariates, **cov}
     planted = LidarLog(x[..., None], log.bearings, log.poses, log.map_segments, log.t, covariates, log.source)
-    cause = None if kind == "null" else cname
-    return Case(planted, kind, cause, pname if kind != "null" else None, ("prev_residual",), info)
+    truth = None if kind == "null" else cname
+    return Case(planted, kind, truth, pname if kind != "null" else None, ("prev_residual",), info)
 
 
 def static_scan_log(log: Any, pose: int = 0, period: float = 0.2) -> Any:
