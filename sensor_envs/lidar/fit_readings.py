@@ -284,7 +284,8 @@ def fit_per_reading(
     Raises:
         ValueError: for bad hyperparameters, a log without map or a map that does not cover the scans.
     """
-    model._check_params_for(log)
+    # folds here are blocks of scans, not poses (no pose-count check): one static pose over time is a log
+    model._check_params()
     if model.pose_correction:
         raise InputError(f"{log.source}: pose_correction needs a static log with repeats (the per-cell fit)")
     segs = log.require_map()
