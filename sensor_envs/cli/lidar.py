@@ -11,9 +11,11 @@
 LOG OPTIONS: ``--map FILE`` (any map ``sensor_envs.maps.load_map`` reads, ROS map_server YAML included;
 replaces the log's map), ``--align`` (scan-match the log's odometry poses onto the ``--map`` grid),
 ``--part all|train|test`` with ``--block-scans N --test-every K`` (blocks of N consecutive scans, every
-K-th held out). A log without a map and without ``--map`` (CARMEN) gets a nominal map built from its
-TRAINING blocks only, in ``fit`` and in ``validate`` alike. Logs with one reading per pose and bearing
-are fitted per reading and validated per reading (held-out NLL, null-rate calibration, PIT, lag-1 ACF).
+K-th held out), ``--bearings N`` (resample to N evenly spaced bearings from 0 deg, nearest logged beam: a
+361-beam ROS scan onto the Neato world's 360). A log without a map and without ``--map`` (CARMEN) gets a
+nominal map built from its TRAINING blocks only, in ``fit`` and in ``validate`` alike. Logs with one reading
+per pose and bearing are fitted per reading and validated per reading (held-out NLL, null-rate calibration,
+PIT, lag-1 ACF).
 
 ``fit`` also writes the model card ``MODEL.md``; ``validate --card`` rewrites it with the validation.
 ``record`` records from a rig file (default: the shipped calibrated ``models/neato_rig.json``);
@@ -131,14 +133,26 @@ def _log_options(p: argparse.ArgumentParser) -> None:
         "--block-scans", type=positive_int, default=40, help="scans per block of the train/test split (default: 40)"
     )
     p.add_argument("--test-every", type=positive_int, default=4, help="every K-th block is the test part (default: 4)")
+    p.add_argument(
+        "--bearings",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="resample the log to N bearings evenly spaced from 0 deg counter-clockwise, each taking the nearest "
+        "logged beam (360: a 361-beam ROS LaserScan over -180..180 deg on the Neato world's bearings); default: "
+        "the logged beams as they are",
+    )
 
 
 def _prepared_log(args: argparse.Namespace, max_range: float):
-    from sensor_envs.lidar.log import load_log
+    from sensor_envs.lidar.log import load_log, resample_bearings
     from sensor_envs.lidar.mapping import prepare_log
 
+    log = load_log(args.log)
+    if args.bearings is not None:
+        log = resample_bearings(log, args.bearings)
     return prepare_log(
-        load_log(args.log),
+        log,
         map=args.map,
         part=args.part,
         block_scans=args.block_scans,

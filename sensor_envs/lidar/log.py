@@ -26,7 +26,7 @@ import re
 import struct
 import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +47,7 @@ __all__ = [
     "log_from_arrays",
     "check_model_call",
     "motion_covariates",
+    "resample_bearings",
 ]
 
 PathLike = str | os.PathLike[str]
@@ -488,6 +489,42 @@ def _pose_of(msg: Any, p: Path | None = None, i: int = 0) -> NDArray[np.float64]
     if not (np.isfinite(norm) and abs(norm - 1.0) < 0.1):
         raise LidarLogError(f"{p}: field 'poses': pose {i} has a quaternion of norm {norm:g}, expected 1")
     return np.array([pose.position.x, pose.position.y, quaternion_yaw(q.w, q.x, q.y, q.z)])
+
+
+def resample_bearings(log: LidarLog, n: int) -> LidarLog:
+    """The log on ``n`` evenly spaced bearings ``2 pi k / n`` (k = 0..n-1, counter-clockwise from the sensor's x).
+
+    Each new bearing takes the readings of the logged beam nearest to it in angle (no interpolation: a
+    reading between two walls is no reading of either). A scan whose first and last beams point the same
+    way (a ROS ``LaserScan`` of 361 beams over -180..+180 degrees) therefore gives the Neato world's 360
+    one-degree bearings from 0 degrees, in order, without the duplicate.
+
+    Args:
+        log: a log whose beams cover the full circle.
+        n: number of bearings (the Neato world and the shipped lidar model: 360).
+
+    Raises:
+        LidarLogError: naming the log's field ``bearings`` when a new bearing has no logged beam within
+            half a step of either grid (e.g. a 180-degree SICK scan resampled to 360 bearings).
+    """
+    if n < 1:
+        raise LidarLogError(f"{log.source}: field 'bearings': cannot resample to {n} bearings")
+    two_pi = 2.0 * np.pi
+    new = two_pi * np.arange(n) / n
+    old = np.mod(log.bearings, two_pi)
+    gap = np.abs((new[:, None] - old[None, :] + np.pi) % two_pi - np.pi)
+    nearest = np.argmin(gap, axis=1)
+    step_old = float(np.median(np.diff(np.sort(np.unique(np.round(old, 9)))))) if old.size > 1 else two_pi
+    tol = 0.5 * max(step_old, two_pi / n) + 1e-9
+    far = gap[np.arange(n), nearest] > tol
+    if far.any():
+        k = int(np.flatnonzero(far)[0])
+        raise LidarLogError(
+            f"{log.source}: field 'bearings': no logged beam within {np.rad2deg(tol):.3g} deg of bearing "
+            f"{np.rad2deg(new[k]):.4g} deg (the {log.n_bearings} beams cover "
+            f"{np.rad2deg(np.ptp(log.bearings)):.4g} deg; resampling to {n} bearings needs the full circle)"
+        )
+    return replace(log, ranges=log.ranges[:, nearest], bearings=new)
 
 
 def read_rosbag(

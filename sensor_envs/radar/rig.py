@@ -499,6 +499,8 @@ class RadarRig:
             m = rng.poisson(rng.gamma(1.0 / c.clutter_dispersion, c.clutter_rate * c.clutter_dispersion))
         else:
             m = rng.poisson(c.clutter_rate)
+        if c.clutter_cell_weights is not None:
+            return _from_cells(c, m, rng)
         if c.clutter_range_edges is not None and c.clutter_range_weights is not None:
             r = _from_bins(np.asarray(c.clutter_range_edges), np.asarray(c.clutter_range_weights), m, rng)
         else:
@@ -536,6 +538,25 @@ class SnapshotDraws:
 def _from_bins(edges: NDArray, weights: NDArray, m: int, rng: np.random.Generator) -> NDArray[np.float64]:
     """``m`` values uniform inside bins ``edges`` chosen with probabilities ``weights`` (normalised)."""
     return _uniform_in_bins(edges, rng.choice(weights.size, m, p=weights / weights.sum()), rng)
+
+
+def _from_cells(c: RigConfig, m: int, rng: np.random.Generator) -> tuple[NDArray, NDArray]:
+    """``m`` clutter (range [m], azimuth [rad]) pairs from the joint ``clutter_cell_weights``, uniform inside a cell.
+
+    Drawn as the range bin from the cells' range marginal, the range inside it, the azimuth bin from the
+    conditional shares of that range bin, the azimuth inside it: the same four ``m``-draws in the same order
+    as the independent law, so a rig log's other draws (its targets) do not change with the clutter law.
+    """
+    r_edges = np.asarray(c.clutter_range_edges, dtype=np.float64)
+    a_edges = np.asarray(c.clutter_azimuth_edges, dtype=np.float64)
+    w = np.asarray(c.clutter_cell_weights, dtype=np.float64).reshape(r_edges.size - 1, a_edges.size - 1)
+    rb = rng.choice(w.shape[0], m, p=w.sum(axis=1) / w.sum())
+    r = _uniform_in_bins(r_edges, rb, rng)
+    cdf = np.cumsum(w, axis=1)
+    cdf = cdf / np.where(cdf[:, -1:] > 0, cdf[:, -1:], 1.0)
+    u = rng.random(m)
+    ab = np.minimum((u[:, None] >= cdf[rb]).sum(axis=1), a_edges.size - 2)
+    return r, _uniform_in_bins(a_edges, ab, rng)
 
 
 def _uniform_in_bins(edges: NDArray, b: NDArray, rng: np.random.Generator) -> NDArray[np.float64]:

@@ -87,6 +87,11 @@ class RigConfig:
             (uniform in range inside a bin; ``None``: uniform in area inside ``max_range``).
         clutter_azimuth_edges, clutter_azimuth_weights: clutter azimuth bins [rad] and their shares
             (``None``: uniform in ``+-fov``).
+        clutter_cell_weights: joint shares of the clutter's (range bin, azimuth bin) cells, ``range bins x
+            azimuth bins`` values over ``clutter_range_edges`` and ``clutter_azimuth_edges`` (``None``: range
+            and azimuth drawn independently from their own shares). Real clutter is not independent in the
+            two: the road just ahead is empty while the roadside is not, so at short range the lane ahead
+            gets far less clutter than its azimuth share says.
         scene_x_edges, scene_x_weights: the recorded SCENE (:func:`generate_scenario`; ``None``: the generic
             lane traffic): bins of the target centre's x [m] (sensor frame) and their shares.
         scene_y_edges: bins of the target centre's y [m] (sensor frame, left positive).
@@ -140,6 +145,7 @@ class RigConfig:
     clutter_range_weights: Table = None
     clutter_azimuth_edges: Table = None
     clutter_azimuth_weights: Table = None
+    clutter_cell_weights: Table = None
     scene_x_edges: Table = None
     scene_x_weights: Table = None
     scene_y_edges: Table = None
@@ -184,6 +190,22 @@ class RigConfig:
                 raise InputError(f"{weights}: the shares must not all be 0")
         self._check_offset_mixture()
         self._check_scene()
+        self._check_clutter_cells()
+
+    def _check_clutter_cells(self) -> None:
+        """``clutter_cell_weights`` comes with both clutter bin tables, one value per cell, not all 0."""
+        w = self.clutter_cell_weights
+        if w is None:
+            return
+        if self.clutter_range_edges is None or self.clutter_azimuth_edges is None:
+            raise InputError(
+                "clutter_cell_weights: needs 'clutter_range_edges' and 'clutter_azimuth_edges' (its cells' bins)"
+            )
+        n = (len(self.clutter_range_edges) - 1) * (len(self.clutter_azimuth_edges) - 1)
+        if len(w) != n:
+            raise InputError(f"clutter_cell_weights: must have {n} values (range bins x azimuth bins)")
+        if not sum(w) > 0:
+            raise InputError("clutter_cell_weights: the shares must not all be 0")
 
     def _check_scene(self) -> None:
         """The scene law's fields come together, its y and heading tables have one row per x bin, each row sums > 0.
@@ -290,6 +312,7 @@ RIG_CONSTRAINTS: dict[str, list[Constraint]] = {
     "clutter_range_weights": [None, Numbers(_NONNEG, min_length=1)],
     "clutter_azimuth_edges": [None, Numbers(Interval(-np.pi, np.pi), min_length=2, increasing=True)],
     "clutter_azimuth_weights": [None, Numbers(_NONNEG, min_length=1)],
+    "clutter_cell_weights": [None, Numbers(_NONNEG, min_length=1)],
     "scene_x_edges": [None, Numbers(Interval(0, 500), min_length=2, increasing=True)],
     "scene_x_weights": [None, Numbers(_NONNEG, min_length=1)],
     "scene_y_edges": [None, Numbers(Interval(-500, 500), min_length=2, increasing=True)],
