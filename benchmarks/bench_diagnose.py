@@ -75,12 +75,13 @@ def run_lidar(scans: int, bearings: int, out: Path | None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         path = save_log(make_log("omega", scans=scans, bearings=bearings), Path(tmp) / "log.npz")
         dest = out if out is not None else Path(tmp) / "out"
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         code = main(["diagnose", "lidar", str(path), "--out", str(dest), "--force"])
-        wall = time.perf_counter() - t0
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         rep = json.loads((dest / "report.json").read_text())
     print(f"scans x bearings: {scans} x {bearings} = {scans * bearings} readings, cpus available: {os.cpu_count()}")
     print(f"diagnose lidar wall time: {wall:.1f} s (budget 180 s), exit code {code}, load {os.getloadavg()[0]:.1f}")
+    print(f"process CPU time: {cpu:.1f} s (all threads; on a loaded machine closer to a quiet run's wall time)")
     print(f"effects (top 3): {[(e['name'], round(e['score'], 4), e['p_value']) for e in rep['effects'][:3]]}")
     print(f"added: {rep['added']}; error_before {rep['error_before']:.4f} -> error_after {rep['error_after']:.4f}")
 

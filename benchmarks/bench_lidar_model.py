@@ -60,7 +60,7 @@ def main() -> None:
         log, _ = NeatoRig().record(load_map("seed_room").segments, np.random.default_rng(1), n_poses=29, repeats=200)
     for variant in ("seed", "extended"):
         t0 = time.perf_counter()
-        LidarLWLR(variant=variant, progress=False).fit(log)
+        LidarLWLR(variant=variant).fit(log)
         print(f"fit with 10-fold CV, {variant}: {time.perf_counter() - t0:.1f} s on {log.n_poses} poses ({log.source})")
 
 

@@ -89,15 +89,19 @@ def step_breakdown(lidar: str, n: int = 64, calls: int = 1000) -> dict[str, floa
     }
     model = getattr(env.lidar, "model", None)
     if model is not None:
-        from sensor_envs.lidar import lwlr
+        from sensor_envs.lidar import scan_sampler
 
-        passes = compiled(lwlr._scan_nodes), compiled(lwlr._scan_gather), compiled(lwlr._scan_readings)
+        passes = (
+            compiled(scan_sampler.scan_nodes),
+            compiled(scan_sampler.scan_gather),
+            compiled(scan_sampler.scan_readings),
+        )
         uu, zz = rngs.random(nom.shape), rngs.standard_normal(nom.shape)
         parts["  of it: uniform draws"] = lambda: rngs.random(nom.shape)
         parts["  of it: normal draws"] = lambda: rngs.standard_normal(nom.shape)
         if None not in passes:
             nodes, gather, readings = passes
-            cells, grid, draw, _ = model._scan_constants()
+            cells, grid, draw, _ = scan_sampler.scan_constants(model)
             node = np.empty(nom.shape, dtype=np.int64)
             wr, wa, rq, v0, v1, v2, v3 = (np.empty(nom.shape) for _ in range(7))
             parts["  of it: pass 1, nodes and weights (compiled)"] = lambda: nodes(*grid, nom, inc, node, wr, wa, rq)

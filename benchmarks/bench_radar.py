@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from sensor_envs.radar.kde import KDERadarModel
+from sensor_envs.radar.kde_trees import neighbours
 from sensor_envs.radar.log import target_tuples
 from sensor_envs.radar.rig import record_rig_log
 from sensor_envs.radar.validate import chi_square
@@ -81,7 +82,7 @@ def main() -> None:
             row[f"us_per_target_{label}_batch100"] = round(time_sampling(model, states, 100, args.repeats // 4), 1)
             row[f"ms_per_cycle_10_targets_{label}"] = round(row[f"us_per_target_{label}_batch10"] * 10 / 1000, 3)
         model.sampler, model.k_max = "ball", None
-        gi, _, q = model._neighbours(states[:2000, :2], states[:2000, 2:])
+        gi, _, q = neighbours(model, states[:2000, :2], states[:2000, 2:])
         row["neighbours_per_query_median"] = float(np.median(np.bincount(q)))
         # fidelity: samples of the bucket sampler and of the cap against the EXACT model's analytic PDF
         other = KDERadarModel.load(model.save(Path(tempfile.gettempdir()) / "_bench_radar_model.npz"))

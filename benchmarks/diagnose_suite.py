@@ -2,13 +2,19 @@
 
 Draws cases from the seeded families of :mod:`sensor_envs.diagnose.families` (lidar: mean,
 interaction with bearing, spread, null rate, AR(1) correlation, null; radar: mean, interaction with
-azimuth side, spread, detection rate, null), runs the diagnosis loop on each exactly as the CLI does
-(:func:`sensor_envs.diagnose.core.run_diagnose` with the sensor's adapter and a block split), and
-prints, per sensor and kind:
+azimuth side, spread, detection rate, null; ``lidar-static``: the lidar families at one pose recorded
+over time; ``real``: causes planted into the shared real logs by :func:`~sensor_envs.diagnose.families.plant_lidar`,
+skipped when ``--real`` is absent), runs the diagnosis loop on each as the CLI does
+(:func:`sensor_envs.diagnose.core.run_diagnose` with the sensor's adapter, a block split and the
+package's search defaults, :data:`sensor_envs.diagnose.search.DEFAULTS`; the lidar tables with the
+fast seed variant unless ``--full-fit``), and prints, per sensor and kind:
 
 * recall: the cause ranked first AND added AND the held-out NLL down; the share of cases where a
   proxy, and where any column other than the cause (proxy or distractor), was added;
 * for null logs, the false-positive rate: any effect significant (and, separately, any added).
+
+On a real log only the planted columns count: "ranked first" is first among them, a false positive
+is a planted distractor significant (the log's own time, speed, turn-rate effects may be real).
 
 Writes ``suite.json`` (every case: drawn parameters, ranking head, decision) and ``suite.md``.
 
@@ -16,7 +22,8 @@ Usage (a few minutes, niced)::
 
     nice -n 10 python benchmarks/diagnose_suite.py --cases 3 --seed 0 --out /tmp/suite
 
-``--cases N`` cases per kind and sensor; ``--sensor lidar|radar|both``; ``--scans``/``--bearings``
+``--cases N`` cases per kind and sensor; ``--sensor lidar lidar-static radar both real``; ``--real DIR
+--real-cases N``; ``--scans``/``--bearings``
 and ``--sequences`` set the log sizes (the shared real logs: ~2,500 scans x 360 bearings; ~20,000
 radar rows = ``--sequences 60``).
 """
@@ -27,31 +34,80 @@ import argparse
 import json
 import sys
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from sensor_envs.diagnose.core import block_split, run_diagnose
-from sensor_envs.diagnose.families import LIDAR_KINDS, RADAR_KINDS, Case, lidar_case, radar_case
+from sensor_envs.diagnose.core import DEFAULTS, block_split, run_diagnose
+from sensor_envs.diagnose.families import (
+    LIDAR_KINDS,
+    PLANT_KINDS,
+    RADAR_KINDS,
+    Case,
+    lidar_case,
+    plant_lidar,
+    radar_case,
+    static_scan_log,
+)
 
 LIDAR_FIT = {
     "variant": "seed",
     "n_folds": 3,
     "h_range_grid": (0.25, 1.6),
     "h_alpha_grid": (0.5, 4.0),
-    "progress": False,
+    "verbose": False,
 }
 """Table fit of the lidar cases (the fast seed variant: the suite measures the search, not the tables)."""
 
 
-def diagnose_case(case: Case, sensor: str, permutations: int, seed: int, alpha: float = 0.05) -> Any:
-    """Run the loop on one case as the CLI would (block split, adapter, run_diagnose)."""
+CARMEN_FIT = {"max_range": 30.0, "spur_above": 31.0, "table_range_step": 0.25}
+REAL_LOGS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
+    "intel": ("carmen/intel-corrected.log.gz", {"max_range": 30.0}, CARMEN_FIT),
+    "aces": ("carmen/aces-corrected.log.gz", {"max_range": 30.0}, CARMEN_FIT),
+    "neato-middle": ("neato_ros1_bags/middle.bag", {"map": "neato_ros1_bags/mymap.yaml", "align": True}, {}),
+    "neato-static": ("neato_mar27_train.npz", {"static_pose": 0}, {}),
+}
+"""Real logs of the shared folder (name: relative path, how the CLI would prepare it, table options).
+``neato-static``: the repeated Neato log's first pose as one static pose recorded over time."""
+
+
+def load_real(root: Path, name: str) -> Any:
+    """The real log ``name`` of :data:`REAL_LOGS` read and prepared as ``sensor-envs diagnose lidar`` does."""
+    from sensor_envs.lidar.log import load_log
+    from sensor_envs.lidar.mapping import prepare_log
+
+    rel, prep, _ = REAL_LOGS[name]
+    log = load_log(root / rel)
+    if "static_pose" in prep:
+        return static_scan_log(log, prep["static_pose"])
+    opts = {k: (str(root / v) if k == "map" else v) for k, v in prep.items()}
+    return prepare_log(log, **opts)[0]
+
+
+def diagnose_case(
+    case: Case,
+    sensor: str,
+    permutations: int = DEFAULTS["n_permutations"],
+    seed: int = 0,
+    alpha: float = DEFAULTS["alpha"],
+    full_fit: bool = False,
+    fit: dict[str, Any] | None = None,
+) -> Any:
+    """Run the loop on one case as the CLI would (block split, adapter, run_diagnose with its defaults).
+
+    ``full_fit``: the lidar tables are fitted as ``sensor-envs diagnose lidar`` fits them (its
+    ``DIAGNOSE_LIDAR_PARAMS`` and ``--max-readings`` default) instead of the fast seed variant;
+    ``fit``: table options of the log (e.g. a CARMEN log's ``max_range``).
+    """
     if sensor == "lidar":
-        from sensor_envs.diagnose.lidar import LidarAdapter, lidar_blocks
+        from sensor_envs.diagnose.lidar import DIAGNOSE_LIDAR_PARAMS, DIAGNOSE_MAX_READINGS, LidarAdapter, lidar_blocks
 
         blocks = lidar_blocks(case.log.n_poses, 5)
-        adapter: Any = LidarAdapter(case.log, block_split(blocks), blocks, params=LIDAR_FIT, max_readings=150)
+        params, rows = (DIAGNOSE_LIDAR_PARAMS, DIAGNOSE_MAX_READINGS) if full_fit else (LIDAR_FIT, 150)
+        params = {**params, **(fit or {})}
+        adapter: Any = LidarAdapter(case.log, block_split(blocks), blocks, params=params, max_readings=rows)
     else:
         from sensor_envs.diagnose.radar import RadarAdapter, radar_blocks
 
@@ -61,7 +117,9 @@ def diagnose_case(case: Case, sensor: str, permutations: int, seed: int, alpha: 
 
 def score_case(case: Case, res: Any) -> dict[str, Any]:
     """The case's outcome: top-ranked effect, added, errors, and whether the loop closed (or stayed quiet)."""
-    top = res.effects[0]["name"] if res.effects else None
+    planted = case.info.get("planted")  # a real log: its own effects (time, motion, correlation) may be real
+    ranked = [e for e in res.effects if planted is None or e["name"] in planted]
+    top = ranked[0]["name"] if ranked else None
     sig = [e["name"] for e in res.effects if e["significant"]]
     out: dict[str, Any] = {
         "kind": case.kind,
@@ -75,9 +133,9 @@ def score_case(case: Case, res: Any) -> dict[str, Any]:
         "error_after": res.error_after,
         "info": case.info,
     }
-    if case.kind == "null":
-        out["false_positive"] = bool(sig)
-        out["false_addition"] = bool(res.added)
+    if case.kind == "null":  # on a real log only the planted columns count
+        out["false_positive"] = any(planted is None or s in planted for s in sig)
+        out["false_addition"] = any(planted is None or s in planted for s in res.added)
     else:
         out["recall"] = bool(top == case.cause and case.cause in res.added and res.error_after < res.error_before)
         out["proxy_added"] = bool(case.proxy is not None and case.proxy in res.added)
@@ -134,39 +192,42 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=3, help="cases per kind and sensor (default 3)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the first case (cases use seed, seed+1, ...)")
-    ap.add_argument("--sensor", choices=("lidar", "radar", "both"), default="both")
+    ap.add_argument(
+        "--sensor",
+        choices=("lidar", "lidar-static", "radar", "both", "real", "none"),
+        nargs="*",
+        default=["both"],
+        help="families: lidar (moving scans), lidar-static (one pose over time), radar, both (lidar and radar), "
+        "real (needs --real), none",
+    )
+    ap.add_argument("--real", type=Path, default=None, help="the shared real-data folder (skipped when absent)")
+    ap.add_argument("--real-cases", type=int, default=2, help="planted cases per kind and real log (default 2)")
     ap.add_argument("--kinds", nargs="*", default=None, help="only these kinds")
     ap.add_argument("--scans", type=int, default=500)
     ap.add_argument("--bearings", type=int, default=60)
     ap.add_argument("--sequences", type=int, default=24, help="radar sequences (30 cycles x 10 targets each)")
-    ap.add_argument("--permutations", type=int, default=199)
-    ap.add_argument("--alpha", type=float, default=0.05, help="family-wise level (default 0.05, as the CLI)")
+    ap.add_argument("--permutations", type=int, default=DEFAULTS["n_permutations"], help="default: the CLI's")
+    ap.add_argument("--alpha", type=float, default=DEFAULTS["alpha"], help="family-wise level (default: the CLI's)")
+    ap.add_argument("--full-fit", action="store_true", help="lidar tables fitted as the CLI fits them (slow)")
     ap.add_argument("--out", type=Path, default=Path("diagnose_suite_out"))
     a = ap.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
-    sensors = ("lidar", "radar") if a.sensor == "both" else (a.sensor,)
-    for sensor in sensors:
-        kinds = LIDAR_KINDS if sensor == "lidar" else RADAR_KINDS
-        for kind in [k for k in kinds if a.kinds is None or k in a.kinds]:
-            for j in range(a.cases):
-                seed = a.seed + 1000 * j + 17 * kinds.index(kind)
-                t0 = time.perf_counter()
-                if sensor == "lidar":
-                    case = lidar_case(kind, seed, scans=a.scans, bearings=a.bearings)
-                else:
-                    case = radar_case(kind, seed, sequences=a.sequences)
-                res = diagnose_case(case, sensor, a.permutations, seed, a.alpha)
-                row = {"sensor": sensor, "seed": seed, **score_case(case, res)}
-                row["seconds"] = time.perf_counter() - t0
-                rows.append(row)
-                ok = row.get("recall", not row.get("false_positive", False))
-                print(
-                    f"{sensor} {kind} seed {seed}: {'ok' if ok else 'MISS'} top {row['top3'][:2]} "
-                    f"cause {case.cause} added {row['added']} ({row['seconds']:.0f} s)",
-                    file=sys.stderr,
-                    flush=True,
-                )
+    for label, kind, seed, make, fit in _jobs(a):
+        t0 = time.perf_counter()
+        case = make()
+        sensor = "radar" if label == "radar" else "lidar"
+        res = diagnose_case(case, sensor, a.permutations, seed, a.alpha, a.full_fit, fit)
+        row = {"sensor": label, "seed": seed, **score_case(case, res)}
+        row["seconds"] = time.perf_counter() - t0
+        rows.append(row)
+        ok = row.get("recall", not row.get("false_positive", False))
+        print(
+            f"{label} {kind} seed {seed}: {'ok' if ok else 'MISS'} top {row['top3'][:2]} "
+            f"cause {case.cause} added {row['added']} ({row['seconds']:.0f} s)",
+            file=sys.stderr,
+            flush=True,
+        )
     summary = summarise(rows)
     command = "python benchmarks/diagnose_suite.py " + " ".join(sys.argv[1:] if argv is None else argv)
     (a.out / "suite.json").write_text(json.dumps({"command": command, "summary": summary, "cases": rows}, indent=1))
@@ -174,6 +235,36 @@ def main(argv: list[str] | None = None) -> int:
     for k, d in summary.items():
         print(k, json.dumps(d))
     return 0
+
+
+def _jobs(a: argparse.Namespace) -> list[tuple[str, str, int, Any, dict[str, Any]]]:
+    """(label, kind, seed, case maker, table options) of every case the options ask for."""
+    sensors = [x for s in a.sensor for x in (("lidar", "radar") if s == "both" else (s,))]
+    jobs: list[tuple[str, str, int, Any, dict[str, Any]]] = []
+    for sensor in [s for s in sensors if s in ("lidar", "lidar-static", "radar")]:
+        kinds = RADAR_KINDS if sensor == "radar" else LIDAR_KINDS
+        for kind in [k for k in kinds if a.kinds is None or k in a.kinds]:
+            for j in range(a.cases):
+                seed = a.seed + 1000 * j + 17 * kinds.index(kind)
+                if sensor == "radar":
+                    make = partial(radar_case, kind, seed, sequences=a.sequences)
+                else:
+                    make = partial(lidar_case, kind, seed, a.scans, a.bearings, sensor == "lidar-static")
+                jobs.append((sensor, kind, seed, make, {}))
+    if "real" in sensors:
+        if a.real is None or not a.real.is_dir():
+            print(f"real logs skipped: --real {a.real} is not a folder", file=sys.stderr)
+            return jobs
+        for name, (rel, _, fit) in REAL_LOGS.items():
+            if not (a.real / rel).is_file():
+                print(f"real log {name} skipped: {a.real / rel} is absent", file=sys.stderr)
+                continue
+            log = load_real(a.real, name)
+            for kind in [k for k in PLANT_KINDS if a.kinds is None or k in a.kinds]:
+                for j in range(a.real_cases):
+                    seed = a.seed + 1000 * j + 17 * PLANT_KINDS.index(kind)
+                    jobs.append((f"real:{name}", kind, seed, partial(plant_lidar, log, kind, seed), fit))
+    return jobs
 
 
 if __name__ == "__main__":

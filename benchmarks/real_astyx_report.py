@@ -73,7 +73,8 @@ def main() -> None:
             relevance_candidates=tuple(args.corner_variance),
             relevance_folds=args.inner_folds,
             random_state=k,
-        ).fit(train, progress=True)
+            verbose=True,
+        ).fit(train)
         row["kde_cv"] = evaluate(sel, test, rng, time_series=False)
         row["kde_cv"]["corner_variance_chosen"] = sel.rel_variance_[0]
         row["kde_cv"]["inner_cv_loglik_per_row"] = dict(

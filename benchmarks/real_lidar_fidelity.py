@@ -65,7 +65,7 @@ LL = ["ll_per_reading", "ll_per_reading_in_range", "ll_null_counts_per_reading",
 
 
 def _model(**kw: Any) -> LidarLWLR:
-    return LidarLWLR(variant="extended", n_folds=10, random_state=0, progress=False, **kw)
+    return LidarLWLR(variant="extended", n_folds=10, random_state=0, **kw)
 
 
 def _put(dst: dict[str, np.ndarray], idx: np.ndarray, src: dict[str, np.ndarray]) -> None:

@@ -176,7 +176,7 @@ def per_range_bin(real: Any, r: np.ndarray, a: np.ndarray, folds: int) -> list[d
     gain = {"per_bearing_unshrunk": np.full(r.shape, np.nan), "pooled_trend": np.full(r.shape, np.nan)}
     for f in range(folds):
         tr, te = fold != f, fold == f
-        m = LidarLWLR(progress=False, bias_model="per_bearing", bias_shrinkage=0.0).fit(real.subset(tr))
+        m = LidarLWLR(bias_model="per_bearing", bias_shrinkage=0.0).fit(real.subset(tr))
         mu = m.params_from_features(r[te], a[te])["mu"]
         gain["per_bearing_unshrunk"][te] = np.abs(mu - st["mean"][te]) - np.abs(r[te] - st["mean"][te])
         h, _ = choose_global_widths(r0[tr], a0[tr], y[tr], w[tr], fold[tr], grid)

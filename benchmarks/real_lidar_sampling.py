@@ -47,7 +47,7 @@ SOURCES = ("real", "per_cell", "rigid", "world")
 
 
 def _fit(log: LidarLog) -> LidarLWLR:
-    return LidarLWLR(variant="extended", n_folds=10, random_state=0, progress=False).fit(log)
+    return LidarLWLR(variant="extended", n_folds=10, random_state=0).fit(log)
 
 
 def per_cell_sample(

@@ -13,7 +13,9 @@ imported lazily on first use (module-level ``__getattr__``, as ``gymnasium.wrapp
 
 Packages: ``lidar`` and ``radar`` (the sensor models), ``envs`` (the worlds), ``diagnose``, ``evaluate`` and
 ``training`` (tools), ``cli`` (the ``sensor-envs`` command). Shared modules: ``geometry`` (rays and segments), ``maps``
-(2D segment maps), ``modelio`` (model files), ``outputs`` (safe output files), ``rng`` (seeded generators),
+(2D segment maps), ``modelio`` (model files), ``constraints`` (the declared forms of hyperparameters and header
+fields), ``sensor_model`` (the one contract of the fitted sensor models:
+``SensorModel``), ``outputs`` (safe output files), ``rng`` (seeded generators),
 ``trig`` and ``jit`` (compiled kernels), ``heap`` (opt-in malloc tuning), ``lazy`` (lazy public names),
 ``cards`` (model cards from a file's header and measured metrics), ``inputs`` (the input layer: bounded reads,
 declared ranges, ``InputError``).
@@ -36,6 +38,7 @@ _PUBLIC: dict[str, str] = {
     "RadarObservation": "sensor_envs.envs.highway.wrapper",
     "make_highway": "sensor_envs.envs.highway.wrapper",
     "IDEAL_KINEMATICS": "sensor_envs.envs.highway.wrapper",
+    "SensorModel": "sensor_envs.sensor_model",
     # lidar
     "LidarSensor": "sensor_envs.lidar.sensors",
     "IdealLidar": "sensor_envs.lidar.sensors",

@@ -28,7 +28,7 @@ BIAS_PER_OMEGA = 0.03
 """Hidden range bias [m] per rad/s of turn rate."""
 MARGIN = 0.01
 """error_after must be below error_before by at least this [nats per reading]."""
-FAST = {"variant": "seed", "n_folds": 3, "h_range_grid": (0.25, 1.6), "h_alpha_grid": (0.5, 4.0), "progress": False}
+FAST = {"variant": "seed", "n_folds": 3, "h_range_grid": (0.25, 1.6), "h_alpha_grid": (0.5, 4.0), "verbose": False}
 
 
 def _ar1(rng: np.random.Generator, n: int, rho: float, sd: float) -> np.ndarray:

@@ -544,7 +544,7 @@ def test_public_names_of_the_split_modules():
     for module in ("sensor", "frame", "observation", "render", "wrapper"):
         mod = __import__(f"sensor_envs.envs.highway.{module}", fromlist=["__all__"])
         assert all(hasattr(mod, name) for name in mod.__all__), module
-    assert hw.RadarInfo.__module__ == "sensor_envs.envs.highway.frame"
+    assert hw.RadarInfo.__module__ == "sensor_envs.envs.highway.step_record"
 
 
 def test_user_model_file_is_loaded_once_per_path(tmp_path):

@@ -23,6 +23,8 @@ SIM15 = {"vehicles_count": 10, "simulation_frequency": 15}
 class FlagRadar:
     """Test double: records each call's previous outputs and new-track flags; misses half the targets."""
 
+    CAPABILITIES = frozenset({"new_track"})  # declared: the wrapper passes the flags
+
     def __init__(self, miss=0.5, cycle_time=None):
         self.miss, self.cycle_time_, self.calls = miss, cycle_time, []
 

@@ -32,7 +32,7 @@ SMALL = {
     "h_range_grid": (0.4, 1.6),
     "h_alpha_grid": (0.5,),
     "h_bearing_grid": (0.0, 2.0),
-    "progress": False,
+    "verbose": False,
 }
 ALPHA = 1e-3  # each goodness-of-fit test below fails with probability ~1e-3 under a correct sampler
 
@@ -107,10 +107,10 @@ def test_compiled_scan_gives_the_numpy_numbers(rig_fit, which, compiled_kernels)
     the grids, one and several leading axes; the draws come from the same generator states.
     """
     from sensor_envs.jit import compiled
-    from sensor_envs.lidar import kernel, lwlr
+    from sensor_envs.lidar import kernel, scan_sampler
     from sensor_envs.rng import RowGenerators
 
-    passes = (lwlr._scan_nodes, lwlr._scan_gather, lwlr._scan_readings, kernel._bilinear_loops)
+    passes = (scan_sampler.scan_nodes, scan_sampler.scan_gather, scan_sampler.scan_readings, kernel._bilinear_loops)
     assert all(compiled(f) is not None for f in passes)
     model = rig_fit[which]
     k = model.tables_.shape[1]
@@ -366,7 +366,7 @@ def test_estimator_contract():
         LidarLWLR(n_folds=10).fit(log)
     scans, _ = NeatoRig().record(ROOM, np.random.default_rng(0), n_poses=4, repeats=1)
     # one reading per pose and bearing: fitted per reading since issue #10 (was refused before)
-    assert LidarLWLR(n_folds=2, variant="seed", progress=False).fit(scans).training_["fit"] == "per reading"
+    assert LidarLWLR(n_folds=2, variant="seed", verbose=False).fit(scans).training_["fit"] == "per reading"
 
 
 def test_learned_lidar_in_neato_env(rig_fit, tmp_path):
@@ -469,7 +469,7 @@ def test_cross_validated_table_runs_on_a_small_rig_log():
     from sensor_envs.lidar.validate import cross_validate_log
 
     log, _ = NeatoRig().record(ROOM, np.random.default_rng(4), n_poses=6, repeats=10)
-    small = {k: v for k, v in SMALL.items() if k not in ("n_folds", "progress")}
+    small = {k: v for k, v in SMALL.items() if k not in ("n_folds", "verbose")}
     table = cross_validate_log(log, n_folds=2, inner_folds=2, model_kwargs=small, progress=False)
     assert set(table) == {"seed", "seed_without_spurious", "extended", "ideal", "gaussian"}
     # the learned models see the blocked bearings and range-dependent dropout; the baselines do not

@@ -39,7 +39,7 @@ SMALL = {
     "h_bearing_grid": (0.0, 2.0),
     "degree_grid": (0, 1),
     "n_folds": 4,
-    "progress": False,
+    "verbose": False,
 }
 BIAS, SIGMA = 0.02, 0.01
 
@@ -119,7 +119,7 @@ def test_per_reading_and_per_cell_paths_agree_on_a_repeated_log():
     """
     rig = NeatoRig(pose_sd=(0.0, 0.0), map_sd=0.0, spur_prone=0.0)
     log, _ = rig.record(ROOM, np.random.default_rng(3), n_poses=12, repeats=12)
-    kw = {"h_range_grid": (0.6,), "h_alpha_grid": (0.5,), "n_folds": 3, "progress": False}
+    kw = {"h_range_grid": (0.6,), "h_alpha_grid": (0.5,), "n_folds": 3, "verbose": False}
     cell = LidarLWLR(variant="seed", bias_model="per_bearing", **kw).fit(log)  # the per-reading fit's bias model
     read = LidarLWLR(variant="seed", **kw).fit(log, per_reading=True, max_readings=None)
     assert read.training_["fit"] == "per reading" and "fit" not in cell.training_

@@ -28,7 +28,7 @@ SMALL = {
     "h_range_grid": (0.4, 1.6),
     "h_alpha_grid": (0.5,),
     "h_bearing_grid": (0.0, 2.0),
-    "progress": False,
+    "verbose": False,
 }
 RIG = {"n_bearings": 90, "blocked": (), "spur_prone": 0.0}
 

@@ -67,7 +67,7 @@ def _brute_log_prob(m, z, state):
     out = []
     for zz, st in zip(z, state, strict=True):
         has_prev = m.use_prev and np.isfinite(st[2])
-        idx = m.main_idx_ if has_prev else m.start_idx_
+        idx = m._main_idx if has_prev else m._start_idx
         d = 4 if has_prev else 2
         w = np.array([np.exp(-0.5 * np.sum(((m.states_[i, :d] - st[:d]) / m.scale_[:d]) ** 2)) for i in idx])
         r = np.array([np.sqrt(np.sum(((m.states_[i, :d] - st[:d]) / m.scale_[:d]) ** 2)) for i in idx])
@@ -248,7 +248,7 @@ def test_clutter_follows_the_log(rig_split, model):
 
 def test_stored_clutter_is_capped_by_a_uniform_subsample(rig_split, monkeypatch):
     """Beyond ``MAX_CLUTTER_POSITIONS`` the model stores a uniform subsample of the clutter rows (same law)."""
-    import sensor_envs.radar.kde as kde
+    import sensor_envs.radar.kde_fit as kde  # the fit reads the cap
 
     train, _ = rig_split
     full = KDERadarModel(random_state=0).fit(train)

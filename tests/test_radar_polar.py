@@ -7,6 +7,7 @@ import pytest
 
 from sensor_envs.modelio import ModelFileError
 from sensor_envs.radar.kde import KDERadarModel, corner_features
+from sensor_envs.radar.kde_trees import neighbours
 from sensor_envs.radar.relevance import select_corner_variances, select_prev_variance
 from sensor_envs.radar.rig import record_rig_log
 from sensor_envs.radar.validate import chi_square
@@ -49,7 +50,7 @@ def test_format5_file_must_name_its_corner_features(model, tmp_path, rewrite_kde
 def test_polar_kernel_weights_range_and_azimuth(polar, tmp_path):
     """Weights are exp(-((dr / s_r)^2 + (daz / s_az)^2) / 2): near left and right corners are not mixed."""
     q = np.array([[8.0, 3.0]])
-    gi, w, _ = polar._neighbours(q, None, grp=np.array([1]))  # start tree: corner features only
+    gi, w, _ = neighbours(polar, q, None, grp=np.array([1]))  # start tree: corner features only
     f, fq = corner_features(polar.states_[gi, :2], "polar"), corner_features(q, "polar")
     expect = np.exp(-0.5 * (((f - fq) / np.sqrt(POLAR_VAR[:2])) ** 2).sum(axis=1))
     np.testing.assert_allclose(w, expect, rtol=1e-12)
@@ -112,7 +113,7 @@ def test_cv_state_chooses_the_previous_output_variance_on_the_training_log(tmp_p
 
 def test_log_prob_in_chunks_equals_all_rows_at_once(monkeypatch):
     """``log_prob`` splits long inputs into chunks of rows (bounded memory); the figures do not change."""
-    import sensor_envs.radar.kde as kde_module
+    import sensor_envs.radar.kde_density as kde_module  # log_prob reads the chunk size there
 
     log = record_rig_log(6, 15, 6, np.random.default_rng(5))
     model = KDERadarModel(rel_variance=(12.0, 12.0, 0.5, 0.5), cv_min_tuples=10, random_state=0).fit(log)

@@ -8,6 +8,7 @@ import pytest
 
 from sensor_envs.modelio import ModelFileError, save_model_file
 from sensor_envs.radar.kde import GROUP_LOST, GROUP_MAIN, GROUP_NEW, GROUP_START, KIND, KDERadarModel
+from sensor_envs.radar.kde_trees import route
 from sensor_envs.radar.log import target_tuples
 from sensor_envs.radar.validate import chi_square, detection_by_previous, rollout
 
@@ -46,7 +47,7 @@ def _as_format3(model, path):
 
 def _start_state(model, new):
     """A corner where both start trees hold tuples, with no previous output."""
-    idx = model.new_idx_ if new else model.lost_idx_
+    idx = model._new_idx if new else model._lost_idx
     c = model.states_[idx, :2]
     return np.array([*np.median(c, axis=0), np.nan, np.nan])
 
@@ -54,22 +55,22 @@ def _start_state(model, new):
 def test_fit_splits_the_start_tuples_by_the_log(model, rig_split):
     tt = target_tuples(rig_split[0])
     no_prev = np.isnan(tt.z_prev[:, 0])
-    np.testing.assert_array_equal(np.sort(model.new_idx_), np.flatnonzero(~tt.has_prev_row))
-    np.testing.assert_array_equal(np.sort(model.lost_idx_), np.flatnonzero(tt.has_prev_row & no_prev))
-    np.testing.assert_array_equal(np.sort(model.start_idx_), np.flatnonzero(no_prev))
+    np.testing.assert_array_equal(np.sort(model._new_idx), np.flatnonzero(~tt.has_prev_row))
+    np.testing.assert_array_equal(np.sort(model._lost_idx), np.flatnonzero(tt.has_prev_row & no_prev))
+    np.testing.assert_array_equal(np.sort(model._start_idx), np.flatnonzero(no_prev))
     # the rig detects new targets far more often than lost ones (the point of the split)
     assert model.prior_rate_new_ < model.prior_rate_lost_ - 0.2
 
 
 def test_flags_route_queries_to_their_tree(model):
     prev = np.array([[0.1, 0.0], [np.nan, np.nan], [np.nan, np.nan], [np.nan, np.nan]])
-    np.testing.assert_array_equal(model._route(prev, None), [GROUP_MAIN, GROUP_START, GROUP_START, GROUP_START])
+    np.testing.assert_array_equal(route(model, prev, None), [GROUP_MAIN, GROUP_START, GROUP_START, GROUP_START])
     flags = np.array([False, True, False, True])
-    np.testing.assert_array_equal(model._route(prev, flags), [GROUP_MAIN, GROUP_NEW, GROUP_LOST, GROUP_NEW])
+    np.testing.assert_array_equal(route(model, prev, flags), [GROUP_MAIN, GROUP_NEW, GROUP_LOST, GROUP_NEW])
     with pytest.raises(ValueError, match="row 0 is flagged new but has a previous output"):
-        model._route(prev, np.array([True, True, False, True]))
+        route(model, prev, np.array([True, True, False, True]))
     with pytest.raises(ValueError, match="new_track: expected None or"):
-        model._route(prev, np.array([1, 0, 0, 1]))
+        route(model, prev, np.array([1, 0, 0, 1]))
 
 
 def _brute_log_prob(m, z, st, idx):
@@ -88,13 +89,13 @@ def _brute_log_prob(m, z, st, idx):
 @pytest.mark.parametrize("new", [True, False])
 def test_log_prob_of_a_flagged_query_uses_only_its_tree(model, new):
     st = _start_state(model, new)
-    idx = model.new_idx_ if new else model.lost_idx_
+    idx = model._new_idx if new else model._lost_idx
     for z in (np.array([0.2, -0.1]), np.array([np.nan, np.nan])):
         got = model.log_prob(z[None], st[None], new_track=np.array([new]))[0]
         assert got == pytest.approx(_brute_log_prob(model, z, st, idx), rel=1e-9)
     # unflagged: the combined start tree, as before format 4
     z = np.array([[np.nan, np.nan]])
-    assert model.log_prob(z, st[None])[0] == pytest.approx(_brute_log_prob(model, z[0], st, model.start_idx_))
+    assert model.log_prob(z, st[None])[0] == pytest.approx(_brute_log_prob(model, z[0], st, model._start_idx))
 
 
 class _Flagged:
@@ -136,7 +137,7 @@ def test_rollout_new_track_rate_matches_the_recording(model, rig_split, tmp_path
 
 def test_format3_file_loads_and_ignores_the_flags(model, tmp_path):
     old = KDERadarModel.load(_as_format3(model, tmp_path / "f3.npz"))
-    assert old.new_track_ is None and old.new_idx_.size == 0 and old.lost_idx_.size == 0
+    assert old.new_track_ is None and old._new_idx.size == 0 and old._lost_idx.size == 0
     st = np.array([_start_state(model, True), _start_state(model, False), [40.0, 2.0, 0.1, -0.1]])
     flags = np.array([True, False, False])
     a = old.sample(st, np.random.default_rng(4), new_track=flags)
@@ -178,7 +179,7 @@ def _rewrite(path, out, edit):
         (lambda h, d: d.__setitem__("new_track", np.ones_like(d["new_track"])), "flags a tuple that has a previous"),
         (lambda h, d: d.__setitem__("new_track", d["new_track"][:-1]), "field 'new_track' must be"),
         (lambda h, d: d.pop("new_track"), "field 'new_track' is missing"),
-        (lambda h, d: h.__setitem__("new_track_flags", "yes"), "'new_track_flags' must be true or false"),
+        (lambda h, d: h.__setitem__("new_track_flags", "yes"), "'new_track_flags' is invalid: expected True or False"),
         (lambda h, d: h.__setitem__("new_track_flags", False), "present but 'new_track_flags' is not true"),
     ],
 )

@@ -9,10 +9,11 @@ import pytest
 from sensor_envs.cli.main import main
 from sensor_envs.cli.rebuild import load_recipe, recipe_argv, recipe_models, recipe_names, recipes_folder
 from sensor_envs.outputs import jsonable
+from sensor_envs.sensor_model import NOT_SAVED as RUN_TIME
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
 SHIPPED = sorted(p.name for p in MODELS.glob("*.npz"))
-NOT_SAVED = ("progress", "random_state", "cv_candidates")  # run-time only, or stored as an array
+NOT_SAVED = (*RUN_TIME, "cv_candidates")  # run-time only (random_state, verbose), or stored as an array
 
 
 def _header(path: Path) -> dict:

@@ -160,6 +160,7 @@ INT_RANGES: dict[str, tuple[int, int]] = {
     "block_frames": (1, 1_000_000),
     "block_scans": (1, 1_000_000),
     "test_every": (1, 1_000),
+    "bearings": (1, 100_000),
     "folds": (1, 1_000),
     "max_readings": (1, 1_000_000),
     "cv_block_scans": (1, 1_000_000),

@@ -20,6 +20,10 @@ from sensor_envs.cli.args import OneLineParser, about, add_force, nonneg_int, po
 from sensor_envs.inputs import InputError
 from sensor_envs.outputs import check_inputs, check_output, output_folder
 
+DIAGNOSE_MAX_READINGS = 240
+"""``diagnose lidar --max-readings`` default (:data:`sensor_envs.diagnose.lidar.DIAGNOSE_MAX_READINGS`; a test
+checks that they agree, the lidar adapter is not imported when the parser is built)."""
+
 
 def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     """Add ``diagnose radar`` to the top-level sub-command parser ``sub``."""
@@ -31,10 +35,7 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     p.add_argument("--model", default=None, help="a fitted model file (.npz) to diagnose instead of fitting one")
     p.add_argument("--model-kind", default="kde", choices=("kde", "gaussian"), help="model fitted when no --model")
     add_force(p)
-    p.add_argument("--max-add", type=positive_int, default=3, help="at most this many effects are added (default 3)")
-    p.add_argument("--permutations", type=positive_int, default=499, help="permutations of the test (default 499)")
-    p.add_argument("--alpha", type=float, default=0.05, help="family-wise significance level (default 0.05)")
-    p.add_argument("--min-score", type=float, default=0.005, help="minimum cross-fitted R^2 (default 0.005)")
+    _search_options(p)
     p.add_argument("--block-frames", type=positive_int, default=25, help="frames per contiguous block (default 25)")
     p.add_argument("--no-prev", action="store_true", help="do not condition the KDE on z_{t-1}")
     p.add_argument("--exclude", action="append", default=[], help="a log column that is not a candidate (repeatable)")
@@ -52,14 +53,16 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     q.add_argument(
         "--max-range", type=float, default=None, help="sensor's maximum range [m] (default: 5 for a .npz log)"
     )
-    q.add_argument("--max-readings", type=positive_int, default=300, help="scans used by the table fit (default 300)")
+    q.add_argument(
+        "--max-readings",
+        type=positive_int,
+        default=DIAGNOSE_MAX_READINGS,
+        help=f"scans used by the table fit (default {DIAGNOSE_MAX_READINGS})",
+    )
     q.add_argument("--spur-above", type=float, default=None, help="spurious returns beyond [m] (default max-range + 1)")
     q.add_argument("--table-range-step", type=float, default=0.125, help="range step of the tables [m] (default 0.125)")
     add_force(q)
-    q.add_argument("--max-add", type=positive_int, default=3, help="at most this many effects are added (default 3)")
-    q.add_argument("--permutations", type=positive_int, default=499, help="permutations of the test (default 499)")
-    q.add_argument("--alpha", type=float, default=0.05, help="family-wise significance level (default 0.05)")
-    q.add_argument("--min-score", type=float, default=0.005, help="minimum cross-fitted R^2 (default 0.005)")
+    _search_options(q)
     q.add_argument(
         "--block-scans", dest="block_frames", type=positive_int, default=5, help="scans per block (default 5)"
     )
@@ -68,6 +71,23 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     )
     q.add_argument("--quiet", action="store_true", help="no progress bars")
     q.set_defaults(func=_naming_the_log(_diagnose_lidar))
+
+
+def _search_options(p: argparse.ArgumentParser) -> None:
+    """``--max-add``, ``--permutations``, ``--alpha``, ``--min-score`` with the package's defaults."""
+    from sensor_envs.diagnose.search import DEFAULTS as D
+
+    p.add_argument("--max-add", type=positive_int, default=D["max_add"], help=f"effects added at most ({D['max_add']})")
+    p.add_argument(
+        "--permutations",
+        type=positive_int,
+        default=D["n_permutations"],
+        help=f"block sign-flips of the test (default {D['n_permutations']})",
+    )
+    p.add_argument("--alpha", type=float, default=D["alpha"], help=f"family-wise level (default {D['alpha']})")
+    p.add_argument(
+        "--min-score", type=float, default=D["min_score"], help=f"minimum cross-fitted R^2 (default {D['min_score']})"
+    )
 
 
 def _naming_the_log(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
@@ -188,7 +208,7 @@ def _diagnose_lidar(args: argparse.Namespace) -> int:
     check_inputs(args.log, args.model, args.map)
     out = check_output(args.out, inputs=[args.log, args.model, args.map], force=args.force, folder=True)
     base_model, base_state = None, ()
-    params: dict[str, Any] = {"max_range": max_range, "spur_above": spur, "progress": not args.quiet}
+    params: dict[str, Any] = {"max_range": max_range, "spur_above": spur, "verbose": not args.quiet}
     params["table_range_step"] = args.table_range_step
     if args.model is not None:
         base_model = LidarLWLR.load(args.model)

@@ -11,9 +11,11 @@
 LOG OPTIONS: ``--map FILE`` (any map ``sensor_envs.maps.load_map`` reads, ROS map_server YAML included;
 replaces the log's map), ``--align`` (scan-match the log's odometry poses onto the ``--map`` grid),
 ``--part all|train|test`` with ``--block-scans N --test-every K`` (blocks of N consecutive scans, every
-K-th held out). A log without a map and without ``--map`` (CARMEN) gets a nominal map built from its
-TRAINING blocks only, in ``fit`` and in ``validate`` alike. Logs with one reading per pose and bearing
-are fitted per reading and validated per reading (held-out NLL, null-rate calibration, PIT, lag-1 ACF).
+K-th held out), ``--bearings N`` (resample to N evenly spaced bearings from 0 deg, nearest logged beam: a
+361-beam ROS scan onto the Neato world's 360). A log without a map and without ``--map`` (CARMEN) gets a
+nominal map built from its TRAINING blocks only, in ``fit`` and in ``validate`` alike. Logs with one reading
+per pose and bearing are fitted per reading and validated per reading (held-out NLL, null-rate calibration,
+PIT, lag-1 ACF).
 
 ``fit`` also writes the model card ``MODEL.md``; ``validate --card`` rewrites it with the validation.
 ``record`` records from a rig file (default: the shipped calibrated ``models/neato_rig.json``);
@@ -131,6 +133,15 @@ def _log_options(p: argparse.ArgumentParser) -> None:
         "--block-scans", type=positive_int, default=40, help="scans per block of the train/test split (default: 40)"
     )
     p.add_argument("--test-every", type=positive_int, default=4, help="every K-th block is the test part (default: 4)")
+    p.add_argument(
+        "--bearings",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="resample the log to N bearings evenly spaced from 0 deg counter-clockwise, each taking the nearest "
+        "logged beam (360: a 361-beam ROS LaserScan over -180..180 deg on the Neato world's bearings); default: "
+        "the logged beams as they are",
+    )
 
 
 BEYOND_RANGE_SHARE = 0.01
@@ -162,12 +173,14 @@ def check_range_fits(log: Any, max_range: float, source: str, remedy: str = "giv
 
 def _prepared_log(args: argparse.Namespace, max_range: float, source: str | None = None, *remedy: str):
     """The log, checked against a maximum range that is not the user's (``source`` says whose), prepared."""
-    from sensor_envs.lidar.log import load_log
+    from sensor_envs.lidar.log import load_log, resample_bearings
     from sensor_envs.lidar.mapping import prepare_log
 
     log = load_log(args.log)
     if source is not None:
         check_range_fits(log, max_range, source, *remedy)
+    if args.bearings is not None:
+        log = resample_bearings(log, args.bearings)
     return prepare_log(
         log,
         map=args.map,
@@ -295,6 +308,7 @@ def lwlr_from_args(args: argparse.Namespace) -> Any:
         spur_above=spur_above,
         table_range_step=args.table_range_step,
         bias_model=args.bias_model,
+        verbose=True,  # bars only on a terminal (cli.main)
     )
 
 
@@ -322,17 +336,17 @@ def _fit(args: argparse.Namespace) -> int:
         else:
             model = model.fit(log)
         g = fit_gaussian_lidar(log, model.spur_above, model.max_range)
-    model.card_extra_ = {
-        "log_preparation": prep,
-        "gaussian_baseline": {k: float(v) for k, v in vars(g).items()},
-        "fit_seconds": time.perf_counter() - t0,
-        "commands": [*(printable(n) for n in args.note), _command()],
-    }
+    model.update_card(
+        {
+            "log_preparation": prep,
+            "gaussian_baseline": {k: float(v) for k, v in vars(g).items()},
+            "fit_seconds": time.perf_counter() - t0,
+            "commands": [*(printable(n) for n in args.note), _command()],
+        }
+    )
     with OutputTransaction() as tx:  # model and card: both or neither
         model.save(tx.file(out))
-        tx.file(card_out).write_text(
-            printable(model_card_markdown(model, model.card_extra_["commands"])), encoding="utf-8"
-        )
+        tx.file(card_out).write_text(printable(model_card_markdown(model, model.card_["commands"])), encoding="utf-8")
     path = out
     print(f"wrote {path} and {path.with_suffix('.md')} in {time.perf_counter() - t0:.1f} s; kernel widths {model.h_}")
     return 0
@@ -368,7 +382,7 @@ def _validate(args: argparse.Namespace) -> int:
             print(metrics_markdown(report["metrics"]))
             print(report.get("verdict", ""))
         if args.card:
-            cmds = [*model.card_extra_.get("commands", ["sensor-envs fit lidar ..."]), _command()]
+            cmds = [*model.card_.get("commands", ["sensor-envs fit lidar ..."]), _command()]
             tx.file(card).write_text(printable(model_card_markdown(model, cmds, report)), encoding="utf-8")
     if args.card:
         print(f"rewrote {card}")

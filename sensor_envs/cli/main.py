@@ -1,6 +1,7 @@
 """The sensor-envs command line.
 
-Commands: demo, record, fit, validate, calibrate, tune, diagnose, evaluate, rebuild-models, card, train, robustness.
+Commands: demo, record, fit, validate, calibrate, tune, diagnose, evaluate, rebuild-models, card,
+upgrade-model, train, robustness.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from sensor_envs.cli import radar as cli_radar
 from sensor_envs.cli import rebuild as cli_rebuild
 from sensor_envs.cli import training as cli_training
 from sensor_envs.cli import tune as cli_tune
+from sensor_envs.cli import upgrade as cli_upgrade
 from sensor_envs.cli.args import OneLineParser, add_force, bounded_int, declare_ranges, nonneg_int
 from sensor_envs.inputs import InputError
 
@@ -34,7 +36,7 @@ anything else, a plain ``ValueError`` from numpy or scipy included, is a bug and
 
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser, with the lidar and radar sub-commands registered."""
-    parser = OneLineParser(prog="sensor-envs", description=__doc__)
+    parser = OneLineParser(prog="sensor-envs", description=" ".join((__doc__ or "").split()))
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="the main job: drive every env with every sensor, write pictures and a report")
     demo.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
@@ -73,6 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
     card.add_argument("--out", required=True, help="output card (.md)")
     add_force(card)
     card.set_defaults(func=_run_card)
+    cli_upgrade.register(sub)
     cli_training.register(sub)
     declare_ranges(parser)  # every numeric option its declared range, every path option non-empty
     return parser

@@ -198,6 +198,12 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         help="with --base: only fit the scene law (seconds); the base rig's sensor laws and card are kept",
     )
     cal.add_argument(
+        "--clutter-only",
+        action="store_true",
+        help="with --base: only refit the clutter law (count, and joint range x azimuth cell shares of the "
+        "positions; seconds); the base rig's other laws and card are kept",
+    )
+    cal.add_argument(
         "--base",
         metavar="RIG.json",
         help="rig file to start from (its parameters are the starting point, and the source of those single "
@@ -299,12 +305,15 @@ def _calibrate(args: argparse.Namespace) -> int:
             "--scene-only: fits no sensor law; drop --azimuth-bias, --signed-azimuth, --occlusion-by-range "
             "and --offset-law"
         )
+    _check_only_flags(args)
     check_inputs(args.real_data, args.base)
     out = check_output(args.out, inputs=[args.real_data, args.base], force=args.force, suffix=".json")
     base, base_card = load_rig(args.base) if args.base else (None, {})
     t0 = time.perf_counter()
     if args.scene_only:
         return _calibrate_scene_only(args, out, base, base_card, t0)
+    if args.clutter_only:
+        return _calibrate_clutter_only(args, out, base, base_card, t0)
     with about(args.real_data):
         frames = load_real(args.real_data, progress=sys.stderr.isatty())
         config, card = calibrate_rig(
@@ -330,6 +339,42 @@ def _calibrate(args: argparse.Namespace) -> int:
         f"calibrated on {frames.n_frames} frames in {card['seconds']} s -> {out}; discrepancy "
         f"({'base rig' if args.base else 'generic rig'} -> "
         f"calibrated): " + ", ".join(f"{k} {before[k]:.4g} -> {after[k]:.4g}" for k in before)
+    )
+    return 0
+
+
+def _check_only_flags(args: argparse.Namespace) -> None:
+    """``--clutter-only`` needs ``--base`` and takes no other stage's option."""
+    if not args.clutter_only:
+        return
+    if not args.base:
+        raise InputError("--clutter-only: needs --base (the rig whose other laws are kept)")
+    if args.scene_only or args.scene:
+        raise InputError("--clutter-only: fits no scene law; drop --scene and --scene-only")
+    if args.azimuth_bias or args.signed_azimuth or args.occlusion_by_range or args.offset_law != "reflection":
+        raise InputError(
+            "--clutter-only: fits no sensor law but the clutter; drop --azimuth-bias, --signed-azimuth, "
+            "--occlusion-by-range and --offset-law"
+        )
+
+
+def _calibrate_clutter_only(
+    args: argparse.Namespace, out: Path, base: Any, base_card: dict[str, Any], t0: float
+) -> int:
+    """``calibrate radar --clutter-only``: the base rig, its clutter law refitted; its card gains a clutter section."""
+    from sensor_envs.radar.calibrate import calibrate_clutter, load_real
+    from sensor_envs.radar.rig import save_rig
+
+    with about(args.real_data):
+        frames = load_real(args.real_data, progress=sys.stderr.isatty())
+        config, clutter = calibrate_clutter(frames, base)
+    clutter["seconds"] = round(time.perf_counter() - t0, 1)
+    clutter["base"] = Path(args.base).name
+    with OutputTransaction() as tx:
+        save_rig(tx.file(out), config, {**base_card, "clutter": clutter})
+    print(
+        f"clutter law fitted on {clutter['clutter_rows']} clutter rows of {frames.n_frames} frames -> {out}; "
+        "the base rig's other laws kept"
     )
     return 0
 
@@ -417,7 +462,7 @@ def _fit(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     model = kde_from_args(args)
     with about(args.log):
-        model.fit(log, cycle_time=args.cycle_time, progress=args.relevance != "paper")
+        model.set_params(verbose=args.relevance != "paper").fit(log, cycle_time=args.cycle_time)
     fit_s = time.perf_counter() - t0
     data = data_reference(args.log)  # the log's name and sha256, never the path of the machine that fitted it
     card = {

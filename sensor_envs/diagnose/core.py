@@ -36,10 +36,11 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-from sensor_envs.diagnose.search import Ranking, bin_candidate, rank_candidates
+from sensor_envs.diagnose.search import DEFAULTS, Ranking, bin_candidate, rank_candidates
 from sensor_envs.inputs import InputError
 
 __all__ = [
+    "DEFAULTS",
     "Evaluation",
     "DiagnoseAdapter",
     "DiagnoseResult",
@@ -217,10 +218,10 @@ def run_diagnose(
     *,
     base_state: tuple[str, ...] = (),
     base_model: Any = None,
-    max_add: int = 3,
-    n_permutations: int = 199,
-    alpha: float = 0.05,
-    min_score: float = 0.001,
+    max_add: int = DEFAULTS["max_add"],
+    n_permutations: int = DEFAULTS["n_permutations"],
+    alpha: float = DEFAULTS["alpha"],
+    min_score: float = DEFAULTS["min_score"],
     seed: int = 0,
     progress: bool = False,
 ) -> DiagnoseResult:
@@ -263,7 +264,7 @@ def run_diagnose(
     step: dict[str, Any] = {}
     for _ in range(max_add):  # at most max_add refits (added or rejected)
         if ranking is None:  # the model changed: rank its residuals again
-            ranking = rank_candidates(ev, exclude, **opts)  # type: ignore[arg-type]
+            ranking = rank_candidates(ev, exclude, given=tuple(added), **opts)  # type: ignore[arg-type]
             first = first or ranking
             step = {"error": ev.error, "ranking": _ranking_rows(ranking), "attempts": []}
             steps.append(step)
@@ -306,7 +307,7 @@ def run_diagnose(
         exclude = (*exclude, pick["name"])
         ranking = None
     if ranking is None:  # the refit budget ended on an addition: rank the final model's residuals too
-        final = rank_candidates(ev, exclude, **opts)  # type: ignore[arg-type]
+        final = rank_candidates(ev, exclude, given=tuple(added), **opts)  # type: ignore[arg-type]
         steps.append(
             {"error": ev.error, "ranking": _ranking_rows(final), "decision": f"stopped: {max_add} refits done"}
         )

@@ -27,7 +27,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Case", "LIDAR_KINDS", "RADAR_KINDS", "lidar_case", "radar_case"]
+__all__ = [
+    "Case",
+    "LIDAR_KINDS",
+    "PLANT_KINDS",
+    "RADAR_KINDS",
+    "lidar_case",
+    "plant_lidar",
+    "radar_case",
+    "static_scan_log",
+]
 
 LIDAR_KINDS = ("mean", "interaction", "spread", "rate", "correlation", "null")
 """Planted-effect kinds of the lidar family (``null``: no cause, drift and heavy tails only)."""
@@ -151,8 +160,12 @@ def _room(rng: np.random.Generator) -> tuple[NDArray[np.float64], float, float]:
     return np.asarray(segs, dtype=float), w, h
 
 
-def lidar_case(kind: str, seed: int, scans: int = 500, bearings: int = 60) -> Case:
-    """A scan log of ``scans x bearings`` readings with one planted effect of ``kind`` (:data:`LIDAR_KINDS`)."""
+def lidar_case(kind: str, seed: int, scans: int = 500, bearings: int = 60, static: bool = False) -> Case:
+    """A scan log of ``scans x bearings`` readings with one planted effect of ``kind`` (:data:`LIDAR_KINDS`).
+
+    ``static``: the calibration shape, one pose recorded over time (no ``v``/``omega`` columns; the
+    model's folds are then blocks of time, never poses).
+    """
     from sensor_envs.lidar.log import log_from_arrays
     from sensor_envs.lidar.lwlr import lidar_features
 
@@ -174,6 +187,8 @@ def lidar_case(kind: str, seed: int, scans: int = 500, bearings: int = 60) -> Ca
         ],
         axis=1,
     )
+    if static:
+        poses = np.repeat(poses[:1], scans, axis=0)
     b = np.linspace(0, 2 * np.pi, bearings, endpoint=False)
     r, _ = lidar_features(poses, b, segs, 5.0)
     heavy = bool(rng.random() < 0.5)
@@ -183,6 +198,7 @@ def lidar_case(kind: str, seed: int, scans: int = 500, bearings: int = 60) -> Ca
     sig = 0.01 + 0.005 * np.nan_to_num(r, nan=2.0)  # [m]
     e = _noise(rng, r.shape, heavy, df)
     info: dict[str, Any] = {"scans": scans, "bearings": bearings, "heavy_tails": heavy, "df": df if heavy else None}
+    info["static"] = static
     if drift:  # slowly drifting common range offset (AR(1) per scan): the spurious-regression trap
         rho_d, sd_d = float(rng.uniform(0.8, 0.98)), float(rng.uniform(0.2, 0.5))
         e = e + sd_d * _ar1(rng, scans, rho_d)[:, None]
@@ -190,7 +206,8 @@ def lidar_case(kind: str, seed: int, scans: int = 500, bearings: int = 60) -> Ca
     cause_raw = _ar1(rng, scans, float(rng.uniform(0.85, 0.98)))
     taken: set[str] = set()
     cov, cname, pname, prho = _covariates(rng, scans, cause_raw, taken, with_proxy=kind not in ("null", "correlation"))
-    cov["v"], cov["omega"] = v, omega
+    if not static:
+        cov["v"], cov["omega"] = v, omega
     p_null = np.full(r.shape, 0.05)
     strength = float(np.exp(rng.uniform(np.log(0.3), np.log(1.0))))
     form, f = _form(rng, cause_raw)
@@ -305,3 +322,82 @@ def radar_case(kind: str, seed: int, sequences: int = 24, cycles: int = 30, targ
         c[k] = col
     log = RadarLog(c, source=f"suite radar {kind} {seed}")
     return Case(log, kind, None if kind == "null" else cname, pname, (), info)
+
+
+# -- a real scan log with a planted cause -------------------------------------------------------------
+
+PLANT_KINDS = ("mean", "interaction", "spread", "rate", "null")
+"""Kinds :func:`plant_lidar` plants into a real scan log (``null``: distractor columns only)."""
+
+
+def plant_lidar(log: Any, kind: str, seed: int, strength: float | None = None) -> Case:
+    """A real scan log (with a map, ``(S, K, 1)``) with one cause planted, the distractors of the families.
+
+    The cause is a random AR(1) column (as a slow covariate such as a temperature); a noisy proxy,
+    two random walks and a white-noise column are added under random names. The effect is sized by the
+    log's own spread: ``sd`` = 1.4826 x the median absolute deviation of ``x - r`` (reading minus the
+    nominal range from the map) over the hit, non-null readings. ``mean``: ``x + s sd f(c)``;
+    ``interaction``: ``x + s sd sqrt(2) f(c) cos(bearing - phase)``; ``spread``: the deviation
+    ``x - r`` scaled by ``1 + s`` across the cause's range; ``rate``: extra nulls with probability
+    rising by ``s sqrt(p (1 - p))`` (``p`` the log's null rate, at least 0.05) across it. Real effects
+    already in the log (of time, speed, turn rate) stay: the truth is only what was planted. The base
+    model is given ``prev_residual`` (a real log's readings are correlated in time).
+
+    Args:
+        log: the prepared real log (:func:`sensor_envs.lidar.mapping.prepare_log`).
+        kind: one of :data:`PLANT_KINDS`.
+        seed: seed of everything drawn.
+        strength: ``s``; default drawn log-uniformly from 0.5-1.0 (0.3-0.6 for a spread change).
+    """
+    from sensor_envs.lidar.log import LidarLog
+    from sensor_envs.lidar.lwlr import lidar_features
+
+    if kind not in PLANT_KINDS:
+        raise ValueError(f"kind: expected one of {PLANT_KINDS}, got {kind!r}")
+    rng = np.random.default_rng(seed)
+    n, k = log.ranges.shape[:2]
+    x = log.ranges[:, :, 0].copy()
+    r, _ = lidar_features(log.poses, log.bearings, log.require_map(), float(np.nanmax(np.where(x > 0, x, 0))))
+    hit = np.isfinite(r) & (x > 0) & np.isfinite(x)
+    dev = np.where(hit, x - np.nan_to_num(r), 0.0)
+    sd = 1.4826 * float(np.median(np.abs(dev[hit] - np.median(dev[hit]))))
+    cause = _ar1(rng, n, float(rng.uniform(0.85, 0.98)))
+    taken = set(log.covariates)
+    cov, cname, pname, prho = _covariates(rng, n, cause, taken, with_proxy=kind != "null")
+    form, f = _form(rng, cause)
+    if strength is None:
+        lo, hi = (0.3, 0.6) if kind == "spread" else (0.5, 1.0)
+        strength = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+    info: dict[str, Any] = {"source": log.source, "scans": n, "bearings": k, "strength": strength, "form": form}
+    info.update(sd_m=sd, proxy_corr=prho, planted=list(cov))
+    if kind == "mean":
+        x = np.where(hit, x + strength * sd * f[:, None], x)
+    elif kind == "interaction":
+        phase = float(rng.uniform(0, 2 * np.pi))
+        x = np.where(hit, x + strength * sd * np.sqrt(2) * f[:, None] * np.cos(log.bearings - phase)[None], x)
+        info["interaction"] = f"cos(bearing - {phase:.2f})"
+    elif kind == "spread":
+        scale = np.exp(np.log1p(strength) * (f - f.min()) / max(np.ptp(f), 1e-12))
+        scale = scale / np.sqrt(np.mean(scale**2))
+        x = np.where(hit, np.maximum(np.nan_to_num(r) + dev * scale[:, None], 0.02), x)
+    elif kind == "rate":
+        p = max(float(np.mean(x[np.isfinite(r) & np.isfinite(x)] == 0)), 0.05)
+        p_add = np.clip(strength * np.sqrt(p * (1 - p)) * (f - f.min()), 0.0, 0.9)
+        x = np.where(hit & (rng.random(x.shape) < p_add[:, None]), 0.0, x)
+    covariates = {**log.covariates, **cov}
+    planted = LidarLog(x[..., None], log.bearings, log.poses, log.map_segments, log.t, covariates, log.source)
+    truth = None if kind == "null" else cname
+    return Case(planted, kind, truth, pname if kind != "null" else None, ("prev_residual",), info)
+
+
+def static_scan_log(log: Any, pose: int = 0, period: float = 0.2) -> Any:
+    """The static-pose-over-time shape from a repeated log ``(P, K, R)``: pose ``pose``'s ``R`` scans in order.
+
+    Times are ``period`` [s] apart (the repeats' order; a Neato XV-11 turns at 5 Hz).
+    """
+    from sensor_envs.lidar.log import LidarLog
+
+    rep = np.moveaxis(log.ranges[pose], 1, 0)[..., None]  # (R, K, 1)
+    m = rep.shape[0]
+    poses = np.repeat(log.poses[pose : pose + 1], m, axis=0)
+    return LidarLog(rep, log.bearings, poses, log.map_segments, period * np.arange(m), {}, f"{log.source} pose {pose}")

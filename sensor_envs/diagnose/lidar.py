@@ -9,8 +9,9 @@ Residuals of a fitted model on the held-out part:
 * ``range``: ``x - mu`` [m] of non-null in-range readings (NaN otherwise; spurious far returns
   ``> spur_above`` excluded), clipped to +-1 m;
 * ``pit``: the reading's PIT under the model minus 0.5 (non-null readings);
-* ``range_spread``: ``sqrt(|x - mu| / sigma)`` of the same readings as ``range`` (kind ``spread``:
-  an effect on the noise's scale or tails moves it while the mean residual stays 0).
+* ``range_spread``: ``sqrt(|z - c|)`` with ``z = (x - mu) / sigma`` of the same readings as ``range``
+  and ``c`` the scan's mean of ``z`` clipped to +-3 (kind ``spread``: an effect on the noise's scale or
+  tails moves it while the mean residual stays 0; an offset shared by a scan, e.g. slow drift, does not).
 
 Interaction features (the model's own state, see :mod:`sensor_envs.diagnose.search`): bearing,
 nominal range and incidence. A finding's form maps to state terms (:meth:`LidarAdapter.state_terms`):
@@ -45,10 +46,15 @@ from sensor_envs.lidar.log import LidarLog
 from sensor_envs.lidar.lwlr import LidarLWLR, lidar_features, mixture_log_prob
 from sensor_envs.lidar.validate_readings import _pit
 
-__all__ = ["LidarAdapter", "lidar_blocks", "DIAGNOSE_LIDAR_PARAMS"]
+__all__ = ["LidarAdapter", "lidar_blocks", "DIAGNOSE_LIDAR_PARAMS", "DIAGNOSE_MAX_READINGS"]
 
-DIAGNOSE_LIDAR_PARAMS: dict[str, Any] = {"variant": "extended", "n_folds": 5, "random_state": 0, "progress": False}
-"""Hyperparameters of the diagnosis fits unless ``--model`` gives others."""
+DIAGNOSE_LIDAR_PARAMS: dict[str, Any] = {"variant": "extended", "n_folds": 3, "random_state": 0, "verbose": False}
+"""Hyperparameters of the diagnosis fits unless ``--model`` gives others (3 folds of time blocks: the
+kernel-width search is the costly part of a diagnosis, its cost grows with the folds and with the
+square of :data:`DIAGNOSE_MAX_READINGS`)."""
+DIAGNOSE_MAX_READINGS = 240
+"""Scans the table fit of ``diagnose lidar`` uses by default (evenly spaced; the held-out evaluation
+and the search use every held-out reading)."""
 _RENAME = {TIME: "time"}
 _RANGE_CLIP = 1.0
 
@@ -56,6 +62,20 @@ _RANGE_CLIP = 1.0
 def lidar_blocks(n_scans: int, block_scans: int = 5) -> NDArray[np.int64]:
     """Block id ``(S,)`` of each scan: ``block_scans`` consecutive scans form a block."""
     return (np.arange(n_scans) // max(int(block_scans), 1)).astype(np.int64)
+
+
+def _within_scan_spread(z: NDArray[np.float64], scan: NDArray[np.int64]) -> NDArray[np.float64]:
+    """``sqrt(|z - c_scan|)`` (capped at 5): the size of each standardised residual about its scan's centre.
+
+    ``c_scan`` is the scan's mean of ``z`` clipped to +-3 (NaN readings excluded): an offset shared by a
+    scan's readings (slow drift, a pose error) is not spread, so a change of the noise's scale is not
+    buried under the drift's variance.
+    """
+    ok = np.isfinite(z)
+    zc = np.where(ok, np.clip(z, -3.0, 3.0), 0.0)
+    n = np.bincount(scan, weights=ok.astype(np.float64))
+    centre = np.bincount(scan, weights=zc) / np.maximum(n, 1.0)
+    return np.sqrt(np.minimum(np.abs(z - centre[scan]), 25.0))
 
 
 class LidarAdapter:
@@ -79,7 +99,7 @@ class LidarAdapter:
         blocks: NDArray[np.int64],
         params: dict[str, Any] | None = None,
         base_model: LidarLWLR | None = None,
-        max_readings: int | None = 300,
+        max_readings: int | None = DIAGNOSE_MAX_READINGS,
     ) -> None:
         if log.ranges.shape[2] != 1:
             raise InputError(f"{log.source}: field 'ranges': diagnose lidar needs a scan log (one reading per scan)")
@@ -176,7 +196,7 @@ class LidarAdapter:
             "null": null - ps["p_null"],
             "range": rng_res,
             "pit": pit,
-            "range_spread": np.sqrt(np.minimum(np.abs(rng_res) / ps["sigma"], 25.0)),
+            "range_spread": _within_scan_spread(rng_res / ps["sigma"], s),
         }
         cand = dict(self._candidates)
         cand[PREV] = feats[s, k, -1 if PREV not in names else names.index(PREV)]

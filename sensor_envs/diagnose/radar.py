@@ -152,7 +152,7 @@ class RadarAdapter:
             return GaussianRadar(**self.params, extra_state=tuple(extra_state)).fit(self.fit_log)
         var = tuple(self._variances.get(n, float("nan")) for n in extra_state) if extra_state else None
         model = KDERadarModel(**self.params, extra_state=tuple(extra_state), extra_variance=var)
-        model.fit(self.fit_log, progress=self.progress)
+        model.set_params(verbose=bool(self.progress)).fit(self.fit_log)
         self._variances.update(zip(model.extra_state_, model.extra_variance_, strict=True))
         if self.params.get("relevance") in CV_RELEVANCE:  # the state variances are chosen once, by the first fit
             self.params.update(relevance="paper", rel_variance=tuple(model.rel_variance_))

@@ -51,7 +51,13 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
-__all__ = ["Ranking", "bin_candidate", "rank_candidates", "time_folds", "N_SEGMENTS", "GAP"]
+__all__ = ["Ranking", "DEFAULTS", "bin_candidate", "rank_basis", "rank_candidates", "time_folds", "N_SEGMENTS", "GAP"]
+
+DEFAULTS: dict[str, Any] = {"n_permutations": 499, "alpha": 0.05, "min_score": 0.001, "max_add": 3}
+"""The one source of the search's defaults: :func:`rank_candidates`, :func:`~sensor_envs.diagnose.core.run_diagnose`,
+``sensor-envs diagnose`` and ``benchmarks/diagnose_suite.py`` all take theirs from here (the suite measures
+what a user's command does). ``min_score`` is a held-out ``R^2`` per reading: an effect of 0.3 residual sd
+across its cause's range explains about 0.003-0.01 of a lidar residual's variance."""
 
 N_SEGMENTS = 6
 """Contiguous time segments of the held-out readings, dealt alternately to the two cross-fitting folds."""
@@ -62,7 +68,14 @@ N_BLOCKS = 32
 (down to :data:`MIN_BLOCKS`) when the residuals are correlated over longer times (:func:`n_flip_blocks`)."""
 MIN_BLOCKS = 16
 _SHRINK = 10.0
-_MAIN_BINS = 10
+POLY_DEGREE = 2
+"""Degree of the main regressor's Legendre polynomials of a candidate's rank scale (a cubic extrapolates wildly
+from one time fold to the next: a trend in time lost its held-out R^2 with it)."""
+_RIDGE = 1.0
+_NULL_CHUNKS = 8
+"""Most contiguous time chunks of the null residual's prediction (fewer, down to 4, when the residuals are
+correlated over longer times): each chunk is predicted by a fit that leaves out the chunk and its two
+neighbours (:func:`_main_stats`)."""
 _INT_BINS = (6, 8)
 _TOP_COND = 5
 
@@ -92,14 +105,128 @@ def time_folds(order: NDArray, n_segments: int = N_SEGMENTS, gap: float = GAP) -
     return np.where((frac < gap) | (frac > 1 - gap), -1, seg % 2).astype(np.int64)
 
 
-def _standardise(x: NDArray) -> NDArray[np.float64]:
-    """``(x - mean) / sd`` with NaN set to 0 (NaN readings get their own bin)."""
+def rank_basis(x: NDArray, degree: int = POLY_DEGREE) -> NDArray[np.float64]:
+    """Main-effect basis ``(n, degree + 2)`` of a candidate: 1, Legendre ``P_1 .. P_degree``, NaN indicator.
+
+    The polynomials are of the candidate's mid-rank scale ``u`` in ``[-1, 1]`` (a monotone transform:
+    outliers and skewed units do not dominate; ties, e.g. a per-scan value repeated over the bearings,
+    share one ``u``); NaN readings get ``u = 0`` and the indicator 1.
+    """
     x = np.asarray(x, dtype=np.float64)
     ok = np.isfinite(x)
-    if not ok.any():
-        return np.zeros(x.shape)
-    m, s = x[ok].mean(), x[ok].std()
-    return np.where(ok, (x - m) / (s if s > 0 else 1.0), 0.0)
+    u = np.zeros(x.shape)
+    if ok.sum() > 1:
+        _, inv, cnt = np.unique(x[ok], return_inverse=True, return_counts=True)
+        mid = np.cumsum(cnt) - (cnt + 1) / 2.0  # mid-ranks 0 .. n - 1
+        u[ok] = 2.0 * mid[inv.ravel()] / (ok.sum() - 1) - 1.0
+    basis = np.polynomial.legendre.legvander(u, degree)
+    basis[~ok, 1:] = 0.0
+    return np.concatenate([basis, (~ok).astype(np.float64)[:, None]], axis=1)
+
+
+def _main_stats(basis: NDArray, r: NDArray, fold: NDArray, block: NDArray, n_blocks: int) -> tuple[NDArray, ...]:
+    """Sufficient statistics of the main regressors (``basis (C, n, p)``) against ``r`` and for the null draws.
+
+    Returns the Gram matrices ``(C, 2, p, p)`` per fold; the sums of ``basis * r`` ``(n_blocks, C, 2, p)``
+    per time block and fold and the sums of ``r^2`` ``(C, 2)`` (the observed scores); and the same two of
+    each candidate's null residual ``e_c = r - pred_c``, whose block sign-flips are the candidate's null
+    draws. ``pred_c`` predicts each of 4 to :data:`_NULL_CHUNKS` contiguous time chunks (a quarter of
+    the sign-flip blocks) from a fit that leaves out the chunk and its neighbours (linear beyond the
+    fitted range, :func:`_chunk_predict`): an effect of the candidate carries over any distance and is
+    removed (flipped, it would widen the null and cap the attainable z near ``sqrt(n_blocks)``), while
+    a chance alignment with slow drift does not carry over a whole chunk and stays in ``e_c``
+    (removing it would narrow the null: false alarms).
+    """
+    c, _, p = basis.shape
+    bases = [_clip_curvature(basis, fold == a) for a in (0, 1)]  # variant a: fitted on fold a, scores fold b
+    gram = np.stack(
+        [np.stack([np.einsum("cni,cnj->cij", x[:, fold == f], x[:, fold == f]) for f in (0, 1)], axis=1) for x in bases]
+    )
+    key = block * 2 + fold
+    ids = (key[:, None] * p + np.arange(p)[None]).ravel()
+    ridge = np.diag(np.r_[0.0, np.full(p - 1, _RIDGE)])
+    n_chunks = int(np.clip(n_blocks // 4, 4, _NULL_CHUNKS))  # each chunk >= ~8 correlation lengths of r
+    chunk = np.arange(r.size) * n_chunks // max(r.size, 1)  # readings are in time order
+    xr = np.empty((n_blocks, 2, c, 2, p))
+    xe = np.empty((n_blocks, 2, c, 2, p))
+    ee = np.empty((c, 2))
+    size = n_blocks * 2 * p
+    for i in range(c):
+        e = r.copy()
+        for k in range(n_chunks):  # each chunk minus the prediction fitted on the chunks not next to it
+            tr, te = np.abs(chunk - k) >= 2, chunk == k
+            e[te] -= _chunk_predict(basis[i, tr], r[tr], basis[i, te], ridge)
+        e -= e.mean()
+        ee[i] = [np.sum(e[fold == f] ** 2) for f in (0, 1)]
+        for v, x in enumerate(bases):
+            xr[:, v, i] = np.bincount(ids, (x[i] * r[:, None]).ravel(), size).reshape(n_blocks, 2, p)
+            xe[:, v, i] = np.bincount(ids, (x[i] * e[:, None]).ravel(), size).reshape(n_blocks, 2, p)
+    rr = np.broadcast_to(np.array([np.sum(r[fold == f] ** 2) for f in (0, 1)]), (c, 2))
+    return gram, xr, rr, xe, ee
+
+
+def _clip_curvature(basis: NDArray, fit: NDArray) -> NDArray[np.float64]:
+    """``basis (C, n, p)`` with its curvature column ``P2(u)`` at ``u`` clipped to the range of ``fit``'s readings.
+
+    Scoring a fit on one time fold at the other fold's readings, a candidate like time lies partly
+    beyond the fitted range there: its trend carries on (``P1``), its curvature is not extrapolated (a
+    quadratic extrapolated to the log's ends lost the held-out ``R^2`` of a plain trend in time).
+    """
+    out = basis.copy()
+    if basis.shape[2] < 4:
+        return out
+    finite = basis[:, :, -1] == 0
+    u = basis[:, :, 1]
+    lo = np.min(np.where(fit[None] & finite, u, np.inf), axis=1, keepdims=True)
+    hi = np.max(np.where(fit[None] & finite, u, -np.inf), axis=1, keepdims=True)
+    uc = np.clip(u, np.minimum(lo, hi), np.maximum(lo, hi))
+    out[:, :, 2] = np.where(finite, 1.5 * uc**2 - 0.5, 0.0)
+    return out
+
+
+def _chunk_predict(xa: NDArray, ra: NDArray, xb: NDArray, ridge: NDArray) -> NDArray[np.float64]:
+    """The main regressor fitted on ``(xa, ra)``, predicted at ``xb``; linear beyond the fitted rank range.
+
+    Inside the candidate's fitted range (its rank scale ``u``, column 1) the full polynomial; beyond it
+    the polynomial at the range's end plus the slope of a straight-line fit (a trend in time carries on,
+    a curvature is not extrapolated).
+    """
+    beta = np.linalg.solve(xa.T @ xa + ridge, xa.T @ ra)
+    lin = [0, 1, xa.shape[1] - 1]  # intercept, u, NaN indicator
+    slope = np.linalg.solve(xa[:, lin].T @ xa[:, lin] + ridge[np.ix_(lin, lin)], xa[:, lin].T @ ra)[1]
+    u = xb[:, 1]
+    finite = xa[:, -1] == 0
+    lo, hi = (xa[finite, 1].min(), xa[finite, 1].max()) if finite.any() else (0.0, 0.0)
+    uc = np.where(xb[:, -1] == 0, np.clip(u, lo, hi), 0.0)
+    inside = np.polynomial.legendre.legvander(uc, xb.shape[1] - 2)
+    inside = np.concatenate([inside, xb[:, -1:]], axis=1)
+    inside[xb[:, -1] == 1, 1:-1] = 0.0
+    return np.asarray(inside @ beta + slope * (u - uc), dtype=np.float64)
+
+
+def _main_r2(gram: NDArray, xr_b: NDArray, rr: NDArray, flips: NDArray) -> NDArray[np.float64]:
+    """Cross-fitted ``R^2`` ``(P, C)`` of the main regressors (least squares, small ridge) for each sign-flip.
+
+    ``gram (2, C, 2, p, p)`` and ``xr_b (n_blocks, 2, C, 2, p)`` (block sums of ``basis * r``): per basis
+    variant ``a`` (fitted on fold ``a``, :func:`_clip_curvature`) and fold; ``rr (C, 2)``: sums of ``r^2``.
+    """
+    xr = np.tensordot(flips, xr_b, axes=(1, 0))  # (P, 2, C, 2, p)
+    p = gram.shape[-1]
+    ridge = np.diag(np.r_[0.0, np.full(p - 1, _RIDGE)])
+    out = np.zeros((xr.shape[0], xr.shape[2]))
+    for a in (0, 1):
+        b = 1 - a
+        g, x = gram[a], xr[:, a]
+        na, nb = g[:, a, 0, 0], g[:, b, 0, 0]
+        if na.min() < 10 or nb.min() < 10:
+            return np.full(out.shape, -np.inf)
+        beta = np.einsum("cij,...cj->...ci", np.linalg.inv(g[:, a] + ridge), x[..., a, :])
+        quad = np.einsum("...ci,cij,...cj->...c", beta, g[:, b], beta)
+        sse = rr[:, b] - 2 * np.sum(beta * x[..., b, :], -1) + quad
+        mean_a = x[..., a, 0] / na
+        sst = rr[:, b] - 2 * mean_a * x[..., b, 0] + nb * mean_a**2
+        out += 0.5 * (1.0 - sse / np.maximum(sst, 1e-300))
+    return out
 
 
 def _r2_from_stats(
@@ -169,11 +296,11 @@ class _Design:
     """The regressors of one ranking: main rows (one per candidate) and interaction rows (candidate x state)."""
 
     names: list[str]
-    main_bins: NDArray[np.int64]  # (C, n)
-    main_x: NDArray[np.float64]  # (C, n)
+    main_basis: NDArray[np.float64]  # (C, n, p) intercept, Legendre polynomials of the rank scale, NaN indicator
     int_cbins: NDArray[np.int64]  # (C, n) coarse candidate bins
     deff: NDArray[np.float64]  # (C,) readings per run of equal values (design effect of repeated values)
     state_bins: list[NDArray[np.int64]]  # per state feature (n,)
+    state_basis: list[NDArray[np.float64]]  # per state feature (n, 4): cos, sin of pi u, P1(u), P2(u) of its ranks
     state_names: list[str]
 
 
@@ -181,13 +308,23 @@ def _design(cands: dict[str, NDArray], names: list[str], state: dict[str, NDArra
     nc, ns = _INT_BINS
     return _Design(
         names=names,
-        main_bins=np.stack([bin_candidate(cands[c], _MAIN_BINS) for c in names]),
-        main_x=np.stack([_standardise(cands[c]) for c in names]),
+        main_basis=np.stack([rank_basis(cands[c]) for c in names]),
         int_cbins=np.stack([bin_candidate(cands[c], nc) for c in names]),
         deff=np.array([_design_effect(cands[c]) for c in names]),
         state_bins=[bin_candidate(v, ns) for v in state.values()],
+        state_basis=[_state_basis(v) for v in state.values()],
         state_names=list(state),
     )
+
+
+def _state_basis(x: NDArray) -> NDArray[np.float64]:
+    """``(n, 4)``: ``cos(pi u)``, ``sin(pi u)``, ``P1(u)``, ``P2(u)`` of a state feature's rank scale ``u``.
+
+    A smooth interaction basis: the first two carry a sign that follows the bearing (a circular state,
+    e.g. ``cos(bearing - phase)``), the last two a trend or curvature along range or incidence.
+    """
+    u = rank_basis(x, 1)[:, 1]
+    return np.stack([np.cos(np.pi * u), np.sin(np.pi * u), u, 1.5 * u**2 - 0.5], axis=1)
 
 
 def _design_effect(x: NDArray) -> float:
@@ -260,17 +397,10 @@ def _all_stats(d: _Design, targets: list, n_blocks: tuple[int, int]) -> list[lis
     """
     nc, ns = _INT_BINS
     nbi = (nc + 1) * (ns + 1)
-    sh_main = _SHRINK * d.deff
     sh_int = _SHRINK * np.maximum(1.0, d.deff / ns)
     out = []
     for r, mask, variants, fold, block, block_int in targets:
-        row = [
-            (
-                *_block_stats(d.main_bins[:, mask], d.main_x[:, mask], r, fold, block, _MAIN_BINS + 1, n_blocks[0]),
-                np.array([np.sum(r[fold == f] ** 2) for f in (0, 1)]),
-                sh_main,
-            )
-        ]
+        row: list[tuple[NDArray, ...]] = [_main_stats(d.main_basis[:, mask], r, fold, block, n_blocks[0])]
         for sb, rv in zip(d.state_bins, variants, strict=True):
             joint = d.int_cbins[:, mask] * (ns + 1) + sb[mask][None]
             row.append(
@@ -284,17 +414,21 @@ def _all_stats(d: _Design, targets: list, n_blocks: tuple[int, int]) -> list[lis
     return out
 
 
-def _scores(stats: list, flips: tuple[NDArray, NDArray], n_cand: int) -> NDArray[np.float64]:
+def _scores(stats: list, flips: tuple[NDArray, NDArray], n_cand: int, null: bool = True) -> NDArray[np.float64]:
     """``(P, C, m, 1 + S)`` scores for block sign-flips of the residual targets.
 
     ``flips``: ``(P, blocks)`` signs for the main regressors' targets and for the interactions' targets
-    (drawn independently: the max over cells is then, if anything, conservative).
+    (drawn independently: the max over cells is then, if anything, conservative). ``null``: the main
+    regressors' draws flip each candidate's null residual (:func:`_main_stats`); ``False``: the target
+    itself (the observed scores, with all signs +1).
     """
     m, f = len(stats), len(stats[0])
     out = np.full((flips[0].shape[0], n_cand, m, f), -np.inf)
     for j, row in enumerate(stats):
-        for g, (cnt, sx, sxx, sr_b, sxr_b, rr, shrink) in enumerate(row):
-            fl = flips[0] if g == 0 else flips[1]
+        gram, xr, rr, xe, ee = row[0]
+        out[:, :, j, 0] = _main_r2(gram, xe, ee, flips[0]) if null else _main_r2(gram, xr, rr, flips[0])
+        for g, (cnt, sx, sxx, sr_b, sxr_b, rr, shrink) in enumerate(row[1:], start=1):
+            fl = flips[1]
             sr = np.tensordot(fl, sr_b, axes=(1, 0))
             sxr = np.tensordot(fl, sxr_b, axes=(1, 0))
             out[:, :, j, g] = _r2_from_stats(cnt, sx, sxx, sr, sxr, rr, shrink)
@@ -331,43 +465,55 @@ def _refusal(x: NDArray) -> str | None:
     return None
 
 
-def _cond(d: _Design, i: int, j: int, r: NDArray, mask: NDArray, fold: NDArray) -> float:
-    """Held-out ``R^2`` that candidate ``i``'s main regressor adds once ``j``'s is removed (relative to ``j``'s SSE)."""
+def _form_basis(d: _Design, i: int, form: int, mask: NDArray) -> NDArray[np.float64]:
+    """Smooth regressors of candidate ``i`` in ``form`` (0: main; ``1 + s``: main and its products with state ``s``)."""
+    main = d.main_basis[i, mask]
+    if form == 0:
+        return main
+    sb = d.state_basis[form - 1][mask]
+    prod = (main[:, 1:, None] * sb[:, None, :]).reshape(main.shape[0], -1)
+    return np.concatenate([main, prod, sb], axis=1)
+
+
+def _cond(
+    di: _Design, i: int, fi: int, dj: _Design, j: int, fj: int, r: NDArray, mask: NDArray, fold: NDArray
+) -> float:
+    """Conditional importance of candidate ``i`` (form ``fi``) given ``j`` (form ``fj``).
+
+    The held-out loss increase when ``i`` is dropped from a joint least-squares model of both (smooth
+    regressors, :func:`_form_basis`), relative to the loss of ``j``'s model alone; cross-fitted over
+    the two time folds.
+    """
+    bj = _form_basis(dj, j, fj, mask)
+    both = np.concatenate([bj, _form_basis(di, i, fi, mask)[:, 1:]], axis=1)
     out = 0.0
     for a in (0, 1):
         fa, fb = fold == a, fold == 1 - a
-        pj = _fit_predict(d.main_bins[j, mask], d.main_x[j, mask], r, fa, _SHRINK * d.deff[j])
-        u = r - pj
-        pi = _fit_predict(d.main_bins[i, mask], d.main_x[i, mask], u, fa, _SHRINK * d.deff[i])
-        sse_j = np.sum(u[fb] ** 2)
-        sse_ij = np.sum((u[fb] - pi[fb]) ** 2)
+        sse_j = np.sum((r[fb] - _fit_predict(bj, r, fa)[fb]) ** 2)
+        sse_ij = np.sum((r[fb] - _fit_predict(both, r, fa)[fb]) ** 2)
         out += 0.5 * (1 - sse_ij / max(sse_j, 1e-300))
     return float(out)
 
 
-def _fit_predict(bins: NDArray, x: NDArray, r: NDArray, fa: NDArray, shrink: float) -> NDArray[np.float64]:
-    """The main regressor (trend + binned correction) fitted on ``fa``, predicted at every reading."""
-    ra = r[fa]
-    m = ra.mean()
-    xm = x[fa].mean()
-    slope = float((x[fa] - xm) @ (ra - m) / (np.sum((x[fa] - xm) ** 2) + 1.0))
-    rem = ra - m - slope * (x[fa] - xm)
-    nb = int(bins.max()) + 1
-    s = np.bincount(bins[fa], weights=rem, minlength=nb)
-    c = np.bincount(bins[fa], minlength=nb)
-    return m + slope * (x - xm) + (s / (c + shrink))[bins]
+def _fit_predict(basis: NDArray, r: NDArray, fa: NDArray) -> NDArray[np.float64]:
+    """The main regressor (least squares on ``basis (n, p)``, small ridge) fitted on ``fa``, predicted everywhere."""
+    xa = basis[fa]
+    ridge = np.diag(np.r_[0.0, np.full(basis.shape[1] - 1, _RIDGE)])
+    beta = np.linalg.solve(xa.T @ xa + ridge, xa.T @ r[fa])
+    return np.asarray(basis @ beta, dtype=np.float64)
 
 
 def rank_candidates(
     ev: Any,
     exclude: tuple[str, ...] = (),
     *,
-    n_permutations: int = 199,
-    alpha: float = 0.05,
-    min_score: float = 0.001,
-    max_readings: int = 20_000,
+    n_permutations: int = DEFAULTS["n_permutations"],
+    alpha: float = DEFAULTS["alpha"],
+    min_score: float = DEFAULTS["min_score"],
+    max_readings: int = 60_000,
     rng: np.random.Generator | None = None,
     progress: bool = False,
+    given: tuple[str, ...] = (),
 ) -> Ranking:
     """Score every candidate of ``ev`` (except ``exclude``) on every residual target; block sign-flip test.
 
@@ -380,6 +526,8 @@ def rank_candidates(
         max_readings: readings used (an even subsample in time order beyond this).
         rng: generator of the flips (default seed 0).
         progress: tqdm bar over the flips.
+        given: candidates already added to the model (not ranked): an effect they explain is marked a
+            proxy of them (``proxy_of``) and is not significant.
 
     Returns:
         The :class:`Ranking`; each effect dict holds ``name``, ``score``, ``p_value``, ``p_raw``,
@@ -406,6 +554,12 @@ def rank_candidates(
     cands = {c: np.asarray(ev.candidates[c], dtype=np.float64)[idx] for c in names}
     state = {s: np.asarray(v, dtype=np.float64)[idx] for s, v in getattr(ev, "state", {}).items()}
     d = _design(cands, names, state)
+    given = tuple(g for g in given if g in ev.candidates and _refusal(ev.candidates[g][idx]) is None)
+    given_design = (
+        _design({g: np.asarray(ev.candidates[g], dtype=np.float64)[idx] for g in given}, list(given), state)
+        if given
+        else None
+    )
     fold_all = time_folds(order[idx])
     rank = np.argsort(np.argsort(order[idx], kind="stable"), kind="stable")
     instant = np.floor(order[idx])  # readings of one time instant (a scan, a radar cycle)
@@ -427,7 +581,8 @@ def rank_candidates(
         for (rc, mask), w in zip(freed, within, strict=True)
     ]
     stats = _all_stats(d, targets, n_blocks)
-    obs = _scores(stats, (np.ones((1, n_blocks[0])), np.ones((1, n_blocks[1]))), len(names))[0]  # (C, m, 1 + S)
+    ones = (np.ones((1, n_blocks[0])), np.ones((1, n_blocks[1])))
+    obs = _scores(stats, ones, len(names), null=False)[0]  # (C, m, 1 + S)
     perm = np.empty((n_permutations, *obs.shape))
     bar = tqdm(total=n_permutations, disable=not progress, desc="block sign-flip test")
     for p0 in range(0, n_permutations, 50):  # batches of flips, vectorised inside
@@ -460,8 +615,10 @@ def rank_candidates(
     p_adj = (1 + np.sum(perm_best.max(axis=1)[:, None] >= best_z[None], axis=0)) / (1 + n_permutations)
     forms = ["main", *(f"x {s}" for s in d.state_names)]
     effects: list[dict[str, Any]] = []
+    crit = float(np.quantile(z_perm.max(axis=(1, 2)), 1 - alpha))  # family-wise critical z of one cell
+    spread = np.array([kinds.get(m, "mean") == "spread" for m in metrics])
     for i, c in enumerate(names):
-        j, f = np.unravel_index(int(np.argmax(z_obs[i])), obs[i].shape)
+        j, f = np.unravel_index(_reported_cell(z_obs[i], spread, crit), obs[i].shape)
         score = float(obs[i, j, f])
         effects.append(
             {
@@ -479,9 +636,24 @@ def rank_candidates(
             }
         )
     _settle_forms(effects, obs, d, targets, metrics, forms, alpha)
-    _mark_proxies(effects, d, names, targets, metrics)
+    _mark_proxies(effects, d, names, targets, metrics, forms, given_design)
     effects.sort(key=lambda e: (e["proxy_of"] is not None, not e["significant"], -float(e["z"])))
     return Ranking(effects, alpha, min_score, n_permutations, refused, n_blocks[0])
+
+
+def _reported_cell(z: NDArray, spread: NDArray, crit: float) -> int:
+    """The cell (flat index over targets x regressors) a candidate's finding is reported in.
+
+    Its best ``z``, except that a significant cell of a mean or rate target is preferred over a spread
+    target: a mean effect whose sign follows the bearing, or a U-shaped mean effect, also widens the
+    spread about the scan's centre (the spread is then a consequence, not the finding).
+    """
+    best = int(np.argmax(z))
+    n_forms = z.size // spread.size
+    ok = (z >= crit) & ~np.repeat(spread, n_forms)
+    if spread[best // n_forms] and ok.any():
+        return int(np.argmax(np.where(ok, z, -np.inf)))
+    return best
 
 
 def _interaction_gain(d: _Design, i: int, s: int, r: NDArray, mask: NDArray, fold: NDArray) -> float:
@@ -492,7 +664,7 @@ def _interaction_gain(d: _Design, i: int, s: int, r: NDArray, mask: NDArray, fol
     out = 0.0
     for a in (0, 1):
         fa, fb = fold == a, fold == 1 - a
-        u = r - _fit_predict(d.main_bins[i, mask], d.main_x[i, mask], r, fa, _SHRINK * d.deff[i])
+        u = r - _fit_predict(d.main_basis[i, mask], r, fa)
         st = np.bincount(sb[fa], weights=u[fa], minlength=ns + 1) / np.maximum(np.bincount(sb[fa], minlength=ns + 1), 1)
         u = u - st[sb]
         size = (nc + 1) * (ns + 1)
@@ -523,20 +695,52 @@ def _settle_forms(
             e["form"], e["score"] = "main", max(main, e["score"] if main <= 0 else main)
 
 
-def _mark_proxies(effects: list[dict[str, Any]], d: _Design, names: list[str], targets: list, metrics: list) -> None:
-    """Mark a top candidate whose effect another top candidate explains (``proxy_of``; no longer significant)."""
+def _mark_proxies(
+    effects: list[dict[str, Any]],
+    d: _Design,
+    names: list[str],
+    targets: list,
+    metrics: list,
+    forms: list,
+    given: _Design | None = None,
+) -> None:
+    """Mark a top candidate whose effect another candidate explains (``proxy_of``; no longer significant).
+
+    ``i`` is a proxy of ``j`` when, once ``j``'s fit (in ``j``'s form) is removed, ``i`` (in its form)
+    explains less than a fifth of its own score and less than ``j`` explains given ``i``. ``j`` ranges
+    over the other top candidates and over ``given`` (candidates already added to the model, in their
+    best form on the target): a proxy of a cause already in the model is not added after it.
+    """
     top = sorted(range(len(effects)), key=lambda i: -effects[i]["z"])[:_TOP_COND]
-    top = [i for i in top if effects[i]["p_raw"] < 0.05 and effects[i]["form"] == "main"]
+    top = [i for i in top if effects[i]["p_raw"] < 0.05]
     for i in top:
         ei = effects[i]
-        r, mask, _, fold, _b, _bi = targets[metrics.index(ei["metric"])]
-        for j in top:
-            if j == i or effects[j]["proxy_of"] is not None:
-                continue
-            ci = _cond(d, i, j, r, mask, fold)
-            cj = _cond(d, j, i, r, mask, fold)
+        jm = metrics.index(ei["metric"])
+        r, mask, _, fold, _b, _bi = targets[jm]
+        fi = forms.index(ei["form"])
+        others: list[tuple[_Design, int, int, str]] = [
+            (d, j, forms.index(effects[j]["form"]), names[j]) for j in top if j != i and effects[j]["proxy_of"] is None
+        ]
+        if given is not None:
+            others += [(given, g, _best_form(given, g, r, mask, fold), n) for g, n in enumerate(given.names)]
+        for dj, j, fj, name in others:
+            ci = _cond(d, i, fi, dj, j, fj, r, mask, fold)
+            cj = _cond(dj, j, fj, d, i, fi, r, mask, fold)
             if ci < 0.2 * ei["score"] and cj > ci:
-                ei["proxy_of"] = names[j]
+                ei["proxy_of"] = name
                 ei["conditional_score"] = ci
                 ei["significant"] = False
                 break
+
+
+def _best_form(d: _Design, i: int, r: NDArray, mask: NDArray, fold: NDArray) -> int:
+    """The form (0: main, ``1 + s``: with state ``s``) in which candidate ``i`` explains most of ``r`` (held out)."""
+    scores = []
+    for f in range(1 + len(d.state_bins)):
+        basis = _form_basis(d, i, f, mask)
+        sc = 0.0
+        for a in (0, 1):
+            fa, fb = fold == a, fold == 1 - a
+            sc += np.sum(r[fb] ** 2) - np.sum((r[fb] - _fit_predict(basis, r, fa)[fb]) ** 2)
+        scores.append(sc)
+    return int(np.argmax(scores))

@@ -90,11 +90,8 @@ def _SOURCES(model: Any, gaussian: Any) -> tuple[tuple[str, Any], ...]:
 
 
 def _gaussian_from_card(model: LidarLWLR) -> GaussianLidar | None:
-    g = getattr(model, "card_extra_", {}).get("gaussian_baseline")
-    if not isinstance(g, dict):
-        return None
-    keys = ("sigma0", "k_range", "k_incidence", "alpha_max", "p_null_floor")
-    return GaussianLidar(**{k: float(g[k]) for k in keys if k in g})
+    kwargs = model.baseline()
+    return None if kwargs is None else GaussianLidar(**kwargs)
 
 
 def summarise(trajs: dict[str, list[dict[str, Any]]], reference: str = "real") -> dict[str, float]:
@@ -154,7 +151,7 @@ def log_experiment(
             else:
                 from sensor_envs.lidar.validate import fit_gaussian_lidar
 
-                m = LidarLWLR(n_folds=min(cv_folds, train.n_poses), random_state=seed, progress=False).fit(train)
+                m = LidarLWLR(n_folds=min(cv_folds, train.n_poses), random_state=seed, verbose=False).fit(train)
                 g = fit_gaussian_lidar(train, m.spur_above, max_range)
             fits.append({"fold": f, "train_poses": int((~test).sum()), "test_poses": int(test.sum()), "h": m.h_})
         else:

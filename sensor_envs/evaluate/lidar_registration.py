@@ -138,9 +138,7 @@ def registration_experiment(
     from sensor_envs.modelio import default_model_path
 
     m = model if isinstance(model, LidarLWLR) else LidarLWLR.load(model or default_model_path(DEFAULT_MODEL_FILE))
-    g = getattr(m, "card_extra_", {}).get("gaussian_baseline")
-    keys = ("sigma0", "k_range", "k_incidence", "alpha_max", "p_null_floor")
-    gauss = GaussianLidar(**{k: float(g[k]) for k in keys if k in g}) if isinstance(g, dict) else GaussianLidar()
+    gauss = GaussianLidar(**(m.baseline() or {}))
     rig = NeatoRig()
     segs = load_map("corridor").segments
     truth = corridor_trajectory(n_poses)

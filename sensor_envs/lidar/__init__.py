@@ -1,13 +1,18 @@
 """Planar lidar: sensors, the learned model, logs, rig, calibration, validation.
 
-Modules: ``sensors`` (the :class:`~sensor_envs.lidar.sensors.LidarSensor` protocol, ideal and Gaussian
-lidars, ``make_lidar``), ``lwlr`` (the learned per-bearing model, :class:`~sensor_envs.lidar.lwlr.LidarLWLR`),
-``kernel`` (its locally weighted regression and shrinkage choice), ``bias_transfer`` (its bias pooled over
-bearings plus a weighted per-bearing part), ``readings`` (its per-reading fit, block
-folds), ``extra_state`` (extra state terms: previous reading, time), ``log`` (lidar logs: npz, CARMEN, ROS
-bags), ``mapping`` (maps from scans, occupancy grids), ``pose_correction`` (scan-to-map pose correction),
-``rig`` (the reference rig that records synthetic logs), ``calibrate`` (the rig fitted to a real log),
-``validate`` (per-bearing reports, the Gaussian baseline), ``validate_readings`` (per-reading reports).
+Modules: ``sensors`` (the :class:`~sensor_envs.lidar.sensors.LidarSensor` protocol, ideal and Gaussian lidars,
+``make_lidar``), ``lwlr`` (the learned per-bearing model, :class:`~sensor_envs.lidar.lwlr.LidarLWLR`), its pieces,
+one job each: ``fit_cells`` (its per-cell fit strategy, logs with repeats), ``fit_readings`` (its per-reading fit
+strategy, scan logs; block folds), ``readings`` (the former name of ``fit_readings``), ``scan_sampler`` (its
+compiled scan draw), ``reading_law`` (its per-reading mixture law, null counts), ``lwlr_io`` (its file format and
+upgrades), ``kernel`` (its locally weighted regression and shrinkage choice), ``bias_transfer`` (its bias pooled
+over bearings plus a weighted per-bearing part), ``extra_state`` (extra state terms: previous reading, time),
+``model_call`` (the checked arguments of its ``fit``, ``sample`` and ``log_prob``), ``log`` (lidar logs: npz,
+CARMEN, ROS bags), ``mapping`` (maps from scans, occupancy grids), ``pose_correction``
+(scan-to-map pose correction), ``rig`` (the reference rig that records synthetic logs), ``calibrate`` (the rig
+fitted to a real log: the search), ``calibrate_stats`` (the statistics it matches), ``calibrate_laws`` (the laws it
+fits in closed form), ``validate`` (per-bearing reports, the Gaussian baseline), ``validate_readings`` (per-reading
+reports).
 
 The public names below are importable from here (``from sensor_envs.lidar import LidarLWLR``), each
 imported on first use.
@@ -25,7 +30,7 @@ _PUBLIC: dict[str, str] = {
     "LearnedLidar": "sensor_envs.lidar.lwlr",
     "load_learned_lidar": "sensor_envs.lidar.lwlr",
     "choose_shrinkage": "sensor_envs.lidar.kernel",
-    "fit_per_reading": "sensor_envs.lidar.readings",
+    "fit_per_reading": "sensor_envs.lidar.fit_readings",
     "check_extra_state": "sensor_envs.lidar.extra_state",
     "LidarLog": "sensor_envs.lidar.log",
     "LidarLogError": "sensor_envs.lidar.log",

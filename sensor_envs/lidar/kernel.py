@@ -1,7 +1,7 @@
 """Locally weighted linear regression (LWLR) kernels and tables shared by the learned lidar's fits.
 
 Used by :mod:`sensor_envs.lidar.lwlr` (per-cell statistics of repeated logs) and
-:mod:`sensor_envs.lidar.readings` (individual readings of scan logs): the Gaussian-kernel LWLR over
+:mod:`sensor_envs.lidar.fit_readings` (individual readings of scan logs): the Gaussian-kernel LWLR over
 nominal range ``r`` [m], incidence ``alpha`` [rad] and neighbouring bearings, its ridge-regularised
 solve, the per-parameter finishing (clipping probabilities, sigma floors), bilinear table lookup, and
 the fold-checked choice of the bias shrinkage (:func:`choose_shrinkage`).

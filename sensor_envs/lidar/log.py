@@ -26,7 +26,7 @@ import re
 import struct
 import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -45,8 +45,8 @@ __all__ = [
     "read_carmen",
     "read_rosbag",
     "log_from_arrays",
-    "check_model_call",
     "motion_covariates",
+    "resample_bearings",
 ]
 
 PathLike = str | os.PathLike[str]
@@ -185,61 +185,6 @@ def _check_bearings(source: str, b: NDArray[np.float64]) -> None:
     wrapped = np.round(np.mod(b, 2 * np.pi), 9) % np.round(2 * np.pi, 9)
     if np.unique(wrapped).size != b.size:
         raise _err(source, "bearings", "holds repeated bearings (every beam needs its own direction)")
-
-
-_UNSET: Any = object()
-
-
-MAX_REPEATS = 10_000
-"""Most repeated readings per cell a lidar model samples in one call (``n_repeats``)."""
-
-
-def check_model_call(
-    poses: Any,
-    map_segments: Any = None,
-    rng: Any = _UNSET,
-    ranges: Any = None,
-    log: Any = _UNSET,
-    *,
-    n_bearings: int | None = None,
-    extra: Any = None,
-    extra_names: tuple[str, ...] | None = None,
-    n_repeats: Any = None,
-) -> None:
-    """The checked arguments of a lidar model's ``fit``/``sample``/``log_prob`` (a validation line at their top).
-
-    ``poses`` ``(3,)`` or ``(S, 3)`` finite within :data:`MAX_COORD`; ``map_segments`` valid segments;
-    ``rng`` a Generator; ``ranges`` readings ``>= 0`` (NaN = missing) up to :data:`MAX_RANGE`, ``(S, K)``
-    or ``(S, K, R)`` with ``K = n_bearings`` when given; ``log`` (for ``fit``) a :class:`LidarLog`;
-    ``extra`` ``None`` for a model without extra state variables (``extra_names`` empty), else real
-    numbers (NaN = missing); ``n_repeats`` ``None`` or an integer in ``[1, MAX_REPEATS]``.
-
-    Raises:
-        InputError: naming the argument.
-    """
-    from sensor_envs.inputs import check_array, check_count, check_rng
-
-    if log is not _UNSET and not isinstance(log, LidarLog):
-        raise InputError(f"log: expected a LidarLog (sensor_envs.lidar.log.load_log), got {type(log).__name__}")
-    if log is _UNSET and (poses is None or map_segments is None):  # sample / log_prob: both required
-        raise InputError(f"{'poses' if poses is None else 'map_segments'}: required, got None")
-    if rng is not _UNSET:
-        check_rng(rng)
-    if n_repeats is not None:
-        check_count(n_repeats, "n_repeats", 1, MAX_REPEATS)
-    if poses is not None:
-        ps = check_array(np.atleast_2d(poses), "poses", (None, 3), low=-MAX_COORD, high=MAX_COORD)
-        if ranges is not None:
-            r = np.asarray(ranges)
-            shape = (ps.shape[0], n_bearings) + ((None,) if r.ndim == 3 else ())
-            check_array(r, "ranges", shape, low=0, high=MAX_RANGE, nan=True)
-    if map_segments is not None:
-        as_segments(map_segments, name="map_segments")
-    if extra_names is not None and extra is not None:
-        if not extra_names and np.size(extra):
-            raise InputError("extra: this model has no extra state variables; pass None")
-        if extra_names:
-            check_array(np.asarray(extra), "extra", (None,) * np.ndim(extra), low=-1e12, high=1e12, nan=True)
 
 
 def _check_times(source: str, t: NDArray[np.float64]) -> None:
@@ -511,6 +456,42 @@ def _pose_of(msg: Any, p: Path | None = None, i: int = 0) -> NDArray[np.float64]
     if not (np.isfinite(norm) and abs(norm - 1.0) < 0.1):
         raise LidarLogError(f"{p}: field 'poses': pose {i} has a quaternion of norm {norm:g}, expected 1")
     return np.array([pose.position.x, pose.position.y, quaternion_yaw(q.w, q.x, q.y, q.z)])
+
+
+def resample_bearings(log: LidarLog, n: int) -> LidarLog:
+    """The log on ``n`` evenly spaced bearings ``2 pi k / n`` (k = 0..n-1, counter-clockwise from the sensor's x).
+
+    Each new bearing takes the readings of the logged beam nearest to it in angle (no interpolation: a
+    reading between two walls is no reading of either). A scan whose first and last beams point the same
+    way (a ROS ``LaserScan`` of 361 beams over -180..+180 degrees) therefore gives the Neato world's 360
+    one-degree bearings from 0 degrees, in order, without the duplicate.
+
+    Args:
+        log: a log whose beams cover the full circle.
+        n: number of bearings (the Neato world and the shipped lidar model: 360).
+
+    Raises:
+        LidarLogError: naming the log's field ``bearings`` when a new bearing has no logged beam within
+            half a step of either grid (e.g. a 180-degree SICK scan resampled to 360 bearings).
+    """
+    if n < 1:
+        raise LidarLogError(f"{log.source}: field 'bearings': cannot resample to {n} bearings")
+    two_pi = 2.0 * np.pi
+    new = two_pi * np.arange(n) / n
+    old = np.mod(log.bearings, two_pi)
+    gap = np.abs((new[:, None] - old[None, :] + np.pi) % two_pi - np.pi)
+    nearest = np.argmin(gap, axis=1)
+    step_old = float(np.median(np.diff(np.sort(np.unique(np.round(old, 9)))))) if old.size > 1 else two_pi
+    tol = 0.5 * max(step_old, two_pi / n) + 1e-9
+    far = gap[np.arange(n), nearest] > tol
+    if far.any():
+        k = int(np.flatnonzero(far)[0])
+        raise LidarLogError(
+            f"{log.source}: field 'bearings': no logged beam within {np.rad2deg(tol):.3g} deg of bearing "
+            f"{np.rad2deg(new[k]):.4g} deg (the {log.n_bearings} beams cover "
+            f"{np.rad2deg(np.ptp(log.bearings)):.4g} deg; resampling to {n} bearings needs the full circle)"
+        )
+    return replace(log, ranges=log.ranges[:, nearest], bearings=new)
 
 
 def read_rosbag(

@@ -66,6 +66,8 @@ __all__ = [
     "fit_gaussian_lidar",
     "baseline_params",
     "table_one",
+    "pose_intervals",
+    "verdict_markdown",
     "validate",
     "cross_validate_log",
     "model_card_markdown",
@@ -178,8 +180,8 @@ def validate(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     r, a = lidar_features(log.poses, log.bearings, log.require_map(), model.max_range)
-    if gaussian is None and "gaussian_baseline" in getattr(model, "card_extra_", {}):
-        gaussian = GaussianLidar(**model.card_extra_["gaussian_baseline"])
+    if gaussian is None and (kwargs := model.baseline()) is not None:
+        gaussian = GaussianLidar(**kwargs)
     params = {
         f"model_{model.variant}": model.params_from_features(r, a),
         "ideal": baseline_params("ideal", r, a),
@@ -187,6 +189,8 @@ def validate(
     }
     spur = {f"model_{model.variant}": _model_spur(model)}
     metrics = {k: table_one(log, p, spur.get(k, (0.0, 1.0)), model.spur_above) for k, p in params.items()}
+    intervals = pose_intervals(log, params, model.spur_above)
+    verdict = verdict_markdown(metrics, intervals)
     report = {
         "log": log.source,
         "n_poses": log.n_poses,
@@ -195,10 +199,11 @@ def validate(
         "gaussian_baseline": vars(gaussian) if gaussian else vars(GaussianLidar()),
         "definitions": __doc__.split("Definitions (written into every ``report.json``):")[1].strip(),
         "metrics": metrics,
-        "verdict": verdict_markdown(metrics),
+        "verdict_intervals": intervals,
+        "verdict": verdict,
     }
     write_json(out / "report.json", report)
-    (out / "report.md").write_text(metrics_markdown(metrics) + "\n" + verdict_markdown(metrics))
+    (out / "report.md").write_text(metrics_markdown(metrics) + "\n" + verdict)
     plot_scan(model, log, params, out / "scan.png", rng or np.random.default_rng(0))
     plot_per_bearing(log, params, out / "per_bearing_error.png", model.spur_above)
     return report
@@ -230,24 +235,82 @@ VERDICT_TOL = 1e-5
 """MAEs within this of each other [m, or probability] are called the same by :func:`verdict_markdown`."""
 
 
-def verdict_markdown(metrics: dict[str, dict[str, Any]]) -> str:
+VERDICT_PARAMS = (
+    ("mae_mu", "mu", "ideal", "mean mu vs the raycast"),
+    ("mae_sigma", "sigma", "gaussian", "spread sigma vs the Gaussian baseline"),
+    ("mae_p_null", "p_null", "gaussian", "null probability vs the Gaussian baseline"),
+)
+"""Table I parameters of the verdict: metric key, parameter, the baseline it is judged against, label."""
+N_BOOT = 2000
+"""Bootstrap resamples of the poses behind the verdict's intervals."""
+
+
+def pose_intervals(
+    log: LidarLog, params: dict[str, Params], spur_above: float, n_boot: int = N_BOOT, seed: int = 0
+) -> dict[str, dict[str, Any]]:
+    """95 % intervals of (model MAE - baseline MAE) per Table I parameter, whole poses resampled.
+
+    The cells are those of :func:`table_one` (all cells); each resample draws the poses with replacement
+    and recomputes both MAEs over the drawn poses' cells (paired: the same cells for both). Empty without
+    a ``model_*`` entry.
+    """
+    name = next((k for k in params if k.startswith("model")), None)
+    if name is None:
+        return {}
+    st = cell_statistics(log, spur_above, split_spurious=True)
+    cells = {"mu": st["n_ok"] >= 2, "sigma": st["n_ok"] >= 2, "p_null": st["n"] > 0}
+    target = {"mu": st["mean"], "sigma": st["std"], "p_null": st["p_null"]}
+    rng = np.random.default_rng(seed)
+    draws = rng.integers(0, log.n_poses, (n_boot, log.n_poses))
+    out: dict[str, dict[str, Any]] = {}
+    for key, par, base, _ in VERDICT_PARAMS:
+        sel = cells[par]
+        cnt = sel.sum(axis=1).astype(np.float64)
+        err = {
+            k: np.where(sel, np.abs(np.nan_to_num(params[k][par] - target[par])), 0.0).sum(axis=1) for k in (name, base)
+        }
+        d = err[name] - err[base]
+        boot = d[draws].sum(axis=1) / np.maximum(cnt[draws].sum(axis=1), 1.0)
+        point = float(d.sum() / max(cnt.sum(), 1.0))
+        lo, hi = np.percentile(boot, [2.5, 97.5]) if log.n_poses > 1 else (point, point)
+        out[key] = {"baseline": base, "difference": point, "ci95": [float(lo), float(hi)], "poses": log.n_poses}
+    return out
+
+
+def _word(m: float, b: float, ci: list[float] | None) -> str:
+    if abs(m - b) <= VERDICT_TOL:
+        return "the same"
+    if ci is None:
+        return "better" if m < b else "WORSE"
+    return "better" if ci[1] < 0 else ("WORSE" if ci[0] > 0 else "not distinguishable")
+
+
+def verdict_markdown(metrics: dict[str, dict[str, Any]], intervals: dict[str, dict[str, Any]] | None = None) -> str:
     """One line per Table I parameter: the learned model against its baseline, in words (all cells).
 
     ``mu`` against the raycast (``ideal``: ``mu = r``), ``sigma`` and ``p_null`` against the Gaussian baseline:
-    "better" (lower MAE), "the same" (within :data:`VERDICT_TOL`) or "WORSE". Empty without a ``model_*`` entry.
+    "the same" (within :data:`VERDICT_TOL`), else with ``intervals`` (:func:`pose_intervals`) "better" /
+    "not distinguishable" / "WORSE" from the 95 % interval of the difference over poses, and without them
+    "better" / "WORSE" by the point values. Empty without a ``model_*`` entry.
     """
     name = next((k for k in metrics if k.startswith("model")), None)
     if name is None or "ideal" not in metrics or "gaussian" not in metrics:
         return ""
-    lines = ["Verdict (MAE on all cells, lower is better):", ""]
-    for key, base, label in (
-        ("mae_mu", "ideal", "mean mu vs the raycast"),
-        ("mae_sigma", "gaussian", "spread sigma vs the Gaussian baseline"),
-        ("mae_p_null", "gaussian", "null probability vs the Gaussian baseline"),
-    ):
+    head = "Verdict (MAE on all cells, lower is better"
+    head += "; 95 % interval of the difference, poses resampled):" if intervals else "):"
+    lines = [head, ""]
+    for key, _, base, label in VERDICT_PARAMS:
         m, b = metrics[name]["all"][key], metrics[base]["all"][key]
-        word = "the same" if abs(m - b) <= VERDICT_TOL else ("better" if m < b else "WORSE")
-        lines.append(f"- {label}: {m:.4f} vs {b:.4f}: {word}")
+        iv = (intervals or {}).get(key)
+        if iv is None:
+            lines.append(f"- {label}: {m:.4f} vs {b:.4f}: {_word(m, b, None)}")
+            continue
+        ideal, gauss = metrics["ideal"]["all"][key], metrics["gaussian"]["all"][key]
+        ci = iv["ci95"]
+        lines.append(
+            f"- {label}: {m:.4f} vs {b:.4f} (raycast {ideal:.4f}, Gaussian {gauss:.4f}), difference "
+            f"{iv['difference']:+.4f} [{ci[0]:+.4f}, {ci[1]:+.4f}] over {iv['poses']} poses: {_word(m, b, ci)}"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -363,7 +426,7 @@ def cross_validate_log(
             m = LidarLWLR(
                 variant=v,
                 n_folds=min(inner_folds, int(tr.sum())),
-                progress=False,
+                verbose=False,
                 random_state=random_state,
                 **(model_kwargs or {}),
             ).fit(data)

@@ -31,10 +31,10 @@ from scipy import stats as sps
 from scipy.optimize import nnls
 
 from sensor_envs.inputs import InputError
+from sensor_envs.lidar.fit_readings import check_map_covers
 from sensor_envs.lidar.log import LidarLog
 from sensor_envs.lidar.lwlr import P_EPS, SIGMA_FLOOR, LidarLWLR, mixture_log_prob
 from sensor_envs.lidar.mapping import map_features
-from sensor_envs.lidar.readings import check_map_covers
 from sensor_envs.lidar.sensors import GaussianLidar
 from sensor_envs.outputs import write_json
 
@@ -181,8 +181,8 @@ def validate_readings(
     """
     r, a = map_features(log.poses, log.bearings, log.require_map(), model.max_range)
     check_map_covers(log, r, model.max_range)
-    if gaussian is None and "gaussian_baseline" in getattr(model, "card_extra_", {}):
-        gaussian = GaussianLidar(**model.card_extra_["gaussian_baseline"])
+    if gaussian is None and (kwargs := model.baseline()) is not None:
+        gaussian = GaussianLidar(**kwargs)
     p_model = model.params_from_features(r, a)
     params = {
         f"model_{model.variant}": (p_model, (model.spur_mu_, model.spur_sigma_)),

@@ -1,15 +1,19 @@
 """Automotive radar (object level): sensors, the KDE model, logs, rig, calibration, validation.
 
 Modules: ``sensors`` (the :class:`~sensor_envs.radar.sensors.RadarSensor` protocol, the ideal radar,
-``make_radar``), ``kde`` (the KDE model, :class:`~sensor_envs.radar.kde.KDERadarModel`), ``buckets`` (its
-exact sampler), ``relevance`` (CV of its relevance kernel), ``features`` (derived state columns: aspect angle,
-occlusion), ``alignment`` (the azimuth bias and the frame rotation of offsets), ``gaussian`` (the baseline),
-``log`` (the CSV object log), ``astyx`` (the Astyx reader), ``rig`` (the reference rig), ``calibrate`` (the
-rig fitted to real frames), ``scene_law`` (the scene the rig records, fitted to real reference boxes),
-``object_clutter`` (object-level clutter per cycle measured on Astyx, the law the highway wrapper thins
-to), ``validate`` (reports), ``fidelity`` (real single frames: start tuple and stationary law, block-bootstrap
-intervals and verdicts against the Gaussian), ``tune`` (post-fit factors chosen on real held-out frames:
-bandwidth factor, tail mixture).
+``make_radar``), ``kde`` (the KDE model, :class:`~sensor_envs.radar.kde.KDERadarModel`) and its pieces, one job
+each: ``kde_params`` (its hyperparameter table and limits), ``kde_fit`` (the fit), ``kde_bandwidth`` (the bandwidth
+CV table), ``kde_frames`` (yaw error and output frames), ``kde_trees`` (search trees, neighbours, miss odds),
+``kde_samplers`` (the ball and bucket samplers), ``kde_density`` (``log_prob``, bin probabilities), ``kde_io`` (its
+file format and upgrades); ``buckets`` (the bucket sampler's grid), ``relevance`` (CV of its relevance kernel),
+``features`` (derived state columns: aspect angle, occlusion), ``alignment`` (the azimuth bias and the frame
+rotation of offsets), ``gaussian`` (the baseline), ``log`` (the CSV object log), ``astyx`` (the Astyx reader),
+``rig`` (the reference rig), ``rig_config`` (its parameters and rig files), ``calibrate`` (the rig fitted to real
+frames: the fits and the search), ``calibrate_stats`` (the statistics it matches), ``scene_law`` (the scene the rig
+records, fitted to real reference boxes), ``object_clutter`` (object-level clutter per cycle measured on Astyx, the
+law the highway wrapper thins to), ``validate`` (reports), ``fidelity`` (real single frames: start tuple and
+stationary law, block-bootstrap intervals and verdicts against the Gaussian), ``tune`` (post-fit factors chosen on
+real held-out frames: bandwidth factor, tail mixture).
 
 The public names below are importable from here (``from sensor_envs.radar import KDERadarModel``), each
 imported on first use.

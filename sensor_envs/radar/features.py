@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from sensor_envs.geometry import occluded_fraction, rectangle_corners, wrap_angle
 from sensor_envs.inputs import InputError
 from sensor_envs.radar.log import REF_COLUMNS, RadarLog
+from sensor_envs.sensor_model import has_capability
 
 __all__ = [
     "WORLD_VARIABLES",
@@ -144,5 +145,5 @@ def model_extra(model: object, log: RadarLog, rows: NDArray[np.int64]) -> NDArra
     Raises:
         ValueError: as :func:`state_matrix`, when the log lacks (and cannot derive) a variable the model names.
     """
-    names = tuple(getattr(model, "extra_state_", ()) or ())
+    names = tuple(model.extra_state_) if has_capability(model, "extra_state") else ()  # type: ignore[attr-defined]
     return state_matrix(log, names, rows) if names else None

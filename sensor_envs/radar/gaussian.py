@@ -24,8 +24,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
-from sklearn.base import BaseEstimator
-from sklearn.utils.validation import check_is_fitted
 
 from sensor_envs.inputs import InputError
 from sensor_envs.modelio import (
@@ -40,28 +38,32 @@ from sensor_envs.modelio import (
     check_probability,
     check_range,
     check_shape,
-    load_model_file,
     optional_positive,
-    params_from_header,
-    save_model_file,
-    validate_params,
 )
 from sensor_envs.radar.features import state_matrix
 from sensor_envs.radar.log import RadarLog, check_states, clutter_counts, fit_cycle_time, target_tuples
+from sensor_envs.sensor_model import Arrays, Header, SensorModel, set_param_defaults
 
 __all__ = ["GaussianRadar"]
 
 KIND = "radar_gaussian"
 FORMAT_VERSION = 2
+"""1 = range bins only; 2 adds the extra state's linear terms (``extra_*`` arrays, ``state_variables``)."""
 HEADER_SCHEMA: dict[str, list[Constraint]] = {"cycle_time": CYCLE_TIME, "state_variables": [Names()]}
 """Declared fitted fields of a Gaussian radar file's header."""
-"""1 = range bins only; 2 adds the extra state's linear terms (``extra_*`` arrays, ``state_variables``)."""
 MAX_POSITION = 1e3
 """Largest range edge, mean offset, clutter position or standard deviation [m] a model file may hold."""
-_NOT_FITTED = "This %(name)s is not fitted yet; call fit(log) or GaussianRadar.load(path) first"
+_EXTRA_ZERO = {"extra_mean": (0,), "extra_std": (0,), "extra_coef": (0, 2), "extra_logit": (0,)}
 
 
-class GaussianRadar(BaseEstimator):
+def _upgrade_1_to_2(path: Path, header: Header, arrays: Arrays) -> None:
+    """Format 1 has no extra state: no ``extra_state`` names and empty linear terms."""
+    set_param_defaults(header, extra_state=[])
+    for name, shape in _EXTRA_ZERO.items():
+        arrays.setdefault(name, np.zeros(shape))
+
+
+class GaussianRadar(SensorModel):
     """Range-binned Gaussian radar model (implements ``RadarSensor``; a scikit-learn estimator).
 
     Args:
@@ -69,6 +71,20 @@ class GaussianRadar(BaseEstimator):
         min_count: minimum detections per bin before falling back to the pooled estimate.
         cov_floor: variance [m^2] added to every covariance diagonal (keeps it positive definite).
         extra_state: names of extra numeric log columns entering the mean and detection linearly.
+
+    Attributes:
+        edges_: ``(B + 1,)`` range bin edges [m] (``range_edges``).
+        mean_: ``(B, 2)`` mean output ``z`` [m] per range bin (given a detection).
+        cov_: ``(B, 2, 2)`` output covariance [m^2] per range bin (``cov_floor`` added).
+        p_detect_: ``(B,)`` detection probability per range bin.
+        clutter_rate_: mean number of clutter detections per cycle.
+        clutter_mean_, clutter_cov_: mean [m] and covariance [m^2] of the clutter positions.
+        extra_state_: names of the extra state variables.
+        extra_mean_, extra_std_: ``(E,)`` standardisation of the extra state.
+        extra_coef_: ``(E, 2)`` linear terms of the mean [m per std].
+        extra_logit_: ``(E,)`` linear terms of the detection logit [per std].
+        cycle_time_: seconds between the frames of the training log (NaN: unknown).
+        card_: the model card entries (:class:`~sensor_envs.sensor_model.SensorModel`).
 
     Examples:
         >>> import numpy as np
@@ -80,7 +96,23 @@ class GaussianRadar(BaseEstimator):
         (1, 2)
     """
 
-    _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
+    KIND = KIND
+    FORMAT_VERSION = FORMAT_VERSION
+    CAPABILITIES = frozenset({"new_track", "extra_state", "log_prob", "clutter"})  # new_track: accepted, ignored
+    _FITTED = "mean_"
+    _SCHEMA: ClassVar[dict[str, tuple[str, int | None, bool]]] = {
+        "edges": ("f", 1, True),
+        "mean": ("f", 2, True),
+        "cov": ("f", 3, True),
+        "p_detect": ("f", 1, True),
+        "clutter_rate": ("f", 1, True),
+        "clutter_mean": ("f", 1, True),
+        "clutter_cov": ("f", 2, True),
+    }
+    _UPGRADES = {1: _upgrade_1_to_2}
+    _PARAM_DEFAULTS: ClassVar[dict[str, Any]] = {"extra_state": ()}
+    _HEADER_SCHEMA: ClassVar[dict[str, list[Constraint]] | None] = HEADER_SCHEMA
+    _parameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
         "range_edges": [Numbers(Interval(0, MAX_POSITION), min_length=2, increasing=True)],
         "min_count": [Interval(1, None, integer=True)],
         "cov_floor": [Interval(0, MAX_POSITION**2)],
@@ -104,7 +136,7 @@ class GaussianRadar(BaseEstimator):
     def fit(self, log: RadarLog, cycle_time: float | None = None) -> GaussianRadar:
         """Fit means, covariances, detection probabilities and clutter on ``log``; returns self."""
         cycle = fit_cycle_time(log, cycle_time)  # a RadarLog; the cycle time consistent with its t column
-        validate_params(self.get_params(), self._hyperparameter_constraints)
+        self._check_params()
         edges = np.asarray(self.range_edges, dtype=np.float64)
         tt = target_tuples(log)
         det = ~np.isnan(tt.z[:, 0])
@@ -141,6 +173,7 @@ class GaussianRadar(BaseEstimator):
             self.clutter_mean_, self.clutter_cov_ = np.zeros(2), np.eye(2)
         self.edges_ = edges
         self.cycle_time_ = cycle
+        self.card_: dict[str, Any] = {}
         return self
 
     def _fit_extra_scaling(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -190,10 +223,6 @@ class GaussianRadar(BaseEstimator):
     def _bin(corners: NDArray, edges: NDArray) -> NDArray[np.int64]:
         r = np.hypot(corners[:, 0], corners[:, 1])
         return np.clip(np.searchsorted(edges, r, side="right") - 1, 0, edges.size - 2)
-
-    def _check_fitted(self) -> None:
-        """Raise sklearn's ``NotFittedError`` unless the model is fitted or loaded."""
-        check_is_fitted(self, "mean_", msg=_NOT_FITTED)
 
     def detection_probability(self, corners: NDArray) -> NDArray[np.float64]:
         """Detection probability ``(n,)`` at corners ``(n, 2)`` [m]."""
@@ -254,9 +283,9 @@ class GaussianRadar(BaseEstimator):
         with np.errstate(divide="ignore"):
             return np.where(np.isnan(z[:, 0]), np.log(1 - pd), np.log(pd) + np.nan_to_num(logn, nan=0.0))
 
-    def save(self, path: str | os.PathLike[str], card: dict[str, Any] | None = None) -> Path:
-        """Save to a pickle-free model file."""
-        self._check_fitted()
+    # ------------------------------------------------------------------ files
+    def _to_file(self) -> tuple[Header, Arrays]:
+        """Header and arrays of the current format (:class:`~sensor_envs.sensor_model.SensorModel`)."""
         header = {
             "params": {
                 "range_edges": [float(e) for e in self.range_edges],
@@ -266,7 +295,6 @@ class GaussianRadar(BaseEstimator):
             },
             "state_variables": list(self.state_variables),
             "cycle_time": self.cycle_time_,
-            "card": card or {},
         }
         arrays = {
             "edges": self.edges_,
@@ -281,22 +309,13 @@ class GaussianRadar(BaseEstimator):
             "extra_coef": self.extra_coef_.reshape(-1, 2),
             "extra_logit": self.extra_logit_,
         }
-        return save_model_file(path, KIND, FORMAT_VERSION, header, arrays)
+        return header, arrays
 
     @classmethod
-    def load(cls, path: str | os.PathLike[str]) -> GaussianRadar:
-        """Load a model file written by :meth:`save` (no pickle)."""
-        schema = {
-            "edges": ("f", 1, True),
-            "mean": ("f", 2, True),
-            "cov": ("f", 3, True),
-            "p_detect": ("f", 1, True),
-            "clutter_rate": ("f", 1, True),
-            "clutter_mean": ("f", 1, True),
-            "clutter_cov": ("f", 2, True),
-        }
-        header, a = load_model_file(path, KIND, (1, FORMAT_VERSION), schema, HEADER_SCHEMA)
-        m = cls(**params_from_header(path, header, cls._hyperparameter_constraints, {"extra_state": ()}))
+    def _from_file(cls, path: Path, header: Header, arrays: Arrays) -> GaussianRadar:
+        """The model of a current-format file (values checked)."""
+        a = arrays
+        m = cls(**cls._params_from(path, header))
         _check_arrays(path, a)
         m.edges_, m.mean_, m.cov_, m.p_detect_ = a["edges"], a["mean"], a["cov"], a["p_detect"]
         m.clutter_rate_ = float(a["clutter_rate"][0])
@@ -343,7 +362,10 @@ def _load_extra(m: GaussianRadar, a: dict[str, NDArray], path: Any) -> None:
         "extra_coef": np.zeros((0, 2)),
         "extra_logit": np.zeros(0),
     }
-    v = {k: np.asarray(a.get(k, zero[k]), dtype=np.float64) for k in zero}
+    missing = [k for k in zero if k not in a]
+    if missing:
+        raise ModelFileError(f"{path}: field {missing[0]!r} is missing")
+    v = {k: np.asarray(a[k], dtype=np.float64) for k in zero}
     shapes = {"extra_mean": (e,), "extra_std": (e,), "extra_coef": (e, 2), "extra_logit": (e,)}
     for k, shape in shapes.items():
         if v[k].shape != shape or not np.isfinite(v[k]).all():

@@ -213,7 +213,8 @@ def heldout_scores(
         state = np.concatenate([tt.corner, tt.z_prev], axis=1)
         n_rows += state.shape[0]
         for j, ov in enumerate(overrides):  # one inner fit per candidate
-            model = clone(estimator).set_params(relevance="paper", **ov).fit(train)
+            quiet = {"verbose": False} if "verbose" in estimator.get_params() else {}  # one bar: this one
+            model = clone(estimator).set_params(relevance="paper", **quiet, **ov).fit(train)
             names = tuple(model.extra_state or ())
             lp = (
                 model.log_prob(tt.z, state, extra=state_matrix(test, names, tt.row))

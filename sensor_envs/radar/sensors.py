@@ -14,16 +14,16 @@ Models: :class:`IdealRadar` (here), ``GaussianRadar`` and ``KDERadarModel``
 from __future__ import annotations
 
 import functools
-import inspect
 import os
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.inputs import InputError
 from sensor_envs.modelio import default_model_path, model_file_key
+from sensor_envs.sensor_model import has_capability
 
 __all__ = [
     "RadarSensor",
@@ -56,8 +56,9 @@ class RadarSensor(Protocol):
         Models that tell a new track from a lost one (:data:`NEW_TRACK_KEYWORD`) also take
         ``new_track``: ``(n,)`` booleans, ``True`` where the target is seen for the first time,
         ``False`` where it was seen before (its ``prev_z`` is ``NaN`` when it was missed last cycle);
-        ``None`` = unknown. Callers pass it only to models whose ``sample_cycle`` accepts it
-        (:func:`takes_new_track`), so a sensor without a start state need not declare it.
+        ``None`` = unknown. Callers pass it only to models that DECLARE it: ``"new_track"`` in the class
+        attribute ``CAPABILITIES`` (:func:`takes_new_track`; no signature probing), so a sensor without a
+        start state need not accept it.
 
         Args:
             corners: ``(n, 2)`` closest visible corner of each target, sensor frame [m].
@@ -89,6 +90,9 @@ class IdealRadar:
         ([[0.0, 0.0]], [-1])
     """
 
+    CAPABILITIES: ClassVar[frozenset[str]] = frozenset({"new_track", "clutter"})
+    """Declared capabilities (:mod:`sensor_envs.sensor_model`): it takes the new-track flags (and ignores them)."""
+
     def sample_cycle(
         self,
         corners: NDArray[np.float64],
@@ -110,13 +114,12 @@ NEW_TRACK_KEYWORD = "new_track"
 
 
 def takes_new_track(radar: object) -> bool:
-    """Whether ``radar.sample_cycle`` accepts the :data:`NEW_TRACK_KEYWORD` argument."""
-    fn = getattr(radar, "sample_cycle", None)
-    try:
-        params = inspect.signature(fn).parameters if fn is not None else {}
-    except (TypeError, ValueError):  # builtins or C callables without a signature
-        return False
-    return NEW_TRACK_KEYWORD in params or any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
+    """Whether ``radar`` declares the ``"new_track"`` capability (its class's ``CAPABILITIES``).
+
+    A sensor whose ``sample_cycle`` takes the :data:`NEW_TRACK_KEYWORD` argument says so with
+    ``CAPABILITIES = frozenset({"new_track"})``; undeclared sensors are called without it.
+    """
+    return has_capability(radar, "new_track")
 
 
 RADAR_NAMES = ("ideal", "gaussian", "kde")

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.envs.highway.frame import RadarFrame
+from sensor_envs.envs.highway.step_record import RadarFrame
 from sensor_envs.inputs import InputError, InputTypeError
 from sensor_envs.modelio import Constraint, InstanceOf, Interval, Numbers, Options, validate_params
 

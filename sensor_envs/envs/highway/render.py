@@ -11,8 +11,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.envs.highway.frame import RadarFrame
 from sensor_envs.envs.highway.sensor import SensorSpec
+from sensor_envs.envs.highway.step_record import RadarFrame
 from sensor_envs.geometry import from_frame
 
 __all__ = ["draw_radar"]

@@ -7,6 +7,7 @@ middle of the front bumper). Angles are in radians, counter-clockwise.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -14,11 +15,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.envs.highway.frame import Truth
+from sensor_envs.envs.highway.step_record import Truth
 from sensor_envs.geometry import closest_corner, from_frame, occluded_fraction, rectangle_corners, to_frame, wrap_angle
 from sensor_envs.inputs import InputError
 from sensor_envs.modelio import Constraint, Interval, Numbers, Options, validate_params
 from sensor_envs.radar.sensors import RADAR_NAMES, RadarSensor, make_radar
+from sensor_envs.sensor_model import has_capability
 
 __all__ = [
     "RADAR_NAMES",
@@ -233,7 +235,7 @@ def model_state_names(radar: Any) -> tuple[str, ...]:
     """
     from sensor_envs.radar.features import WORLD_VARIABLES
 
-    names = tuple(getattr(radar, "extra_state_", ()) or ())
+    names = tuple(radar.extra_state_) if has_capability(radar, "extra_state") else ()  # declared, not probed
     for name in names:
         if name not in WORLD_VARIABLES:
             raise InputError(
@@ -270,3 +272,35 @@ def world_state(
         "occluded": lambda: occluded_fraction(to_frame(truth.corners, pose), (0.0, 0.0), 16, targets=idx),
     }
     return np.stack([values[n]() for n in names], axis=1).reshape(k, len(names))
+
+
+CYCLE_TIME_RTOL = 1e-3
+"""Relative tolerance between a model's ``cycle_time`` and the radar period of the wrapper."""
+
+
+def cycle_period(config: dict[str, Any], radar_rate: str) -> float:
+    """Seconds between radar cycles at ``radar_rate`` under highway-env's ``config``."""
+    key = "policy_frequency" if radar_rate == "policy" else "simulation_frequency"
+    return 1.0 / float(config[key])
+
+
+def check_cycle_time(radar: Any, config: dict[str, Any], radar_rate: str) -> None:
+    """Refuse a model whose ``cycle_time_`` [s] differs from the radar period at ``radar_rate``.
+
+    Models without a cycle time (``None``/NaN, or no attribute: the ideal radar, test doubles) pass.
+
+    Raises:
+        InputError: naming ``radar_rate``, both periods and the remedies.
+    """
+    cycle = getattr(radar, "cycle_time_", None)
+    if cycle is None or not math.isfinite(float(cycle)):  # NaN: fitted without a cycle time
+        return
+    period = cycle_period(config, radar_rate)
+    if not math.isclose(float(cycle), period, rel_tol=CYCLE_TIME_RTOL):
+        key = "policy_frequency" if radar_rate == "policy" else "simulation_frequency"
+        raise InputError(
+            f"radar_rate: the radar model is fitted at a cycle time of {float(cycle):.4g} s, but radar_rate="
+            f"{radar_rate!r} samples it every {period:.4g} s (1 / {key} = 1 / {config[key]}); use a model "
+            f"fitted at {period:.4g} s (e.g. radar_kde_fast.npz at 1/15 s with radar_rate='simulation' and "
+            f"simulation_frequency 15), or change radar_rate or {key}"
+        )

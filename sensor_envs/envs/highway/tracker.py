@@ -44,7 +44,7 @@ from sensor_envs.inputs import InputError
 __all__ = ["TrackerConfig", "MultiTargetTracker", "TrackList", "tracker_config", "tracked_frame"]
 
 if TYPE_CHECKING:
-    from sensor_envs.envs.highway.frame import RadarFrame
+    from sensor_envs.envs.highway.step_record import RadarFrame
 
 
 _BIG = 1.0e12

@@ -55,7 +55,7 @@ Rate (``radar_rate=``):
   ``radar_kde_fast.npz`` is fitted at 1/15 s. Mechanism: highway-env's ``AbstractEnv._simulate``
   calls ``road.step(1 / simulation_frequency)`` exactly once per sub-step; after each ``reset`` (which
   builds a new ``Road``) the wrapper sets an instance attribute ``step`` on that road object, a
-  :class:`_RoadStepHook` that calls the class's own ``Road.step`` and then samples the radar. No class
+  :class:`RoadStepHook` that calls the class's own ``Road.step`` and then samples the radar. No class
   or module of highway-env is modified; other envs and roads are unaffected. If a future
   highway-env stops calling ``road.step`` per sub-step, ``step`` raises (the hook counts its calls).
 
@@ -103,7 +103,7 @@ none) and the sensor's world pose.
 
 Code: this module holds the wrapper and :func:`make_highway`; :mod:`sensor_envs.envs.highway.sensor` what
 the radar can see (model loading, :class:`SensorSpec`, truth, reference points, field of view,
-occlusion, track velocities); :mod:`sensor_envs.envs.highway.frame` one step's output (:class:`RadarFrame`,
+occlusion, track velocities); :mod:`sensor_envs.envs.highway.step_record` one step's output (:class:`RadarFrame`,
 :class:`RadarInfo`); :mod:`sensor_envs.envs.highway.observation` the ``Kinematics`` layout
 (:class:`KinematicsLayout`, selection, normalisation); :mod:`sensor_envs.envs.highway.render` the overlay.
 The public names of all of them are importable from the package, :mod:`sensor_envs.envs.highway`.
@@ -111,10 +111,7 @@ The public names of all of them are importable from the package, :mod:`sensor_en
 
 from __future__ import annotations
 
-import math
 import warnings
-from dataclasses import dataclass
-from os import PathLike
 from pathlib import Path
 from typing import Any
 
@@ -125,15 +122,13 @@ from numpy.typing import NDArray
 
 from sensor_envs.envs.checks import check_action, check_highway_config, check_options, check_seed
 from sensor_envs.envs.highway.clutter import (
-    CLUTTER_LEVELS,
-    STATIONARY_MODES,
     STATIONARY_SPEED,
     clutter_keep_probability,
     law_edges,
     radial_speed,
     range_bins,
 )
-from sensor_envs.envs.highway.frame import RadarFrame, Truth
+from sensor_envs.envs.highway.hooks import ObservationHook, RoadStepHook
 from sensor_envs.envs.highway.observation import (
     KinematicsLayout,
     default_features_range,
@@ -146,6 +141,8 @@ from sensor_envs.envs.highway.sensor import (
     DEFAULT_FOV,
     DEFAULT_MAX_RANGE,
     SensorSpec,
+    check_cycle_time,
+    cycle_period,
     load_radar,
     model_state_names,
     reference_points,
@@ -155,10 +152,20 @@ from sensor_envs.envs.highway.sensor import (
     visible_targets,
     world_state,
 )
+from sensor_envs.envs.highway.stacking import StackedRows
+from sensor_envs.envs.highway.step_record import ObservedRows, RadarFrame, Truth
 from sensor_envs.envs.highway.tracker import MultiTargetTracker, TrackerConfig, tracked_frame, tracker_config
+from sensor_envs.envs.highway.wrapper_schema import (
+    MAKE_HIGHWAY_CONSTRAINTS,
+    RADAR_RATES,
+    WRAPPER_CONSTRAINTS,
+    check_reset_config,
+    check_wrapper_args,
+    default_config,
+)
 from sensor_envs.geometry import from_frame
 from sensor_envs.inputs import InputError
-from sensor_envs.modelio import Constraint, InstanceOf, Interval, Options, validate_params
+from sensor_envs.modelio import validate_params
 from sensor_envs.radar.sensors import NEW_TRACK_KEYWORD, RADAR_NAMES, RadarSensor, takes_new_track
 from sensor_envs.rng import sensor_rng
 
@@ -177,10 +184,6 @@ __all__ = [
     "check_cycle_time",
 ]
 
-RADAR_RATES = ("policy", "simulation")
-"""Values of ``radar_rate``: one radar cycle per policy step, or one per simulation sub-step."""
-CYCLE_TIME_RTOL = 1e-3
-"""Relative tolerance between a model's ``cycle_time`` and the radar period of the wrapper."""
 RNG_TAG = 0x52_41_44_52  # "RADR": separates the radar's stream from any other use of the same seed
 IDEAL_KINEMATICS: dict[str, Any] = {
     "radar": "ideal",
@@ -193,24 +196,6 @@ IDEAL_KINEMATICS: dict[str, Any] = {
 """Keyword arguments of :func:`make_highway` under which the observation equals highway-env's ``Kinematics``."""
 
 _NAN2 = np.full(2, np.nan)
-_NAME = InstanceOf(str)
-WRAPPER_CONSTRAINTS: dict[str, list[Constraint]] = {
-    "radar": [Options(*RADAR_NAMES)],  # or a RadarSensor instance
-    "radar_model": [None, InstanceOf(str, PathLike)],
-    "radar_rate": [Options(*RADAR_RATES)],
-    "clutter_fraction": [Interval(0.0, 1.0)],
-    "clutter": [Options(*CLUTTER_LEVELS)],
-    "stationary": [Options(*STATIONARY_MODES)],
-    "tracks": [InstanceOf(bool)],
-}
-"""Declared types and ranges of :class:`RadarObservation`'s arguments (the mount: ``SENSOR_CONSTRAINTS``;
-``tracker``: :func:`~sensor_envs.envs.highway.tracker.tracker_config` and ``TrackerConfig``'s own checks)."""
-MAKE_HIGHWAY_CONSTRAINTS: dict[str, list[Constraint]] = {
-    "base_id": [_NAME],
-    "history": [Interval(1, 64, integer=True)],
-    "render_mode": [None, Options("rgb_array", "human")],
-}
-"""Declared :func:`make_highway` arguments besides the wrapper's (``config``: :func:`check_highway_config`)."""
 
 
 # ---------------------------------------------------------------------------------------- the wrapper
@@ -302,18 +287,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             tracks=tracks,
             tracker=tracker,
         )
-        validate_params(
-            {
-                "radar": radar if isinstance(radar, str) else "ideal",  # an instance: checked below
-                "radar_model": radar_model,
-                "radar_rate": radar_rate,
-                "clutter_fraction": clutter_fraction,
-                "clutter": clutter,
-                "stationary": stationary,
-                "tracks": tracks,
-            },
-            WRAPPER_CONSTRAINTS,
-        )
+        check_wrapper_args(radar, radar_model, radar_rate, clutter_fraction, clutter, stationary, tracks)
         self.radar_rate = radar_rate
         self.clutter_fraction = float(clutter_fraction)
         self.clutter, self.stationary, self.tracks = clutter, stationary, bool(tracks)
@@ -374,18 +348,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         seed = check_seed(seed)
         options = check_options(options, ("config",)) or None
         base: Any = self.env.unwrapped
-        if options and "config" in options:  # checked before highway-env applies it
-            if not isinstance(options["config"], dict):
-                raise InputError(f"options.config: expected a dict, got {type(options['config']).__name__}")
-            try:
-                check_highway_config(options["config"], dict(base.default_config()))
-            except InputError as exc:
-                raise InputError(f"options.{exc}") from None
-            new = options["config"].get("observation")
-            if new is not None and KinematicsLayout.from_config(new) != self.layout:
-                raise InputError(
-                    "options.config.observation: the observation layout is fixed when the wrapper is built"
-                )
+        check_reset_config(options, base, self.layout)
         _, info = self.env.reset(seed=seed, options=options)
         check_cycle_time(self.radar, base.config, self.radar_rate)
         self._rng = sensor_rng(seed, RNG_TAG, self._rng)
@@ -395,9 +358,9 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self.tracker is not None:
             self.tracker.reset()
         self._track_truth = {}
-        base.observation_type = _ObservationHook(base.observation_type, self._on_observe)
+        base.observation_type = ObservationHook(base.observation_type, self._on_observe)
         if self.radar_rate == "simulation":
-            _RoadStepHook.install(base.road, self._cycle)
+            RoadStepHook.install(base.road, self._cycle)
         self.last_frame = self.sense()
         obs = self._observe()
         assert self.last_frame is not None  # set by _observe
@@ -636,125 +599,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return self._features_range
 
 
-@dataclass(frozen=True)
-class ObservedRows:
-    """What the non-ego rows of the last observation hold (ground truth, for diagnostics), in row order.
-
-    With ``order="shuffled"`` the order is before the shuffle.
-
-    Attributes:
-        objects: the highway-env object behind each row (``None``: clutter, or a track last updated by
-            clutter); with ``tracks=True`` the object whose detection last updated the track.
-        position: ``(r, 2)`` the rows' world positions [m] before normalisation.
-        velocity: ``(r, 2)`` the rows' world velocities [m/s] before normalisation.
-    """
-
-    objects: list[Any]
-    position: NDArray[np.float64]
-    velocity: NDArray[np.float64]
-
-
-class StackedRows(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
-    """Turn a ``(k, rows, features)`` stack of observations into one ``(k * rows, features)`` table.
-
-    The 2-D layout of ``Kinematics`` is kept (a 3-D float array would be taken for an image by SB3's
-    checker); the oldest observation's rows come first. Picklable, unlike a lambda-based reshape.
-
-    Raises:
-        TypeError: when the observation space is not a 3-D ``Box``.
-    """
-
-    def __init__(self, env: gym.Env) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self)
-        gym.ObservationWrapper.__init__(self, env)
-        space = env.observation_space
-        if not isinstance(space, spaces.Box) or len(space.shape) != 3:
-            raise TypeError(f"env: expected a 3-D Box observation space, got {space}")
-        k, rows, feats = space.shape
-        self.observation_space = spaces.Box(
-            space.low.reshape(k * rows, feats), space.high.reshape(k * rows, feats), dtype=space.dtype
-        )
-
-    def observation(self, observation: NDArray[np.float32]) -> NDArray[np.float32]:
-        """The stack as one table (a view, rows of the oldest observation first)."""
-        return np.asarray(observation).reshape(self.observation_space.shape)
-
-
-class _RoadStepHook:
-    """Set as the ``step`` attribute of ONE highway-env ``Road`` instance (``radar_rate="simulation"``).
-
-    highway-env's ``AbstractEnv._simulate`` calls ``road.step(1 / simulation_frequency)`` once per
-    simulation sub-step; the instance attribute shadows the class's method for this road only, runs
-    the class's ``Road.step`` and then ``after()`` (one radar cycle). A new road (every ``reset``)
-    needs a new hook; re-installing on a hooked road replaces the callback.
-    """
-
-    def __init__(self, step: Any, after: Any) -> None:
-        self.step = step
-        self.after = after
-
-    def __call__(self, dt: float) -> None:
-        """Advance the road by ``dt`` [s], then sample the radar."""
-        self.step(dt)
-        self.after()
-
-    @classmethod
-    def install(cls, road: Any, after: Any) -> None:
-        """Hook ``road.step`` (highway-env's ``Road``) to call ``after()`` after every sub-step."""
-        current = road.__dict__.get("step")
-        inner = current.step if isinstance(current, cls) else type(road).step.__get__(road)
-        road.step = cls(inner, after)
-
-
-class _ObservationHook:
-    """Stands in for highway-env's observation type: ``observe()`` samples the radar instead.
-
-    Everything else (``space()``, attributes) is delegated to the original observation type.
-    """
-
-    def __init__(self, inner: Any, observe: Any) -> None:
-        self.inner = inner
-        self._observe = observe
-
-    def observe(self) -> NDArray[np.float32]:
-        """The radar observation (samples the radar once)."""
-        return self._observe()
-
-    def __getattr__(self, name: str) -> Any:
-        if name.startswith("__") or name in ("inner", "_observe"):
-            raise AttributeError(name)
-        return getattr(self.inner, name)
-
-
 # ------------------------------------------------------------------------------------------ factory
-
-
-def cycle_period(config: dict[str, Any], radar_rate: str) -> float:
-    """Seconds between radar cycles at ``radar_rate`` under highway-env's ``config``."""
-    key = "policy_frequency" if radar_rate == "policy" else "simulation_frequency"
-    return 1.0 / float(config[key])
-
-
-def check_cycle_time(radar: Any, config: dict[str, Any], radar_rate: str) -> None:
-    """Refuse a model whose ``cycle_time_`` [s] differs from the radar period at ``radar_rate``.
-
-    Models without a cycle time (``None``/NaN, or no attribute: the ideal radar, test doubles) pass.
-
-    Raises:
-        InputError: naming ``radar_rate``, both periods and the remedies.
-    """
-    cycle = getattr(radar, "cycle_time_", None)
-    if cycle is None or not math.isfinite(float(cycle)):  # NaN: fitted without a cycle time
-        return
-    period = cycle_period(config, radar_rate)
-    if not math.isclose(float(cycle), period, rel_tol=CYCLE_TIME_RTOL):
-        key = "policy_frequency" if radar_rate == "policy" else "simulation_frequency"
-        raise InputError(
-            f"radar_rate: the radar model is fitted at a cycle time of {float(cycle):.4g} s, but radar_rate="
-            f"{radar_rate!r} samples it every {period:.4g} s (1 / {key} = 1 / {config[key]}); use a model "
-            f"fitted at {period:.4g} s (e.g. radar_kde_fast.npz at 1/15 s with radar_rate='simulation' and "
-            f"simulation_frequency 15), or change radar_rate or {key}"
-        )
 
 
 def make_highway(
@@ -823,7 +668,7 @@ def make_highway(
     import highway_env  # noqa: F401  (registers highway-env's ids)
 
     validate_params({"base_id": base_id, "history": history, "render_mode": render_mode}, MAKE_HIGHWAY_CONSTRAINTS)
-    check_highway_config(config, _default_config(base_id))  # every key declared, before the env is built
+    check_highway_config(config, default_config(base_id))  # every key declared, before the env is built
 
     with warnings.catch_warnings():  # the sensor_envs id is current even when its base id has newer versions
         warnings.filterwarnings("ignore", message=".*is out of date.*", category=DeprecationWarning)
@@ -848,19 +693,3 @@ def make_highway(
     if history == 1:
         return wrapped
     return StackedRows(gym.wrappers.FrameStackObservation(wrapped, int(history), padding_type="zero"))
-
-
-def _default_config(base_id: str) -> dict[str, Any]:
-    """highway-env's ``default_config()`` of ``base_id``, read from its class without building the env.
-
-    Raises:
-        InputError: naming ``base_id`` when gymnasium knows no such id.
-    """
-    try:
-        entry = gym.spec(base_id).entry_point
-    except gym.error.Error as exc:
-        raise InputError(f"base_id: {' '.join(str(exc).split())[:200]}") from None
-    creator: Any = gym.envs.registration.load_env_creator(entry) if isinstance(entry, str) else entry
-    if not callable(getattr(creator, "default_config", None)):
-        raise InputError(f"base_id: {base_id!r} is not a highway-env environment")
-    return dict(creator.default_config())

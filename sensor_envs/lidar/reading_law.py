@@ -1,0 +1,83 @@
+"""The per-reading law of :class:`~sensor_envs.lidar.lwlr.LidarLWLR`: the mixture density and the null counts.
+
+A reading is a null (``p_null``), a spurious far return (``p_spur``, ``Normal(spur_mu, spur_sigma)``) or
+``Normal(mu, sigma)`` (:func:`mixture_log_prob`); a cell's null count over its repeats is beta-binomial with mean
+``p_null`` and intra-cell correlation ``rho`` (:func:`null_count_log_prob`, :func:`cell_probability`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import stats as sps
+
+from sensor_envs.lidar.kernel import P_EPS
+
+__all__ = ["mixture_log_prob", "null_count_log_prob", "cell_probability"]
+
+
+def cell_probability(
+    p: NDArray[np.float64], rho: NDArray[np.float64] | None, rng: np.random.Generator
+) -> NDArray[np.float64]:
+    """One probability of an outcome (null, spurious) per cell: ``Beta(p c, (1 - p) c)``, mean ``p``.
+
+    ``c = 1 / rho - 1``; ``p`` itself (and no draw) where ``rho`` is 0 or absent.
+    """
+    if rho is None or not np.any(rho > 0):
+        return p
+    c = 1 / np.maximum(rho, 1e-9) - 1
+    q = np.clip(p, P_EPS, 1 - P_EPS)
+    draw = rng.beta(q * c, (1 - q) * c)
+    return np.where(rho > 0, draw, p)
+
+
+def null_count_log_prob(k: ArrayLike, n: ArrayLike, p_null: ArrayLike, rho: ArrayLike) -> NDArray[np.float64]:
+    """Log-probability of ``k`` nulls among a cell's ``n`` readings, beta-binomial with mean ``p_null``.
+
+    Also scores the counts of spurious returns (``p_null`` = ``p_spur``, ``rho`` = ``spur_rho``).
+
+    ``rho`` is the intra-cell correlation of nulls (``0`` = independent readings, binomial); shapes broadcast.
+    """
+    k, n = np.asarray(k, dtype=np.float64), np.asarray(n, dtype=np.float64)
+    q = np.clip(np.asarray(p_null, dtype=np.float64), P_EPS, 1 - P_EPS)
+    rho = np.asarray(rho, dtype=np.float64)
+    out = sps.binom.logpmf(k, n, q)
+    if not np.any(rho > 0):
+        return out
+    c = 1 / np.clip(rho, 1e-6, 1 - 1e-6) - 1
+    return np.where(rho > 0, sps.betabinom.logpmf(k, n, q * c, (1 - q) * c), out)
+
+
+def _norm_logpdf(
+    x: NDArray[np.float64], mu: float | NDArray[np.float64], sigma: float | NDArray[np.float64]
+) -> NDArray[np.float64]:
+    z = (x - mu) / sigma
+    return -0.5 * z * z - np.log(sigma) - 0.5 * np.log(2 * np.pi)
+
+
+def mixture_log_prob(
+    x: ArrayLike,
+    p: dict[str, NDArray[np.float64]],
+    spur_mu: float | NDArray[np.float64],
+    spur_sigma: float | NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """Log-probability of readings ``x`` [m] under ``null | spurious | Normal(mu, sigma)``.
+
+    A null (``x == 0``) has probability ``p_null``; a reading has density
+    ``(1 - p_null - p_spur) N(x; mu, sqrt(sigma^2 + tau^2)) + p_spur N(x; spur_mu, spur_sigma)`` [1/m]
+    (``tau = 0`` when ``p`` has none); with ``p_out`` in ``p``, that normal is itself mixed with
+    ``Uniform(0, out_range)`` at weight ``p_out`` (outlying cells). NaN stays NaN.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    s = np.sqrt(p["sigma"] ** 2 + p["tau"] ** 2) if "tau" in p else p["sigma"]
+    main = _norm_logpdf(x, p["mu"], s)
+    if "p_out" in p:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            unif = np.where((x >= 0) & (x <= p["out_range"]), -np.log(p["out_range"]), -np.inf)
+            main = np.logaddexp(np.log1p(-p["p_out"]) + main, np.log(p["p_out"]) + unif)
+    main = np.log1p(-(p["p_null"] + p["p_spur"])) + main
+    with np.errstate(divide="ignore", invalid="ignore"):
+        spur = np.log(p["p_spur"]) + _norm_logpdf(x, spur_mu, spur_sigma)
+        dens = np.logaddexp(main, spur)
+    out = np.where(x == 0, np.log(p["p_null"]) + 0 * dens, dens)
+    return np.where(np.isnan(x), np.nan, out)
