@@ -30,7 +30,7 @@ MARKER = "<!-- generated below by benchmarks/highway_matrix_report.py: do not ed
 def learning_curves(run: Path, rows: list[str], seeds: list[int]) -> list[str]:
     """Markdown table of each job's EvalCallback curve (return, episode length) and its cost."""
     lines = [
-        "| job | steps | eval return (mean of 5) | eval episode length (of 30) | train s | steps/s | matrix eval s |",
+        "| job | steps | eval return (mean) | eval episode length (of 30) | train s | steps/s | matrix eval s |",
         "|---|---|---|---|---|---|---|",
     ]
     for r in rows:
@@ -50,6 +50,12 @@ def learning_curves(run: Path, rows: list[str], seeds: list[int]) -> list[str]:
     return lines
 
 
+def callback_episodes(run: Path, matrix: dict) -> str:
+    """The number of episodes of the jobs' EvalCallback evaluations (from the first job's curve)."""
+    job = run / "runs" / matrix["rows_trained_on"][0] / f"seed{matrix['seeds'][0]}"
+    return str(np.load(job / "evaluations.npz")["results"].shape[1])
+
+
 def render(run: Path) -> str:
     """The generated part of the page."""
     matrix = json.loads((run / "matrix.json").read_text())
@@ -61,12 +67,16 @@ def render(run: Path) -> str:
         f"## The run ({meta.get('date_utc', 'date not recorded')})",
         "",
         f"Command: `{meta['command']}` (backend {meta['backend']}, wall time {meta['wall_seconds'] / 60:.0f} min "
-        "for the jobs it ran). Page: `python benchmarks/highway_matrix_report.py --run <out> --md ... --force`.",
+        f"for the {meta.get('jobs_run', '?')} jobs this invocation ran; jobs already done are not timed again). "
+        f"Evaluated policy of each job: `{meta.get('policy', 'final')}_model.zip`"
+        + (" (EvalCallback's best on held-out seeds)" if meta.get("policy") == "best" else "")
+        + ". Page: `python benchmarks/highway_matrix_report.py --run <out> --md ... --force`.",
         "",
         table.replace("\n## ", "\n### "),
         "## Learning curves and cost per job",
         "",
-        "`EvalCallback` during training: 5 deterministic episodes on the job's own sensor at each evaluation step "
+        f"`EvalCallback` during training: {callback_episodes(run, matrix)} deterministic episodes on the job's own "
+        "sensor (other seeds than the matrix's) at each evaluation step "
         "(highway-fast episodes last at most 30 policy steps; a shorter mean length means crashes).",
         "",
         *learning_curves(run, matrix["rows_trained_on"], matrix["seeds"]),
