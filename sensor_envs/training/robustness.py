@@ -13,8 +13,10 @@ show the IQM of returns and the mean of rates (a rate's IQM drops its rare event
 column and metric: the probability of improvement P(row a better than row b) with its interval.
 
 Jobs: one per (training sensor, seed); a job trains (:func:`sensor_envs.training.train.train`), then evaluates
-the final policy on every column with the same evaluation seeds (common random numbers). Each job is the
-command ``python -m sensor_envs.training.robustness job ...`` so the local process pool (default) and a Ray
+its final policy (``--policy final``) or EvalCallback's best checkpoint (``--policy best``: chosen on episodes
+with other seeds than the matrix's; the highway ``full`` preset's default) on every column with the same
+evaluation seeds (common random numbers). Each job is the command
+``python -m sensor_envs.training.robustness job ...`` so the local process pool (default) and a Ray
 cluster (``--backend ray``) run the same code; outputs land in ``--out`` whichever backend ran them (on a
 cluster ``--out`` must sit on a shared filesystem at the same path, and sensor_envs be installed). A job writes its
 ``eval.json`` and then, atomically, its ``done`` marker; a rerun skips jobs that have one. ``--real-data``
@@ -116,10 +118,10 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
         },
     },
     # "full" is sized for the shared 2-core machine without a GPU (README: budgets, wall time, how much the
-    # policies learned): Neato 8 seeds (~25 min with 2 workers), highway-fast 3 seeds (~1.5 h; highway-env's own
-    # simulation sets the pace). Highway-fast trains DQN with highway-env's documented settings and budget
-    # (20,000 steps, the config's `algos: dqn` block); final models only (no EvalCallback during training): the
-    # matrix is the evaluation.
+    # policies learned): Neato 8 seeds (~25 min with 2 workers). Highway-fast: 5 seeds, DQN with highway-env's
+    # documented settings (the config's `algos: dqn` block) for 6,000 steps, EvalCallback every 1,000 steps on 10
+    # episodes of other seeds, and the matrix evaluates that best checkpoint on 30 episodes per cell: the final
+    # model regresses (docs/results/highway_matrix.md); highway-env's own simulation sets the pace.
     "full": {
         "neato": {
             "seeds": 8,
@@ -134,7 +136,7 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
             "eval_episodes": 30,
             "max_episode_steps": None,
             "policy": "best",
-            "set": {"n_timesteps": 20000, "n_envs": 1, "eval_freq": 1000, "eval_episodes": 10},
+            "set": {"n_timesteps": 6000, "n_envs": 1, "eval_freq": 1000, "eval_episodes": 10},
             "hyperparams": None,
         },
     },
