@@ -50,6 +50,52 @@ def learning_curves(run: Path, rows: list[str], seeds: list[int]) -> list[str]:
     return lines
 
 
+TARGET = 0.2  # issue 41: an ideal-trained agent collides in <= 0.2 of the episodes on its own radar
+
+
+def _cell(matrix: dict, row: str, col: str, metric: str) -> str:
+    v = matrix["cells"][f"{row}->{col}"][metric]
+    return f"{v['mean']:.2f} [{v['mean_ci95'][0]:.2f}, {v['mean_ci95'][1]:.2f}]"
+
+
+def targets(matrix: dict, baseline: str = "ideal") -> list[str]:
+    """Issue 41's two targets, read off the matrix: the baseline row on its own radar against ``TARGET``, and
+    each other row against the baseline row on that row's radar (collision probability of improvement)."""
+    rows, cols = matrix["rows_trained_on"], matrix["columns_evaluated_on"]
+    if baseline not in rows or baseline not in cols:
+        return []
+    own = matrix["cells"][f"{baseline}->{baseline}"]["collision"]
+    per_seed = own["per_seed"]
+    has_speed = "speed" in matrix["cells"][f"{baseline}->{baseline}"]
+    lines = [
+        "## Issue 41's targets, read off this run",
+        "",
+        f"* `{baseline}`-trained on `{baseline}`: collision {_cell(matrix, baseline, baseline, 'collision')} "
+        f"(mean [95 % CI]); target <= {TARGET}: **{'met' if own['mean'] <= TARGET else 'NOT met'}** by the mean, "
+        f"{sum(v <= TARGET for v in per_seed)} of {len(per_seed)} seeds at or below it "
+        f"(per seed: {', '.join(f'{v:.2f}' for v in per_seed)})"
+        + (f"; mean speed {_cell(matrix, baseline, baseline, 'speed')} m/s." if has_speed else "."),
+    ]
+    for r in rows:
+        if r == baseline or r not in cols:
+            continue
+        key = f"{baseline} vs {r} @ {r}"
+        pi = matrix["probability_of_improvement"]["collision"][key]
+        p, (lo, hi) = 1 - pi["p"], (1 - pi["ci95"][1], 1 - pi["ci95"][0])  # P(row r safer than the baseline row)
+        verdict = "shown (interval above 0.5)" if lo > 0.5 else "NOT shown (interval includes or is below 0.5)"
+        lines.append(
+            f"* On `{r}`: trained on `{r}` collision {_cell(matrix, r, r, 'collision')} vs trained on `{baseline}` "
+            f"{_cell(matrix, baseline, r, 'collision')}; P(a `{r}`-trained policy is safer) = {p:.2f} "
+            f"[{lo:.2f}, {hi:.2f}]: **{verdict}**"
+            + (
+                f"; mean speed {_cell(matrix, r, r, 'speed')} vs {_cell(matrix, baseline, r, 'speed')} m/s."
+                if has_speed
+                else "."
+            )
+        )
+    return [*lines, ""]
+
+
 def callback_episodes(run: Path, matrix: dict) -> str:
     """The number of episodes of the jobs' EvalCallback evaluations (from the first job's curve)."""
     job = run / "runs" / matrix["rows_trained_on"][0] / f"seed{matrix['seeds'][0]}"
@@ -72,6 +118,7 @@ def render(run: Path) -> str:
         + (" (EvalCallback's best on held-out seeds)" if meta.get("policy") == "best" else "")
         + ". Page: `python benchmarks/highway_matrix_report.py --run <out> --md ... --force`.",
         "",
+        *targets(matrix),
         table.replace("\n## ", "\n### "),
         "## Learning curves and cost per job",
         "",
