@@ -92,3 +92,13 @@ def test_full_highway_preset_evaluates_the_best_checkpoint_with_enough_episodes(
 def test_best_policy_without_evaluations_is_a_usage_error(tmp_path):
     with pytest.raises(robustness.UsageError, match="--policy best"):
         robustness.plan(_args(tmp_path, set=["eval_freq=1000000000"]), {})
+
+
+def test_jobs_print_a_line_each_when_stderr_is_not_a_terminal(monkeypatch, capsys):
+    import sys
+
+    monkeypatch.setattr(robustness, "_job_command", lambda spec: [sys.executable, "-c", "pass", json.dumps(spec)])
+    specs = [{"sensor": "ideal", "seed": s, "run_dir": f"/nowhere/{s}"} for s in (0, 1)]
+    robustness.run_jobs(specs, "process", 1, None)
+    err = capsys.readouterr().err
+    assert "job ideal seed 0 done (" in err and "job ideal seed 1 done (2 of 2;" in err

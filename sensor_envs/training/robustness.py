@@ -286,6 +286,20 @@ def run_jobs(specs: list[dict[str, Any]], backend: str, workers: int, address: s
         return
     bar = tqdm(total=len(cmds), desc=f"jobs ({backend})", unit="job")
     run: dict[str, Any] = {"capture_output": True, "text": True, "check": False}
+    t0 = time.perf_counter()
+
+    def finished(cmd: list[str]) -> None:
+        """Advance the bar; when stderr is not a terminal (a log file: the CLI disables the bar), print a line."""
+        bar.update()
+        if not sys.stderr.isatty():
+            spec = json.loads(cmd[-1])
+            print(
+                f"job {spec['sensor']} seed {spec['seed']} done ({bar.n} of {len(cmds)}; "
+                f"{time.perf_counter() - t0:.0f} s since start)",
+                file=sys.stderr,
+                flush=True,
+            )
+
     # The task is the job's command line (subprocess.run pickles by reference on both backends): the job
     # process imports the installed sensor_envs, so workers need no package state of the driver.
     if backend == "process":
@@ -293,7 +307,7 @@ def run_jobs(specs: list[dict[str, Any]], backend: str, workers: int, address: s
             futures = {pool.submit(subprocess.run, c, **run): c for c in cmds}  # type: ignore[arg-type]
             for fut in cf.as_completed(futures):
                 _check(fut.result(), futures[fut])
-                bar.update()
+                finished(futures[fut])
     else:
         import ray
 
@@ -304,8 +318,9 @@ def run_jobs(specs: list[dict[str, Any]], backend: str, workers: int, address: s
         pending = {remote.remote(c, **run): c for c in cmds}
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
-            _check(ray.get(ready[0]), pending.pop(ready[0]))
-            bar.update()
+            cmd = pending.pop(ready[0])
+            _check(ray.get(ready[0]), cmd)
+            finished(cmd)
         if started:
             ray.shutdown()
     bar.close()
