@@ -30,8 +30,10 @@ MARKER = "<!-- generated below by benchmarks/highway_matrix_report.py: do not ed
 def learning_curves(run: Path, rows: list[str], seeds: list[int]) -> list[str]:
     """Markdown table of each job's EvalCallback curve (return, episode length) and its cost."""
     lines = [
-        "| job | steps | eval return (mean) | eval episode length (of 30) | train s | steps/s | matrix eval s |",
-        "|---|---|---|---|---|---|---|",
+        "| job | steps | eval return (mean) | eval episode length (of 30) | best checkpoint: step, crashes in the "
+        "callback's episodes | its collision rate on the matrix's 30 episodes, own radar | train s | steps/s | "
+        "matrix eval s |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         for s in seeds:
@@ -42,14 +44,21 @@ def learning_curves(run: Path, rows: list[str], seeds: list[int]) -> list[str]:
             t = curve["timesteps"].tolist()
             ret = curve["results"].mean(axis=1)
             length = curve["ep_lengths"].mean(axis=1)
+            best = int(np.argmax(ret))  # EvalCallback keeps the first evaluation with the highest mean return
+            crashed = curve["ep_lengths"][best] < EPISODE_STEPS  # a highway-fast episode ends early on a crash
+            own = np.mean(ev["cells"][r]["collision"]) if r in ev["cells"] else float("nan")
+            picked = f"{t[best]:,}: {int(crashed.sum())} of {crashed.size}"
+            if ev["spec"].get("policy", "final") != "best":
+                picked += " (not the evaluated model)"
             lines.append(
                 f"| {r} seed {s} | {', '.join(f'{v:,}' for v in t)} | {', '.join(f'{v:.1f}' for v in ret)} | "
-                f"{', '.join(f'{v:.1f}' for v in length)} | {ev['train_seconds']:.0f} | "
+                f"{', '.join(f'{v:.1f}' for v in length)} | {picked} | {own:.2f} | {ev['train_seconds']:.0f} | "
                 f"{steps / ev['train_seconds']:.1f} | {ev['eval_seconds']:.0f} |"
             )
     return lines
 
 
+EPISODE_STEPS = 30  # highway-fast-v0's duration in policy steps
 TARGET = 0.2  # issue 41: an ideal-trained agent collides in <= 0.2 of the episodes on its own radar
 
 
