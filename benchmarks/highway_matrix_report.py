@@ -1,7 +1,8 @@
 """The highway robustness matrix's results page, generated from a finished `sensor-envs robustness` run.
 
     python benchmarks/highway_matrix_report.py --run runs/highway_matrix \
-        --md docs/results/highway_matrix.md --png docs/results/highway_matrix.png --force
+        --md docs/results/highway_matrix.md --png docs/results/highway_matrix.png \
+        --json docs/results/highway_matrix.json --force
 
 Reads the run folder (``matrix.json``, ``matrix.md``, ``matrix.png``, and per job ``eval.json``,
 ``config.json`` and the ``EvalCallback`` learning curve ``evaluations.npz``) and writes below the marker
@@ -154,12 +155,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--run", type=Path, required=True, help="the --out folder of a finished robustness run")
     parser.add_argument("--md", type=Path, required=True, help="results page (text above the marker is kept)")
     parser.add_argument("--png", type=Path, default=None, help="copy of the run's matrix.png")
+    parser.add_argument("--json", type=Path, default=None, help="copy of the run's matrix.json (cells, hashes)")
     parser.add_argument("--force", action="store_true", help="replace existing --md / --png")
     args = parser.parse_args(argv)
     if not (args.run / "matrix.json").is_file():
         print(f"highway_matrix_report: error: {args.run / 'matrix.json'}: not found", file=sys.stderr)
         raise SystemExit(2)
-    for out in (args.md, args.png):
+    for out in (args.md, args.png, args.json):
         if out is not None and out.exists() and not args.force:
             print(f"highway_matrix_report: error: {out} exists (use --force)", file=sys.stderr)
             raise SystemExit(2)
@@ -170,6 +172,8 @@ def main(argv: list[str] | None = None) -> None:
     write_atomic(args.md, (head + body).encode("utf-8"))
     if args.png is not None:
         write_atomic(args.png, (args.run / "matrix.png").read_bytes())
+    if args.json is not None:
+        write_atomic(args.json, (args.run / "matrix.json").read_bytes())
     print(body)
 
 
