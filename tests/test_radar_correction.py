@@ -1,0 +1,169 @@
+"""The radar's add step: fitted corrections on top of a radar model (issue 39, radar half).
+
+Seeded families: planted effects of each kind (mean, spread, rate; main and interaction) are
+recovered by :func:`~sensor_envs.radar.correction.fit_term`; the corrected law samples what it
+scores; model files round-trip and refuse bad values; the loop keeps a correction only when the
+held-out NLL drops.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sensor_envs.modelio import ModelFileError
+from sensor_envs.radar.correction import CorrectedRadar, Term, fit_term, load_radar_file
+from sensor_envs.radar.gaussian import GaussianRadar
+from sensor_envs.radar.log import target_tuples
+from sensor_envs.radar.rig import record_rig_log
+
+
+@pytest.fixture(scope="module")
+def gauss():
+    """A Gaussian radar fitted on a small rig log, and that log's target tuples."""
+    log = record_rig_log(12, 20, 6, np.random.default_rng(3), velocity_columns=True)
+    return GaussianRadar().fit(log), target_tuples(log)
+
+
+def _shape(form: str, u: np.ndarray) -> np.ndarray:
+    """A shape of ``u`` in [0, 1]: linear, step, U or saturating, spanning about 1."""
+    return {"linear": u, "step": (u > 0.5) * 1.0, "u": 4 * (u - 0.5) ** 2, "sat": 1 - np.exp(-3 * u)}[form]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("form", ["linear", "step", "u", "sat"])
+def test_mean_term_recovers_planted_offset(seed, form):
+    rng = np.random.default_rng(seed)
+    n = 6000
+    c = rng.uniform(-2, 3, n)
+    corners = np.column_stack([rng.uniform(5, 80, n), rng.uniform(-10, 10, n)])
+    d = 0.3 * _shape(form, (c + 2) / 5)
+    mu = np.zeros((n, 2))
+    z = np.column_stack([rng.standard_t(4, n) * 0.2, d + rng.standard_t(4, n) * 0.2])
+    t = fit_term("mean_y", "c", c, corners, z, mu, np.full(n, 0.1))
+    err = np.sqrt(np.mean((t.value(c, corners) - d) ** 2))
+    assert err < 0.05, err  # an effect of 0.3 m recovered to a few cm (a sharp step: to its knots)
+    assert np.std(d) > 3 * err
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_interaction_term_follows_the_side(seed):
+    rng = np.random.default_rng(seed)
+    n = 8000
+    c = rng.normal(size=n)
+    corners = np.column_stack([rng.uniform(5, 60, n), rng.uniform(-8, 8, n)])
+    d = 0.25 * np.tanh(c) * np.sign(corners[:, 1])
+    z = np.column_stack([rng.normal(0, 0.2, n), d + rng.normal(0, 0.2, n)])
+    main = fit_term("mean_y", "c", c, corners, z, np.zeros((n, 2)), np.zeros(n))
+    inter = fit_term("mean_y", "c", c, corners, z, np.zeros((n, 2)), np.zeros(n), state="azimuth")
+    assert np.abs(main.value(c, corners)).max() < 0.06  # zero mean over the sides: the main effect sees little
+    assert np.corrcoef(inter.value(c, corners), d)[0, 1] > 0.9
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_spread_and_rate_terms_recover_planted_effects(seed):
+    rng = np.random.default_rng(seed)
+    n = 8000
+    c = rng.uniform(0, 1, n)
+    corners = np.column_stack([rng.uniform(5, 60, n), rng.uniform(-8, 8, n)])
+    scale = np.exp(0.4 * (c - 0.5))
+    z = rng.normal(0, 0.3, (n, 2)) * scale[:, None]
+    p_det = 1 / (1 + np.exp(-(0.5 + 1.5 * (c - 0.5))))
+    z[rng.random(n) > p_det] = np.nan
+    pm0 = np.full(n, 1 - np.mean(p_det))
+    sp = fit_term("spread", "c", c, corners, z, np.zeros((n, 2)), pm0)
+    rt = fit_term("rate", "c", c, corners, z, np.zeros((n, 2)), pm0)
+    a = sp.value(c, corners)
+    assert abs(np.polyfit(c, a, 1)[0] - 0.4) < 0.12  # log scale slope 0.4 per unit of c
+    b = rt.value(c, corners)
+    assert abs(np.polyfit(c, b, 1)[0] - 1.5) < 0.4  # logit slope 1.5 per unit of c
+
+
+def _terms(corners: np.ndarray) -> list[Term]:
+    knots = np.array([0.0, 1.0])
+    return [
+        Term("mean_x", "c", knots, "", np.zeros(0), np.array([[0.0, 0.5]]), 0.5),
+        Term("spread", "c", knots, "", np.zeros(0), np.array([[0.0, np.log(1.5)]]), 0.5),
+        Term("rate", "c", knots, "", np.zeros(0), np.array([[0.0, -1.0]]), 0.5),
+    ]
+
+
+def test_corrected_law_samples_what_it_scores(gauss):
+    base, tt = gauss
+    corner = np.array([[30.0, 2.0]])
+    model = CorrectedRadar(base, _terms(corner))
+    n = 20000
+    st = np.repeat(corner, n, axis=0)
+    rng = np.random.default_rng(0)
+    mu0, pm0 = base.mean_output(st[:1])
+    p0 = 1 - pm0[0]
+    for c, shift, scale, logit in ((0.0, 0.0, 1.0, 0.0), (1.0, 0.5, 1.5, -1.0)):
+        ex = np.full((n, 1), c)
+        z, _ = model.sample(st, rng, extra=ex)
+        det = np.isfinite(z[:, 0])
+        p1 = 1 / (1 + np.exp(-(np.log(p0 / (1 - p0)) + logit)))
+        assert abs(det.mean() - p1) < 0.02
+        base_z, _ = base.sample(st, np.random.default_rng(1))
+        sd0 = np.nanstd(base_z[:, 0])
+        assert abs(np.mean(z[det, 0]) - (mu0[0, 0] + shift)) < 0.05 * sd0 + 0.01
+        assert abs(np.std(z[det, 0]) / sd0 - scale) < 0.05
+        # the density integrates to P(detected) over a grid around the mean output
+        mu1, _ = model.mean_output(st[:1], extra=ex[:1])
+        g = np.linspace(-8, 8, 161) * sd0 * scale
+        gx, gy = np.meshgrid(mu1[0, 0] + g, mu1[0, 1] + g)
+        zz = np.column_stack([gx.ravel(), gy.ravel()])
+        lp = model.log_prob(zz, np.repeat(corner, zz.shape[0], 0), extra=np.full((zz.shape[0], 1), c))
+        mass = np.exp(lp).sum() * (g[1] - g[0]) ** 2
+        assert abs(mass - p1) < 0.02
+        lp_miss = model.log_prob(np.full((1, 2), np.nan), corner, extra=ex[:1])
+        assert np.isclose(np.exp(lp_miss[0]), 1 - p1)
+
+
+def test_model_file_round_trips_and_refuses_bad_values(gauss, tmp_path):
+    base, tt = gauss
+    model = CorrectedRadar(base, _terms(tt.corner))
+    path = model.save(tmp_path / "m.npz")
+    kind, back = load_radar_file(path)
+    assert kind == "corrected" and back.extra_state_ == ("c",)
+    ex = np.linspace(0, 1, 50)[:, None]
+    st, z = tt.corner[:50], tt.z[:50]
+    assert np.allclose(back.log_prob(z, st, extra=ex), model.log_prob(z, st, extra=ex), equal_nan=True)
+    with pytest.raises(Exception, match="extra"):
+        back.log_prob(z, st)  # the covariate must be given
+    data = dict(np.load(path))
+    for key, value, field in (
+        ("term0_coef", np.array([[0.0, 500.0]]), "term0_coef"),
+        ("term0_knots", np.array([1.0, 0.0]), "term0_knots"),
+        ("term1_coef", np.array([[0.0, np.nan]]), "term1_coef"),
+    ):
+        bad = dict(data, **{key: value})
+        p = tmp_path / f"bad_{key}.npz"
+        np.savez(p, **bad)
+        with pytest.raises(ModelFileError, match=field):
+            CorrectedRadar.load(p)
+    p = tmp_path / "bad_base.npz"
+    np.savez(p, **dict(data, base_file=np.frombuffer(b"not a model", dtype=np.uint8)))
+    with pytest.raises(ModelFileError, match="base_file"):
+        CorrectedRadar.load(p)
+
+
+def test_make_radar_runs_a_corrected_model_file(gauss, tmp_path):
+    from sensor_envs.radar.sensors import make_radar
+
+    base, tt = gauss
+    path = CorrectedRadar(base, _terms(tt.corner)).save(tmp_path / "m.npz")
+    radar = make_radar("gaussian", path)
+    assert isinstance(radar, CorrectedRadar)
+    z, src = radar.sample_cycle(tt.corner[:5], None, np.random.default_rng(0), extra=np.ones((5, 1)))
+    assert z.shape == (5, 2) and src.shape == (5,)
+
+
+def test_highway_names_a_missing_covariate(gauss):
+    from sensor_envs.envs.highway.sensor import model_state_names
+
+    base, tt = gauss
+    with pytest.raises(ValueError, match="'c'.*cannot supply"):
+        model_state_names(CorrectedRadar(base, _terms(tt.corner)))
+    t = _terms(tt.corner)[0]
+    t.column = "rel_vx"
+    assert model_state_names(CorrectedRadar(base, [t])) == ("rel_vx",)
