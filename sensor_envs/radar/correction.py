@@ -260,7 +260,7 @@ class CorrectedRadar:
         self._n_base = len(base_names)
 
     def __getattr__(self, name: str) -> Any:
-        if name in ("base", "terms", "free_previous", "card_", "__setstate__", "__getstate__"):
+        if name in ("base", "terms", "free_previous", "card_", "_last_mean", "__setstate__", "__getstate__"):
             raise AttributeError(name)
         return getattr(self.base, name)
 
@@ -301,6 +301,23 @@ class CorrectedRadar:
                 logit += v
         return shift, log_s, logit
 
+    def _base_mean(self, st: NDArray, bex: NDArray | None, new_track: NDArray | None) -> tuple[NDArray, NDArray]:
+        """The base model's ``mean_output`` at ``st`` (the last result is kept).
+
+        A batch is often scored, sampled and scored again at the same states, and a KDE query costs a
+        neighbour search; the key is the bytes of the arguments, compared exactly.
+        """
+        parts = [np.ascontiguousarray(st, dtype=np.float64).tobytes()]
+        parts += [b"" if a is None else np.ascontiguousarray(a).tobytes() for a in (bex, new_track)]
+        key = tuple(parts)
+        last = self.__dict__.get("_last_mean")
+        if last is not None and last[0] == key:
+            return last[1], last[2]
+        mu, p_miss = self.base.mean_output(st, extra=bex, new_track=new_track)
+        mu, p_miss = np.asarray(mu, dtype=np.float64), np.asarray(p_miss, dtype=np.float64)
+        self.__dict__["_last_mean"] = (key, mu, p_miss)
+        return mu, p_miss
+
     def _freed_state(self, st: NDArray, shift: NDArray) -> NDArray[np.float64]:
         """States with the previous output freed of the offsets (``free_previous``), else ``st`` itself."""
         if not self.free_previous or st.shape[1] < 4:
@@ -321,7 +338,7 @@ class CorrectedRadar:
         bex, cols = self._split(extra, st.shape[0])
         shift, _, logit = self._parts(cols, st[:, :2])
         st = self._freed_state(st, shift)
-        mu, p_miss = self.base.mean_output(st, extra=bex, new_track=new_track)
+        mu, p_miss = self._base_mean(st, bex, new_track)
         _, p1 = self._p_detect(p_miss, logit)
         return mu + shift, 1.0 - p1
 
@@ -337,7 +354,7 @@ class CorrectedRadar:
         bex, cols = self._split(extra, st.shape[0])
         shift, log_s, logit = self._parts(cols, st[:, :2])
         st = self._freed_state(st, shift)
-        mu, p_miss = self.base.mean_output(st, extra=bex, new_track=new_track)
+        mu, p_miss = self._base_mean(st, bex, new_track)
         p0, p1 = self._p_detect(p_miss, logit)
         z0 = mu + (z - shift - mu) * np.exp(-log_s)[:, None]
         lp0 = self.base.log_prob(z0, st, extra=bex, new_track=new_track)
@@ -363,7 +380,7 @@ class CorrectedRadar:
         if prev is not None and self.free_previous:
             prev = prev - shift
         st = corners if prev is None else np.column_stack([corners, prev])
-        mu, p_miss = self.base.mean_output(st, extra=bex, new_track=new_track)
+        mu, p_miss = self._base_mean(st, bex, new_track)
         p0, p1 = self._p_detect(p_miss, logit)
         z, src = self._base_draw(corners, prev, rng, bex, new_track, np.arange(n))
         det = np.isfinite(z[:, 0])
