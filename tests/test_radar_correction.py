@@ -240,3 +240,20 @@ def test_cli_diagnose_writes_the_corrected_model_and_its_findings(tmp_path):
     assert det["nll_parts_after"]["total"] < det["nll_parts_before"]["total"]
     kind, model = load_radar_file(out / "model.npz")
     assert kind == "corrected" and "rel_vx" in model.extra_state_
+
+
+def test_effect_terms_follow_the_found_kind_and_form():
+    from sensor_envs.diagnose.core import block_split
+    from sensor_envs.diagnose.radar import RadarAdapter, radar_blocks
+    from sensor_envs.diagnose.radar_add import parse_label
+
+    log = record_rig_log(6, 20, 6, np.random.default_rng(2), velocity_columns=True)
+    ad = RadarAdapter(log, block_split(radar_blocks(log, 5)), model_kind="gaussian")
+    e = {"name": "rel_vx", "metric": "offset_y", "form": "x azimuth"}
+    assert ad.effect_terms(e) == ("mean_y(rel_vx x azimuth)",)
+    assert parse_label("mean_y(rel_vx x azimuth)") == ("mean_y", "rel_vx", "azimuth")
+    assert ad.effect_terms({**e, "metric": "offset_spread", "form": "main"}) == ("spread(rel_vx)",)
+    assert ad.effect_terms({**e, "metric": "detection", "form": "x range"}) == ("rate(rel_vx x range)",)
+    assert len(ad.effect_terms({**e, "metric": "nll", "form": "main"})) == 4
+    assert ad.effect_terms({**e, "name": "prev_offset_x"}) is None  # the model's own z_{t-1}: not addable
+    assert ad.effect_terms({**e, "form": "x corner_x"}) is None  # no term of that form: reported in words
