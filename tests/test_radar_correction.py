@@ -257,3 +257,20 @@ def test_effect_terms_follow_the_found_kind_and_form():
     assert len(ad.effect_terms({**e, "metric": "nll", "form": "main"})) == 4
     assert ad.effect_terms({**e, "name": "prev_offset_x"}) is None  # the model's own z_{t-1}: not addable
     assert ad.effect_terms({**e, "form": "x corner_x"}) is None  # no term of that form: reported in words
+
+
+def test_cli_refuses_a_corrected_model_as_model_exit_2_one_line(gauss, tmp_path):
+    import subprocess
+    import sys
+
+    from sensor_envs.radar.log import write_log
+
+    base, tt = gauss
+    model = CorrectedRadar(base, _terms(tt.corner)).save(tmp_path / "corrected.npz")
+    log = write_log(record_rig_log(4, 10, 4, np.random.default_rng(0)), tmp_path / "log.csv")
+    argv = ["diagnose", "radar", str(log), "--out", str(tmp_path / "o"), "--model", str(model)]
+    r = subprocess.run([sys.executable, "-m", "sensor_envs.cli.main", *argv], capture_output=True, text=True)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(model) in lines[0] and "'kind'" in lines[0]
+    assert not (tmp_path / "o").exists()
