@@ -198,6 +198,8 @@ def fit_term(
     term = _new_term(part, column, c, corners, state)
     x = term_basis(c, corners, term)
     det = np.isfinite(z[:, 0])
+    if part != "rate":  # offsets need the base mean (NaN where a KDE query found no weighted detection)
+        det &= np.isfinite(mu).all(axis=1)
     if part in ("mean_x", "mean_y"):
         k = 0 if part == "mean_x" else 1
         coef = _ridge(x[det], _robust(z[det, k] - mu[det, k]), ridge)
@@ -305,7 +307,9 @@ class CorrectedRadar:
         """The base model's ``mean_output`` at ``st`` (the last result is kept).
 
         A batch is often scored, sampled and scored again at the same states, and a KDE query costs a
-        neighbour search; the key is the bytes of the arguments, compared exactly.
+        neighbour search; the key is the bytes of the arguments, compared exactly. A missing mean
+        (NaN: a KDE query whose detected neighbours all have zero weight) is taken as 0 (the corner),
+        for sampling and scoring alike.
         """
         parts = [np.ascontiguousarray(st, dtype=np.float64).tobytes()]
         parts += [b"" if a is None else np.ascontiguousarray(a).tobytes() for a in (bex, new_track)]
@@ -314,7 +318,8 @@ class CorrectedRadar:
         if last is not None and last[0] == key:
             return last[1], last[2]
         mu, p_miss = self.base.mean_output(st, extra=bex, new_track=new_track)
-        mu, p_miss = np.asarray(mu, dtype=np.float64), np.asarray(p_miss, dtype=np.float64)
+        # a KDE query whose detected neighbours all have zero weight has no mean: scale about the corner
+        mu, p_miss = np.nan_to_num(np.asarray(mu, dtype=np.float64)), np.asarray(p_miss, dtype=np.float64)
         self.__dict__["_last_mean"] = (key, mu, p_miss)
         return mu, p_miss
 
