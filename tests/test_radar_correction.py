@@ -274,3 +274,29 @@ def test_cli_refuses_a_corrected_model_as_model_exit_2_one_line(gauss, tmp_path)
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and str(model) in lines[0] and "'kind'" in lines[0]
     assert not (tmp_path / "o").exists()
+
+
+class _NoMeanBase:
+    """A base model whose mean output is missing (NaN) at every state: a KDE query without weighted detections."""
+
+    extra_state_ = ()
+    state_variables = ("corner_x", "corner_y")
+
+    def mean_output(self, state, extra=None, new_track=None):
+        n = np.atleast_2d(state).shape[0]
+        return np.full((n, 2), np.nan), np.full(n, 0.2)
+
+    def log_prob(self, z, state, extra=None, new_track=None):
+        z = np.atleast_2d(z)
+        dens = -0.5 * np.sum(z**2, axis=1) - np.log(2 * np.pi)
+        return np.where(np.isnan(z[:, 0]), np.log(0.2), np.log(0.8) + dens)
+
+
+def test_a_missing_base_mean_does_not_turn_detections_into_misses():
+    t = Term("rate", "c", np.array([0.0, 1.0]), "", np.zeros(0), np.array([[0.5, 0.5]]), 0.5)
+    model = CorrectedRadar(_NoMeanBase(), [t])
+    z = np.array([[0.1, -0.2], [np.nan, np.nan]])
+    lp = model.log_prob(z, np.array([[10.0, 1.0], [10.0, 1.0]]), extra=np.array([[0.5], [0.5]]))
+    p1 = 1 / (1 + np.exp(-(np.log(4.0) + 0.5)))
+    assert np.isclose(lp[0], np.log(p1) - 0.5 * 0.05 - np.log(2 * np.pi))  # a detection, scored as one
+    assert np.isclose(lp[1], np.log1p(-p1))
