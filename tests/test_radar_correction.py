@@ -238,6 +238,7 @@ def test_cli_diagnose_writes_the_corrected_model_and_its_findings(tmp_path):
     det = rep["details"]
     assert any(c["label"].startswith("mean_x(rel_vx") for c in det["corrections"])
     assert det["nll_parts_after"]["total"] < det["nll_parts_before"]["total"]
+    assert "mean_x(rel_vx" in (out / "report.md").read_text()
     kind, model = load_radar_file(out / "model.npz")
     assert kind == "corrected" and "rel_vx" in model.extra_state_
 

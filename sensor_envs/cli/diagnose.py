@@ -187,6 +187,8 @@ def _diagnose_radar(args: argparse.Namespace) -> int:
 
     def write(tmp: Path) -> dict[str, Any]:
         data = write_report(result, tmp, source=str(args.log))
+        with open(tmp / "report.md", "a", encoding="utf-8") as fh:
+            fh.write(_corrections_markdown(result.extra))
         if result.added:  # the corrected model, fitted on the fit part: usable by sample AND log_prob
             final.save(tmp / "model.npz", card={"source": str(args.log), "diagnose": result.settings})
         return data
@@ -197,6 +199,18 @@ def _diagnose_radar(args: argparse.Namespace) -> int:
     summary["corrections"] = [c["text"] for c in result.extra["corrections"]]
     print(json.dumps(summary, indent=1))
     return 0
+
+
+def _corrections_markdown(extra: dict[str, Any]) -> str:
+    """The radar's corrections in words and the held-out NLL per part, as a report.md section."""
+    lines = ["", "## Corrections added to the radar model", ""]
+    lines += [f"- {c['text']}" for c in extra["corrections"]] or ["- none"]
+    b, a = extra["nll_parts_before"], extra["nll_parts_after"]
+    lines += ["", "| held-out NLL per reading [nats] | before | after |", "|---|---|---|"]
+    lines += [f"| {k} | {b[k]:.4f} | {a[k]:.4f} |" for k in ("rate", "position", "total")]
+    if extra.get("state_tuning"):
+        lines += ["", f"State kernel re-tuned on the fit part: rel_variance {extra['state_tuning']['rel_variance']}"]
+    return "\n".join(lines) + "\n"
 
 
 def _radar_extras(adapter: Any, result: Any, base_model: Any) -> Any:
