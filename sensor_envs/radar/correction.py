@@ -251,6 +251,10 @@ class CorrectedRadar:
     ``sample_clutter``, ...) are the base model's.
     """
 
+    CAPABILITIES = frozenset({"new_track", "extra_state", "prev_output", "log_prob", "clutter"})
+    """What callers may ask (:func:`sensor_envs.sensor_model.has_capability`): the base model's queries
+    are passed on (a Gaussian base accepts and ignores ``z_{t-1}`` and the new-track flags)."""
+
     def __init__(self, base: Any, terms: list[Term], free_previous: bool = False) -> None:
         self.base = base
         self.terms = list(terms)
