@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sensor_envs.inputs import InputError
 from sensor_envs.radar.correction import CorrectedRadar, Term, fit_term
 from sensor_envs.radar.features import state_matrix
 from sensor_envs.radar.log import RadarLog, target_tuples
@@ -169,7 +170,8 @@ def tune_relevance(adapter: Any) -> dict[str, Any]:
     search: the fit part's blocks are dealt to two folds, the KDE is fitted on one and scored (mean
     NLL per reading) on the other for each corner variance in :data:`TUNE_CORNER`, then each
     ``z_{t-1}`` variance in :data:`TUNE_PREV` with the best corner (their output bandwidths by a
-    coarser CV, at most 120 tuples per node). The held-out part is not used.
+    coarser CV, at most 120 tuples per node; a kernel that cannot be fitted on half the fit part, e.g.
+    too narrow for the bandwidth grid, scores infinity). The held-out part is not used.
     Sets ``adapter.params["rel_variance"]`` to the winner.
 
     Returns:
@@ -192,7 +194,11 @@ def tune_relevance(adapter: Any) -> dict[str, Any]:
     def score(v: list[float]) -> float:
         key = f"corner {v[0]:g} m^2, z_prev {v[2]:g} m^2"
         if key not in scores:
-            m = KDERadarModel(**{**params, "relevance": "paper", "rel_variance": tuple(v)}).fit(train)
+            try:
+                m = KDERadarModel(**{**params, "relevance": "paper", "rel_variance": tuple(v)}).fit(train)
+            except InputError:  # e.g. too few tuples in reach of the bandwidth grid on half the fit part
+                scores[key] = float("inf")
+                return scores[key]
             lp = m.log_prob(tt.z[sel], st, new_track=~tt.has_prev_row[sel])
             scores[key] = float(np.mean(np.minimum(-lp, 50.0)))
         return scores[key]
