@@ -112,7 +112,17 @@ def diagnose_case(
         from sensor_envs.diagnose.radar import RadarAdapter, radar_blocks
 
         adapter = RadarAdapter(case.log, block_split(radar_blocks(case.log)))
-    return run_diagnose(adapter, base_state=case.base_state, n_permutations=permutations, alpha=alpha, seed=seed)
+    res = run_diagnose(adapter, base_state=case.base_state, n_permutations=permutations, alpha=alpha, seed=seed)
+    if sensor == "radar":  # what was added, in words, and the held-out NLL per part (detection, position)
+        from sensor_envs.diagnose.radar_add import describe_terms, nll_parts
+
+        final = adapter.fit(tuple(res.settings["state_after"]))
+        res.extra["corrections"] = [t["text"] for t in describe_terms(final)]
+        res.extra["nll_parts_before"] = nll_parts(adapter, adapter.fit(tuple(res.settings["state_before"])))
+        res.extra["nll_parts_after"] = nll_parts(adapter, final)
+        res.extra["state_tuning"] = adapter.tuning
+        res.extra["gaussian_before_after"] = (res.baseline_before, res.baseline_after)
+    return res
 
 
 def score_case(case: Case, res: Any) -> dict[str, Any]:
@@ -132,6 +142,11 @@ def score_case(case: Case, res: Any) -> dict[str, Any]:
         "error_before": res.error_before,
         "error_after": res.error_after,
         "info": case.info,
+        "radar": {
+            k: res.extra[k]
+            for k in ("corrections", "nll_parts_before", "nll_parts_after", "state_tuning", "gaussian_before_after")
+            if k in res.extra
+        },
     }
     if case.kind == "null":  # on a real log only the planted columns count
         out["false_positive"] = any(planted is None or s in planted for s in sig)

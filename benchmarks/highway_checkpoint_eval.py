@@ -1,14 +1,16 @@
-"""Evaluate a robustness run's `best_model.zip` (EvalCallback's pick) beside its `final_model.zip`.
+"""Evaluate the model a robustness run did NOT evaluate (EvalCallback's `best_model.zip` or `final_model.zip`).
 
     python benchmarks/highway_checkpoint_eval.py --run runs/highway_matrix --columns ideal kde_tracks \
         [--episodes 30] [--json out.json]
 
 For every job of the run (``runs/<row>/seed<s>/``), plays ``--episodes`` deterministic episodes of the
-job's ``best_model.zip`` on each column with the matrix's evaluation seeds (``EVAL_SEED + e``, the same
-episodes as the matrix's cells) and prints, per row and column, the collision rate and mean return of the
-best and the final model, each pooled over seeds with its 95 % bootstrap interval (seeds resampled whole,
-as in the matrix). The best model is chosen by the job's EvalCallback on its own sensor from 5 episodes
-with other seeds (``seed + 10000``), so the matrix's evaluation episodes are held out from that choice.
+job's other model (``best_model.zip`` when the run evaluated ``final_model.zip``, the default, and the
+reverse for a run made with ``--policy best``) on each column with the matrix's evaluation seeds
+(``EVAL_SEED + e``, the same episodes as the matrix's cells) and prints, per row and column, the
+collision rate and mean return of the best and the final model, each pooled over seeds with its 95 %
+bootstrap interval (seeds resampled whole, as in the matrix). The best model is chosen by the job's
+EvalCallback on its own sensor from the config's ``eval_episodes`` episodes with other seeds
+(``seed + 10000``), so the matrix's evaluation episodes are held out from that choice.
 """
 
 from __future__ import annotations
@@ -36,21 +38,24 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(1)
     settings = json.loads((args.run / "settings.json").read_text())
     domain, env_id = settings["domain"], robustness.DOMAINS[settings["domain"]]["env_id"]
+    evaluated = settings.get("policy", "final")  # runs made before --policy existed evaluated final models
+    other = "final" if evaluated == "best" else "best"
     out: dict[str, dict[str, dict[str, list[list[float]]]]] = {}
     for row in settings["rows"]:
         for seed in settings["seeds"]:
             job = args.run / "runs" / row / f"seed{seed}"
-            final = json.loads((job / "eval.json").read_text())["cells"]
-            model = sb3.DQN.load(job / "best_model", device="cpu")
+            final = json.loads((job / "eval.json").read_text())["cells"]  # the run's own model
+            model = sb3.DQN.load(job / f"{other}_model", device="cpu")
             for col in args.columns:
                 kwargs = robustness.column_kwargs(domain, col, {}, settings["config"])
                 got = robustness.evaluate(model, env_id, kwargs, args.episodes, None)
                 cell = out.setdefault(f"{row}->{col}", {"best": {}, "final": {}})
                 for metric in ("collision", "return"):
-                    cell["best"].setdefault(metric, []).append(got[metric])
-                    cell["final"].setdefault(metric, []).append(final[col][metric][: args.episodes])
+                    cell[other].setdefault(metric, []).append(got[metric])
+                    cell[evaluated].setdefault(metric, []).append(final[col][metric][: args.episodes])
                 print(
-                    f"{row} seed {seed} on {col}: best-model collision {np.mean(got['collision']):.2f}", file=sys.stderr
+                    f"{row} seed {seed} on {col}: {other}-model collision {np.mean(got['collision']):.2f}",
+                    file=sys.stderr,
                 )
     print("| trained on -> evaluated on | model | collision (mean) [95 % CI] | return (IQM) [95 % CI] |")
     print("|---|---|---|---|")

@@ -130,17 +130,19 @@ def _check_args(args: argparse.Namespace) -> None:
 
 
 def load_radar_model(path: str) -> tuple[str, Any]:
-    """``("kde" | "gaussian", model)`` from a model file, by the ``kind`` in its header."""
-    from sensor_envs.modelio import ModelFileError
-    from sensor_envs.radar.gaussian import GaussianRadar
-    from sensor_envs.radar.kde import KDERadarModel
+    """``("kde" | "gaussian", model)`` from a model file, by the ``kind`` in its header.
 
-    try:
-        return "kde", KDERadarModel.load(path)
-    except ModelFileError as exc:
-        if "field 'kind'" not in str(exc):
-            raise
-    return "gaussian", GaussianRadar.load(path)
+    A corrected model (what ``diagnose radar`` writes) is refused: diagnose its base configuration.
+    """
+    from sensor_envs.radar.correction import load_radar_file
+
+    kind, model = load_radar_file(path)
+    if kind == "corrected":
+        raise InputError(
+            f"{path}: field 'kind' is 'radar_corrected' (a model written by diagnose); --model takes a KDE or "
+            "Gaussian model file"
+        )
+    return kind, model
 
 
 def _diagnose_radar(args: argparse.Namespace) -> int:
@@ -181,13 +183,47 @@ def _diagnose_radar(args: argparse.Namespace) -> int:
             "the given model itself on the held-out part; it may have been fitted on these readings, so the "
             "loop compares refits on the fit part (error_before = the given model's configuration refitted)"
         )
-    data = write_folder_atomically(
-        out, args.force, lambda tmp: write_report(result, tmp, source=str(args.log)), (args.log, args.model)
-    )
+    final = _radar_extras(adapter, result, base_model)
+
+    def write(tmp: Path) -> dict[str, Any]:
+        data = write_report(result, tmp, source=str(args.log))
+        with open(tmp / "report.md", "a", encoding="utf-8") as fh:
+            fh.write(_corrections_markdown(result.extra))
+        if result.added:  # the corrected model, fitted on the fit part: usable by sample AND log_prob
+            final.save(tmp / "model.npz", card={"source": str(args.log), "diagnose": result.settings})
+        return data
+
+    data = write_folder_atomically(out, args.force, write, (args.log, args.model))
     summary = {k: data[k] for k in ("added", "error_before", "error_after")}
     summary["effects"] = data["effects"][:5]
+    summary["corrections"] = [c["text"] for c in result.extra["corrections"]]
     print(json.dumps(summary, indent=1))
     return 0
+
+
+def _corrections_markdown(extra: dict[str, Any]) -> str:
+    """The radar's corrections in words and the held-out NLL per part, as a report.md section."""
+    lines = ["", "## Corrections added to the radar model", ""]
+    lines += [f"- {c['text']}" for c in extra["corrections"]] or ["- none"]
+    b, a = extra["nll_parts_before"], extra["nll_parts_after"]
+    lines += ["", "| held-out NLL per reading [nats] | before | after |", "|---|---|---|"]
+    lines += [f"| {k} | {b[k]:.4f} | {a[k]:.4f} |" for k in ("rate", "position", "total")]
+    if extra.get("state_tuning"):
+        lines += ["", f"State kernel re-tuned on the fit part: rel_variance {extra['state_tuning']['rel_variance']}"]
+    return "\n".join(lines) + "\n"
+
+
+def _radar_extras(adapter: Any, result: Any, base_model: Any) -> Any:
+    """The final model of the loop; its corrections and the NLL per part before/after go into ``result.extra``."""
+    from sensor_envs.diagnose.radar_add import describe_terms, nll_parts
+
+    final = adapter.fit(tuple(result.settings["state_after"]))
+    before = base_model if base_model is not None else adapter.fit(tuple(result.settings["state_before"]))
+    result.extra["corrections"] = describe_terms(final)
+    result.extra["nll_parts_before"] = nll_parts(adapter, before)
+    result.extra["nll_parts_after"] = nll_parts(adapter, final)
+    result.extra["state_tuning"] = adapter.tuning
+    return final
 
 
 def _diagnose_lidar(args: argparse.Namespace) -> int:

@@ -193,6 +193,8 @@ def _metric_summary(ev: Evaluation) -> dict[str, dict[str, float]]:
 
 def _terms(adapter: DiagnoseAdapter, effect: dict[str, Any]) -> tuple[str, ...] | None:
     """State terms that add ``effect`` (its form included, e.g. an interaction with bearing), or ``None``."""
+    if hasattr(adapter, "effect_terms"):  # the adapter reads the effect's kind, metric and form itself
+        return adapter.effect_terms(effect)
     if hasattr(adapter, "state_terms"):
         return adapter.state_terms(effect["name"], effect.get("form", "main"))
     var = adapter.state_name(effect["name"])

@@ -13,7 +13,8 @@ frames: the fits and the search), ``calibrate_stats`` (the statistics it matches
 records, fitted to real reference boxes), ``object_clutter`` (object-level clutter per cycle measured on Astyx, the
 law the highway wrapper thins to), ``validate`` (reports), ``fidelity`` (real single frames: start tuple and
 stationary law, block-bootstrap intervals and verdicts against the Gaussian), ``tune`` (post-fit factors chosen on
-real held-out frames: bandwidth factor, tail mixture).
+real held-out frames: bandwidth factor, tail mixture), ``correction`` (fitted conditional corrections on top of a
+radar model: what ``diagnose radar`` adds for a found cause, :class:`~sensor_envs.radar.correction.CorrectedRadar`).
 
 The public names below are importable from here (``from sensor_envs.radar import KDERadarModel``), each
 imported on first use.

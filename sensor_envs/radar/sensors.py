@@ -168,10 +168,11 @@ def _load_radar(name: str, path: str | None, mtime_ns: int) -> RadarSensor:
     """The radar ``name`` from the file at ``path`` (``mtime_ns`` only keys the cache)."""
     if name == "ideal" or path is None:
         return IdealRadar()
-    if name == "gaussian":
-        from sensor_envs.radar.gaussian import GaussianRadar
-
-        return GaussianRadar.load(path)
+    from sensor_envs.radar.correction import load_radar_file
+    from sensor_envs.radar.gaussian import GaussianRadar
     from sensor_envs.radar.kde import KDERadarModel
 
-    return KDERadarModel.load(path)
+    kind, model = load_radar_file(path)  # a corrected model (``diagnose radar``) runs under either name
+    if kind in (name, "corrected"):
+        return model
+    return GaussianRadar.load(path) if name == "gaussian" else KDERadarModel.load(path)  # their kind message

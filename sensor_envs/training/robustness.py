@@ -13,8 +13,10 @@ show the IQM of returns and the mean of rates (a rate's IQM drops its rare event
 column and metric: the probability of improvement P(row a better than row b) with its interval.
 
 Jobs: one per (training sensor, seed); a job trains (:func:`sensor_envs.training.train.train`), then evaluates
-the final policy on every column with the same evaluation seeds (common random numbers). Each job is the
-command ``python -m sensor_envs.training.robustness job ...`` so the local process pool (default) and a Ray
+its final policy (``--policy final``) or EvalCallback's best checkpoint (``--policy best``: chosen on episodes
+with other seeds than the matrix's; the highway ``full`` preset's default) on every column with the same
+evaluation seeds (common random numbers). Each job is the command
+``python -m sensor_envs.training.robustness job ...`` so the local process pool (default) and a Ray
 cluster (``--backend ray``) run the same code; outputs land in ``--out`` whichever backend ran them (on a
 cluster ``--out`` must sit on a shared filesystem at the same path, and sensor_envs be installed). A job writes its
 ``eval.json`` and then, atomically, its ``done`` marker; a rerun skips jobs that have one. ``--real-data``
@@ -76,7 +78,7 @@ DOMAINS: dict[str, dict[str, Any]] = {
         "sensors": ["ideal", "gaussian", "kde"],
         "real": "kde-astyx",
         "model_files": ["radar_gaussian.npz", "radar_kde.npz", "radar_object_clutter.json", "radar_rig.json"],
-        "metrics": ["return", "collision"],
+        "metrics": ["return", "collision", "speed"],
     },
 }
 
@@ -116,10 +118,10 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
         },
     },
     # "full" is sized for the shared 2-core machine without a GPU (README: budgets, wall time, how much the
-    # policies learned): Neato 8 seeds (~25 min with 2 workers), highway-fast 3 seeds (~1.5 h; highway-env's own
-    # simulation sets the pace). Highway-fast trains DQN with highway-env's documented settings and budget
-    # (20,000 steps, the config's `algos: dqn` block); final models only (no EvalCallback during training): the
-    # matrix is the evaluation.
+    # policies learned): Neato 8 seeds (~25 min with 2 workers). Highway-fast: 5 seeds, DQN with highway-env's
+    # documented settings (the config's `algos: dqn` block) for 6,000 steps, EvalCallback every 1,000 steps on 10
+    # episodes of other seeds, and the matrix evaluates that best checkpoint on 30 episodes per cell: the final
+    # model regresses (docs/results/highway_matrix.md); highway-env's own simulation sets the pace.
     "full": {
         "neato": {
             "seeds": 8,
@@ -130,10 +132,11 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
         },
         "highway": {
             "algo": "dqn",
-            "seeds": 3,
-            "eval_episodes": 8,
+            "seeds": 5,
+            "eval_episodes": 30,
             "max_episode_steps": None,
-            "set": {"n_timesteps": 20000, "n_envs": 1, "eval_freq": 10**9, "eval_episodes": 1},
+            "policy": "best",
+            "set": {"n_timesteps": 6000, "n_envs": 1, "eval_freq": 1000, "eval_episodes": 10},
             "hyperparams": None,
         },
     },
@@ -176,24 +179,35 @@ def sensor_names(domain: str, config: str | Path) -> list[str]:
 
 
 def evaluate(model: Any, env_id: str, kwargs: dict[str, Any], episodes: int, max_steps: int | None) -> dict[str, list]:
-    """Per-episode return, collision and success of ``model`` (deterministic actions) on ``env_id(**kwargs)``."""
+    """Per-episode return, collision and success of ``model`` (deterministic actions) on ``env_id(**kwargs)``.
+
+    When the env's ``info`` reports the ego's ``speed`` (highway-env, m/s), also each episode's mean speed
+    over its steps (``"speed"``), so that a policy that avoids collisions by crawling shows.
+    """
     import gymnasium as gym
 
     extra: dict[str, Any] = {"max_episode_steps": max_steps} if max_steps else {}
     env = gym.make(env_id, **kwargs, **extra)
     out: dict[str, list] = {"return": [], "collision": [], "success": []}
+    speeds: list[float] = []
     for e in range(episodes):
         obs, info = env.reset(seed=EVAL_SEED + e)
-        total, done = 0.0, False
+        total, done, episode_speeds = 0.0, False, []
         while not done:
             action, _ = model.predict(obs, deterministic=True)
             obs, reward, term, trunc, info = env.step(action)
             total += float(reward)
+            if "speed" in info:
+                episode_speeds.append(float(info["speed"]))
             done = term or trunc
+        if episode_speeds:
+            speeds.append(float(np.mean(episode_speeds)))
         out["return"].append(total)
         out["collision"].append(float(bool(info.get("collision", info.get("crashed", False)))))
         out["success"].append(float(bool(info.get("is_success", False))))
     env.close()
+    if len(speeds) == episodes:
+        out["speed"] = speeds
     return out
 
 
@@ -219,7 +233,8 @@ def run_job(spec: dict[str, Any]) -> dict[str, Any]:
     train_s = time.perf_counter() - t0
     import stable_baselines3 as sb3
 
-    model = getattr(sb3, cfg["algo"].upper()).load(run_dir / "final_model", device=spec["device"])
+    policy = spec.get("policy", "final")  # "best": EvalCallback's pick on held-out seeds (seed + 10000)
+    model = getattr(sb3, cfg["algo"].upper()).load(run_dir / f"{policy}_model", device=spec["device"])
     cells = {
         col: evaluate(
             model,
@@ -271,6 +286,20 @@ def run_jobs(specs: list[dict[str, Any]], backend: str, workers: int, address: s
         return
     bar = tqdm(total=len(cmds), desc=f"jobs ({backend})", unit="job")
     run: dict[str, Any] = {"capture_output": True, "text": True, "check": False}
+    t0 = time.perf_counter()
+
+    def finished(cmd: list[str]) -> None:
+        """Advance the bar; when stderr is not a terminal (a log file: the CLI disables the bar), print a line."""
+        bar.update()
+        if not sys.stderr.isatty():
+            spec = json.loads(cmd[-1])
+            print(
+                f"job {spec['sensor']} seed {spec['seed']} done ({bar.n} of {len(cmds)}; "
+                f"{time.perf_counter() - t0:.0f} s since start)",
+                file=sys.stderr,
+                flush=True,
+            )
+
     # The task is the job's command line (subprocess.run pickles by reference on both backends): the job
     # process imports the installed sensor_envs, so workers need no package state of the driver.
     if backend == "process":
@@ -278,7 +307,7 @@ def run_jobs(specs: list[dict[str, Any]], backend: str, workers: int, address: s
             futures = {pool.submit(subprocess.run, c, **run): c for c in cmds}  # type: ignore[arg-type]
             for fut in cf.as_completed(futures):
                 _check(fut.result(), futures[fut])
-                bar.update()
+                finished(futures[fut])
     else:
         import ray
 
@@ -289,8 +318,9 @@ def run_jobs(specs: list[dict[str, Any]], backend: str, workers: int, address: s
         pending = {remote.remote(c, **run): c for c in cmds}
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
-            _check(ray.get(ready[0]), pending.pop(ready[0]))
-            bar.update()
+            cmd = pending.pop(ready[0])
+            _check(ray.get(ready[0]), cmd)
+            finished(cmd)
         if started:
             ray.shutdown()
     bar.close()
@@ -298,6 +328,7 @@ def run_jobs(specs: list[dict[str, Any]], backend: str, workers: int, address: s
 
 # ---------------------------------------------------------------------------------------------- the matrix
 HIGHER_IS_BETTER = {"return": True, "success": True, "collision": False}
+"""Metrics compared between rows (probability of improvement); others (``speed``) are descriptive only."""
 BOOTSTRAP_REPS = 2000
 
 
@@ -329,9 +360,14 @@ def improvement(a: NDArray[np.float64], b: NDArray[np.float64], metric: str) -> 
 
 def build_matrix(out: Path, domain: str, rows: list[str], columns: list[str], seeds: list[int]) -> dict[str, Any]:
     """The jobs' ``eval.json`` as cells (IQM, mean, intervals) and the rows' probabilities of improvement."""
-    metrics = DOMAINS[domain]["metrics"]
-    over = "seeds resampled whole, with their episodes" if len(seeds) > 1 else "episodes resampled (single seed)"
     evals = {r: [json.loads((out / "runs" / r / f"seed{s}" / "eval.json").read_text()) for s in seeds] for r in rows}
+    # a metric the jobs did not record (e.g. speed in jobs run before it was recorded) is left out
+    metrics = [
+        m
+        for m in DOMAINS[domain]["metrics"]
+        if all(m in e["cells"][c] for es in evals.values() for e in es for c in columns)
+    ]
+    over = "seeds resampled whole, with their episodes" if len(seeds) > 1 else "episodes resampled (single seed)"
     cells = {
         f"{r}->{c}": {m: cell_statistics(score_matrix(evals[r], c, m)) for m in metrics} for r in rows for c in columns
     }
@@ -343,6 +379,7 @@ def build_matrix(out: Path, domain: str, rows: list[str], columns: list[str], se
             for c in columns
         }
         for m in metrics
+        if m in HIGHER_IS_BETTER
     }
     return {
         "domain": domain,
@@ -358,8 +395,8 @@ def build_matrix(out: Path, domain: str, rows: list[str], columns: list[str], se
 
 
 def headline(metric: str) -> str:
-    """The statistic a table shows: the mean for rates (0/1 per episode), the IQM otherwise."""
-    return "mean" if metric in ("success", "collision") else "iqm"
+    """The statistic a table shows: the mean for rates (0/1 per episode) and speeds, the IQM otherwise."""
+    return "mean" if metric in ("success", "collision", "speed") else "iqm"
 
 
 def write_reports(out: Path, matrix: dict[str, Any], meta: dict[str, Any]) -> None:
@@ -398,7 +435,7 @@ def write_reports(out: Path, matrix: dict[str, Any], meta: dict[str, Any]) -> No
             vals = [matrix["cells"][f"{r}->{c}"][m] for c in cols]
             cells = [f"{v[stat]:.2f} [{v[stat + '_ci95'][0]:.2f}, {v[stat + '_ci95'][1]:.2f}]" for v in vals]
             lines.append(f"| {r} | " + " | ".join(cells) + " |")
-        pairs = matrix["probability_of_improvement"][m]
+        pairs = matrix["probability_of_improvement"].get(m)
         if pairs:
             better = "higher" if HIGHER_IS_BETTER[m] else "lower"
             lines += ["", f"Probability of improvement ({better} {m} is better), P(first row better) [95 % CI]:", ""]
@@ -453,9 +490,9 @@ def sensor_model_hashes(domain: str, real_models: dict[str, str]) -> dict[str, s
 
 
 def model_hashes(
-    domain: str, out: Path, rows: list[str], seeds: list[int], real_models: dict[str, str]
+    domain: str, out: Path, rows: list[str], seeds: list[int], real_models: dict[str, str], policy: str = "final"
 ) -> dict[str, Any]:
-    """SHA-256 of the sensor models the jobs used and of every policy.
+    """SHA-256 of the sensor models the jobs used and of every evaluated policy (``<policy>_model.zip``).
 
     The sensor models' hashes are the ones the jobs recorded when they ran (``hashed_at: "jobs"``; a
     ``sensor_models_by_job`` entry when jobs disagree, e.g. a resumed run after a model changed); jobs
@@ -463,7 +500,7 @@ def model_hashes(
     """
     jobs = {f"{r}/seed{s}": out / "runs" / r / f"seed{s}" for r in rows for s in seeds}
     recorded = {k: json.loads((d / "eval.json").read_text()).get("sensor_models_sha256") for k, d in jobs.items()}
-    policies = {f"{k}/final_model.zip": sha256(d / "final_model.zip") for k, d in jobs.items()}
+    policies = {f"{k}/{policy}_model.zip": sha256(d / f"{policy}_model.zip") for k, d in jobs.items()}
     if any(v is None for v in recorded.values()):
         return {"hashed_at": "report", "sensor_models": sensor_model_hashes(domain, real_models), "policies": policies}
     distinct = {json.dumps(v, sort_keys=True) for v in recorded.values()}
@@ -532,10 +569,14 @@ def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[di
     if eval_episodes < 1:
         raise UsageError(f"--eval-episodes: must be >= 1, got {eval_episodes}")
     algo = args.algo or preset.get("algo")  # the preset's algorithm unless --algo names one
+    policy = args.policy or preset.get("policy", "final")
+    if policy == "best" and int(train_set.get("eval_freq", 10**9)) > int(train_set["n_timesteps"]):
+        raise UsageError("--policy best: EvalCallback never runs (eval_freq > n_timesteps); set eval_freq")
     settings = {
         "domain": args.domain,
         "preset": args.preset,
         "algo": algo,
+        "policy": policy,
         "seeds": seeds,
         "rows": rows,
         "columns": columns,
@@ -547,7 +588,10 @@ def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[di
     }
     specs = [
         {
-            **{k: settings[k] for k in ("domain", "algo", "columns", "eval_episodes", "max_episode_steps", "set")},
+            **{
+                k: settings[k]
+                for k in ("domain", "algo", "policy", "columns", "eval_episodes", "max_episode_steps", "set")
+            },
             "hyperparams": preset["hyperparams"] if algo in (None, "ppo") else None,
             "config": settings["config"],
             "sensor": r,
@@ -589,6 +633,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="override a training config entry of the preset"
+    )
+    parser.add_argument(
+        "--policy",
+        choices=("final", "best"),
+        default=None,
+        help="the model each job evaluates: final, or best (EvalCallback's pick on held-out seeds); default: preset's",
     )
     parser.add_argument("--seeds", type=int, default=None, help="number of seeds (default: the preset's)")
     parser.add_argument("--seed0", type=int, default=0, help="first training seed (default 0)")
@@ -665,7 +715,8 @@ def _run(args: argparse.Namespace, argv: list[str]) -> dict[str, Any]:
         "wall_seconds": time.perf_counter() - t0,
         "command": " ".join(["sensor-envs", "robustness", *argv]),
         "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "sha256": model_hashes(args.domain, args.out, settings["rows"], settings["seeds"], real),
+        "policy": settings["policy"],
+        "sha256": model_hashes(args.domain, args.out, settings["rows"], settings["seeds"], real, settings["policy"]),
     }
     write_reports(args.out, matrix, meta)
     print((args.out / "matrix.md").read_text())
