@@ -3,6 +3,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -392,8 +393,14 @@ def test_learned_lidar_in_neato_env(rig_fit, tmp_path):
 
 
 def test_default_model_is_shipped_and_loads():
+    from sensor_envs.cli.rebuild import load_recipe, recipe_argv, recipes_folder
+
     sensor = load_learned_lidar()
-    assert sensor.model.training_["source"].startswith("NeatoRig") or "rig" in sensor.model.training_["source"]
+    # fitted on the log that its recipe records from the calibrated rig (sensor-envs rebuild-models)
+    recipe = load_recipe(recipes_folder() / "neato_lidar.yaml")
+    record, _ = recipe_argv(recipe, Path("RIG.json"), Path("W"), Path("O"))
+    assert recipe["rig"] == "neato_rig.json" and record[:4] == ["record", "lidar", "--rig", "RIG.json"]
+    assert sensor.model.training_["source"] == Path(record[record.index("--out") + 1]).name
     env = gym.make("sensor_envs/Neato-v0", lidar="learned")
     obs, _ = env.reset(seed=1)
     assert env.observation_space.contains(obs)
