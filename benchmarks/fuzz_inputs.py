@@ -1,7 +1,9 @@
 """Generated malformed inputs across every reader and option, each run in a child process under limits.
 
-    PYTHONPATH=. nice -n 10 python benchmarks/fuzz_inputs.py --examples 2000 [--seed 0] [--timeout 20]
-        [--memory-gb 8] [--family "map file"] [--show 5]
+    PYTHONPATH=. nice -n 10 python benchmarks/fuzz_inputs.py --examples 2000 [--api 1000] [--seed 0]
+        [--timeout 20] [--memory-gb 8] [--family "map file"] [--show 5] [--json counts.json]
+
+Run it under ``ulimit -v 8000000`` to bound the parent too: the children never raise their limit above it.
 
 For each case (``tests/fuzz_cases.py``: a valid piece, one generated mutation, the command that reads
 it and the loader behind it), a forked child process (the package imported once in the parent) with
@@ -15,6 +17,14 @@ an address-space limit (``RLIMIT_AS``, ``ulimit -v``) of ``--memory-gb`` and a w
 * ``accepted``: a mutation that may well be valid (a truncation at a line end, a duplicated line...) taken;
 * ``hang``: killed at the time limit; ``memory``: ``MemoryError`` or killed under the memory limit;
 * ``files changed``: an input changed, or a file left behind by a failed command.
+
+With ``--api N``, N generated Python API calls follow (``tests/fuzz_api.py``: env constructors of every
+registered env id with their keyword arguments and highway-env config keys, ``reset`` and ``step`` with bad
+seeds, options and actions, the vector Neato entry, and ``fit`` / constructor / ``sample`` / ``log_prob`` /
+``load`` of every model class), each in a forked child under the same limits, counted per call class.
+A call must raise ``InputError`` or return a sane result (observations finite and in the observation space,
+finite rewards, finite samples or NaN miss rows, log-probabilities that are not NaN); any other exception is
+a traceback, a certainly-invalid argument taken is accepted nonsense.
 
 Prints a table of counts per family and class, then the first ``--show`` cases of every bad class.
 """
@@ -38,9 +48,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+import fuzz_api as fa
 import fuzz_cases as fc
 
-BAD = ("traceback", "accepted nonsense", "hang", "memory", "files changed", "vague message", "exit")
+BAD = ("traceback", "accepted nonsense", "hang", "memory", "files changed", "vague message", "exit", "harness error")
 
 
 class Seeded:
@@ -56,24 +67,28 @@ class Seeded:
         return self.r.choice(list(seq))
 
 
-def run_one(family: str, seed: int, timeout: float, memory_gb: float) -> tuple[str, str]:
-    """``(class, mutation)`` of one generated case, run in a forked child."""
+def run_one(family: str, seed: int, timeout: float, memory_gb: float, api: bool = False) -> tuple[str, str]:
+    """``(class, mutation)`` of one generated case (``api``: a Python API call of class ``family``), forked."""
     with tempfile.TemporaryDirectory(prefix="fuzz.") as tmp:
         d = Path(tmp)
-        case = fc.make_case(family, Seeded(seed), d)
+        case = (fa.make_api_case if api else fc.make_case)(family, Seeded(seed), d)
         r, w = os.pipe()
         pid = os.fork()
         if pid == 0:  # child
             os.close(r)
             try:
+                soft, hard = resource.getrlimit(resource.RLIMIT_AS)  # under `ulimit -v`, never above it
                 limit = int(memory_gb * 2**30)
-                resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+                limit = limit if hard == resource.RLIM_INFINITY else min(limit, hard)
+                resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
                 warnings.simplefilter("ignore")
                 try:
                     kind = fc.classify(case, d)
                 except MemoryError:
                     kind = "memory"
                 os.write(w, kind.encode())
+            except BaseException as exc:  # a harness fault is reported as such, never counted as "memory"
+                os.write(w, f"harness error ({type(exc).__name__}: {exc})"[:4000].encode())
             finally:
                 os._exit(0)
         os.close(w)
@@ -109,6 +124,9 @@ def main() -> None:
     ap.add_argument("--family", action="append", default=None, help="only these families (repeatable)")
     ap.add_argument("--show", type=int, default=5, help="bad cases listed per class")
     ap.add_argument("--json", default=None, help="also write the counts to this file")
+    ap.add_argument(
+        "--api", type=int, default=0, help="also this many generated Python API calls (tests/fuzz_api.py classes)"
+    )
     args = ap.parse_args()
     families = args.family or list(fc.FAMILIES)
     import sensor_envs.cli.main
@@ -116,25 +134,52 @@ def main() -> None:
     import sensor_envs.radar.astyx
     import sensor_envs.radar.kde  # noqa: F401
 
-    fc.npz_bomb()
+    t0 = time.perf_counter()
+    results = run_part(families, args.examples, args, api=False)
+    print(
+        f"Files and options: {args.examples} generated cases, seed {args.seed}, {args.timeout:g} s and "
+        f"{args.memory_gb:g} GB per case, {time.perf_counter() - t0:.0f} s\n"
+    )
+    report(*results)
+    if args.api:
+        fa.warm_up()  # models, envs and highway-env loaded once; every child inherits them
+        t0 = time.perf_counter()
+        api = run_part(list(fa.API_CLASSES), args.api, args, api=True)
+        print(
+            f"\nPython API: {args.api} generated calls, seed {args.seed}, {args.timeout:g} s and "
+            f"{args.memory_gb:g} GB per call, {time.perf_counter() - t0:.0f} s\n"
+        )
+        report(*api)
+    if args.json:
+        out = {"files": {f: dict(c) for f, c in results[0].items()}}
+        if args.api:
+            out["api"] = {f: dict(c) for f, c in api[0].items()}
+        Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
+
+
+def run_part(families: list[str], n: int, args: argparse.Namespace, api: bool):
+    """Counts per family and class, and the bad cases to show, of ``n`` generated cases."""
+    if not api and n:
+        fc.npz_bomb()
     table: dict[str, collections.Counter[str]] = collections.defaultdict(collections.Counter)
     shown: dict[str, list[str]] = collections.defaultdict(list)
     t0 = time.perf_counter()
-    for i in range(args.examples):
+    for i in range(n):
         family = families[i % len(families)]
-        kind, mutation = run_one(family, args.seed * 1_000_003 + i, args.timeout, args.memory_gb)
+        kind, mutation = run_one(family, args.seed * 1_000_003 + i, args.timeout, args.memory_gb, api)
         cls = kind.split(" (")[0]
         cls = "exit" if cls.startswith("exit") or cls.startswith("killed") else cls
         table[family][cls] += 1
         if cls in BAD and len(shown[cls]) < args.show:
             shown[cls].append(f"{family}: {mutation!r} -> {kind}")
         if (i + 1) % 50 == 0:
-            print(f"[{i + 1}/{args.examples} cases, {time.perf_counter() - t0:.0f} s]", file=sys.stderr, flush=True)
+            print(f"[{i + 1}/{n} cases, {time.perf_counter() - t0:.0f} s]", file=sys.stderr, flush=True)
+    return table, shown
+
+
+def report(table, shown) -> None:
+    """Print the table of counts per family and class, then the bad cases."""
     classes = ["clean error", "accepted", *BAD]
-    print(
-        f"{args.examples} generated cases, seed {args.seed}, {args.timeout:g} s and {args.memory_gb:g} GB per case, "
-        f"{time.perf_counter() - t0:.0f} s\n"
-    )
     print("| family | cases | " + " | ".join(classes) + " |")
     print("|---|---:|" + "---:|" * len(classes))
     total: collections.Counter[str] = collections.Counter()
@@ -146,8 +191,6 @@ def main() -> None:
         print(f"\n{cls}:")
         for item in items:
             print("  " + item)
-    if args.json:
-        Path(args.json).write_text(json.dumps({f: dict(c) for f, c in table.items()}, indent=2) + "\n")
 
 
 if __name__ == "__main__":

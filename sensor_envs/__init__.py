@@ -13,7 +13,8 @@ imported lazily on first use (module-level ``__getattr__``, as ``gymnasium.wrapp
 
 Packages: ``lidar`` and ``radar`` (the sensor models), ``envs`` (the worlds), ``diagnose``, ``evaluate`` and
 ``training`` (tools), ``cli`` (the ``sensor-envs`` command). Shared modules: ``geometry`` (rays and segments), ``maps``
-(2D segment maps), ``modelio`` (model files), ``sensor_model`` (the one contract of the fitted sensor models:
+(2D segment maps), ``modelio`` (model files), ``constraints`` (the declared forms of hyperparameters and header
+fields), ``sensor_model`` (the one contract of the fitted sensor models:
 ``SensorModel``), ``outputs`` (safe output files), ``rng`` (seeded generators),
 ``trig`` and ``jit`` (compiled kernels), ``heap`` (opt-in malloc tuning), ``lazy`` (lazy public names),
 ``cards`` (model cards from a file's header and measured metrics), ``inputs`` (the input layer: bounded reads,

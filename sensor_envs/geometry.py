@@ -62,10 +62,16 @@ def as_segments(segments: ArrayLike, *, name: str = "segments") -> NDArray[np.fl
     Accepts ``(M, 2, 2)`` or ``(M, 4)`` input in metres.
 
     Raises:
-        ValueError: naming ``name`` when the array is empty, has the wrong shape, holds NaN/inf,
+        InputError: naming ``name`` when the array is empty, not real numbers, has the wrong shape, holds NaN/inf,
             or contains a zero-length segment.
     """
-    arr = np.asarray(segments, dtype=np.float64)
+    try:
+        raw = np.asarray(segments)
+    except (TypeError, ValueError) as exc:  # ragged nesting
+        raise InputError(f"{name}: expected an array of numbers ({' '.join(str(exc).split())[:120]})") from None
+    if raw.dtype.kind not in "fiu":  # booleans, strings, objects, complex: no coordinates
+        raise InputError(f"{name}: expected real coordinates [m], got dtype {raw.dtype}")
+    arr = raw.astype(np.float64)
     if arr.ndim == 2 and arr.shape[1] == 4:
         arr = arr.reshape(-1, 2, 2)
     if arr.ndim != 3 or arr.shape[1:] != (2, 2):

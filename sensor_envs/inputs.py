@@ -38,8 +38,10 @@ from numpy.typing import NDArray
 
 __all__ = [
     "InputError",
+    "InputTypeError",
     "Limits",
     "LIMITS",
+    "check_path",
     "check_regular_file",
     "read_bytes",
     "read_text",
@@ -51,6 +53,7 @@ __all__ = [
     "check_number",
     "check_count",
     "check_rng",
+    "bad_name",
     "check_array",
 ]
 
@@ -63,6 +66,10 @@ class InputError(ValueError):
     The one exception the command line shows as one line with exit status 2 (subclasses:
     ``ModelFileError``, ``LidarLogError``, ``RadarLogError``, ``OutputError``).
     """
+
+
+class InputTypeError(InputError, TypeError):
+    """Bad input of the wrong kind (e.g. another observation type): an :class:`InputError` and a ``TypeError``."""
 
 
 @dataclass(frozen=True)
@@ -99,6 +106,19 @@ def _kind(mode: int) -> str:
     return "not a regular file"
 
 
+def check_path(path: Any, field: str = "file") -> Path:
+    """``path`` as a ``Path``: a non-empty ``str`` or ``os.PathLike`` without NUL bytes.
+
+    Raises:
+        InputError: ``"<field>: expected a file path, got ..."`` for anything else (``None``, a number, bytes).
+    """
+    if isinstance(path, os.PathLike):
+        path = os.fspath(path)
+    if not isinstance(path, str) or not path.strip() or "\x00" in path:
+        raise InputError(f"{field}: expected a file path (a non-empty str or os.PathLike), got {path!r:.60}")
+    return Path(path)
+
+
 def check_regular_file(path: PathLike, field: str = "file", limit: int | None = None) -> int:
     """The size [bytes] of ``path``, a regular file of at most ``limit`` bytes (default ``LIMITS.file_bytes``).
 
@@ -107,7 +127,7 @@ def check_regular_file(path: PathLike, field: str = "file", limit: int | None = 
             or a file over the limit, naming the file and ``field``.
         FileNotFoundError: when ``path`` does not exist (the message names it).
     """
-    p = Path(path)
+    p = check_path(path, field)
     try:
         st = p.stat()
     except FileNotFoundError:
@@ -364,11 +384,44 @@ def check_count(value: Any, name: str, low: int = 1, high: int = 10**9) -> int:
     return int(check_number(value, name, low, high, integer=True))
 
 
+MAX_NAME = 200
+"""Longest column or variable name [characters]."""
+
+
+def bad_name(name: Any) -> str | None:
+    """Why ``name`` is no column or variable name (``None`` if it is one): a non-empty printable string.
+
+    Control characters (a NUL, a tab, an escape) or blank names are refused: a NUL in a CSV header would
+    otherwise make a new, invisible column.
+    """
+    if not isinstance(name, str):
+        return f"is {type(name).__name__}, not a name"
+    if not name.strip():
+        return "is empty"
+    if not name.isprintable():
+        return f"{name!r:.60} holds a control character"
+    if len(name) > MAX_NAME:
+        return f"is longer than {MAX_NAME} characters"
+    return None
+
+
 def check_rng(rng: Any, name: str = "rng") -> np.random.Generator:
     """``rng`` if it is a ``numpy.random.Generator`` (a seed or ``RandomState`` is refused: pass ``default_rng``)."""
     if not isinstance(rng, np.random.Generator):
         raise InputError(f"{name}: expected a numpy.random.Generator (np.random.default_rng(seed)), got {rng!r:.60}")
     return rng
+
+
+def _holds_bool(value: Any) -> bool:
+    """Whether a nested list/tuple holds a ``bool`` (numpy turns ``[True, 1.0]`` into ``[1.0, 1.0]`` silently)."""
+    stack = [value]
+    while stack:
+        x = stack.pop()
+        if isinstance(x, (bool, np.bool_)):
+            return True
+        if isinstance(x, (list, tuple)):
+            stack.extend(x)
+    return False
 
 
 def check_array(
@@ -397,6 +450,8 @@ def check_array(
         arr = np.asarray(value)
     except (TypeError, ValueError) as exc:  # ragged nesting, unconvertible objects
         raise InputError(f"{name}: expected an array of real numbers ({' '.join(str(exc).split())})") from None
+    if isinstance(value, (list, tuple)) and arr.dtype.kind in "fiu" and _holds_bool(value):
+        raise InputError(f"{name}: expected real numbers, got a flag (True/False) among them")
     if arr.dtype.kind not in "fiu":
         raise InputError(f"{name}: expected real numbers, got dtype {arr.dtype}")
     arr = arr.astype(np.float64, copy=False)

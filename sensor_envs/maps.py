@@ -194,8 +194,9 @@ def ros_occupancy(yaml_path: str | os.PathLike[str]) -> tuple[NDArray[np.bool_],
     """Occupied cells ``(H, W)`` (row 0 at the smallest y), resolution [m], origin ``(x, y, yaw)`` of a ROS map.
 
     Every field is checked: ``image`` a file name beside the YAML (a regular file within the size and
-    pixel limits), ``resolution`` in ``[1e-4, 100]`` m, ``origin`` three finite numbers, ``occupied_thresh``
-    a probability, ``negate`` 0 or 1.
+    pixel limits), ``resolution`` in ``[1e-4, 100]`` m, ``origin`` three finite numbers, ``free_thresh`` a
+    probability below 1 (default 0.196) and ``occupied_thresh`` one between it and 1 (exclusive), ``negate``
+    0 or 1.
 
     Raises:
         InputError: naming the file and the field.
@@ -214,9 +215,14 @@ def ros_occupancy(yaml_path: str | os.PathLike[str]) -> tuple[NDArray[np.bool_],
         origin = np.zeros(0)
     if origin.shape != (3,) or not np.isfinite(origin).all() or (np.abs(origin) > MAX_ORIGIN).any():
         raise InputError(f"{path}: field 'origin' must be [x, y, yaw] (finite, within 1e6), got {meta['origin']!r}")
+    free = _yaml_number(meta, "free_thresh", path, 0.196)
+    if not 0.0 <= free < 1.0:
+        raise InputError(f"{path}: field 'free_thresh' must be a probability in [0, 1), got {free}")
     thresh = _yaml_number(meta, "occupied_thresh", path, 0.65)
-    if not 0.0 <= thresh <= 1.0:
-        raise InputError(f"{path}: field 'occupied_thresh' must be a probability in [0, 1], got {thresh}")
+    if not free < thresh < 1.0:  # 0 would make every pixel but pure white a wall, 1 none
+        raise InputError(
+            f"{path}: field 'occupied_thresh' must be a probability in (free_thresh = {free:g}, 1), got {thresh}"
+        )
     negate = _yaml_number(meta, "negate", path, 0)
     if negate not in (0, 1):
         raise InputError(f"{path}: field 'negate' must be 0 or 1, got {meta['negate']!r}")

@@ -3,7 +3,9 @@
 Layout of a model file: arrays under their own names, and ``__header__``, a uint8 array holding
 UTF-8 JSON ``{"kind": ..., "format_version": ..., "params": {...}, "card": {...}}``. Files load
 with ``allow_pickle=False``; every array is checked for the dtype kind and the shape rank the
-loader declares, and for finiteness where asked.
+loader declares, and for finiteness where asked. Hyperparameters and header fields are checked against
+declarative tables of constraints (:mod:`sensor_envs.constraints`, re-exported here): :func:`validate_params`,
+:func:`check_header`.
 """
 
 from __future__ import annotations
@@ -18,7 +20,15 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.inputs import InputError, load_npz, parse_json, read_text
+from sensor_envs.constraints import CYCLE_TIME as CYCLE_TIME
+from sensor_envs.constraints import MAX_MAGNITUDE as MAX_MAGNITUDE
+from sensor_envs.constraints import RANDOM_STATE as RANDOM_STATE
+from sensor_envs.constraints import Constraint, Interval, Numbers, _NoneConstraint
+from sensor_envs.constraints import InstanceOf as InstanceOf
+from sensor_envs.constraints import IsNaN as IsNaN
+from sensor_envs.constraints import Names as Names
+from sensor_envs.constraints import Options as Options
+from sensor_envs.inputs import InputError, check_path, load_npz, parse_json, read_text
 from sensor_envs.outputs import atomic_write, check_suffix
 
 __all__ = [
@@ -102,7 +112,10 @@ def read_header_and_arrays(
         ModelFileError: naming the file and the field (a folder, a missing or unreadable file, no or a
             malformed ``__header__``, one larger than ``max_header_bytes``).
     """
-    path = Path(path)
+    try:
+        path = check_path(path, "model file")
+    except InputError as exc:
+        raise ModelFileError(str(exc)) from None
     if path.is_dir():
         raise ModelFileError(f"{path}: is a folder, expected a model file (.npz)")
     try:
@@ -134,6 +147,7 @@ def load_model_file(
     kind: str,
     supported_versions: tuple[int, ...],
     schema: Mapping[str, tuple[str, int | None, bool]],
+    header_schema: Mapping[str, list[Constraint]] | None = None,
 ) -> tuple[dict[str, Any], dict[str, NDArray[Any]]]:
     """Read a model file written by :func:`save_model_file`, without pickle, and check it.
 
@@ -143,6 +157,8 @@ def load_model_file(
         supported_versions: format versions this loader understands.
         schema: ``name -> (dtype kinds, ndim or None, must be finite)``; dtype kinds as numpy
             ``dtype.kind`` letters, e.g. ``"f"``, ``"iu"``, ``"b"``.
+        header_schema: ``header field -> accepted forms`` of the fitted values the header holds besides
+            ``kind``, ``format_version``, ``params`` and ``card`` (see :func:`check_header`); ``None``: not checked.
 
     Returns:
         ``(header, arrays)``.
@@ -150,8 +166,8 @@ def load_model_file(
     Raises:
         ModelFileError: naming the file and the field at fault.
     """
+    header, data = read_header_and_arrays(path)  # checks that path is a path
     path = Path(path)
-    header, data = read_header_and_arrays(path)
     if header.get("kind") != kind:
         raise ModelFileError(f"{path}: field 'kind' is {header.get('kind')!r}, expected {kind!r}")
     version = header.get("format_version")
@@ -165,6 +181,8 @@ def load_model_file(
             raise ModelFileError(f"{path}: field '__header__' lacks {key!r}")
         if key in header and not isinstance(header[key], typ):
             raise ModelFileError(f"{path}: field '__header__' entry {key!r} must be a JSON object")
+    if header_schema is not None:
+        check_header(path, header, header_schema)
     check_model_arrays(path, data, schema)
     return header, data
 
@@ -189,128 +207,43 @@ def check_model_arrays(
             raise ModelFileError(f"{path}: field {name!r} holds NaN or infinite values")
 
 
+HEADER_KEYS = ("kind", "format_version", "params", "card")
+"""Header fields of every model file (checked by :func:`load_model_file` itself)."""
+
+
+def check_header(
+    path: str | os.PathLike[str], header: dict[str, Any], header_schema: Mapping[str, list[Constraint]]
+) -> None:
+    """Every header field besides :data:`HEADER_KEYS` is declared in ``header_schema`` and takes a declared form.
+
+    Fields a format does not have may be absent (the loader asks for those its version needs); an
+    undeclared field is an error (a misspelled or foreign field would otherwise be ignored silently).
+
+    Raises:
+        ModelFileError: ``"<file>: field '<name>' ..."``.
+    """
+    for name, value in header.items():
+        if name in HEADER_KEYS:
+            continue
+        if name not in header_schema:
+            raise ModelFileError(f"{path}: field {name!r} is not a field of this model's files")
+        forms = [_NoneConstraint() if c is None else c for c in header_schema[name]]
+        if any(c.accepts(value) for c in forms):
+            continue
+        expected = " or ".join(str(c) for c in forms)
+        if any(isinstance(c, Interval) for c in forms):  # a scalar field: the wording of check_range
+            number = isinstance(value, (int, float)) and not isinstance(value, bool)
+            what = f"holds {value!r}" if number else f"is not numeric ({_shown(value, forms)})"
+            raise ModelFileError(f"{path}: field {name!r} {what}; expected {expected}")
+        raise ModelFileError(f"{path}: field {name!r} is invalid: expected {expected}, got {_shown(value, forms)}")
+
+
 # ------------------------------------------------------------------------------- hyperparameter tables
-class Options:
-    """Constraint: the value is one of ``values`` (compared with ``==``, booleans kept apart from numbers)."""
-
-    def __init__(self, *values: Any) -> None:
-        self.values = values
-
-    def accepts(self, value: Any) -> bool:
-        """Whether ``value`` satisfies the constraint."""
-        return any(type(value) is type(v) and value == v for v in self.values) or any(
-            isinstance(v, str) and value == v for v in self.values
-        )
-
-    def __str__(self) -> str:
-        return f"one of {self.values}"
-
-
-MAX_MAGNITUDE = 1e9
-"""Largest ``|value|`` of a real hyperparameter even where its interval is unbounded (sane magnitudes)."""
-
-
-class Interval:
-    """Constraint: a real (or, with ``integer``, a whole) number in ``[low, high]`` (``None``: up to 1e9 in size).
-
-    ``open_low``/``open_high`` exclude the bound. Booleans are not numbers here.
-    """
-
-    def __init__(
-        self,
-        low: float | None,
-        high: float | None,
-        *,
-        integer: bool = False,
-        open_low: bool = False,
-        open_high: bool = False,
-    ) -> None:
-        self.low, self.high, self.integer = low, high, integer
-        self.open_low, self.open_high = open_low, open_high
-
-    def accepts(self, value: Any) -> bool:
-        """Whether ``value`` satisfies the constraint."""
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-            return False
-        if self.integer and not isinstance(value, (int, np.integer)):
-            return False
-        v = float(value)
-        if not np.isfinite(v) or (not self.integer and abs(v) > MAX_MAGNITUDE):
-            return False
-        if self.low is not None and (v < self.low or (self.open_low and v == self.low)):
-            return False
-        return not (self.high is not None and (v > self.high or (self.open_high and v == self.high)))
-
-    def __str__(self) -> str:
-        kind = "an integer" if self.integer else "a finite number"
-        lo = "(-inf" if self.low is None else f"{'(' if self.open_low else '['}{self.low:g}"
-        hi = "inf)" if self.high is None else f"{self.high:g}{')' if self.open_high else ']'}"
-        return f"{kind} in {lo}, {hi}"
-
-
-class Numbers:
-    """Constraint: a sequence (tuple or list) of numbers, each satisfying ``item``.
-
-    Args:
-        item: constraint of every element.
-        length: exact length, or ``None``.
-        min_length: least length.
-        increasing: elements must be strictly increasing.
-    """
-
-    def __init__(
-        self, item: Interval, *, length: int | None = None, min_length: int = 1, increasing: bool = False
-    ) -> None:
-        self.item, self.length, self.min_length, self.increasing = item, length, min_length, increasing
-
-    def accepts(self, value: Any) -> bool:
-        """Whether ``value`` satisfies the constraint."""
-        if not isinstance(value, (tuple, list, np.ndarray)) or (isinstance(value, np.ndarray) and value.ndim != 1):
-            return False
-        if len(value) < self.min_length or (self.length is not None and len(value) != self.length):
-            return False
-        if not all(self.item.accepts(v) for v in value):
-            return False
-        return not (self.increasing and not bool(np.all(np.diff(np.asarray(value, dtype=np.float64)) > 0)))
-
-    def __str__(self) -> str:
-        n = f"{self.length}" if self.length is not None else f">= {self.min_length}"
-        inc = " strictly increasing" if self.increasing else ""
-        return f"a sequence of {n}{inc} values, each {self.item}"
-
-
-class InstanceOf:
-    """Constraint: ``isinstance(value, types)`` (``bool`` only matches booleans)."""
-
-    def __init__(self, *types: type) -> None:
-        self.types = types
-
-    def accepts(self, value: Any) -> bool:
-        """Whether ``value`` satisfies the constraint."""
-        if isinstance(value, (bool, np.bool_)) and bool not in self.types:
-            return False
-        return isinstance(value, self.types)
-
-    def __str__(self) -> str:
-        return "an instance of " + " or ".join(t.__name__ for t in self.types)
-
-
-class _NoneConstraint:
-    def accepts(self, value: Any) -> bool:
-        return value is None
-
-    def __str__(self) -> str:
-        return "None"
-
-
-Constraint = Options | Interval | Numbers | InstanceOf | _NoneConstraint | None
-"""One accepted form of a hyperparameter; ``None`` in a constraint list accepts ``None``."""
-RANDOM_STATE: list[Constraint] = [None, Interval(0, None, integer=True), InstanceOf(np.random.Generator)]
-"""The constraints of a ``random_state`` hyperparameter (seed, generator or ``None``)."""
-
-
 def validate_params(
-    params: dict[str, Any], constraints: dict[str, list[Constraint]], source: str | os.PathLike[str] | None = None
+    params: dict[str, Any],
+    constraints: dict[str, list[Constraint]],
+    source: str | os.PathLike[str] | None = None,
+    what: str = "hyperparameter",
 ) -> None:
     """Check hyperparameters against a declarative table (one table per model, used by ``fit`` and ``load``).
 
@@ -318,6 +251,7 @@ def validate_params(
         params: ``name -> value`` (e.g. ``estimator.get_params()`` or a model file's header ``params``).
         constraints: ``name -> list of accepted forms`` (any one suffices; ``None`` accepts ``None``).
         source: the model file the values come from, or ``None`` for constructor arguments.
+        what: what a name is, for the message of an unknown one (``"hyperparameter"``, ``"key"``).
 
     Raises:
         ValueError: ``"<name>: expected ..., got ..."`` for a bad constructor argument.
@@ -326,7 +260,7 @@ def validate_params(
     """
     for name, value in params.items():
         if name not in constraints:
-            msg = f"unknown hyperparameter (known: {sorted(constraints)})"
+            msg = f"unknown {what} (known: {sorted(constraints)})"
             if source is not None:
                 raise ModelFileError(f"{source}: field 'params.{name}': {msg}")
             raise InputError(f"{name}: {msg}")
@@ -349,8 +283,8 @@ def _shown(value: Any, forms: list[Any]) -> str:
     Whole when short; a long sequence by its length and the first entry that no :class:`Numbers` form's item
     accepts.
     """
-    if not isinstance(value, (tuple, list, np.ndarray)) or len(value) <= SHOWN_ITEMS:
-        return repr(value)
+    if not isinstance(value, (tuple, list, np.ndarray)) or np.ndim(value) == 0 or len(value) <= SHOWN_ITEMS:
+        return f"{value!r:.200}"
     items = [c.item for c in forms if isinstance(c, Numbers)]
     bad = next((i for i, v in enumerate(value) if items and not any(it.accepts(v) for it in items)), None)
     return f"{len(value)} values" + (f", first rejected entry [{bad}] = {value[bad]!r}" if bad is not None else "")

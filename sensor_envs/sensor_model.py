@@ -5,6 +5,9 @@ A fitted sensor model (``KDERadarModel``, ``GaussianRadar``, ``LidarLWLR``) is a
 * ``KIND``: the ``kind`` string of its model files; ``FORMAT_VERSION``: the one format it writes;
 * ``_parameter_constraints``: one declarative table of its hyperparameters, checked by ``fit``
   (:meth:`SensorModel._check_params`) and by ``load`` (the file's ``params``) alike;
+* ``_HEADER_SCHEMA``: the declared fitted fields of its files' header besides ``kind``, ``format_version``,
+  ``params`` and ``card`` (:func:`sensor_envs.modelio.check_header`: an undeclared or malformed field is a
+  ``ModelFileError``), checked by ``load`` before the upgrades;
 * ``CAPABILITIES``: what callers may ask of it (e.g. ``"new_track"``: ``sample_cycle`` takes the new-track
   flags; ``"extra_state"``: queries take ``extra``), read by :func:`has_capability` instead of probing
   signatures or attributes;
@@ -34,6 +37,7 @@ from sklearn.utils.validation import check_is_fitted
 from sensor_envs.modelio import (
     Constraint,
     ModelFileError,
+    check_header,
     check_model_arrays,
     params_from_header,
     read_header_and_arrays,
@@ -96,6 +100,10 @@ class SensorModel(BaseEstimator):
     """An attribute every fitted or loaded model has (the fitted check)."""
     _SCHEMA: ClassVar[dict[str, tuple[str, int | None, bool]]] = {}
     """Arrays every supported version holds: ``name -> (dtype kinds, ndim, finite)``, checked before upgrades."""
+    _HEADER_SCHEMA: ClassVar[dict[str, list[Constraint]] | None] = None
+    """Header fields any supported version may hold besides ``kind``, ``format_version``, ``params``, ``card``:
+    ``name -> accepted forms`` (:func:`~sensor_envs.modelio.check_header`), checked before upgrades; ``None``:
+    not checked."""
     _UPGRADES: ClassVar[dict[int, Upgrade]] = {}
     """``{v: step}``: ``step(path, header, arrays)`` turns format ``v`` into ``v + 1`` in place."""
     _PARAM_DEFAULTS: ClassVar[dict[str, Any]] = {}
@@ -181,10 +189,11 @@ class SensorModel(BaseEstimator):
         """A model file's header and arrays, checked and upgraded to the current format.
 
         Raises:
-            ModelFileError: naming the file and the field (wrong kind, an unsupported version, a malformed array).
+            ModelFileError: naming the file and the field (wrong kind, an unsupported version, an undeclared or
+                malformed header field, a malformed array).
         """
+        header, arrays = read_header_and_arrays(path)  # checks that path is a path (not, e.g., True)
         path = Path(path)
-        header, arrays = read_header_and_arrays(path)
         if header.get("kind") != cls.KIND:
             raise ModelFileError(f"{path}: field 'kind' is {header.get('kind')!r}, expected {cls.KIND!r}")
         supported = (*sorted(cls._UPGRADES), cls.FORMAT_VERSION)
@@ -198,6 +207,8 @@ class SensorModel(BaseEstimator):
                 raise ModelFileError(f"{path}: field '__header__' entry {key!r} must be a JSON object")
         if "params" not in header:
             raise ModelFileError(f"{path}: field '__header__' lacks 'params'")
+        if cls._HEADER_SCHEMA is not None:
+            check_header(path, header, cls._HEADER_SCHEMA)
         check_model_arrays(path, arrays, cls._SCHEMA)
         for v in range(version, cls.FORMAT_VERSION):  # one step per format version
             cls._UPGRADES[v](path, header, arrays)
@@ -211,9 +222,8 @@ class SensorModel(BaseEstimator):
         Raises:
             ModelFileError: naming the file and the field at fault.
         """
-        path = Path(path)
         header, arrays = cls.read_current(path)
-        model = cls._from_file(path, header, arrays)
+        model = cls._from_file(Path(path), header, arrays)
         model.card_ = dict(header.get("card", {}))
         return model
 

@@ -41,7 +41,7 @@ class Case:
     must_refuse: bool
     inputs: list[Path]
     command_when_loaded: bool = True  # False: an input the loader takes is not also run through the command
-    kind: str = ""  # Python API cases: "env", "radar" or "lidar" (how a result is judged); "" for files/options
+    kind: str = ""  # Python API cases: "env", "radar", "lidar" or "checked" (how a result is judged); "" for files
 
 
 # ------------------------------------------------------------------------------------------- valid pieces
@@ -95,7 +95,9 @@ def carmen_text(n: int = 5) -> str:
 MAP_TXT = "0 0 4 0\n4 0 4 3\n4 3 0 3\n0 3 0 0\n1 1 2 1\n"
 MAP_JSON = json.dumps({"name": "box", "segments": [[0, 0, 4, 0], [4, 0, 4, 3], [4, 3, 0, 3], [0, 3, 0, 0]]})
 MAP_YAML = "segments:\n  - [0, 0, 4, 0]\n  - [4, 0, 4, 3]\n  - [4, 3, 0, 3]\n  - [0, 3, 0, 0]\n"
-ROS_YAML = "image: map.pgm\nresolution: 0.5\norigin: [0.0, 0.0, 0.0]\nnegate: 0\noccupied_thresh: 0.65\n"
+ROS_YAML = (
+    "image: map.pgm\nresolution: 0.5\norigin: [0.0, 0.0, 0.0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+)
 
 
 def pgm_bytes() -> bytes:
@@ -189,7 +191,7 @@ def array_mutation(
         return f"drop {key}", key not in optional
     if kind == "bool":
         arrays[key] = a.astype(bool)
-        return f"{key} as bool", True
+        return f"{key} as bool", key not in FLAG_ARRAYS
     if kind == "complex":
         arrays[key] = a.astype(complex) + 1j
         return f"{key} as complex", True
@@ -221,6 +223,9 @@ def array_mutation(
     arrays[key] = flat.reshape(a.shape)
     return f"{key}[{j}] = {kind}", kind in ("inf", "huge", "neg") or key != "ranges"
 
+
+FLAG_ARRAYS = ("new_track",)
+"""Arrays of 0/1 flags (uint8 in the files): stored as bool they hold the same values (the loader takes both)."""
 
 _BOMB: bytes | None = None
 
@@ -347,11 +352,11 @@ def _map(c: Chooser, d: Path) -> Case:
         p = write_text_bytes(d / "map.yaml", bomb + "segments: *i\n")
         name, must = "YAML alias bomb", True
     elif kind == "ros_yaml":
-        field = c.choice(["image", "resolution", "origin", "negate", "occupied_thresh"])
+        field = c.choice(["image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh"])
         value = c.choice(["[1, 2]", "0", "-1", ".nan", "1e300", "true", "''", "/dev/zero", "{a: 1}", "*x", deep(200)])
         text = ROS_YAML.replace(ROS_YAML.split(field + ": ")[1].split("\n")[0], value, 1)
         p = write_text_bytes(d / "map.yaml", text)
-        plausible = (field, value) in {("negate", "0"), ("negate", "true")}
+        plausible = (field, value) in {("negate", "0"), ("negate", "true"), ("free_thresh", "0")}
         name, must = f"ROS {field}: {value}", not plausible
         if field == "image" and value == "/dev/zero":
             must = True
@@ -383,16 +388,22 @@ def _model(c: Chooser, d: Path) -> Case:
         data = {k: z[k] for k in z.files}
     header = json.loads(data["__header__"].tobytes().decode("utf-8"))
     if c.integers(0, 1) == 0:
-        where = c.choice(["kind", "format_version", "params", *[f"params.{k}" for k in header.get("params", {})]])
+        nested = [f"{k}.{j}" for k in ("params", "h") if isinstance(header.get(k), dict) for j in header[k]]
+        where = c.choice([k for k in header if k != "card"] + nested)  # every header field, every hyperparameter
         value = c.choice(NASTY_JSON)
         if "." in where:
-            old = header["params"][where.split(".", 1)[1]]
-            header["params"][where.split(".", 1)[1]] = value
-            must = _changes_meaning(old, value, where)
-        else:
+            top, key = where.split(".", 1)
+            old = header[top][key]
+            header[top][key] = value
+            must = _changes_meaning(old, value, key)
+        elif where in ("kind", "format_version", "params"):
             old = header[where]
             header[where] = value
             must = old != value
+        else:
+            old = header[where]
+            header[where] = value
+            must = _changes_meaning(old, value, where) and not (value is None and where in OPTIONAL_FIELDS)
         if c.integers(0, 4) == 0:
             text = json.dumps(header).replace('"kind"', '"x": ' + deep(100_000) + ', "kind"', 1)
             name, must = "header nested 100000 deep", True
@@ -429,7 +440,15 @@ def _changes_meaning(old: Any, value: Any, key: str = "") -> bool:
         return abs(value) > 1e6 or (old >= 0 > value)
     if isinstance(old, list) and isinstance(value, list):
         return any(isinstance(v, list) for v in value)
+    if old is None and key in LIST_OR_NONE:  # e.g. extra_variance = [] for a model without extra state
+        return not (isinstance(value, list) and not any(isinstance(v, (list, bool, str)) for v in value))
     return type(old) is not type(value)
+
+
+OPTIONAL_FIELDS = ("cycle_time", "pose_sd")
+"""Header fields whose ``null`` means "absent" (a radar fitted without a cycle time, a lidar without pose noise)."""
+LIST_OR_NONE = ("extra_variance",)
+"""Hyperparameters that are ``None`` or a list: an empty list is the explicit form of "none" there."""
 
 
 def _rig(c: Chooser, d: Path) -> Case:
@@ -587,6 +606,8 @@ def _bag(c: Chooser, d: Path) -> Case:
             must = False  # NaN = missing, inf/<=0/>max = null: all valid LaserScan conventions
         elif (field == "angle_min" and value in (0.0, -1.0)) or (field == "angle_increment" and value == -1.0):
             must = False  # a scan may start anywhere and turn clockwise
+        elif field == "range_min" and value == 0.0:
+            must = False  # no lower limit: valid LaserScan (simulators publish it), readings of 0 stay nulls
         p = write_bag(d, scan={field: value})
         name = f"LaserScan {field} = {value!r}"[:60]
     elif kind == "quaternion":
@@ -615,6 +636,8 @@ NASTY_NUMBERS: list[Any] = [np.nan, np.inf, -np.inf, 1e300, -1e300, -1.0, 0.0, 5
 
 def _api_result_ok(kind: str, result: Any) -> bool:
     """Whether an accepted API call's result is sane: finite (or NaN rows for misses) and in its space."""
+    if kind == "checked":  # the call judged its own result (tests/fuzz_api.py)
+        return bool(result)
     if kind == "env":
         env, obs, reward = result
         return bool(env.observation_space.contains(obs) and np.isfinite(reward))
@@ -782,7 +805,11 @@ def classify(case: Case, d: Path) -> str:
         except InputError:
             return "clean error"
         except Exception as exc:
-            return f"traceback ({type(exc).__name__})"
+            import traceback
+
+            frame = traceback.extract_tb(exc.__traceback__)[-1]
+            where = f"{Path(frame.filename).name}:{frame.lineno}"
+            return f"traceback ({type(exc).__name__} at {where}: {' '.join(str(exc).split())[:120]})"
         if case.must_refuse or not _api_result_ok(case.kind, result):
             return "accepted nonsense"
         return "accepted"

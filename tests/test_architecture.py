@@ -18,6 +18,7 @@ LAYERS = {
     "geometry": 0,
     "maps": 0,
     "modelio": 0,
+    "constraints": 0,
     "sensor_model": 0,
     "rng": 0,
     "jit": 0,

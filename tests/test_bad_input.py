@@ -788,7 +788,7 @@ CASES += [
         "object 0",
     ),
     C(ASTYX, "center3d-1e12", lambda d: record_astyx(astyx_obj(d, center3d=[1e12, 1.0, 0.5])), "'center3d'"),
-    C(ASTYX, "dimension3d-1e9", lambda d: record_astyx(astyx_obj(d, dimension3d=[1e9, 1.8, 1.5])), "'ref_length'"),
+    C(ASTYX, "dimension3d-1e9", lambda d: record_astyx(astyx_obj(d, dimension3d=[1e9, 1.8, 1.5])), "'dimension3d'"),
     C(
         ASTYX,
         "radar-four-columns",
@@ -1165,6 +1165,146 @@ CASES += [
         "spur-bearing-weight-wrong-length",
         lambda d: _calibrate_lidar_spurious_only(d, {"spur_bearing_weight": [1.0, 2.0]}),
         "spur_bearing_weight",
+    ),
+]
+
+
+# ------------------------------------------------------------- classes found by the generated fuzz (issue 42)
+def _long_range_log(d: Path) -> Path:
+    """A static-pose log of a longer-range sensor: a third of its returns between 5 and 7.5 m."""
+    r = np.random.default_rng(1).uniform(0.5, 7.5, (3, 8, 4))
+    return lidar_npz(d, ranges=r)
+
+
+def _header(**fields: object) -> Callable[[dict], None]:
+    """A header edit setting top-level (or ``params.<name>``) fields."""
+
+    def edit(h: dict) -> None:
+        for k, v in fields.items():
+            top, _, sub = k.partition("__")
+            if sub:
+                h[top][sub] = v
+            else:
+                h[k] = v
+
+    return edit
+
+
+CASES += [
+    C(LNPZ, "long-range-with-default-max-range", lambda d: fit_lidar(_long_range_log(d)), "'ranges'"),
+    C(
+        LNPZ,
+        "long-range-validated-with-neato-model",
+        lambda d: (
+            ["validate", "lidar", str(SHIPPED / "neato_lidar.npz"), str(_long_range_log(d)), "--out", str(d / "r")],
+            str(d / "log.npz"),
+        ),
+        "'ranges'",
+    ),
+    C(
+        LNPZ,
+        "long-range-diagnosed-with-default",
+        lambda d: (["diagnose", "lidar", str(_long_range_log(d)), "--out", str(d / "g")], str(d / "log.npz")),
+        "'ranges'",
+    ),
+    C(
+        RADAR,
+        "astyx-frame-file-as-log",
+        lambda d: fit_radar(astyx(d) / "radar_6455" / "000000.txt"),
+        "record radar --astyx",
+    ),
+    C(RADAR, "nul-in-column-name", lambda d: fit_radar(radar_csv(d, header=RADAR_HEADER + ",rc\x00s")), "header"),
+    C(RADAR, "tab-in-column-name", lambda d: fit_radar(radar_csv(d, header=RADAR_HEADER + ",r\tcs")), "header"),
+    C(
+        KDE,
+        "params-extra-candidates-nested",
+        lambda d: validate_radar(kde_model(d, header=_header(params__extra_candidates=[[[[1.0]]]]))),
+        "'params.extra_candidates'",
+    ),
+    C(
+        KDE,
+        "params-extra-state-nested",
+        lambda d: validate_radar(kde_model(d, header=_header(params__extra_state=[["rcs"]]))),
+        "'params.extra_state'",
+    ),
+    C(
+        KDE,
+        "header-relevance-scores-text",
+        lambda d: validate_radar(kde_model(d, header=_header(relevance_scores="high"))),
+        "'relevance_scores'",
+    ),
+    C(
+        KDE,
+        "header-new-track-flags-number",
+        lambda d: validate_radar(kde_model(d, header=_header(new_track_flags=1))),
+        "'new_track_flags'",
+    ),
+    C(
+        KDE,
+        "header-unknown-field",
+        lambda d: validate_radar(kde_model(d, header=_header(bandwidth_fitted=[1.0]))),
+        "'bandwidth_fitted'",
+    ),
+    C(
+        KDE,
+        "header-cycle-time-negative",
+        lambda d: validate_radar(kde_model(d, header=_header(cycle_time=-1.0))),
+        "'cycle_time'",
+    ),
+    C(
+        GAUSS,
+        "params-min-count-1e19",
+        lambda d: validate_radar(kde_model(d), baseline=gauss_model(d, header=_header(params__min_count=10**19))),
+        "'params.min_count'",
+    ),
+    C(
+        GAUSS,
+        "header-state-variables-nested",
+        lambda d: validate_radar(kde_model(d), baseline=gauss_model(d, header=_header(state_variables=[["x"]]))),
+        "'state_variables'",
+    ),
+    C(LMODEL, "header-spur-mu-negative", lambda d: validate_lidar(lidar_model(d, _header(spur_mu=-3.0))), "'spur_mu'"),
+    C(
+        LMODEL,
+        "header-param-names-duplicate",
+        lambda d: validate_lidar(lidar_model(d, _header(param_names=["p_null", "p_null"]))),
+        "'param_names'",
+    ),
+    C(LMODEL, "header-p-out-text", lambda d: validate_lidar(lidar_model(d, _header(p_out="0.1"))), "'p_out'"),
+    C(
+        MAP,
+        "occupied-thresh-0",
+        lambda d: record_lidar_map(ros_yaml(d, occupied_thresh="0")),
+        "'occupied_thresh'",
+    ),
+    C(
+        MAP,
+        "occupied-below-free-thresh",
+        lambda d: record_lidar_map(ros_yaml(d, occupied_thresh="0.3", free_thresh="0.5")),
+        "'occupied_thresh'",
+    ),
+    C(MAP, "free-thresh-1", lambda d: record_lidar_map(ros_yaml(d, free_thresh="1")), "'free_thresh'"),
+    C(
+        ASTYX,
+        "point-magnitude-1e300",
+        lambda d: record_astyx(
+            astyx(d, pc="\nX Y Z V_r Mag\n10.0 1.0 0.0 0.0 -1e300\n"), d / "astyx/radar_6455/000000.txt"
+        ),
+        "'Mag'",
+    ),
+    C(
+        ASTYX,
+        "point-x-beyond-1km",
+        lambda d: record_astyx(
+            astyx(d, pc="\nX Y Z V_r Mag\n1e5 1.0 0.0 0.0 40.0\n"), d / "astyx/radar_6455/000000.txt"
+        ),
+        "'X'",
+    ),
+    C(
+        ASTYX,
+        "box-width-negative",
+        lambda d: record_astyx(astyx_obj(d, dimension3d=[4.5, -1.8, 1.5]), d / "astyx/groundtruth_obj3d/000000.json"),
+        "'dimension3d'",
     ),
 ]
 

@@ -14,6 +14,7 @@ import tempfile
 import warnings
 from pathlib import Path
 
+import fuzz_api as fa
 import fuzz_cases as fc
 import numpy as np
 import pytest
@@ -221,3 +222,54 @@ def test_lidar_model_samples_and_scores_or_refuses(lidar_model, poses, seed) -> 
     assert r.shape == (poses.shape[0], lidar_model.bearings_.size) and np.isfinite(r).all() and (r >= 0).all()
     lp = lidar_model.log_prob(r, poses, segs)
     assert not np.isnan(lp).any()
+
+
+# ------------------------------------------------------------------------------ Python API, every class
+@pytest.mark.parametrize("cls", list(fa.API_CLASSES))
+@FAST
+@given(data=st.data())
+def test_every_api_class_refuses_a_bad_argument_cleanly_or_gives_sane_results(cls, data) -> None:
+    """Generated calls of every env id and model class (``tests/fuzz_api.py``): InputError, or a sane result."""
+    warnings.simplefilter("ignore")
+    with tempfile.TemporaryDirectory() as tmp:
+        case = fa.make_api_case(cls, Drawn(data), Path(tmp))
+        outcome = fc.classify(case, Path(tmp))
+    assert outcome in ("clean error", "accepted"), f"{cls}: {case.mutation!r} -> {outcome}"
+
+
+def test_the_api_fuzz_covers_every_registered_env_id() -> None:
+    import gymnasium as gym
+
+    import sensor_envs  # noqa: F401
+
+    assert set(fa.ENV_IDS) == {k for k in gym.registry if k.startswith("sensor_envs/")}
+
+
+def test_every_env_argument_has_a_declared_check() -> None:
+    """A new constructor argument must join a declared table (or be named here with the check it gets)."""
+    from sensor_envs.envs.highway.sensor import SENSOR_CONSTRAINTS
+    from sensor_envs.envs.highway.wrapper import MAKE_HIGHWAY_CONSTRAINTS, WRAPPER_CONSTRAINTS
+    from sensor_envs.envs.neato import NEATO_CONSTRAINTS
+
+    highway = set(WRAPPER_CONSTRAINTS) | set(SENSOR_CONSTRAINTS) | set(MAKE_HIGHWAY_CONSTRAINTS)
+    own = {"config", "tracker"}  # check_highway_config (every highway-env key); tracker_config (TrackerConfig)
+    assert set(fa._signature("sensor_envs/Highway-v0")) <= highway | own
+    neato_own = {"map", "lidar", "model", "lidar_kwargs", "null_value", "render_mode"}  # name/file checks
+    assert set(fa._signature("sensor_envs/Neato-v0")) <= set(NEATO_CONSTRAINTS) | neato_own
+
+
+@pytest.mark.parametrize("base_id", ["highway-v0", "highway-fast-v0", "merge-v0", "intersection-v0"])
+def test_every_highway_config_key_has_a_declared_form(base_id) -> None:
+    """Each key of highway-env's default config is accepted at its default and refuses NaN/strings/None."""
+    import gymnasium as gym
+    import highway_env  # noqa: F401
+
+    from sensor_envs.envs.checks import check_highway_config
+
+    defaults = gym.envs.registration.load_env_creator(gym.spec(base_id).entry_point).default_config()
+    check_highway_config(dict(defaults), defaults)
+    for key, value in defaults.items():
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            for bad in (float("nan"), "1", None, 1e300):
+                with pytest.raises(InputError, match=f"config.{key}"):
+                    check_highway_config({key: bad}, defaults)

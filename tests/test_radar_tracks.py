@@ -179,7 +179,7 @@ def _rewrite(path, out, edit):
         (lambda h, d: d.__setitem__("new_track", np.ones_like(d["new_track"])), "flags a tuple that has a previous"),
         (lambda h, d: d.__setitem__("new_track", d["new_track"][:-1]), "field 'new_track' must be"),
         (lambda h, d: d.pop("new_track"), "field 'new_track' is missing"),
-        (lambda h, d: h.__setitem__("new_track_flags", "yes"), "'new_track_flags' must be true or false"),
+        (lambda h, d: h.__setitem__("new_track_flags", "yes"), "'new_track_flags' is invalid: expected True or False"),
         (lambda h, d: h.__setitem__("new_track_flags", False), "present but 'new_track_flags' is not true"),
     ],
 )

@@ -227,7 +227,7 @@ def _radar_extras(adapter: Any, result: Any, base_model: Any) -> Any:
 
 
 def _diagnose_lidar(args: argparse.Namespace) -> int:
-    from sensor_envs.cli.lidar import range_options
+    from sensor_envs.cli.lidar import check_range_fits, range_options
     from sensor_envs.diagnose.core import block_split, run_diagnose
     from sensor_envs.diagnose.lidar import LidarAdapter, lidar_blocks
     from sensor_envs.diagnose.report import write_report
@@ -250,7 +250,10 @@ def _diagnose_lidar(args: argparse.Namespace) -> int:
         base_model = LidarLWLR.load(args.model)
         base_state = tuple(base_model.extra_state_)
         params = {k: v for k, v in base_model.get_params().items() if k != "extra_state"}
-    log, prep = prepare_log(load_log(args.log), map=args.map, max_range=params["max_range"], align=args.align)
+    raw = load_log(args.log)
+    if args.model is not None or args.max_range is None:  # a range that is not the user's must fit the log
+        check_range_fits(raw, params["max_range"], "the model's" if args.model is not None else "the default")
+    log, prep = prepare_log(raw, map=args.map, max_range=params["max_range"], align=args.align)
     blocks = lidar_blocks(log.n_poses, args.block_frames)
     held = block_split(blocks)
     adapter = LidarAdapter(log, held, blocks, params=params, base_model=base_model, max_readings=args.max_readings)

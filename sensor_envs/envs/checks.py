@@ -12,9 +12,47 @@ import numpy as np
 from gymnasium import spaces
 
 from sensor_envs.inputs import InputError, check_array
-from sensor_envs.modelio import Constraint, Interval, validate_params
+from sensor_envs.modelio import Constraint, InstanceOf, Interval, Numbers, Options, validate_params
 
-__all__ = ["check_action", "check_highway_config", "HIGHWAY_CONFIG_CONSTRAINTS"]
+__all__ = [
+    "check_action",
+    "check_highway_config",
+    "check_seed",
+    "check_options",
+    "default_constraint",
+    "HIGHWAY_CONFIG_CONSTRAINTS",
+    "ACTION_CONSTRAINTS",
+    "VEHICLE_TYPES",
+]
+
+
+def check_seed(seed: Any) -> int | None:
+    """``seed`` as ``reset`` takes it: ``None`` or a non-negative integer below 2**64 (numpy integers become ``int``).
+
+    Raises:
+        InputError: ``"seed: ..."`` for a bool, a float, a string, a negative or a too large integer.
+    """
+    if seed is None:
+        return None
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**64:
+        raise InputError(f"seed: expected None or an integer in [0, 2**64), got {seed!r:.60}")
+    return int(seed)
+
+
+def check_options(options: Any, keys: tuple[str, ...]) -> dict[str, Any]:
+    """``reset``'s ``options`` as a dict (``None``: empty) whose keys are among ``keys``.
+
+    Raises:
+        InputError: ``"options: ..."`` for anything but a dict or ``None``, or an unknown key.
+    """
+    if options is None:
+        return {}
+    if not isinstance(options, dict):
+        raise InputError(f"options: expected a dict or None, got {type(options).__name__}")
+    unknown = sorted(str(k) for k in set(options) - set(keys))
+    if unknown:
+        raise InputError(f"options: unknown keys {unknown}; expected {' and/or '.join(map(repr, keys))}")
+    return dict(options)
 
 
 def check_action(space: spaces.Space[Any], action: Any, name: str = "action") -> Any:
@@ -51,32 +89,119 @@ def check_action(space: spaces.Space[Any], action: Any, name: str = "action") ->
     return action
 
 
+VEHICLE_TYPES = (
+    "highway_env.vehicle.behavior.IDMVehicle",
+    "highway_env.vehicle.behavior.LinearVehicle",
+    "highway_env.vehicle.behavior.AggressiveVehicle",
+    "highway_env.vehicle.behavior.DefensiveVehicle",
+)
+"""Accepted ``other_vehicles_type`` values (highway-env imports the named class: any other string fails deep inside)."""
+
+_FREQUENCY = Interval(0.01, 1000)
 HIGHWAY_CONFIG_CONSTRAINTS: dict[str, list[Constraint]] = {
-    "policy_frequency": [Interval(0.01, 1000)],
-    "simulation_frequency": [Interval(0.01, 1000)],
+    "policy_frequency": [_FREQUENCY],
+    "simulation_frequency": [_FREQUENCY],
     "duration": [Interval(0.01, 1e5)],
     "vehicles_count": [Interval(0, 1000, integer=True)],
+    "initial_vehicle_count": [Interval(0, 1000, integer=True)],
     "lanes_count": [Interval(1, 100, integer=True)],
     "controlled_vehicles": [Interval(1, 100, integer=True)],
     "vehicles_density": [Interval(0.01, 100)],
     "initial_spacing": [Interval(0.01, 1000)],
     "ego_spacing": [Interval(0.01, 1000)],
+    "initial_lane_id": [None, Interval(0, 99, integer=True)],
+    "spawn_probability": [Interval(0, 1)],
+    "destination": [None, Options("o0", "o1", "o2", "o3")],
+    "other_vehicles_type": [Options(*VEHICLE_TYPES)],
+    "reward_speed_range": [Numbers(Interval(-1000, 1000), length=2, increasing=True)],
+    "centering_position": [Numbers(Interval(0, 1), length=2)],
+    "screen_width": [Interval(1, 10_000, integer=True)],
+    "screen_height": [Interval(1, 10_000, integer=True)],
+    "scaling": [Interval(0.01, 1000)],
+    "offscreen_rendering": [None, InstanceOf(bool)],
 }
-"""Declared ranges of the numeric highway-env configuration keys (``policy_frequency: 0`` divides by zero)."""
+"""Declared ranges of highway-env configuration keys (``policy_frequency: 0`` divides by zero). Keys not named
+here are checked by the type of their default (:func:`default_constraint`); ``observation`` and ``action``
+by their own schema."""
+
+ACTION_CONSTRAINTS: dict[str, list[Constraint]] = {
+    "type": [Options("DiscreteMetaAction")],
+    "longitudinal": [InstanceOf(bool)],
+    "lateral": [InstanceOf(bool)],
+    "target_speeds": [Numbers(Interval(-100, 100), increasing=True)],
+}
+"""Declared ``config["action"]`` (the wrapper's agents take highway-env's meta-actions)."""
+
+MAX_REWARD = 1e6
+"""Largest ``|value|`` of an undeclared numeric configuration key (rewards, weights)."""
 
 
-def check_highway_config(config: Any) -> None:
-    """Check a highway-env ``config`` override: a mapping whose declared numeric keys are in range.
+def default_constraint(default: Any) -> list[Constraint]:
+    """The constraint of an undeclared configuration key, from the type of its default value.
+
+    A flag takes a flag; a number a finite real number within ``+-MAX_REWARD``; a list of numbers as
+    many finite numbers; anything else (a string, ``None``, a mapping) only its default.
+    """
+    if isinstance(default, bool):
+        return [InstanceOf(bool)]
+    if isinstance(default, (int, float)):
+        return [Interval(-MAX_REWARD, MAX_REWARD)]
+    if isinstance(default, list) and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in default):
+        return [Numbers(Interval(-MAX_REWARD, MAX_REWARD), length=len(default))]
+    return [Options(default)] if default is not None else [None]
+
+
+def check_highway_config(config: Any, defaults: dict[str, Any] | None = None) -> None:
+    """Check a highway-env ``config`` override against the declared schema, before the env is built.
+
+    Args:
+        config: the override (``None`` = none).
+        defaults: the env's ``default_config()``; given, every key must be one of its keys and is checked
+            (declared range, or by the type of its default); ``None`` checks the declared keys only.
 
     Raises:
-        InputError: ``"config.<key>: expected ..., got ..."``.
+        InputError: ``"config.<key>: ..."`` naming the key (and ``config.action.<key>`` /
+            ``config.observation.<key>`` inside those).
     """
     if config is None:
         return
     if not isinstance(config, dict):
         raise InputError(f"config: expected a dict of highway-env settings or None, got {type(config).__name__}")
-    known = {k: v for k, v in config.items() if k in HIGHWAY_CONFIG_CONSTRAINTS}
+    for key, value in config.items():
+        if not isinstance(key, str):
+            raise InputError(f"config: keys must be strings, got {key!r:.40}")
+        if defaults is not None and key not in defaults:
+            raise InputError(f"config.{key}: unknown highway-env key (known: {sorted(defaults)})")
+        if key == "action":
+            _check_mapping(value, ACTION_CONSTRAINTS, "config.action", required=("type",))
+            continue
+        if key == "observation":
+            from sensor_envs.envs.highway.observation import KinematicsLayout
+
+            if not isinstance(value, dict):
+                raise InputError(f"config.observation: expected a dict, got {type(value).__name__}")
+            KinematicsLayout.from_config(value)  # InputError naming observation.<key>
+            continue
+        if key in HIGHWAY_CONFIG_CONSTRAINTS:
+            table = {key: HIGHWAY_CONFIG_CONSTRAINTS[key]}
+        elif defaults is not None:
+            table = {key: default_constraint(defaults[key])}
+        else:
+            continue
+        try:
+            validate_params({key: value}, table)
+        except InputError as exc:
+            raise InputError(f"config.{exc}") from None
+
+
+def _check_mapping(value: Any, table: dict[str, list[Constraint]], name: str, required: tuple[str, ...] = ()) -> None:
+    """``value`` a dict whose keys are in ``table`` (each checked) and which holds ``required``."""
+    if not isinstance(value, dict):
+        raise InputError(f"{name}: expected a dict, got {type(value).__name__}")
+    missing = [k for k in required if k not in value]
+    if missing:
+        raise InputError(f"{name}.{missing[0]}: missing")
     try:
-        validate_params(known, HIGHWAY_CONFIG_CONSTRAINTS)
+        validate_params(value, table, what="key")
     except InputError as exc:
-        raise InputError(f"config.{exc}") from None
+        raise InputError(f"{name}.{exc}") from None

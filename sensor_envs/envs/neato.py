@@ -36,6 +36,7 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import ArrayLike, NDArray
 
+from sensor_envs.envs.checks import check_options, check_seed
 from sensor_envs.envs.neato_render import render_world
 from sensor_envs.geometry import nearest_wall_distance, raycast_pose, sample_free_poses, to_frame, wrap_angle
 from sensor_envs.inputs import InputError, check_array
@@ -188,9 +189,13 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         collision_penalty: float = 10.0,
         render_mode: str | None = None,
     ) -> None:
-        if null_value not in NULL_VALUES:
+        if lidar_kwargs is not None and not isinstance(lidar_kwargs, dict):
+            raise InputError(f"lidar_kwargs: expected a dict or None, got {type(lidar_kwargs).__name__}")
+        if not isinstance(null_value, str) or null_value not in NULL_VALUES:
             raise InputError(f"null_value: expected one of {NULL_VALUES}, got {null_value!r}")
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+        if render_mode is not None and (
+            not isinstance(render_mode, str) or render_mode not in self.metadata["render_modes"]
+        ):
             raise InputError(
                 f"render_mode: expected one of {self.metadata['render_modes']} or None, got {render_mode!r}"
             )
@@ -256,13 +261,11 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
 
         The vector entry point starts its robots' episodes with this and observes them all in one batch.
         """
+        seed = check_seed(seed)
+        options = check_options(options, ("start", "goal"))
         super().reset(seed=seed)
         self._sensor_rng = sensor_rng(seed, _LIDAR_TAG, self._sensor_rng)
         self._motion, self._prev_res = np.zeros(3), np.zeros(self.bearings.size)
-        options = dict(options or {})
-        unknown = set(options) - {"start", "goal"}
-        if unknown:
-            raise InputError(f"options: unknown keys {sorted(unknown)}; expected 'start' and/or 'goal'")
         self.pose = self._pose_option(options, "start") if "start" in options else self._sample_free_pose()
         if "goal" in options:
             self.goal = self._pose_option(options, "goal")
@@ -338,9 +341,7 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         return bool(collides(pose, self.world_map.segments, self.robot_radius)[0])
 
     def _pose_option(self, options: dict[str, Any], key: str) -> NDArray[np.float64]:
-        p = np.asarray(options[key], dtype=np.float64)
-        if p.shape != (3,) or not np.isfinite(p).all():
-            raise InputError(f"options[{key!r}]: expected a finite pose (x, y, theta), got {options[key]!r}")
+        p = check_array(options[key], f"options[{key!r}]", (3,), low=-1e6, high=1e6)  # a finite pose (x, y, theta)
         if not self._enclosed(p):
             raise InputError(f"options[{key!r}]: {options[key]!r} lies outside map {self.world_map.name!r}")
         if key == "start" and self._collides(p):

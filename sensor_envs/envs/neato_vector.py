@@ -26,6 +26,7 @@ from gymnasium.vector.utils import batch_space
 from numpy.typing import NDArray
 
 from sensor_envs import heap
+from sensor_envs.envs.checks import check_options, check_seed
 from sensor_envs.envs.neato import NeatoEnv, collides, observe_batch, step_reward, unicycle_step
 from sensor_envs.envs.neato_render import render_world
 from sensor_envs.inputs import InputError, check_array, check_count
@@ -111,8 +112,12 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[NDArray[np.float32], dict[str, Any]]:
         """Reset the robots (all, or those of ``options["reset_mask"]``); seeds as in ``SyncVectorEnv``."""
-        super().reset(seed=int(seed) if isinstance(seed, (int, np.integer)) else None)
-        options = dict(options or {})
+        if isinstance(seed, (list, tuple)):
+            seed = [check_seed(v) for v in seed]
+        else:
+            seed = check_seed(seed)
+        super().reset(seed=seed if isinstance(seed, int) else None)
+        options = check_options(options, ("reset_mask", "start", "goal"))
         mask = np.asarray(options.pop("reset_mask", np.ones(self.num_envs, dtype=bool)))
         if mask.shape != (self.num_envs,) or mask.dtype != np.bool_:
             raise InputError(f"options['reset_mask']: expected a bool array of shape ({self.num_envs},)")

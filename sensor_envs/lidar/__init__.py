@@ -7,7 +7,8 @@ strategy, scan logs; block folds), ``readings`` (the former name of ``fit_readin
 compiled scan draw), ``reading_law`` (its per-reading mixture law, null counts), ``lwlr_io`` (its file format and
 upgrades), ``kernel`` (its locally weighted regression and shrinkage choice), ``bias_transfer`` (its bias pooled
 over bearings plus a weighted per-bearing part), ``extra_state`` (extra state terms: previous reading, time),
-``log`` (lidar logs: npz, CARMEN, ROS bags), ``mapping`` (maps from scans, occupancy grids), ``pose_correction``
+``model_call`` (the checked arguments of its ``fit``, ``sample`` and ``log_prob``), ``log`` (lidar logs: npz,
+CARMEN, ROS bags), ``mapping`` (maps from scans, occupancy grids), ``pose_correction``
 (scan-to-map pose correction), ``rig`` (the reference rig that records synthetic logs), ``calibrate`` (the rig
 fitted to a real log: the search), ``calibrate_stats`` (the statistics it matches), ``calibrate_laws`` (the laws it
 fits in closed form), ``validate`` (per-bearing reports, the Gaussian baseline), ``validate_readings`` (per-reading

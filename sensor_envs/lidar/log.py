@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, quaternion_yaw
-from sensor_envs.inputs import InputError, check_regular_file, load_npz, open_gzip_lines
+from sensor_envs.inputs import InputError, bad_name, check_regular_file, load_npz, open_gzip_lines
 from sensor_envs.outputs import atomic_write, check_suffix
 
 __all__ = [
@@ -45,7 +45,6 @@ __all__ = [
     "read_carmen",
     "read_rosbag",
     "log_from_arrays",
-    "check_model_call",
     "motion_covariates",
     "resample_bearings",
 ]
@@ -188,38 +187,6 @@ def _check_bearings(source: str, b: NDArray[np.float64]) -> None:
         raise _err(source, "bearings", "holds repeated bearings (every beam needs its own direction)")
 
 
-_UNSET: Any = object()
-
-
-def check_model_call(
-    poses: Any, map_segments: Any = None, rng: Any = _UNSET, ranges: Any = None, log: Any = _UNSET
-) -> None:
-    """The checked arguments of a lidar model's ``fit``/``sample``/``log_prob`` (a validation line at their top).
-
-    ``poses`` ``(3,)`` or ``(S, 3)`` finite within :data:`MAX_COORD`; ``map_segments`` valid segments;
-    ``rng`` a Generator; ``ranges`` readings ``>= 0`` (NaN = missing) up to :data:`MAX_RANGE` with ``S``
-    leading; ``log`` (for ``fit``) a :class:`LidarLog`.
-
-    Raises:
-        InputError: naming the argument.
-    """
-    from sensor_envs.inputs import check_array, check_rng
-
-    if log is not _UNSET and not isinstance(log, LidarLog):
-        raise InputError(f"log: expected a LidarLog (sensor_envs.lidar.log.load_log), got {type(log).__name__}")
-    if rng is not _UNSET:
-        check_rng(rng)
-    if poses is not None:
-        ps = check_array(np.atleast_2d(poses), "poses", (None, 3), low=-MAX_COORD, high=MAX_COORD)
-        if ranges is not None:
-            r = np.asarray(ranges)
-            check_array(
-                r, "ranges", (ps.shape[0], None) + ((None,) if r.ndim == 3 else ()), low=0, high=MAX_RANGE, nan=True
-            )
-    if map_segments is not None:
-        as_segments(map_segments, name="map_segments")
-
-
 def _check_times(source: str, t: NDArray[np.float64]) -> None:
     """Times run forward: a log whose ``t`` decreases is refused.
 
@@ -268,9 +235,9 @@ def log_from_arrays(
     tt = None if t is None else _check_per_pose(source, "t", t, p, None)
     if tt is not None:
         _check_times(source, tt)
-    empty = [k2 for k2 in (covariates or {}) if not str(k2).strip()]
+    empty = [k2 for k2 in (covariates or {}) if bad_name(k2)]
     if empty:
-        raise _err(source, "cov_", "is a covariate without a name")
+        raise _err(source, f"cov_{empty[0]}", f"is no covariate name: it {bad_name(empty[0])}")
     cov = {k2: _check_per_pose(source, f"cov_{k2}", v, p, None) for k2, v in (covariates or {}).items()}
     return LidarLog(r, b, ps, segs, tt, cov, source)
 

@@ -83,14 +83,16 @@ from sensor_envs.lidar.kernel import (
     choose_shrinkage,
     lwlr,
 )
-from sensor_envs.lidar.log import LidarLog, check_model_call
-from sensor_envs.lidar.lwlr_io import MAX_SIGMA, UPGRADES, from_file, to_file
+from sensor_envs.lidar.log import LidarLog
+from sensor_envs.lidar.lwlr_io import HEADER_SCHEMA, MAX_SIGMA, UPGRADES, from_file, to_file
+from sensor_envs.lidar.model_call import check_model_call, check_query
 from sensor_envs.lidar.reading_law import cell_probability, mixture_log_prob, null_count_log_prob
 from sensor_envs.modelio import (
     RANDOM_STATE,
     Constraint,
     InstanceOf,
     Interval,
+    Names,
     Numbers,
     Options,
     default_model_path,
@@ -213,6 +215,7 @@ class LidarLWLR(SensorModel):
     }
     _PARAM_DEFAULTS: ClassVar[dict[str, Any]] = {"extra_state": ()}
     _UPGRADES = UPGRADES
+    _HEADER_SCHEMA: ClassVar[dict[str, list[Constraint]] | None] = HEADER_SCHEMA
     FIT_STRATEGIES: ClassVar[dict[str, Callable[..., Any]]] = {"cells": fit_cells, "readings": fit_per_reading}
     """The model's two fits, ``strategy(model, log, **options)``: per-cell statistics (logs with repeats) or
     individual readings (scan logs); :meth:`fit` picks one."""
@@ -229,7 +232,7 @@ class LidarLWLR(SensorModel):
         "table_alpha_steps": [Interval(2, None, integer=True)],
         "random_state": RANDOM_STATE,
         "verbose": [InstanceOf(bool)],
-        "extra_state": [InstanceOf(tuple, list)],  # details: check_extra_state
+        "extra_state": [Names()],  # each a term of the extra-state grammar: check_extra_state
         "bias_shrinkage": [Options("cv"), Interval(0, 1)],
         "pose_correction": [InstanceOf(bool)],
         "bias_model": [Options(*BIAS_MODELS)],
@@ -310,7 +313,7 @@ class LidarLWLR(SensorModel):
         Raises:
             ValueError: for bad hyperparameters or a log without map.
         """
-        check_model_call(None, log=log)  # a LidarLog (fit(None) is an InputError, not an AttributeError)
+        check_model_call(None, log=log, per_reading=per_reading)  # fit(None): an InputError, not AttributeError
         strategy = "readings" if per_reading or (per_reading is None and log.ranges.shape[2] < 2) else "cells"
         if strategy == "cells" and reading_options:
             raise TypeError(f"fit: options {sorted(reading_options)} apply to the per-reading fit only")
@@ -507,7 +510,7 @@ class LidarLWLR(SensorModel):
         Files of format < 6 have no ``pose_sd_`` (read as 0): their ``sample`` is the worlds' draw at the given poses.
         """
         self._check_fitted()
-        check_model_call(poses, map_segments, rng)
+        check_query(self, poses, map_segments, rng, extra=extra, n_repeats=n_repeats)
         p0 = np.atleast_2d(np.asarray(poses, dtype=np.float64))
         sd = getattr(self, "pose_sd_", None)
         sd = np.zeros(3) if sd is None else np.asarray(sd, dtype=np.float64)
@@ -536,7 +539,7 @@ class LidarLWLR(SensorModel):
             Same shape as ``ranges``; ``NaN`` where missing.
         """
         self._check_fitted()
-        check_model_call(poses, map_segments, ranges=ranges)
+        check_query(self, poses, map_segments, ranges=ranges, extra=extra)
         x = np.asarray(ranges, dtype=np.float64)
         p = self.params_full(poses, map_segments, extra)
         if x.ndim == 3:
@@ -563,7 +566,7 @@ class LidarLWLR(SensorModel):
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> LidarLWLR:
         """Read a model file of any supported format (:meth:`SensorModel.load`); ``card_`` without ``training``."""
-        header, arrays = cls.read_current(Path(path))
+        header, arrays = cls.read_current(path)  # checks that path is a path
         return cls._from_file(Path(path), header, arrays)
 
 
@@ -608,7 +611,7 @@ def load_learned_lidar(model: str | os.PathLike[str] | LidarLWLR | None = None, 
         ModelFileError: when the file is missing or malformed.
     """
     if kwargs:
-        raise ValueError(f"lidar: the learned lidar takes only 'model', got {sorted(kwargs)}")
+        raise InputError(f"lidar_kwargs: the learned lidar takes only 'model', got {sorted(kwargs)}")
     if isinstance(model, LidarLWLR):
         return LearnedLidar(model)
     return LearnedLidar(LidarLWLR.load(default_model_path(DEFAULT_MODEL_FILE) if model is None else model))

@@ -15,7 +15,12 @@ from numpy.typing import NDArray
 
 from sensor_envs.lidar.extra_state import MAX_COEF, check_extra_state
 from sensor_envs.modelio import (
+    Constraint,
+    InstanceOf,
+    Interval,
     ModelFileError,
+    Names,
+    Numbers,
     check_finite,
     check_increasing,
     check_model_arrays,
@@ -29,7 +34,7 @@ from sensor_envs.sensor_model import Arrays, Header, Upgrade, set_param_defaults
 if TYPE_CHECKING:
     from sensor_envs.lidar.lwlr import LidarLWLR
 
-__all__ = ["to_file", "from_file", "UPGRADES", "PARAMS", "TABLES", "MAX_SIGMA"]
+__all__ = ["to_file", "from_file", "UPGRADES", "PARAMS", "TABLES", "MAX_SIGMA", "HEADER_SCHEMA"]
 
 PARAMS = {"seed": ("p_null", "bias", "sigma"), "extended": ("p_null", "p_spur", "bias", "log_sigma")}
 """The regressed parameters of each variant."""
@@ -37,6 +42,20 @@ TABLES = {"seed": PARAMS["seed"], "extended": PARAMS["extended"] + ("tau2",)}
 """The tables a model file of each variant holds, in order."""
 MAX_SIGMA = 1e3
 """Largest standard deviation [m] (and bias magnitude) a model file may give: beyond it the file is corrupt."""
+_RHO: list[Constraint] = [Interval(0.0, 0.999)]
+HEADER_SCHEMA: dict[str, list[Constraint]] = {
+    "h": [InstanceOf(dict)],  # parameter name -> 4 kernel widths, checked against param_names by _check_values
+    "param_names": [Names(max_length=8)],
+    "spur_mu": [Interval(0.0, MAX_SIGMA)],  # mean range of spurious returns [m]
+    "spur_sigma": [Interval(0.0, MAX_SIGMA, open_low=True)],
+    "p_out": [Interval(0.0, 1.0)],
+    "null_rho": _RHO,
+    "spur_rho": _RHO,
+    "bias_shrinkage": [Interval(0.0, 1.0)],
+    "pose_sd": [None, Numbers(Interval(0.0, np.pi), length=3)],
+}
+"""Declared fitted fields of a lidar model file's header, any format (their consistency with the tables: the
+loader); checked by :meth:`~sensor_envs.sensor_model.SensorModel.read_current` before the upgrades."""
 
 
 def to_file(m: LidarLWLR) -> tuple[Header, Arrays]:

@@ -152,18 +152,34 @@ def compose(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
 
 
 def laser_offset_from_bag(path: str | os.PathLike[str], child: str = "laser") -> NDArray[np.float64]:
-    """The base -> laser transform ``(x, y, yaw)`` [m, rad] from a bag's ``/tf`` (zeros when absent)."""
+    """The base -> laser transform ``(x, y, yaw)`` [m, rad] from a bag's ``/tf`` (zeros when absent).
+
+    Raises:
+        LidarLogError: naming the bag and the topic: a ``/tf`` of another message type, a damaged message,
+            a translation that is not finite within 100 m or a rotation that is not a unit quaternion.
+    """
     from rosbags.highlevel import AnyReader
+
+    from sensor_envs.lidar.log import LidarLogError, _deserialize
 
     with AnyReader([Path(path)]) as reader:
         conns = [c for c in reader.connections if c.topic in ("/tf", "/tf_static")]
+        for conn in conns:
+            if conn.msgtype != "tf2_msgs/msg/TFMessage":
+                raise LidarLogError(f"{path}: topic {conn.topic!r} is {conn.msgtype}, expected tf2_msgs/msg/TFMessage")
         for conn, _, raw in reader.messages(connections=conns):
-            msg: Any = reader.deserialize(raw, conn.msgtype)  # a ROS message class generated at run time
+            msg: Any = _deserialize(reader, raw, conn, Path(path))  # a ROS message class generated at run time
             for tr in msg.transforms:
                 if child in tr.child_frame_id:
-                    t = tr.transform
-                    q = t.rotation
-                    return np.array([t.translation.x, t.translation.y, quaternion_yaw(q.w, q.x, q.y, q.z)])
+                    t, q = tr.transform.translation, tr.transform.rotation
+                    xyz, quat = np.array([t.x, t.y, t.z]), np.array([q.w, q.x, q.y, q.z])
+                    ok = np.isfinite(xyz).all() and (np.abs(xyz) <= 100).all() and np.isfinite(quat).all()
+                    if not ok or abs(float(np.linalg.norm(quat)) - 1.0) > 0.1:
+                        raise LidarLogError(
+                            f"{path}: topic {conn.topic!r}: the transform to {tr.child_frame_id!r} is not a finite "
+                            "translation within 100 m and a unit quaternion"
+                        )
+                    return np.array([t.x, t.y, quaternion_yaw(q.w, q.x, q.y, q.z)])
     return np.zeros(3)
 
 

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sensor_envs.inputs import InputError
 from sensor_envs.jit import compiled
 from sensor_envs.lidar.kernel import (
     P_EPS,
@@ -87,7 +88,7 @@ def nominal_ranges(m: LidarLWLR, r: ArrayLike) -> NDArray[np.float64]:
     r = np.asarray(r, dtype=np.float64)
     k = m.tables_.shape[1]
     if r.shape[-1] != k:
-        raise ValueError(f"nominal_range: last axis has {r.shape[-1]} bearings, the model has {k}")
+        raise InputError(f"nominal_range: last axis has {r.shape[-1]} bearings, the model has {k}")
     return r
 
 

@@ -231,7 +231,7 @@ def make_lidar(name: str | LidarSensor, model: str | PathLike[str] | None = None
     """
     if not isinstance(name, str):
         if not isinstance(name, LidarSensor):
-            raise TypeError(f"lidar: expected a name in {LIDAR_NAMES} or a LidarSensor, got {type(name).__name__}")
+            raise InputError(f"lidar: expected a name in {LIDAR_NAMES} or a LidarSensor, got {type(name).__name__}")
         return name
     if name not in LIDAR_NAMES:
         raise InputError(f"lidar: unknown lidar {name!r}; choose one of {LIDAR_NAMES}")
@@ -242,6 +242,14 @@ def make_lidar(name: str | LidarSensor, model: str | PathLike[str] | None = None
             raise InputError(f"lidar: the ideal lidar takes no parameters, got {sorted(kwargs)}")
         return IdealLidar()
     if name == "gaussian":
+        import inspect
+
+        known = set(inspect.signature(GaussianLidar).parameters)
+        unknown = sorted(str(k) for k in set(kwargs) - known)
+        if unknown:
+            raise InputError(
+                f"lidar_kwargs: unknown parameters {unknown} of the Gaussian lidar (known: {sorted(known)})"
+            )
         return GaussianLidar(**kwargs)
     from sensor_envs.lidar.lwlr import DEFAULT_MODEL_FILE, load_learned_lidar  # heavy: only when asked for
 

@@ -44,6 +44,7 @@ from scipy.optimize import nnls
 from tqdm.auto import tqdm
 
 from sensor_envs.geometry import to_frame
+from sensor_envs.inputs import InputError
 from sensor_envs.lidar.log import LidarLog
 from sensor_envs.lidar.lwlr import (
     FORMAT_VERSION,
@@ -167,6 +168,11 @@ def validate(
         (scans at moving poses) gets the per-reading report of
         :func:`sensor_envs.lidar.validate_readings.validate_readings` instead of Table I.
     """
+    if log.bearings.size != model.bearings_.size:
+        raise InputError(
+            f"{log.source}: field 'bearings': the log has {log.bearings.size} bearings, the model "
+            f"{model.bearings_.size} (a model scores logs of its own sensor)"
+        )
     if log.ranges.shape[2] == 1:
         from sensor_envs.lidar.validate_readings import validate_readings
 

@@ -50,6 +50,10 @@ from sensor_envs.radar.log import REQUIRED_COLUMNS, RadarLog
 
 __all__ = ["CLASS_CODES", "read_frame", "frame_rows", "load_astyx", "detection_statistics"]
 
+POINT_BOUNDS = {"X": 1000.0, "Y": 1000.0, "Z": 1000.0, "V_r": 1000.0, "Mag": 1e6}
+"""Declared bounds of a point's columns: positions [m] and radial speed [m/s] within the radar's reach, magnitude."""
+MAX_BOX_SIZE = 100.0
+"""Largest length, width or height [m] of a labelled object."""
 MAX_FRAME = 999_999_999
 """Largest frame index (nine digits: ``f * 1000 + box`` ids stay exact)."""
 CLASS_CODES = ("Car", "Truck", "Bus", "Person", "Trailer", "Other Vehicle", "Towed Object", "Cyclist")
@@ -79,6 +83,11 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
         raise InputError(f"{pc_path}: expected 5 columns X Y Z V_r Mag, got {pts.shape[1]}")
     if not np.isfinite(pts).all():
         raise InputError(f"{pc_path}: field 'X Y Z V_r Mag' holds NaN or infinite values")
+    for j, (column, bound) in enumerate(POINT_BOUNDS.items()):
+        far = np.abs(pts[:, j]) > bound if pts.size else np.zeros(0, dtype=bool)
+        if far.any():
+            i = int(np.flatnonzero(far)[0])
+            raise InputError(f"{pc_path}: column {column!r} row {i + 1} is {pts[i, j]:g}, beyond +-{bound:g}")
     gt_path = root / "groundtruth_obj3d" / f"{name}.json"
     try:
         doc = parse_json(read_text(gt_path, "not valid UTF-8 JSON"), f"{gt_path}: not valid UTF-8 JSON")
@@ -115,6 +124,8 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
             raise InputError(f"{gt_path}: object {k} lacks field {exc}") from None
         except (TypeError, ValueError, AttributeError) as exc:
             raise InputError(f"{gt_path}: object {k}: a field is malformed ({exc})") from None
+        if not (0 < box[3] <= MAX_BOX_SIZE and 0 < box[4] <= MAX_BOX_SIZE and 0 < float(d[2]) <= MAX_BOX_SIZE):
+            raise InputError(f"{gt_path}: object {k}: field 'dimension3d' must be 3 sizes in (0, {MAX_BOX_SIZE:g}] m")
         if not (np.isfinite(box[:6]).all() and (np.abs(box[:2] + box[5:6]) <= 1000).all()):
             raise InputError(
                 f"{gt_path}: object {k}: field 'center3d', 'dimension3d' or 'orientation_quat' is not finite "

@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.inputs import InputError
-from sensor_envs.modelio import ModelFileError, load_model_file, save_model_file
+from sensor_envs.modelio import Constraint, InstanceOf, ModelFileError, Names, load_model_file, save_model_file
 
 __all__ = [
     "KIND",
@@ -53,6 +53,7 @@ __all__ = [
     "fit_term",
     "term_basis",
     "load_radar_file",
+    "HEADER_SCHEMA",
 ]
 
 KIND = "radar_corrected"
@@ -67,6 +68,12 @@ MAX_REDRAWS = 30
 _LIMITS = {"mean_x": 100.0, "mean_y": 100.0, "spread": 5.0, "rate": 20.0}
 """Largest absolute coefficient a file may hold per part [m, log-scale, logit]."""
 _RIDGE = 30.0
+HEADER_SCHEMA: dict[str, list[Constraint]] = {
+    "extra_state": [Names()],
+    "free_previous": [InstanceOf(bool)],
+    "terms": [InstanceOf(list)],  # each term's part, column, state and fill: checked by the loader
+}
+"""Declared fitted fields of a corrected radar file's header (:func:`sensor_envs.modelio.check_header`)."""
 
 
 @dataclass
@@ -456,7 +463,7 @@ class CorrectedRadar:
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> CorrectedRadar:
         """Load a file written by :meth:`save`: the base model by its own loader, the terms checked here."""
-        header, a = load_model_file(path, KIND, (FORMAT_VERSION,), {"base_file": ("u", 1, True)})
+        header, a = load_model_file(path, KIND, (FORMAT_VERSION,), {"base_file": ("u", 1, True)}, HEADER_SCHEMA)
         base = _load_base(path, a["base_file"])
         specs = header.get("terms")
         if not isinstance(specs, list) or not specs:

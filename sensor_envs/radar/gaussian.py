@@ -27,10 +27,11 @@ from numpy.typing import NDArray
 
 from sensor_envs.inputs import InputError
 from sensor_envs.modelio import (
+    CYCLE_TIME,
     Constraint,
-    InstanceOf,
     Interval,
     ModelFileError,
+    Names,
     Numbers,
     check_increasing,
     check_positive,
@@ -48,6 +49,8 @@ __all__ = ["GaussianRadar"]
 KIND = "radar_gaussian"
 FORMAT_VERSION = 2
 """1 = range bins only; 2 adds the extra state's linear terms (``extra_*`` arrays, ``state_variables``)."""
+HEADER_SCHEMA: dict[str, list[Constraint]] = {"cycle_time": CYCLE_TIME, "state_variables": [Names()]}
+"""Declared fitted fields of a Gaussian radar file's header."""
 MAX_POSITION = 1e3
 """Largest range edge, mean offset, clutter position or standard deviation [m] a model file may hold."""
 _EXTRA_ZERO = {"extra_mean": (0,), "extra_std": (0,), "extra_coef": (0, 2), "extra_logit": (0,)}
@@ -108,11 +111,12 @@ class GaussianRadar(SensorModel):
     }
     _UPGRADES = {1: _upgrade_1_to_2}
     _PARAM_DEFAULTS: ClassVar[dict[str, Any]] = {"extra_state": ()}
+    _HEADER_SCHEMA: ClassVar[dict[str, list[Constraint]] | None] = HEADER_SCHEMA
     _parameter_constraints: ClassVar[dict[str, list[Constraint]]] = {
         "range_edges": [Numbers(Interval(0, MAX_POSITION), min_length=2, increasing=True)],
         "min_count": [Interval(1, None, integer=True)],
         "cov_floor": [Interval(0, MAX_POSITION**2)],
-        "extra_state": [InstanceOf(tuple, list)],
+        "extra_state": [Names()],
     }
     """One declarative check of every hyperparameter, used by :meth:`fit` and :meth:`load`."""
 
@@ -235,7 +239,8 @@ class GaussianRadar(SensorModel):
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """``RadarSensor.sample_cycle``; ``prev_z`` and ``new_track`` are ignored; ``source`` is always -1."""
         self._check_fitted()
-        check_states(corners if prev_z is None else np.column_stack([np.atleast_2d(corners), prev_z]), rng=rng)
+        state = corners if prev_z is None else np.column_stack([np.atleast_2d(corners), prev_z])
+        check_states(state, rng=rng, extra=extra, new_track=new_track, extra_names=self.extra_state_)
         corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
         n = corners.shape[0]
         b, mu, pd = self._mean_pd(corners, extra)
@@ -249,7 +254,7 @@ class GaussianRadar(SensorModel):
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """Sample for ``(n, 2)`` or ``(n, 4)`` states (only the corner is used) and the extra state."""
         self._check_fitted()
-        check_states(state, rng=rng)
+        check_states(state, rng=rng, extra=extra, new_track=new_track, extra_names=self.extra_state_)
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         return self.sample_cycle(st[:, :2], None, rng, extra=extra)
 
@@ -267,7 +272,7 @@ class GaussianRadar(SensorModel):
         ``new_track`` is accepted for the common radar API and ignored (no start state).
         """
         self._check_fitted()
-        check_states(state, z)
+        check_states(state, z, extra=extra, new_track=new_track, extra_names=self.extra_state_)
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         z = np.atleast_2d(np.asarray(z, dtype=np.float64))
         b, mu, pd = self._mean_pd(st[:, :2], extra)

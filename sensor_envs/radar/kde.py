@@ -122,6 +122,7 @@ from sensor_envs.radar.kde_params import (
     GROUP_MAIN,
     GROUP_NEW,
     GROUP_START,
+    HEADER_SCHEMA,
     KDE_PARAMETERS,
     LOG_PROB_CHUNK,
     MAX_CLUTTER_POSITIONS,
@@ -309,6 +310,7 @@ class KDERadarModel(SensorModel):
         "bandwidth_scale": 1.0,
     }
     _parameter_constraints: ClassVar[dict[str, list[Constraint]]] = KDE_PARAMETERS
+    _HEADER_SCHEMA: ClassVar[dict[str, list[Constraint]] | None] = HEADER_SCHEMA
     _UPGRADES = UPGRADES
 
     def __init__(
@@ -416,7 +418,7 @@ class KDERadarModel(SensorModel):
             ``z (n, 2)`` [m] (``NaN`` rows = missed) and ``source (n,)`` the picked tuple's index.
         """
         self._check_fitted()
-        check_states(state, rng=rng)
+        check_states(state, rng=rng, extra=extra, new_track=new_track, extra_names=self.extra_state_)
         st = np.atleast_2d(np.asarray(state, dtype=np.float64))
         prev = st[:, 2:4] if (st.shape[1] == 4 and self.use_prev) else None
         return self.sample_cycle(st[:, :2], prev, rng, extra=extra, new_track=new_track)

@@ -28,7 +28,7 @@ def log_prob(
 ) -> NDArray[np.float64]:
     """:meth:`KDERadarModel.log_prob <sensor_envs.radar.kde.KDERadarModel.log_prob>`."""
     m._check_fitted()
-    check_states(state, z)
+    check_states(state, z, extra=extra, new_track=new_track, extra_names=m.extra_state_)
     st = np.atleast_2d(np.asarray(state, dtype=np.float64))
     z = np.atleast_2d(np.asarray(z, dtype=np.float64))
     n = st.shape[0]

@@ -11,10 +11,10 @@ from typing import Any
 import numpy as np
 
 from sensor_envs.inputs import InputError
-from sensor_envs.modelio import RANDOM_STATE, Constraint, InstanceOf, Interval, Numbers, Options
+from sensor_envs.modelio import CYCLE_TIME, RANDOM_STATE, Constraint, InstanceOf, Interval, Names, Numbers, Options
 from sensor_envs.radar.alignment import MAX_AZIMUTH_BIAS
 
-__all__ = ["KDE_PARAMETERS", "check_extra_params", "CV_RELEVANCE", "STATE_TRANSFORMS", "OUTPUT_FRAMES"]
+__all__ = ["KDE_PARAMETERS", "HEADER_SCHEMA", "check_extra_params", "CV_RELEVANCE", "STATE_TRANSFORMS", "OUTPUT_FRAMES"]
 
 STATE_TRANSFORMS = ("cartesian", "polar")
 """Corner features of the relevance kernel: ``(c_x, c_y)`` [m] or ``(range [m], azimuth [rad])``."""
@@ -48,6 +48,19 @@ MAX_TAIL_SCALE = 100.0
 """Largest factor of the tail component's bandwidths over the main kernels'."""
 LOG_2PI = float(np.log(2.0 * np.pi))
 _POSITIVE = Interval(0, None, open_low=True)
+MAX_EXTRA_FACTOR = 100.0
+"""Largest factor of an extra state variable's standard deviation among ``extra_candidates``."""
+HEADER_SCHEMA: dict[str, list[Constraint]] = {
+    "cycle_time": CYCLE_TIME,
+    "rel_variance_fitted": [Numbers(Interval(0, MAX_POSITION**2, open_low=True), length=4)],
+    "relevance_scores": [Numbers(Interval(None, None), min_length=0, nan=True)],
+    "state_variables": [Names()],
+    "extra_variance_fitted": [Numbers(_POSITIVE, min_length=0)],
+    "extra_fill": [Numbers(Interval(None, None), min_length=0)],
+    "new_track_flags": [InstanceOf(bool)],
+    "azimuth_bias_fitted": [Interval(-MAX_AZIMUTH_BIAS, MAX_AZIMUTH_BIAS)],
+}
+"""Declared fitted fields of a KDE model file's header (their consistency with the arrays: the loader)."""
 
 
 KDE_PARAMETERS: dict[str, list[Constraint]] = {
@@ -74,9 +87,9 @@ KDE_PARAMETERS: dict[str, list[Constraint]] = {
     "relevance_folds": [Interval(2, None, integer=True)],
     "prior_rate": [Options("tree", "global")],
     "random_state": RANDOM_STATE,
-    "extra_state": [InstanceOf(tuple, list)],  # details: check_extra_params
-    "extra_variance": [None, InstanceOf(tuple, list)],
-    "extra_candidates": [InstanceOf(tuple, list)],
+    "extra_state": [Names()],  # names of log columns; relations to the other two: check_extra_params
+    "extra_variance": [None, Numbers(_POSITIVE, min_length=0, nan=True)],  # NaN: chosen by CV
+    "extra_candidates": [Numbers(Interval(0, MAX_EXTRA_FACTOR, open_low=True))],
     "bandwidth_scale": [Interval(0.01, 100)],
     "start_bandwidth_scale": [None, Interval(0.01, 100)],
     "azimuth_bias": [Options("fit"), Interval(-MAX_AZIMUTH_BIAS, MAX_AZIMUTH_BIAS)],

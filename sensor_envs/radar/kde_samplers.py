@@ -36,7 +36,8 @@ def sample_cycle(
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """:meth:`KDERadarModel.sample_cycle <sensor_envs.radar.kde.KDERadarModel.sample_cycle>`."""
     m._check_fitted()
-    check_states(corners if prev_z is None else np.column_stack([np.atleast_2d(corners), prev_z]), rng=rng)
+    state = corners if prev_z is None else np.column_stack([np.atleast_2d(corners), prev_z])
+    check_states(state, rng=rng, extra=extra, new_track=new_track, extra_names=m.extra_state_)
     corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
     n = corners.shape[0]
     if n == 0:

@@ -51,7 +51,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import closest_corner, rectangle_corners
-from sensor_envs.inputs import InputError, read_bytes
+from sensor_envs.inputs import InputError, bad_name, read_bytes
 from sensor_envs.outputs import atomic_write
 
 __all__ = [
@@ -228,9 +228,10 @@ def _validate(columns: dict[str, NDArray], source: str) -> dict[str, NDArray]:
 
 def _check_consistency(out: dict[str, NDArray], clutter: NDArray[np.bool_], source: str) -> None:
     """Magnitudes of heading, time and covariates; clutter ids; one ``t`` per cycle, increasing with frame."""
-    empty = [i for i, name in enumerate(out) if not name.strip()]
-    if empty:
-        raise RadarLogError(f"{source}: a column name is empty (header field {empty[0] + 1})")
+    bad_names = [(i, why) for i, name in enumerate(out) if (why := bad_name(name))]
+    if bad_names:
+        i, why = bad_names[0]
+        raise RadarLogError(f"{source}: header field {i + 1}: the column name {why}")
     bad = np.abs(out["ref_heading"]) > MAX_HEADING
     if bad.any():
         raise RadarLogError(f"{source}: column 'ref_heading' row {_first(bad)} is beyond +-{MAX_HEADING:g} rad")
@@ -327,6 +328,11 @@ def _read_rows(reader: Any, src: str) -> RadarLog:
                 )
     if len(set(header)) != len(header):
         raise RadarLogError(f"{src}: duplicate column names in the header")
+    missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    if missing:  # before any row: an Astyx point cloud or another table is named as such, not by a row count
+        astyx = Path(src).parent.name.startswith("radar_") or not any(header)
+        hint = " (an Astyx frame? convert the folder with: sensor-envs record radar --astyx FOLDER --out LOG.csv)"
+        raise RadarLogError(f"{src}: required column {missing[0]!r} is missing from the header{hint if astyx else ''}")
     rows = [r for r in reader if r]
     req = [h in REQUIRED_COLUMNS for h in header]
     cols: dict[str, list[float]] = {h: [] for h in header}
@@ -418,12 +424,21 @@ _UNSET = object()
 
 
 def check_states(
-    state: Any, z: Any = None, rng: Any = _UNSET
+    state: Any,
+    z: Any = _UNSET,
+    rng: Any = _UNSET,
+    *,
+    extra: Any = None,
+    new_track: Any = None,
+    extra_names: tuple[str, ...] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
     """The checked arguments of a radar model's ``sample``/``log_prob``: states ``(n, 2|4)`` and outputs ``(n, 2)``.
 
     Corners (columns 0-1) finite within :data:`MAX_POSITION`; previous outputs (columns 2-3) and ``z``
-    finite or NaN (missing / a miss, both columns alike) within the same bound; ``rng`` a Generator.
+    finite or NaN (missing / a miss, both columns alike) within the same bound; ``rng`` a Generator;
+    ``new_track`` ``None`` or ``n`` booleans; with ``extra_names`` given (the model's extra state
+    variables), ``extra`` ``None`` or ``(n, E)`` real numbers (NaN = missing) for ``E`` names, and ``None``
+    (or no columns) for a model without any.
 
     Raises:
         InputError: naming the argument and the first offending entry.
@@ -435,11 +450,30 @@ def check_states(
     st = check_array(np.atleast_2d(state), "state", (None, (2, 4)), low=-MAX_POSITION, high=MAX_POSITION, nan=True)
     if np.isnan(st[:, :2]).any():
         raise InputError(f"state: row {_first(np.isnan(st[:, :2]).any(axis=1))} has a NaN corner")
+    if st.shape[1] == 4 and (np.isnan(st[:, 2]) != np.isnan(st[:, 3])).any():
+        raise InputError(
+            f"state: row {_first(np.isnan(st[:, 2]) != np.isnan(st[:, 3]))} has a half-NaN previous output"
+        )
+    if z is None:
+        raise InputError("z: expected (n, 2) outputs [m] (NaN rows = misses), got None")
     zz = None
-    if z is not None:
+    if z is not _UNSET:
         zz = check_array(np.atleast_2d(z), "z", (st.shape[0], 2), low=-MAX_POSITION, high=MAX_POSITION, nan=True)
         if (np.isnan(zz[:, 0]) != np.isnan(zz[:, 1])).any():
             raise InputError(f"z: row {_first(np.isnan(zz[:, 0]) != np.isnan(zz[:, 1]))} is half NaN")
+    if new_track is not None:
+        nt = np.asarray(new_track)
+        if nt.dtype.kind != "b" or nt.shape != (st.shape[0],):
+            raise InputError(f"new_track: expected {st.shape[0]} booleans or None, got {nt.dtype} {nt.shape}")
+        if st.shape[1] == 4 and (nt & np.isfinite(st[:, 2])).any():
+            raise InputError(
+                f"new_track: row {_first(nt & np.isfinite(st[:, 2]))} is a new track with a previous output"
+            )
+    if extra_names is not None and extra is not None:
+        if not extra_names and np.size(extra):
+            raise InputError("extra: this model has no extra state variables; pass None")
+        if extra_names:
+            check_array(np.atleast_2d(extra), "extra", (st.shape[0], len(extra_names)), low=-1e12, high=1e12, nan=True)
     return st, zz
 
 

@@ -5,7 +5,8 @@
         [--set vec_env=subproc|vector]
 
 The default config is ``configs/default.yaml`` beside this module (package data). An existing ``--out`` is
-refused unless ``--force`` (then its files are overwritten). Writes into ``--out``: ``config.json`` (the
+refused unless ``--force``; the run is built in a claimed temporary folder beside ``--out`` that replaces it
+as a whole when the run ends (two runs never mix their files). Writes into ``--out``: ``config.json`` (the
 resolved config, the seed and the command line), SB3 checkpoints (``checkpoints/``), TensorBoard logs
 (``tb/``; ``tensorboard --logdir runs``), ``best_model.zip``
 and ``evaluations.npz`` from ``EvalCallback``, ``final_model.zip`` and ``result.json`` (mean and std of the
@@ -273,12 +274,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sensor", default=None, help="the env's radar (highway ids) or lidar (Neato) name")
     parser.add_argument("--device", default=None, help="torch device: auto (default), cpu, cuda, cuda:1, ...")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config entry")
-    parser.add_argument("--force", action="store_true", help="write into an existing --out (its files are replaced)")
+    parser.add_argument("--force", action="store_true", help="replace an existing --out (whole, when the run ends)")
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     """Resolve the config, log it, train, and write ``result.json`` (``args`` from :func:`add_arguments`)."""
-    from sensor_envs.outputs import check_output
+    from sensor_envs.outputs import OutputTransaction, check_output
 
     if args.env not in gym.registry:
         _fail(f"--env: {args.env!r} is not a registered env id")
@@ -290,11 +291,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if args.device is not None:
         cfg["device"] = args.device
     seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy) % 2**31  # type: ignore[arg-type]
-    args.out.mkdir(parents=True, exist_ok=True)
     resolved = {"env_id": args.env, "seed": seed, "config": cfg, "command": [sys.executable, *sys.argv]}
-    (args.out / "config.json").write_text(json.dumps(resolved, indent=2))
-    result = train(args.env, cfg, args.out, seed)
-    (args.out / "result.json").write_text(json.dumps(result, indent=2))
+    # Built in the claimed temporary folder, replacing --out as a whole when it ends: with --force an old
+    # run's checkpoints and logs never mix with this one's; an interrupted run leaves --out as it was.
+    with OutputTransaction() as tx:
+        folder = tx.folder(args.out)
+        (folder / "config.json").write_text(json.dumps(resolved, indent=2))
+        result = train(args.env, cfg, folder, seed)
+        (folder / "result.json").write_text(json.dumps(result, indent=2))
     print(json.dumps(result, indent=2))
     return result
 

@@ -15,27 +15,38 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.envs.highway.step_record import RadarFrame
+from sensor_envs.inputs import InputError, InputTypeError
+from sensor_envs.modelio import Constraint, InstanceOf, Interval, Numbers, Options, validate_params
 
-__all__ = ["SUPPORTED_FEATURES", "KinematicsLayout", "select", "feature_table", "normalise", "default_features_range"]
+__all__ = [
+    "SUPPORTED_FEATURES",
+    "OBSERVATION_CONSTRAINTS",
+    "KinematicsLayout",
+    "select",
+    "feature_table",
+    "normalise",
+    "default_features_range",
+]
 
 SUPPORTED_FEATURES = ("presence", "x", "y", "vx", "vy", "heading", "cos_h", "sin_h")
-_KINEMATICS_KEYS = frozenset(
-    {
-        "type",
-        "features",
-        "vehicles_count",
-        "features_range",
-        "absolute",
-        "order",
-        "normalize",
-        "clip",
-        "see_behind",
-        "observe_intentions",
-        "include_obstacles",
-        "flatten",
-    }
-)
 _UNBOUNDED = 1.0e6  # finite bound [m, m/s, rad] of features that are not normalised and clipped
+_FLAG: list[Constraint] = [InstanceOf(bool)]
+_RANGE = Numbers(Interval(-_UNBOUNDED, _UNBOUNDED), length=2, increasing=True)
+OBSERVATION_CONSTRAINTS: dict[str, list[Constraint]] = {
+    "type": [Options("Kinematics")],
+    "features": [None, InstanceOf(list, tuple)],  # each a SUPPORTED_FEATURES name, checked in from_config
+    "vehicles_count": [Interval(1, 1000, integer=True)],
+    "features_range": [None, InstanceOf(dict)],  # each feature -> (low, high), checked in from_config
+    "absolute": _FLAG,
+    "order": [Options("sorted", "shuffled")],
+    "normalize": _FLAG,
+    "clip": _FLAG,
+    "see_behind": _FLAG,
+    "observe_intentions": [Options(False)],  # the radar cannot see intentions
+    "include_obstacles": _FLAG,
+    "flatten": [Options(False)],  # highway-env ignores it too
+}
+"""Declared keys of ``config["observation"]`` (the radar wrapper needs highway-env's ``Kinematics``)."""
 
 
 @dataclass(frozen=True)
@@ -54,40 +65,42 @@ class KinematicsLayout:
 
     @classmethod
     def from_config(cls, config: dict[str, Any]) -> KinematicsLayout:
-        """Read highway-env's ``config["observation"]``.
+        """Read highway-env's ``config["observation"]``, checked against :data:`OBSERVATION_CONSTRAINTS`.
 
         Raises:
-            TypeError: when the observation type is not ``Kinematics``.
-            ValueError: naming an unknown key, an unsupported feature or a bad value.
+            InputError: naming the key (``observation.<key>``): another type than ``Kinematics``, an unknown
+                key, an unsupported feature, a value outside its declared type or range.
         """
+        if not isinstance(config, dict):
+            raise InputError(f"observation: expected a dict, got {type(config).__name__}")
         if config.get("type") != "Kinematics":
-            raise TypeError(f"observation type: the radar wrapper needs 'Kinematics', got {config.get('type')!r}")
-        unknown = sorted(set(config) - _KINEMATICS_KEYS)
-        if unknown:
-            raise ValueError(f"observation.{unknown[0]}: unknown key (allowed: {sorted(_KINEMATICS_KEYS)})")
-        if config.get("flatten", False):
-            raise ValueError("observation.flatten: not supported (highway-env ignores it too)")
-        features = tuple(config.get("features") or cls.features)
-        bad = [f for f in features if f not in SUPPORTED_FEATURES]
-        if bad:
-            raise ValueError(
-                f"observation.features: {bad[0]!r} is not a radar feature (supported: {SUPPORTED_FEATURES})"
+            raise InputTypeError(
+                f"observation type: the radar wrapper needs 'Kinematics', got {config.get('type')!r:.60}"
             )
-        count = int(config.get("vehicles_count", cls.vehicles_count))
-        if count < 1:
-            raise ValueError(f"observation.vehicles_count: expected >= 1, got {count}")
-        order = config.get("order", cls.order)
-        if order not in ("sorted", "shuffled"):
-            raise ValueError(f"observation.order: expected 'sorted' or 'shuffled', got {order!r}")
+        try:
+            validate_params(config, OBSERVATION_CONSTRAINTS, what="key")
+        except InputError as exc:
+            raise InputError(f"observation.{exc}") from None
+        features = tuple(config.get("features") or cls.features)
+        bad = [f for f in features if not isinstance(f, str) or f not in SUPPORTED_FEATURES]
+        if bad or len(set(features)) != len(features):
+            what = f"{bad[0]!r:.40} is not a radar feature" if bad else "a feature is listed twice"
+            raise InputError(f"observation.features: {what} (supported: {SUPPORTED_FEATURES})")
         ranges = config.get("features_range") or None
         if ranges is not None:
-            ranges = {k: (v[0], v[1]) for k, v in ranges.items()}
+            if not isinstance(ranges, dict):
+                raise InputError(f"observation.features_range: expected a dict, got {type(ranges).__name__}")
+            try:
+                validate_params(ranges, dict.fromkeys(SUPPORTED_FEATURES, [_RANGE]), what="feature")
+            except InputError as exc:
+                raise InputError(f"observation.features_range.{exc}") from None
+            ranges = {k: (float(v[0]), float(v[1])) for k, v in ranges.items()}
         return cls(
             features=features,
-            vehicles_count=count,
+            vehicles_count=int(config.get("vehicles_count", cls.vehicles_count)),
             features_range=ranges,
             absolute=bool(config.get("absolute", cls.absolute)),
-            order=order,
+            order=config.get("order", cls.order),
             normalize=bool(config.get("normalize", cls.normalize)),
             clip=bool(config.get("clip", cls.clip)),
             see_behind=bool(config.get("see_behind", cls.see_behind)),

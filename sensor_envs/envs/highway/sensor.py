@@ -17,6 +17,8 @@ from numpy.typing import NDArray
 
 from sensor_envs.envs.highway.step_record import Truth
 from sensor_envs.geometry import closest_corner, from_frame, occluded_fraction, rectangle_corners, to_frame, wrap_angle
+from sensor_envs.inputs import InputError
+from sensor_envs.modelio import Constraint, Interval, Numbers, Options, validate_params
 from sensor_envs.radar.sensors import RADAR_NAMES, RadarSensor, make_radar
 from sensor_envs.sensor_model import has_capability
 
@@ -25,6 +27,7 @@ __all__ = [
     "DEFAULT_FOV",
     "DEFAULT_MAX_RANGE",
     "SensorSpec",
+    "SENSOR_CONSTRAINTS",
     "load_radar",
     "truth_table",
     "sensor_pose",
@@ -37,8 +40,20 @@ __all__ = [
 
 DEFAULT_FOV = float(np.deg2rad(100.0))
 """Default full horizontal field of view [rad]: +-50 deg, that of the reference rig the shipped models are fitted on."""
+MAX_MOUNT_OFFSET = 100.0
+"""Largest ``|x|``, ``|y|`` [m] (and ``|yaw|`` [rad]) of a sensor mount in the ego frame."""
 DEFAULT_MAX_RANGE = 120.0
 """Default hard range limit [m]: past the rig's 90 m, where the fitted models' own detection fall-off decides."""
+SENSOR_CONSTRAINTS: dict[str, list[Constraint]] = {
+    "sensor_pose": [None, Numbers(Interval(-MAX_MOUNT_OFFSET, MAX_MOUNT_OFFSET), length=3)],
+    "fov": [Interval(0.0, 2 * np.pi + 1e-12, open_low=True)],
+    "max_range": [Interval(0.0, 1e4, open_low=True), Options(float("inf"))],
+    "occlusion_threshold": [None, Interval(0.0, 1.0, open_low=True)],
+    "reference": [Options("corner", "centre")],
+    "velocity": [Options("difference", "truth")],
+    "occlusion_rays": [Interval(1, 1024, integer=True)],
+}
+"""Declared types and ranges of the radar mount and field of view [m, rad] (``inf`` range: no limit)."""
 
 
 def load_radar(radar: str, radar_model: str | Path | None = None) -> RadarSensor:
@@ -52,13 +67,13 @@ def load_radar(radar: str, radar_model: str | Path | None = None) -> RadarSensor
         radar_model: path of a fitted model file, or ``None`` for the shipped default.
 
     Raises:
-        ValueError: naming ``radar`` or ``radar_model`` when the name is unknown or the ideal radar is
+        InputError: naming ``radar`` or ``radar_model`` when the name is unknown or the ideal radar is
             given a model file.
     """
     if radar not in RADAR_NAMES:
-        raise ValueError(f"radar: expected one of {RADAR_NAMES}, got {radar!r}")
+        raise InputError(f"radar: expected one of {RADAR_NAMES}, got {radar!r:.60}")
     if radar == "ideal" and radar_model is not None:
-        raise ValueError("radar_model: the ideal radar takes no model file")
+        raise InputError("radar_model: the ideal radar takes no model file")
     return make_radar(radar, radar_model)
 
 
@@ -87,25 +102,23 @@ class SensorSpec:
     occlusion_rays: int = 16
 
     def __post_init__(self) -> None:
-        """Validate every field, naming the bad one."""
+        """Validate every field against :data:`SENSOR_CONSTRAINTS` (``InputError`` naming the bad one)."""
+        validate_params(
+            {
+                "sensor_pose": self.pose,
+                "fov": self.fov,
+                "max_range": self.max_range,
+                "occlusion_threshold": self.occlusion_threshold,
+                "reference": self.reference,
+                "velocity": self.velocity,
+                "occlusion_rays": self.occlusion_rays,
+            },
+            SENSOR_CONSTRAINTS,
+        )
         if self.pose is not None:
-            pose = tuple(float(v) for v in self.pose)
-            if len(pose) != 3 or not np.all(np.isfinite(pose)):
-                raise ValueError(f"sensor_pose: expected finite (x, y, yaw), got {self.pose!r}")
-            object.__setattr__(self, "pose", pose)
-        if not 0.0 < float(self.fov) <= 2 * np.pi + 1e-12:
-            raise ValueError(f"fov: expected a field of view in (0, 2 pi] rad, got {self.fov!r}")
-        if not float(self.max_range) > 0.0:
-            raise ValueError(f"max_range: expected a positive range [m], got {self.max_range!r}")
-        t = self.occlusion_threshold
-        if t is not None and not 0.0 < float(t) <= 1.0:
-            raise ValueError(f"occlusion_threshold: expected a fraction in (0, 1] or None, got {t!r}")
-        if self.reference not in ("corner", "centre"):
-            raise ValueError(f"reference: expected 'corner' or 'centre', got {self.reference!r}")
-        if self.velocity not in ("difference", "truth"):
-            raise ValueError(f"velocity: expected 'difference' or 'truth', got {self.velocity!r}")
-        if int(self.occlusion_rays) < 1:
-            raise ValueError(f"occlusion_rays: expected a positive count, got {self.occlusion_rays!r}")
+            object.__setattr__(self, "pose", tuple(float(v) for v in self.pose))
+        object.__setattr__(self, "fov", float(self.fov))
+        object.__setattr__(self, "max_range", float(self.max_range))
 
     def in_view(self, points: NDArray[np.float64]) -> NDArray[np.bool_]:
         """Which ``(n, 2)`` sensor-frame points [m] lie in the field of view and within range."""
@@ -218,14 +231,14 @@ def model_state_names(radar: Any) -> tuple[str, ...]:
     """The extra state variables a radar model names (``extra_state_``), checked against what the world supplies.
 
     Raises:
-        ValueError: naming the variable when the highway world cannot supply it.
+        InputError: naming the variable when the highway world cannot supply it.
     """
     from sensor_envs.radar.features import WORLD_VARIABLES
 
     names = tuple(radar.extra_state_) if has_capability(radar, "extra_state") else ()  # declared, not probed
     for name in names:
         if name not in WORLD_VARIABLES:
-            raise ValueError(
+            raise InputError(
                 f"radar_model: the model's state names {name!r}, which the highway world cannot supply "
                 f"(it supplies {sorted(WORLD_VARIABLES)})"
             )
@@ -277,7 +290,7 @@ def check_cycle_time(radar: Any, config: dict[str, Any], radar_rate: str) -> Non
     Models without a cycle time (``None``/NaN, or no attribute: the ideal radar, test doubles) pass.
 
     Raises:
-        ValueError: naming ``radar_rate``, both periods and the remedies.
+        InputError: naming ``radar_rate``, both periods and the remedies.
     """
     cycle = getattr(radar, "cycle_time_", None)
     if cycle is None or not math.isfinite(float(cycle)):  # NaN: fitted without a cycle time
@@ -285,7 +298,7 @@ def check_cycle_time(radar: Any, config: dict[str, Any], radar_rate: str) -> Non
     period = cycle_period(config, radar_rate)
     if not math.isclose(float(cycle), period, rel_tol=CYCLE_TIME_RTOL):
         key = "policy_frequency" if radar_rate == "policy" else "simulation_frequency"
-        raise ValueError(
+        raise InputError(
             f"radar_rate: the radar model is fitted at a cycle time of {float(cycle):.4g} s, but radar_rate="
             f"{radar_rate!r} samples it every {period:.4g} s (1 / {key} = 1 / {config[key]}); use a model "
             f"fitted at {period:.4g} s (e.g. radar_kde_fast.npz at 1/15 s with radar_rate='simulation' and "

@@ -39,6 +39,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
+from sensor_envs.inputs import InputError
+
 __all__ = ["TrackerConfig", "MultiTargetTracker", "TrackList", "tracker_config", "tracked_frame"]
 
 if TYPE_CHECKING:
@@ -79,23 +81,25 @@ class TrackerConfig:
     lateral_speed_std: float = 1.0
 
     def __post_init__(self) -> None:
-        """Check every field (``ValueError`` naming it)."""
+        """Check every field (``InputError`` naming it)."""
         for name in ("confirm_hits", "confirm_window", "delete_after"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-                raise ValueError(f"tracker.{name}: expected an integer >= 1, got {v!r}")
+                raise InputError(f"tracker.{name}: expected an integer >= 1, got {v!r}")
         if self.confirm_window < self.confirm_hits or self.confirm_window > 30:
-            raise ValueError(
+            raise InputError(
                 f"tracker.confirm_window: expected confirm_hits ({self.confirm_hits}) <= N <= 30, "
                 f"got {self.confirm_window!r}"
             )
         for name in ("gate", "position_std", "accel_std", "radial_speed_std", "init_speed_std", "lateral_speed_std"):
             v = getattr(self, name)
-            if not isinstance(v, (int, float)) or isinstance(v, bool) or not (np.isfinite(v) and v > 0):
-                raise ValueError(f"tracker.{name}: expected a positive finite number, got {v!r}")
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not (np.isfinite(v) and 0 < v <= 1e6):
+                raise InputError(f"tracker.{name}: expected a number in (0, 1e6], got {v!r}")
         d = self.doppler_gate
-        if d is not None and (not isinstance(d, (int, float)) or isinstance(d, bool) or not (np.isfinite(d) and d > 0)):
-            raise ValueError(f"tracker.doppler_gate: expected a positive speed [m/s] or None, got {d!r}")
+        if d is not None and (
+            not isinstance(d, (int, float)) or isinstance(d, bool) or not (np.isfinite(d) and 0 < d <= 1e6)
+        ):
+            raise InputError(f"tracker.doppler_gate: expected a speed [m/s] in (0, 1e6] or None, got {d!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -339,18 +343,18 @@ def tracker_config(value: TrackerConfig | dict[str, Any] | None) -> TrackerConfi
     """A :class:`TrackerConfig` from itself, a dict of its fields, or ``None`` (the defaults).
 
     Raises:
-        ValueError: naming an unknown key or a bad value (``tracker.<field>``).
+        InputError: naming an unknown key or a bad value (``tracker.<field>``).
     """
     if value is None:
         return TrackerConfig()
     if isinstance(value, TrackerConfig):
         return value
     if not isinstance(value, dict):
-        raise ValueError(f"tracker: expected a TrackerConfig, a dict of its fields or None, got {type(value).__name__}")
+        raise InputError(f"tracker: expected a TrackerConfig, a dict of its fields or None, got {type(value).__name__}")
     known = {f.name for f in fields(TrackerConfig)}
     unknown = sorted(set(value) - known)
     if unknown:
-        raise ValueError(f"tracker.{unknown[0]}: unknown tracker setting (known: {sorted(known)})")
+        raise InputError(f"tracker.{unknown[0]}: unknown tracker setting (known: {sorted(known)})")
     return TrackerConfig(**value)
 
 

@@ -61,7 +61,7 @@ Rate (``radar_rate=``):
 
 The model's ``cycle_time`` (file header) must equal the period of the rate used (``1 /
 policy_frequency`` or ``1 / simulation_frequency``, relative tolerance 1e-3); a mismatch raises
-``ValueError`` at construction and at ``reset`` (models without a cycle time are not checked).
+``InputError`` at construction and at ``reset`` (models without a cycle time are not checked).
 
 Velocities (``velocity=``):
 
@@ -120,10 +120,8 @@ import numpy as np
 from gymnasium import spaces
 from numpy.typing import NDArray
 
-from sensor_envs.envs.checks import check_action, check_highway_config
+from sensor_envs.envs.checks import check_action, check_highway_config, check_options, check_seed
 from sensor_envs.envs.highway.clutter import (
-    CLUTTER_LEVELS,
-    STATIONARY_MODES,
     STATIONARY_SPEED,
     clutter_keep_probability,
     law_edges,
@@ -157,7 +155,17 @@ from sensor_envs.envs.highway.sensor import (
 from sensor_envs.envs.highway.stacking import StackedRows
 from sensor_envs.envs.highway.step_record import ObservedRows, RadarFrame, Truth
 from sensor_envs.envs.highway.tracker import MultiTargetTracker, TrackerConfig, tracked_frame, tracker_config
+from sensor_envs.envs.highway.wrapper_schema import (
+    MAKE_HIGHWAY_CONSTRAINTS,
+    RADAR_RATES,
+    WRAPPER_CONSTRAINTS,
+    check_reset_config,
+    check_wrapper_args,
+    default_config,
+)
 from sensor_envs.geometry import from_frame
+from sensor_envs.inputs import InputError
+from sensor_envs.modelio import validate_params
 from sensor_envs.radar.sensors import NEW_TRACK_KEYWORD, RADAR_NAMES, RadarSensor, takes_new_track
 from sensor_envs.rng import sensor_rng
 
@@ -170,12 +178,12 @@ __all__ = [
     "ObservedRows",
     "StackedRows",
     "make_highway",
+    "WRAPPER_CONSTRAINTS",
+    "MAKE_HIGHWAY_CONSTRAINTS",
     "cycle_period",
     "check_cycle_time",
 ]
 
-RADAR_RATES = ("policy", "simulation")
-"""Values of ``radar_rate``: one radar cycle per policy step, or one per simulation sub-step."""
 RNG_TAG = 0x52_41_44_52  # "RADR": separates the radar's stream from any other use of the same seed
 IDEAL_KINEMATICS: dict[str, Any] = {
     "radar": "ideal",
@@ -229,7 +237,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     Raises:
         TypeError: when ``env`` is not a highway-env environment with a ``Kinematics`` observation.
-        ValueError: naming the bad argument or observation key, or when the model's cycle time does
+        InputError: naming the bad argument or observation key, or when the model's cycle time does
             not match the radar rate.
 
     Examples:
@@ -279,23 +287,13 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             tracks=tracks,
             tracker=tracker,
         )
-        if radar_rate not in RADAR_RATES:
-            raise ValueError(f"radar_rate: expected one of {RADAR_RATES}, got {radar_rate!r}")
+        check_wrapper_args(radar, radar_model, radar_rate, clutter_fraction, clutter, stationary, tracks)
         self.radar_rate = radar_rate
-        ok = isinstance(clutter_fraction, (int, float)) and not isinstance(clutter_fraction, bool)
-        if not (ok and 0.0 <= float(clutter_fraction) <= 1.0):
-            raise ValueError(f"clutter_fraction: expected a number in [0, 1], got {clutter_fraction!r}")
         self.clutter_fraction = float(clutter_fraction)
-        if clutter not in CLUTTER_LEVELS:
-            raise ValueError(f"clutter: expected one of {CLUTTER_LEVELS}, got {clutter!r}")
-        if stationary not in STATIONARY_MODES:
-            raise ValueError(f"stationary: expected one of {STATIONARY_MODES}, got {stationary!r}")
-        if not isinstance(tracks, (bool, np.bool_)):
-            raise ValueError(f"tracks: expected True or False, got {tracks!r}")
         self.clutter, self.stationary, self.tracks = clutter, stationary, bool(tracks)
         self.tracker: MultiTargetTracker | None = MultiTargetTracker(tracker_config(tracker)) if tracks else None
         if tracker is not None and not tracks:
-            raise ValueError("tracker: tracker settings need tracks=True")
+            raise InputError("tracker: tracker settings need tracks=True")
         gym.Wrapper.__init__(self, env)
         base: Any = env.unwrapped
         if not hasattr(base, "road") or not hasattr(base, "PERCEPTION_DISTANCE"):
@@ -315,7 +313,9 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._radar_key: tuple[str, str | None] | None = (radar, path)
         else:
             if not isinstance(radar, RadarSensor):
-                raise TypeError(f"radar: expected a name in {RADAR_NAMES} or a RadarSensor, got {type(radar).__name__}")
+                raise InputError(
+                    f"radar: expected a name in {RADAR_NAMES} or a RadarSensor, got {type(radar).__name__}"
+                )
             self._radar_key = None
             self.radar = radar
         self._state_names = model_state_names(self.radar)
@@ -345,10 +345,11 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         radar samples exactly when highway-env would observe (before, e.g., the intersection spawns
         vehicles) and highway-env's own ``Kinematics`` is not computed a second time.
         """
-        _, info = self.env.reset(seed=seed, options=options)
+        seed = check_seed(seed)
+        options = check_options(options, ("config",)) or None
         base: Any = self.env.unwrapped
-        if options and "config" in options and KinematicsLayout.from_config(base.config["observation"]) != self.layout:
-            raise ValueError("options.config.observation: the observation layout is fixed when the wrapper is built")
+        check_reset_config(options, base, self.layout)
+        _, info = self.env.reset(seed=seed, options=options)
         check_cycle_time(self.radar, base.config, self.radar_rate)
         self._rng = sensor_rng(seed, RNG_TAG, self._rng)
         self._tracks = {}
@@ -651,7 +652,9 @@ def make_highway(
             latest's last; 1 = no stacking.
 
     Raises:
-        ValueError: naming an unknown ``config`` key or a bad sensor argument.
+        InputError: naming the argument (``config.<key>`` for a configuration key) outside its declared
+            type or range (``WRAPPER_CONSTRAINTS``, ``SENSOR_CONSTRAINTS``, ``MAKE_HIGHWAY_CONSTRAINTS``,
+            :func:`~sensor_envs.envs.checks.check_highway_config`).
 
     Examples:
         >>> from sensor_envs import make_highway
@@ -664,17 +667,12 @@ def make_highway(
     """
     import highway_env  # noqa: F401  (registers highway-env's ids)
 
-    check_highway_config(config)  # declared ranges (policy_frequency 0 would divide by zero)
-    if not isinstance(history, (int, np.integer)) or isinstance(history, bool) or not 1 <= history <= 64:
-        raise ValueError(f"history: expected an integer in [1, 64], got {history!r}")
+    validate_params({"base_id": base_id, "history": history, "render_mode": render_mode}, MAKE_HIGHWAY_CONSTRAINTS)
+    check_highway_config(config, default_config(base_id))  # every key declared, before the env is built
 
     with warnings.catch_warnings():  # the sensor_envs id is current even when its base id has newer versions
         warnings.filterwarnings("ignore", message=".*is out of date.*", category=DeprecationWarning)
         env = gym.make(base_id, render_mode=render_mode, config=config, disable_env_checker=True)
-    base: Any = env.unwrapped
-    unknown = sorted(set(config or {}) - set(base.default_config()))
-    if unknown:
-        raise ValueError(f"config.{unknown[0]}: unknown highway-env key for {base_id}")
     wrapped = RadarObservation(
         env,
         radar,
