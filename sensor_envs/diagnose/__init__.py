@@ -5,7 +5,8 @@ Tool level: imports :mod:`sensor_envs.radar` and :mod:`sensor_envs.lidar`, never
 (:class:`~sensor_envs.diagnose.core.DiagnoseAdapter`); :mod:`~sensor_envs.diagnose.radar` is the radar's
 (:mod:`~sensor_envs.diagnose.radar_add` its add step: corrections fitted on the base model),
 :mod:`~sensor_envs.diagnose.lidar` the learned lidar's; :mod:`~sensor_envs.diagnose.search` scores and
-tests candidate causes; :mod:`~sensor_envs.diagnose.report` writes the before/after report;
+tests candidate causes (:mod:`~sensor_envs.diagnose.regressors` its regressors and their sufficient
+statistics); :mod:`~sensor_envs.diagnose.report` writes the before/after report;
 :mod:`~sensor_envs.diagnose.families` draws seeded synthetic logs with planted causes (the suite's).
 The adapters and ``write_report`` are imported on first use.
 """

@@ -9,9 +9,10 @@ file format and upgrades); ``buckets`` (the bucket sampler's grid), ``relevance`
 ``features`` (derived state columns: aspect angle, occlusion), ``alignment`` (the azimuth bias and the frame
 rotation of offsets), ``gaussian`` (the baseline), ``log`` (the CSV object log), ``astyx`` (the Astyx reader),
 ``rig`` (the reference rig), ``rig_config`` (its parameters and rig files), ``calibrate`` (the rig fitted to real
-frames: the fits and the search), ``calibrate_stats`` (the statistics it matches), ``scene_law`` (the scene the rig
-records, fitted to real reference boxes), ``object_clutter`` (object-level clutter per cycle measured on Astyx, the
-law the highway wrapper thins to), ``validate`` (reports), ``fidelity`` (real single frames: start tuple and
+frames: the fits and the search), ``calibrate_stats`` (the statistics it matches),
+``calibrate_clutter`` (its clutter stage: count law, joint range x azimuth cell shares), ``scene_law`` (the scene
+the rig records, fitted to real reference boxes), ``object_clutter`` (object-level clutter per cycle measured on
+Astyx, the law the highway wrapper thins to), ``validate`` (reports), ``fidelity`` (real single frames: start tuple and
 stationary law, block-bootstrap intervals and verdicts against the Gaussian), ``tune`` (post-fit factors chosen on
 real held-out frames: bandwidth factor, tail mixture), ``correction`` (fitted conditional corrections on top of a
 radar model: what ``diagnose radar`` adds for a found cause, :class:`~sensor_envs.radar.correction.CorrectedRadar`).
