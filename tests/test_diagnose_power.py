@@ -177,6 +177,11 @@ def test_planted_effects_move_the_readings_as_stated(kind):
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="known miss (issue 39, docs/results/diagnose_suite.md, real logs): on the real intel log a planted "
+    "random walk and the log's own `v` rank above the planted cause; passes (and must be un-marked) once fixed",
+)
 @pytest.mark.parametrize("kind", ["mean", "rate"])
 def test_an_effect_planted_in_the_real_intel_log_is_found(real_data, kind):
     """The CSAIL CARMEN log with a planted cause of 1 residual sd (mean) or a null rate rising by 1 sd."""

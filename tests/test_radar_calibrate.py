@@ -158,8 +158,11 @@ def test_calibrate_recovers_known_parameters():
     # offsets: spread and tail trade off (sigma vs outlier share), so the law is checked, not each number
     assert after["offset"] < 0.2 * card["discrepancy_before"]["offset"]
     assert abs(cfg.clutter_rate - 12.0) < 1.0
-    # true law: 30 % uniform in 0-20 m, so 22.5 % in the statistic's first bin (0-15 m)
-    assert cfg.clutter_range_weights is not None and abs(cfg.clutter_range_weights[0] - 0.225) < 0.05
+    # true law: 30 % uniform in 0-20 m, so 22.5 % below 15 m (the calibrated bins are the joint cells' ranges)
+    assert cfg.clutter_range_weights is not None and cfg.clutter_range_edges is not None
+    upper = np.asarray(cfg.clutter_range_edges[1:])
+    assert 15.0 in upper
+    assert abs(float(np.sum(np.asarray(cfg.clutter_range_weights)[upper <= 15.0])) - 0.225) < 0.05
 
 
 def test_reflection_center_moves_the_point_towards_the_faces_near_end():
