@@ -5,6 +5,7 @@ import pytest
 from sensor_envs.cli.main import main
 
 
+@pytest.mark.slow  # end to end, several seconds: CI runs it with the slow tests
 def test_demo_main_job_writes_pictures_and_report(tmp_path):
     assert main(["demo", "--out", str(tmp_path), "--episodes", "1"]) == 0
     report = json.loads((tmp_path / "report.json").read_text())

@@ -123,6 +123,7 @@ def test_extra_state_model_round_trips_and_checks_values(tmp_path):
         LidarLWLR(**FAST, extra_state=("speed",)).fit(log, max_readings=100)
 
 
+@pytest.mark.slow  # end to end, several seconds: CI runs it with the slow tests
 def test_cli_diagnose_lidar(tmp_path):
     log_path = save_log(make_log("omega", scans=400, bearings=36), tmp_path / "log.npz")
     out = tmp_path / "diag"

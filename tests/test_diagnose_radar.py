@@ -103,6 +103,7 @@ def test_occlusion_is_found_as_a_derived_feature_and_added(occlusion_log):
     assert res.error_after < res.error_before - MARGIN, (res.error_before, res.error_after)
 
 
+@pytest.mark.slow  # end to end, several seconds: CI runs it with the slow tests
 def test_no_hidden_effect_reports_none(null_log, tmp_path):
     held = block_split(radar_blocks(null_log))
     adapter = RadarAdapter(null_log, held, params={**FAST, "use_prev": False})

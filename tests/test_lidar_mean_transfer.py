@@ -225,6 +225,7 @@ def test_sample_of_a_file_without_pose_sd_is_the_worlds_draw(pose_error_unit):
 
 
 # ------------------------------------------------------------------------------------------- real data
+@pytest.mark.slow  # end to end, several seconds: CI runs it with the slow tests
 def test_real_fit_mean_never_worse_than_the_raycast_at_held_out_poses(real_data):
     """The real Neato log (when present): fitted on 4 of 5 pose folds, no worse than the raycast on the fifth."""
     from sensor_envs.lidar.log import load_log
