@@ -41,7 +41,14 @@ from sensor_envs.modelio import (
     optional_positive,
 )
 from sensor_envs.radar.features import state_matrix
-from sensor_envs.radar.log import RadarLog, check_states, clutter_counts, fit_cycle_time, target_tuples
+from sensor_envs.radar.log import (
+    RadarLog,
+    check_cycle_states,
+    check_states,
+    clutter_counts,
+    fit_cycle_time,
+    target_tuples,
+)
 from sensor_envs.sensor_model import Arrays, Header, SensorModel, set_param_defaults
 
 __all__ = ["GaussianRadar"]
@@ -239,9 +246,9 @@ class GaussianRadar(SensorModel):
     ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """``RadarSensor.sample_cycle``; ``prev_z`` and ``new_track`` are ignored; ``source`` is always -1."""
         self._check_fitted()
-        state = corners if prev_z is None else np.column_stack([np.atleast_2d(corners), prev_z])
-        check_states(state, rng=rng, extra=extra, new_track=new_track, extra_names=self.extra_state_)
-        corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
+        corners = check_cycle_states(
+            corners, prev_z, rng, extra=extra, new_track=new_track, extra_names=self.extra_state_
+        )
         n = corners.shape[0]
         b, mu, pd = self._mean_pd(corners, extra)
         chol = np.linalg.cholesky(self.cov_[b])

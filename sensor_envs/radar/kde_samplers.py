@@ -18,7 +18,7 @@ from sensor_envs.radar.kde_params import (
     GROUP_MAIN,
 )
 from sensor_envs.radar.kde_trees import nearest_detected, neighbours, outcome, route
-from sensor_envs.radar.log import check_states
+from sensor_envs.radar.log import check_cycle_states
 
 if TYPE_CHECKING:
     from sensor_envs.radar.kde import KDERadarModel
@@ -36,9 +36,7 @@ def sample_cycle(
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """:meth:`KDERadarModel.sample_cycle <sensor_envs.radar.kde.KDERadarModel.sample_cycle>`."""
     m._check_fitted()
-    state = corners if prev_z is None else np.column_stack([np.atleast_2d(corners), prev_z])
-    check_states(state, rng=rng, extra=extra, new_track=new_track, extra_names=m.extra_state_)
-    corners = np.atleast_2d(np.asarray(corners, dtype=np.float64))
+    corners = check_cycle_states(corners, prev_z, rng, extra=extra, new_track=new_track, extra_names=m.extra_state_)
     n = corners.shape[0]
     if n == 0:
         return np.zeros((0, 2)), np.zeros(0, dtype=np.int64)

@@ -477,6 +477,24 @@ def check_states(
     return st, zz
 
 
+def check_cycle_states(
+    corners: Any,
+    prev_z: Any,
+    rng: Any,
+    *,
+    extra: Any = None,
+    new_track: Any = None,
+    extra_names: tuple[str, ...] | None = None,
+) -> NDArray[np.float64]:
+    """The checked arguments of a radar model's ``sample_cycle``; returns the corners ``(n, 2)`` as floats.
+
+    :func:`check_states` on the corners and previous outputs side by side.
+    """
+    state = corners if prev_z is None else np.column_stack([np.atleast_2d(corners), prev_z])
+    check_states(state, rng=rng, extra=extra, new_track=new_track, extra_names=extra_names)
+    return np.atleast_2d(np.asarray(corners, dtype=np.float64))
+
+
 CYCLE_TIME_TOLERANCE = 0.05
 """Relative difference allowed between a given cycle time and the log's median frame interval."""
 
