@@ -9,10 +9,8 @@ nulls and spurious returns; then tabulated. The other strategy, on individual re
 
 from __future__ import annotations
 
-import hashlib
 import itertools
 import warnings
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -37,7 +35,7 @@ from sensor_envs.lidar.kernel import (
     choose_shrinkage,
     lwlr,
 )
-from sensor_envs.lidar.log import LidarLog
+from sensor_envs.lidar.log import LidarLog, training_summary
 from sensor_envs.lidar.lwlr_io import PARAMS
 from sensor_envs.lidar.pose_correction import correct_poses, pose_error_sd
 from sensor_envs.lidar.reading_law import null_count_log_prob
@@ -214,14 +212,7 @@ def fit_cells(m: LidarLWLR, log: LidarLog) -> LidarLWLR:
     m.spur_rho_ = fit_count_rho(m, "p_spur", "spur_rho", stats, r) if extended else 0.0
     del m._count_oof
     m._fit_spurious(log)
-    m.training_ = {
-        "source": Path(log.source).name,
-        "n_poses": log.n_poses,
-        "n_bearings": log.n_bearings,
-        "n_readings": int((~np.isnan(log.ranges)).sum()),
-        "null_fraction": float(np.nanmean(np.where(np.isnan(log.ranges), np.nan, log.ranges == 0))),
-        "sha256_of_ranges": hashlib.sha256(np.ascontiguousarray(log.ranges).tobytes()).hexdigest(),
-    }
+    m.training_ = training_summary(log)
     return m
 
 

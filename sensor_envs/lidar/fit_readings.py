@@ -44,10 +44,8 @@ bearing over ``(r, alpha)``, read bilinearly.
 
 from __future__ import annotations
 
-import hashlib
 import itertools
 import warnings
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -66,7 +64,7 @@ from sensor_envs.lidar.kernel import (
     choose_shrinkage,
     lwlr,
 )
-from sensor_envs.lidar.log import LidarLog, LidarLogError
+from sensor_envs.lidar.log import LidarLog, LidarLogError, training_summary
 from sensor_envs.lidar.mapping import map_features
 
 if TYPE_CHECKING:
@@ -401,15 +399,7 @@ def fit_per_reading(
     model.p_out_ = float(np.clip(((w_bias == 0) & ok).sum() / max(n_in, 1), P_EPS, 0.5)) if ext else 0.0
     model.null_rho_ = model.spur_rho_ = 0.0
     model._fit_spurious(log)
-    model.training_ = {
-        "source": Path(log.source).name,
-        "n_poses": log.n_poses,
-        "n_bearings": log.n_bearings,
-        "n_readings": int((~np.isnan(log.ranges)).sum()),
-        "null_fraction": float(np.nanmean(np.where(np.isnan(log.ranges), np.nan, log.ranges == 0))),
-        "sha256_of_ranges": hashlib.sha256(np.ascontiguousarray(log.ranges).tobytes()).hexdigest(),
-        "fit": "per reading",
-    }
+    model.training_ = {**training_summary(log), "fit": "per reading"}
     return model
 
 

@@ -21,6 +21,7 @@ always ``(P, K, R)`` float64 (a scan log has ``R = 1``).
 
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 import struct
@@ -47,6 +48,7 @@ __all__ = [
     "log_from_arrays",
     "motion_covariates",
     "resample_bearings",
+    "training_summary",
 ]
 
 PathLike = str | os.PathLike[str]
@@ -652,3 +654,19 @@ def motion_covariates(
         v = np.hypot(np.gradient(poses[:, 0]), np.gradient(poses[:, 1])) / dt
         w = np.gradient(np.unwrap(poses[:, 2])) / dt
     return {"v": np.where(good, v, 0.0), "omega": np.where(good, w, 0.0)}
+
+
+def training_summary(log: LidarLog) -> dict[str, Any]:
+    """What a fitted lidar model records of its training log (``training_``).
+
+    The log's file name, sizes, null share and the sha256 of its ranges: a card names its data without
+    storing it.
+    """
+    return {
+        "source": Path(log.source).name,
+        "n_poses": log.n_poses,
+        "n_bearings": log.n_bearings,
+        "n_readings": int((~np.isnan(log.ranges)).sum()),
+        "null_fraction": float(np.nanmean(np.where(np.isnan(log.ranges), np.nan, log.ranges == 0))),
+        "sha256_of_ranges": hashlib.sha256(np.ascontiguousarray(log.ranges).tobytes()).hexdigest(),
+    }
