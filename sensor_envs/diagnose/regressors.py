@@ -72,16 +72,17 @@ def rank_basis(x: NDArray, degree: int = POLY_DEGREE) -> NDArray[np.float64]:
 
 
 def interaction_basis(main: NDArray, state: NDArray) -> NDArray[np.float64]:
-    """Smooth candidate x state basis ``(..., n, p + 4)``: the main basis with ``P1(u) x state`` before its NaN column.
+    """Smooth candidate x state basis ``(..., n, p + 4 d)``: the main basis, ``P_j(u) x state`` before its NaN column.
 
     ``main (..., n, p)`` is :func:`rank_basis` of the candidate (NaN indicator last), ``state (n, 4)`` the
     state feature's smooth basis (``cos``, ``sin`` of ``pi u_s``, ``P1(u_s)``, ``P2(u_s)``): an effect whose
-    sign or size follows the state (a bearing's ``cos``, a trend in range) with 4 more coefficients than
-    the main effect, where a binned grid needs dozens. The state's own additive pattern is not in it: the
+    sign or size follows the state (a bearing's ``cos``, a trend in range), linear or U-shaped in the
+    candidate (``P1``, ``P2``: ``d`` = 2), with 8 more coefficients than the main effect, where a binned
+    grid needs dozens. The state's own additive pattern is not in it: the
     targets are freed of it first.
     """
-    prod = main[..., 1:2] * state
-    return np.concatenate([main[..., :-1], prod, main[..., -1:]], axis=-1)
+    prod = [main[..., j : j + 1] * state for j in range(1, main.shape[-1] - 1)]  # P1 .. P_degree, each x state
+    return np.concatenate([main[..., :-1], *prod, main[..., -1:]], axis=-1)
 
 
 def _main_stats(basis: NDArray, r: NDArray, fold: NDArray, block: NDArray, n_blocks: int) -> tuple[NDArray, ...]:

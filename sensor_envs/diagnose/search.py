@@ -14,7 +14,7 @@ excess NLL), so an effect on the spread or on a rate is as visible as one on the
   readings'): monotone, U-shaped and step effects alike;
 * interaction with each of the model's state features ``s`` (e.g. bearing sector, range, azimuth),
   in two forms: ``r ~ h(bin(c), bin(s))`` on a 6 x 8 grid (any shape, many cells), and a smooth one,
-  the main basis plus ``P1(u_c) x (cos, sin of pi u_s, P1(u_s), P2(u_s))`` (4 more coefficients: an
+  the main basis plus ``P1(u_c), P2(u_c) x (cos, sin of pi u_s, P1(u_s), P2(u_s))`` (8 more coefficients: an
   effect whose sign follows the bearing, the azimuth side or the range, with zero mean over a scan or
   a cycle, is seen at a strength the grid's cells dilute).
 
