@@ -89,8 +89,8 @@ from sensor_envs.outputs import write_json
 from sensor_envs.radar.astyx import load_astyx
 from sensor_envs.radar.calibrate import DET_AZIMUTH_EDGES, calibrate_rig, frames_from_log
 from sensor_envs.radar.features import model_extra
+from sensor_envs.radar.fidelity import ENERGY_TARGET, marginal, target_gaps
 from sensor_envs.radar.fidelity import fold_rows as _fold_rows
-from sensor_envs.radar.fidelity import marginal
 from sensor_envs.radar.gaussian import GaussianRadar
 from sensor_envs.radar.kde import KDERadarModel
 from sensor_envs.radar.log import RadarLog, TargetTuples
@@ -299,10 +299,6 @@ def real_rates(corner: NDArray, z: NDArray, block: NDArray, rng: np.random.Gener
     return out
 
 
-ENERGY_TARGET = 1.15
-"""The energy-distance target (issue 12): at most this multiple of the real-fitted KDE's, per range bin."""
-
-
 def energy_intervals(
     samples: dict[str, NDArray], corner: NDArray, z: NDArray, block: NDArray, rng: np.random.Generator,
     ref: str = "kde_real_fitted", n_boot: int = 1000,
@@ -342,35 +338,6 @@ def energy_intervals(
 
 def fmt(v: Any, nd: int = 3) -> str:
     return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.{nd}f}"
-
-
-def targets(row: dict, real: dict, ref: dict) -> dict[str, Any]:
-    """Worst gaps to the targets: detection |model - real| per bin, metric ratio to the real-fitted KDE."""
-
-    def det_gaps(other: dict) -> list[float]:  # |model - other| per detection bin (range, then azimuth)
-        return [abs(a - b) for k in ("det_range", "det_azimuth") for a, b in zip(row[k], other[k], strict=True)
-                if a is not None and b is not None]  # fmt: skip
-
-    gaps, ref_gaps = det_gaps(real), det_gaps(ref)
-    inside = [lo <= a <= hi for k in ("det_range", "det_azimuth") for a, (lo, hi) in zip(row[k], real[f"{k}_ci"],
-              strict=True) if a is not None]  # fmt: skip
-    out: dict[str, Any] = {
-        "max_det_gap": max(gaps),
-        "det_bins_within_0.05": f"{sum(g <= 0.05 for g in gaps)}/{len(gaps)}",
-        "det_bins_within_block_ci": f"{sum(inside)}/{len(inside)}",
-        "max_det_gap_to_real_fitted": max(ref_gaps),
-        "det_bins_within_0.05_of_real_fitted": f"{sum(g <= 0.05 for g in ref_gaps)}/{len(ref_gaps)}",
-    }
-    for k in ("nll_outcome", "nll_z_given_detected"):
-        out[f"{k}_rel"] = None if row[k] is None else (row[k] - ref[k]) / abs(ref[k])
-    for key in ("energy", "energy_one_sample", "energy_all"):
-        e = [(a - b) / b for a, b in zip(row[key], ref[key], strict=True) if np.isfinite(a) and b > 0]
-        out[f"{key}_max_rel"] = max(e) if e else None
-    margins = row["energy_margin_ci"]
-    within = sum(a <= ENERGY_TARGET * b for a, b in zip(row["energy_all"], ref["energy_all"], strict=True))
-    out["energy_bins_within_target"] = f"{within}/{len(margins)}"
-    out["energy_bins_missed_beyond_ci"] = f"{sum(m[0] > 0 for m in margins)}/{len(margins)}"
-    return out
 
 
 def markdown(rep: dict) -> str:
@@ -650,7 +617,7 @@ def main() -> None:
         "azimuth_bins_deg": AZ_DEG.tolist(),
         "real": real,
         "models": models,
-        "targets": {n: targets(m, real, models["kde_real_fitted"]) for n, m in models.items()},
+        "targets": {n: target_gaps(m, real, models["kde_real_fitted"]) for n, m in models.items()},
         "per_fold": per_fold,
         "rig_per_fold": rig_folds,
         "seconds": round(time.perf_counter() - t0, 1),

@@ -204,13 +204,6 @@ def test_exported_names_are_not_module_names(package):
 
 ROOT = PACKAGE.parent
 BENCHMARKS = sorted((ROOT / "benchmarks").glob("*.py"))
-# Waiting on the radar work of issue 40 (the bandwidth choice and the fidelity scoring move into the package):
-# until then these tests still load the two radar scripts, and the bandwidth script imports the fidelity one.
-PENDING_TEST_IMPORTS = {"test_bandwidth_choice.py", "test_radar_target_resolution.py"}
-PENDING_BENCH_IMPORTS = {
-    ("real_radar_bandwidth_scale", "real_radar_fidelity"),
-    ("real_radar_fidelity", "real_radar_bandwidth_scale"),
-}
 
 
 def _loads_a_benchmark(path: Path) -> bool:
@@ -221,7 +214,7 @@ def _loads_a_benchmark(path: Path) -> bool:
 def test_no_test_imports_a_benchmark_script():
     tests = [p for p in (ROOT / "tests").glob("test_*.py") if p.name != Path(__file__).name]
     found = {p.name for p in tests if _loads_a_benchmark(p)}
-    assert found <= PENDING_TEST_IMPORTS, sorted(found - PENDING_TEST_IMPORTS)
+    assert not found, sorted(found)
 
 
 def test_no_benchmark_imports_another():
@@ -235,4 +228,4 @@ def test_no_benchmark_imports_another():
                 found.add((path.stem, node.module))
         text = path.read_text(encoding="utf-8")
         found |= {(path.stem, n) for n in names if n != path.stem and f"{n}.py" in text and "spec_from_file" in text}
-    assert found <= PENDING_BENCH_IMPORTS, sorted(found - PENDING_BENCH_IMPORTS)
+    assert not found, sorted(found)
