@@ -3,9 +3,10 @@
 Modules: ``sensors`` (the :class:`~sensor_envs.lidar.sensors.LidarSensor` protocol, ideal and Gaussian lidars,
 ``make_lidar``), ``lwlr`` (the learned per-bearing model, :class:`~sensor_envs.lidar.lwlr.LidarLWLR`), its pieces,
 one job each: ``fit_cells`` (its per-cell fit strategy, logs with repeats), ``fit_readings`` (its per-reading fit
-strategy, scan logs; block folds), ``readings`` (the former name of ``fit_readings``), ``scan_sampler`` (its
+strategy, scan logs; block folds), ``readings`` (the deprecated former name of ``fit_readings``), ``scan_sampler`` (its
 compiled scan draw), ``reading_law`` (its per-reading mixture law, null counts), ``lwlr_io`` (its file format and
-upgrades), ``kernel`` (its locally weighted regression and shrinkage choice), ``bias_transfer`` (its bias pooled
+upgrades), ``local_regression`` (its locally weighted linear regression (LWLR) kernel fits, table lookup and shrinkage
+choice; ``kernel`` is its deprecated former name), ``bias_transfer`` (its bias pooled
 over bearings plus a weighted per-bearing part), ``extra_state`` (extra state terms: previous reading, time),
 ``model_call`` (the checked arguments of its ``fit``, ``sample`` and ``log_prob``), ``log`` (lidar logs: npz,
 CARMEN, ROS bags), ``mapping`` (maps from scans, occupancy grids), ``pose_correction``
@@ -29,7 +30,7 @@ _PUBLIC: dict[str, str] = {
     "LidarLWLR": "sensor_envs.lidar.lwlr",
     "LearnedLidar": "sensor_envs.lidar.lwlr",
     "load_learned_lidar": "sensor_envs.lidar.lwlr",
-    "choose_shrinkage": "sensor_envs.lidar.kernel",
+    "choose_shrinkage": "sensor_envs.lidar.local_regression",
     "fit_per_reading": "sensor_envs.lidar.fit_readings",
     "check_extra_state": "sensor_envs.lidar.extra_state",
     "LidarLog": "sensor_envs.lidar.log",

@@ -74,7 +74,7 @@ from sensor_envs.lidar.bias_transfer import (
 from sensor_envs.lidar.extra_state import apply_extra, check_extra_state, fit_extra_terms
 from sensor_envs.lidar.fit_cells import RHO_GRID, cell_statistics, fit_cells, lidar_features, pose_fold_groups
 from sensor_envs.lidar.fit_readings import fit_per_reading
-from sensor_envs.lidar.kernel import (
+from sensor_envs.lidar.local_regression import (
     P_EPS,
     P_SPUR_EPS,
     SHRINKAGE_GRID,

@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats as sps
 
-from sensor_envs.lidar.kernel import P_EPS
+from sensor_envs.lidar.local_regression import P_EPS
 
 __all__ = ["mixture_log_prob", "null_count_log_prob", "cell_probability"]
 
