@@ -156,6 +156,22 @@ def test_package_docstring_names_all_its_modules(package):
     assert not missing, f"{name}: docstring does not name {missing}"
 
 
+# Every subpackage hands on a curated public API; the command line's interface is the ``sensor-envs`` command.
+API_PACKAGES = sorted(_module_name(p / "__init__.py") for p in PACKAGES if p != PACKAGE and p.name != "cli")
+
+
+@pytest.mark.parametrize("package", API_PACKAGES)
+def test_subpackage_exports_its_public_names(package):
+    """A non-empty ``__all__`` in each subpackage's ``__init__``, every name of it resolving from the package."""
+    import importlib
+
+    pkg = importlib.import_module(package)
+    assert pkg.__all__, f"{package}: no __all__"
+    assert len(set(pkg.__all__)) == len(pkg.__all__), f"{package}: duplicates in __all__"
+    missing = [n for n in pkg.__all__ if getattr(pkg, n, None) is None]
+    assert not missing, f"{package}: {missing} do not resolve"
+
+
 LAZY_PACKAGES = [
     "sensor_envs.lidar",
     "sensor_envs.radar",
