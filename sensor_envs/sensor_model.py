@@ -110,6 +110,8 @@ class SensorModel(BaseEstimator):
     """Hyperparameters a current-format file may lack, read with these values."""
     _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {}
     """Alias of ``_parameter_constraints`` (its name before the contract)."""
+    _file: Path | None = None
+    """The file :meth:`load` read the model from (``None``: fitted in memory); files beside it are found from it."""
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -141,11 +143,14 @@ class SensorModel(BaseEstimator):
         return bool(progress)
 
     def baseline(self) -> Any:
-        """The simple baseline this model is judged against, as fitted with it, or ``None`` if it keeps none.
+        """The simple baseline this model is judged against, fitted with it on the same data, ready to simulate.
 
-        The lidar keeps its Gaussian baseline's keyword arguments in its card (``gaussian_baseline``) and returns
-        them; a radar's Gaussian baseline is a model file of its own, beside it (``sensor-envs fit radar
-        --baseline-out``), and this returns ``None``.
+        One way for every sensor: the learned lidar returns its
+        :class:`~sensor_envs.lidar.sensors.GaussianLidar` (whose keyword arguments its card keeps, as
+        ``gaussian_baseline``), the KDE radar its :class:`~sensor_envs.radar.gaussian.GaussianRadar` (a model file
+        of its own, beside the file the KDE was loaded from: :func:`~sensor_envs.radar.gaussian.baseline_file`).
+        ``None`` when the model keeps none: a baseline itself, a KDE fitted in memory or without the file beside it,
+        a lidar whose card lacks the entry.
         """
         return None
 
@@ -225,6 +230,7 @@ class SensorModel(BaseEstimator):
         header, arrays = cls.read_current(path)
         model = cls._from_file(Path(path), header, arrays)
         model.card_ = dict(header.get("card", {}))
+        model._file = Path(path)
         return model
 
     @classmethod

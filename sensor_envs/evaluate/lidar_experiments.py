@@ -89,11 +89,6 @@ def _SOURCES(model: Any, gaussian: Any) -> tuple[tuple[str, Any], ...]:
     return (("model", model), ("model_world", model), ("baseline", gaussian), ("ideal", IdealLidar()))
 
 
-def _gaussian_from_card(model: LidarLWLR) -> GaussianLidar | None:
-    kwargs = model.baseline()
-    return None if kwargs is None else GaussianLidar(**kwargs)
-
-
 def summarise(trajs: dict[str, list[dict[str, Any]]], reference: str = "real") -> dict[str, float]:
     """``distance_to_<reference>`` of every other trajectory (mean point-wise distance in P-R space)."""
     return {k: round(trajectory_distance(v, trajs[reference]), 4) for k, v in trajs.items() if k != reference}
@@ -155,7 +150,7 @@ def log_experiment(
                 g = fit_gaussian_lidar(train, m.spur_above, max_range)
             fits.append({"fold": f, "train_poses": int((~test).sum()), "test_poses": int(test.sum()), "h": m.h_})
         else:
-            m, g = model, _gaussian_from_card(model) or GaussianLidar()
+            m, g = model, model.baseline() or GaussianLidar()
         poses = log.poses[test]
         for name, sensor in _SOURCES(m, g):
             sims[name][test] = simulate(
@@ -255,7 +250,7 @@ def boxworld_experiment(
     from sensor_envs.lidar.rig import NeatoRig
 
     rig = NeatoRig(unit_seed=unit_seed, max_range=max_range)
-    g = baseline or _gaussian_from_card(model) or GaussianLidar()
+    g = baseline or model.baseline() or GaussianLidar()
     rng = np.random.default_rng(seed)
     per: dict[str, list[list[dict[str, Any]]]] = {}
     totals: dict[str, list[dict[str, Any]]] = {}

@@ -87,6 +87,7 @@ from sensor_envs.lidar.log import LidarLog
 from sensor_envs.lidar.lwlr_io import HEADER_SCHEMA, MAX_SIGMA, UPGRADES, from_file, to_file
 from sensor_envs.lidar.model_call import check_model_call, check_query
 from sensor_envs.lidar.reading_law import cell_probability, mixture_log_prob, null_count_log_prob
+from sensor_envs.lidar.sensors import GaussianLidar
 from sensor_envs.modelio import (
     RANDOM_STATE,
     Constraint,
@@ -341,16 +342,16 @@ class LidarLWLR(SensorModel):
         if "tables_" not in self.__dict__:
             super()._check_fitted()
 
-    def baseline(self) -> dict[str, float] | None:
-        """Keyword arguments of the :class:`~sensor_envs.lidar.sensors.GaussianLidar` fitted with this model.
+    def baseline(self) -> GaussianLidar | None:
+        """The :class:`~sensor_envs.lidar.sensors.GaussianLidar` fitted with this model (:meth:`SensorModel.baseline`).
 
-        From the card's ``gaussian_baseline``; ``None`` when the model keeps none.
+        Built from the card's ``gaussian_baseline`` keyword arguments; ``None`` when the card keeps none.
         """
         g = self.__dict__.get("card_", {}).get("gaussian_baseline")
         if not isinstance(g, dict):
             return None
         keys = ("sigma0", "k_range", "k_incidence", "alpha_max", "p_null_floor")
-        return {k: float(g[k]) for k in keys if k in g}
+        return GaussianLidar(**{k: float(g[k]) for k in keys if k in g})
 
     @property
     def card_extra_(self) -> dict[str, Any]:

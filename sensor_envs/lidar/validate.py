@@ -180,8 +180,8 @@ def validate(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     r, a = lidar_features(log.poses, log.bearings, log.require_map(), model.max_range)
-    if gaussian is None and (kwargs := model.baseline()) is not None:
-        gaussian = GaussianLidar(**kwargs)
+    if gaussian is None:
+        gaussian = model.baseline()
     params = {
         f"model_{model.variant}": model.params_from_features(r, a),
         "ideal": baseline_params("ideal", r, a),

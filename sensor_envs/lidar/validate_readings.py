@@ -181,8 +181,8 @@ def validate_readings(
     """
     r, a = map_features(log.poses, log.bearings, log.require_map(), model.max_range)
     check_map_covers(log, r, model.max_range)
-    if gaussian is None and (kwargs := model.baseline()) is not None:
-        gaussian = GaussianLidar(**kwargs)
+    if gaussian is None:
+        gaussian = model.baseline()
     p_model = model.params_from_features(r, a)
     params = {
         f"model_{model.variant}": (p_model, (model.spur_mu_, model.spur_sigma_)),

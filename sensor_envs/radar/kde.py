@@ -110,6 +110,7 @@ from numpy.typing import NDArray
 
 from sensor_envs.modelio import Constraint
 from sensor_envs.radar import kde_density, kde_frames, kde_params, kde_samplers, kde_trees
+from sensor_envs.radar.gaussian import GaussianRadar, baseline_file
 from sensor_envs.radar.kde_bandwidth import corner_features, cv_bandwidth_table, relevance_features
 from sensor_envs.radar.kde_fit import fit_model
 from sensor_envs.radar.kde_io import ARRAY_SCHEMA, UPGRADES, from_file, to_file
@@ -539,6 +540,14 @@ class KDERadarModel(SensorModel):
         """
         self._check_fitted()
         return kde_params.tail_copy(self, weight, scale)
+
+    def baseline(self) -> GaussianRadar | None:
+        """The Gaussian baseline fitted with this model (:meth:`SensorModel.baseline`), or ``None``.
+
+        The file beside the one this model was loaded from (:func:`~sensor_envs.radar.gaussian.baseline_file`).
+        """
+        base = None if self._file is None else baseline_file(self._file)
+        return GaussianRadar.load(base) if base is not None and base.is_file() else None
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
