@@ -45,12 +45,22 @@ from sensor_envs.modelio import (
     validate_params,
 )
 
-__all__ = ["SensorModel", "has_capability", "CAPABILITIES", "upgrade_model_file", "set_param_defaults", "NOT_SAVED"]
+__all__ = [
+    "SensorModel",
+    "has_capability",
+    "extra_state_names",
+    "CAPABILITIES",
+    "upgrade_model_file",
+    "set_param_defaults",
+    "NOT_SAVED",
+]
 
-CAPABILITIES = ("new_track", "extra_state", "prev_output", "log_prob", "clutter")
+CAPABILITIES = ("new_track", "extra_state", "prev_output", "log_prob", "clutter", "output_frame", "bin_probabilities")
 """Capabilities a sensor model may declare: ``new_track`` (``sample_cycle``/``log_prob`` take the per-target
 new-track flags), ``extra_state`` (queries take ``extra`` values of ``extra_state_``), ``prev_output`` (the state
-holds the previous output ``z_{t-1}``), ``log_prob`` (scores outcomes), ``clutter`` (draws clutter)."""
+holds the previous output ``z_{t-1}``), ``log_prob`` (scores outcomes), ``clutter`` (draws clutter),
+``output_frame`` (``to_output_frame``: offsets on the axes its kernels act on), ``bin_probabilities`` (exact
+probabilities of output bins, for chi-square checks of its samples)."""
 NOT_SAVED = ("random_state", "verbose")
 """Hyperparameters of a run, never written to a model file (a loaded model gets their defaults)."""
 
@@ -71,6 +81,14 @@ def has_capability(model: object, capability: str) -> bool:
     return capability in getattr(type(model), "CAPABILITIES", frozenset())
 
 
+def extra_state_names(model: object) -> tuple[str, ...]:
+    """The extra state variables of a fitted ``model`` (``extra_state_``) if it declares ``"extra_state"``, else ``()``.
+
+    What callers pass as ``extra`` columns; read from the declaration, not by probing for the attribute.
+    """
+    return tuple(model.extra_state_) if has_capability(model, "extra_state") else ()  # type: ignore[attr-defined]
+
+
 class SensorModel(BaseEstimator):
     """Base of the fitted sensor models: parameter table, fitted check, card, versioned file with upgrades.
 
@@ -84,8 +102,8 @@ class SensorModel(BaseEstimator):
         >>> from sensor_envs import GaussianRadar, KDERadarModel, LidarLWLR, SensorModel
         >>> all(issubclass(c, SensorModel) for c in (GaussianRadar, KDERadarModel, LidarLWLR))
         True
-        >>> KDERadarModel.KIND, KDERadarModel.FORMAT_VERSION, sorted(KDERadarModel.CAPABILITIES)[:2]
-        ('radar_kde', 8, ['clutter', 'extra_state'])
+        >>> KDERadarModel.KIND, KDERadarModel.FORMAT_VERSION, "clutter" in KDERadarModel.CAPABILITIES
+        ('radar_kde', 8, True)
     """
 
     KIND: ClassVar[str] = ""

@@ -291,7 +291,9 @@ class KDERadarModel(SensorModel):
 
     KIND = KIND
     FORMAT_VERSION = FORMAT_VERSION
-    CAPABILITIES = frozenset({"new_track", "extra_state", "prev_output", "log_prob", "clutter"})
+    CAPABILITIES = frozenset(
+        {"new_track", "extra_state", "prev_output", "log_prob", "clutter", "output_frame", "bin_probabilities"}
+    )
     _FITTED = "states_"
     _SCHEMA = ARRAY_SCHEMA
     _PARAM_DEFAULTS: ClassVar[dict[str, Any]] = {  # files written before the factors and the prev CV
