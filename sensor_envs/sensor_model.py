@@ -164,7 +164,7 @@ class SensorModel(BaseEstimator):
         """The simple baseline this model is judged against, fitted with it on the same data, ready to simulate.
 
         One way for every sensor: the learned lidar returns its
-        :class:`~sensor_envs.lidar.sensors.GaussianLidar` (whose keyword arguments its card keeps, as
+        :class:`~sensor_envs.lidar.gaussian.GaussianLidar` (whose keyword arguments its card keeps, as
         ``gaussian_baseline``), the KDE radar its :class:`~sensor_envs.radar.gaussian.GaussianRadar` (a model file
         of its own, beside the file the KDE was loaded from: :func:`~sensor_envs.radar.gaussian.baseline_file`).
         ``None`` when the model keeps none: a baseline itself, a KDE fitted in memory or without the file beside it,

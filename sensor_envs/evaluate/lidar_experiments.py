@@ -3,7 +3,7 @@
 * :func:`log_experiment` (seed Sec. IV-A on a static-pose log such as the real Neato data): the
   detector's trajectory on the log's own scans, and on scans sampled at the log's poses and map by
   the learned model (:meth:`~sensor_envs.lidar.lwlr.LidarLWLR.sample`, pose uncertainty included)
-  and by the Gaussian baseline (:class:`~sensor_envs.lidar.sensors.GaussianLidar` on the nominal
+  and by the Gaussian baseline (:class:`~sensor_envs.lidar.gaussian.GaussianLidar` on the nominal
   raycast) and the ideal lidar. Unless a model file is given, the model and the baseline are fitted
   leave-poses-out: the poses are dealt into ``folds`` folds, and the scans of each fold are simulated
   by a model fitted on the other folds (never on the scans being compared).

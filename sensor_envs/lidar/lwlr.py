@@ -74,6 +74,7 @@ from sensor_envs.lidar.bias_transfer import (
 from sensor_envs.lidar.extra_state import check_extra_state, fit_extra_terms
 from sensor_envs.lidar.fit_cells import RHO_GRID, cell_statistics, fit_cells, lidar_features, pose_fold_groups
 from sensor_envs.lidar.fit_readings import fit_per_reading
+from sensor_envs.lidar.gaussian import GaussianLidar
 from sensor_envs.lidar.local_regression import (
     P_EPS,
     SHRINKAGE_GRID,
@@ -91,7 +92,6 @@ from sensor_envs.lidar.reading_law import (
     null_count_log_prob,
     reading_params,
 )
-from sensor_envs.lidar.sensors import GaussianLidar
 from sensor_envs.modelio import (
     RANDOM_STATE,
     Constraint,
@@ -347,7 +347,7 @@ class LidarLWLR(SensorModel):
             super()._check_fitted()
 
     def baseline(self) -> GaussianLidar | None:
-        """The :class:`~sensor_envs.lidar.sensors.GaussianLidar` fitted with this model (:meth:`SensorModel.baseline`).
+        """The :class:`~sensor_envs.lidar.gaussian.GaussianLidar` fitted with this model (:meth:`SensorModel.baseline`).
 
         Built from the card's ``gaussian_baseline`` keyword arguments; ``None`` when the card keeps none.
         """

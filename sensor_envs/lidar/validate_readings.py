@@ -14,7 +14,7 @@ For each model (the fitted one, ``ideal`` and ``gaussian``). Definitions (writte
   ``Phi^-1(u)`` of the non-null readings (``acf1_range``) and of the null residuals
   ``null - p_null`` (``acf1_null``); per bearing and the mean over bearings (ideal: 0, white residuals).
 * Baselines: ``ideal`` has ``mu = r``, ``sigma = 1 mm`` and ``p_null = P_EPS`` on a hit; ``gaussian``
-  is :class:`~sensor_envs.lidar.sensors.GaussianLidar` refitted per reading to the training part
+  is :class:`~sensor_envs.lidar.gaussian.GaussianLidar` refitted per reading to the training part
   (:func:`fit_gaussian_readings`).
 """
 
