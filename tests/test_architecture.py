@@ -35,6 +35,7 @@ LAYERS = {
     "evaluate": 3,
     "training": 3,
     "cli": 4,
+    "testing": 5,
 }
 # Sensor domains that must not import each other.
 SEPARATE = {("lidar", "radar"), ("radar", "lidar")}
@@ -236,3 +237,27 @@ def test_no_benchmark_imports_another():
         text = path.read_text(encoding="utf-8")
         found |= {(path.stem, n) for n in names if n != path.stem and f"{n}.py" in text and "spec_from_file" in text}
     assert found <= PENDING_BENCH_IMPORTS, sorted(found - PENDING_BENCH_IMPORTS)
+
+
+def _imported_modules(path: Path) -> set[str]:
+    """Top-level names of every module ``path`` imports (anywhere in the file)."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            found |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            found.add(node.module.split(".")[0])
+    return found
+
+
+def test_no_benchmark_imports_a_test_module():
+    """Shared case generators live in ``sensor_envs.testing``: a benchmark neither puts ``tests/`` on the path
+    nor imports a module of it (issue 40)."""
+    test_modules = {p.stem for p in (ROOT / "tests").glob("*.py")} | {"tests"}
+    found = set()
+    for path in BENCHMARKS:
+        text = path.read_text(encoding="utf-8")
+        found |= {(path.stem, m) for m in _imported_modules(path) & test_modules}
+        if re.search(r"""sys\.path.*["']tests["']|parents\[\d\]\s*/\s*["']tests["']""", text):
+            found.add((path.stem, "tests/ on sys.path"))
+    assert not found, sorted(found)

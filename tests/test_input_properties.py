@@ -14,14 +14,14 @@ import tempfile
 import warnings
 from pathlib import Path
 
-import fuzz_api as fa
-import fuzz_cases as fc
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+import sensor_envs.testing.fuzz_api as fa
+import sensor_envs.testing.fuzz_cases as fc
 from sensor_envs.inputs import InputError
 
 FAST = settings(max_examples=6, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
