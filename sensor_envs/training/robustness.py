@@ -40,10 +40,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, parse_json, read_text
 from sensor_envs.training import stats
 from sensor_envs.training.matrix_report import HIGHER_IS_BETTER, _write_atomic, write_reports
 from sensor_envs.training.matrix_report import headline as headline
@@ -482,11 +481,17 @@ def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[di
     columns += list(real_models)
     seeds = list(range(args.seed0, args.seed0 + (args.seeds or preset["seeds"])))
     train_set = dict(preset["set"])
+    from sensor_envs.training.train import check_device, set_value
+
+    try:
+        check_device(args.device)
+    except ValueError as err:  # ConfigError
+        raise UsageError(str(err)) from None
     for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise UsageError(f"--set {item!r}: expected key=value")
-        train_set[key] = yaml.safe_load(value)
+        try:
+            train_set[item.partition("=")[0]] = set_value(item)
+        except ValueError as err:  # ConfigError
+            raise UsageError(str(err)) from None
     eval_episodes = preset["eval_episodes"] if args.eval_episodes is None else args.eval_episodes
     if eval_episodes < 1:
         raise UsageError(f"--eval-episodes: must be >= 1, got {eval_episodes}")
@@ -618,7 +623,8 @@ def _run(args: argparse.Namespace, argv: list[str]) -> dict[str, Any]:
     args.out.mkdir(parents=True, exist_ok=True)
     stamp = args.out / "settings.json"
     if stamp.is_file() and not args.force:
-        old = json.loads(stamp.read_text())
+        old = parse_json(read_text(stamp, "settings"), f"{stamp}: settings")
+        old = old if isinstance(old, dict) else {}
         changed = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k))
         if changed:
             raise UsageError(f"--out {args.out}: made with other settings ({', '.join(changed)}); use --force")

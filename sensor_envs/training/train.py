@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -26,10 +27,10 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import yaml
 from tqdm import TqdmExperimentalWarning
 
 import sensor_envs  # noqa: F401  (registers the ids)
+from sensor_envs.inputs import InputError, bad_name, parse_yaml, read_text
 
 __all__ = [
     "ALGOS",
@@ -117,6 +118,47 @@ def sensor_kwargs(cfg: dict[str, Any], env_id: str, sensor: str, where: str = "c
     return {**{k: v for k, v in kwargs.items() if k not in owned}, **table[sensor]}
 
 
+COUNT_LIMITS = {"n_timesteps": 10**9, "n_envs": 256, "eval_freq": 10**9, "eval_episodes": 10_000}
+"""Declared range of every count of a config: an integer in ``[1, limit]`` (``n_timesteps: 1e12`` is refused)."""
+_DEVICE = re.compile(r"auto|cpu|mps|cuda(?::[0-9]{1,3})?")
+
+
+def check_device(value: Any, where: str = "--device") -> str:
+    """``value`` if it names a torch device of this machine: ``auto``, ``cpu``, ``mps`` or an existing ``cuda[:N]``.
+
+    stable-baselines3 would fall back to the CPU silently for a CUDA device that is not there, and torch
+    raises a ``RuntimeError`` deep inside training for a name that is no device.
+
+    Raises:
+        ConfigError: ``"<where>: ..."``.
+    """
+    if not isinstance(value, str) or not _DEVICE.fullmatch(value):
+        raise ConfigError(f"{where}: expected auto, cpu, mps, cuda or cuda:N, got {value!r:.60}")
+    if value.startswith("cuda"):
+        import torch
+
+        n, k = torch.cuda.device_count(), int(value.partition(":")[2] or 0)
+        if k >= n:
+            raise ConfigError(f"{where}: {value} is not a device of this machine ({n} CUDA devices)")
+    return value
+
+
+def set_value(item: str, option: str = "--set") -> Any:
+    """The value of a ``key=value`` override (YAML, through the input layer: no aliases, tags or huge nesting).
+
+    Raises:
+        ConfigError: ``"--set <key>: ..."`` for an item without ``=``, an empty or unprintable key, or a value
+            that is no plain YAML value.
+    """
+    key, sep, value = item.partition("=")
+    if not sep or bad_name(key):
+        raise ConfigError(f"{option} {item!r:.80}: expected key=value with a key of printable text")
+    try:
+        return parse_yaml(value, f"{option} {key}")
+    except InputError as err:
+        raise ConfigError(str(err)) from None
+
+
 def load_config(
     path: Path, env_id: str, overrides: list[str], algo: str | None = None, sensor: str | None = None
 ) -> dict[str, Any]:
@@ -127,10 +169,10 @@ def load_config(
     any other name sets the ``radar`` / ``lidar`` keyword (:func:`sensor_kwargs`).
     Raises :class:`ConfigError` naming the file and the key.
     """
-    try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
-    except (OSError, yaml.YAMLError) as err:
-        raise ConfigError(f"{path}: cannot read the config ({type(err).__name__}: {err})".splitlines()[0]) from err
+    try:  # bounded: a regular file of sane size, no aliases, tags or duplicate keys (sensor_envs.inputs)
+        doc = parse_yaml(read_text(path, "config"), str(path)) or {}
+    except InputError as err:
+        raise ConfigError(str(err)) from None
     if not isinstance(doc, dict) or env_id not in doc or not isinstance(doc[env_id], dict):
         known = sorted(doc) if isinstance(doc, dict) else []
         raise ConfigError(f"{path}: no config for env id {env_id!r}; known: {known}")
@@ -148,10 +190,7 @@ def load_config(
         key, sep, value = item.partition("=")
         if not sep:
             raise ConfigError(f"--set {item!r}: expected key=value")
-        try:
-            cfg[key] = yaml.safe_load(value)
-        except yaml.YAMLError as err:
-            raise ConfigError(f"--set {key}: not a YAML value: {value!r}") from err
+        cfg[key] = set_value(item)
     unknown = set(cfg) - KEYS
     if unknown:
         raise ConfigError(f"{path} [{env_id}]: unknown keys {sorted(unknown)}; expected {sorted(KEYS)}")
@@ -162,10 +201,11 @@ def load_config(
     spec = gym.registry.get(env_id)
     if cfg["vec_env"] == "vector" and (spec is None or spec.vector_entry_point is None):
         raise ConfigError(f"{path} [{env_id}]: vec_env: 'vector' needs a vector entry point, which this id has not")
-    cfg.setdefault("device", "auto")
-    for key in ("n_timesteps", "n_envs", "eval_freq", "eval_episodes"):
-        if key in cfg and (not isinstance(cfg[key], int) or isinstance(cfg[key], bool) or cfg[key] < 1):
-            raise ConfigError(f"{path} [{env_id}]: {key} must be a positive integer, got {cfg[key]!r}")
+    check_device(cfg.setdefault("device", "auto"), f"{path} [{env_id}]: device")
+    for key, high in COUNT_LIMITS.items():
+        value = cfg.get(key, 1)
+        if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= high:
+            raise ConfigError(f"{path} [{env_id}]: {key} must be an integer in [1, {high}], got {value!r:.40}")
     for key in ("env_kwargs", "hyperparams"):
         if not isinstance(cfg.get(key) or {}, dict):
             raise ConfigError(f"{path} [{env_id}]: {key} must be a mapping, got {cfg[key]!r}")
@@ -289,7 +329,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     except ValueError as err:  # ConfigError, OutputError
         _fail(str(err))
     if args.device is not None:
-        cfg["device"] = args.device
+        try:
+            cfg["device"] = check_device(args.device)
+        except ConfigError as err:
+            _fail(str(err))
     seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy) % 2**31  # type: ignore[arg-type]
     resolved = {"env_id": args.env, "seed": seed, "config": cfg, "command": [sys.executable, *sys.argv]}
     # Built in the claimed temporary folder, replacing --out as a whole when it ends: with --force an old
