@@ -159,7 +159,7 @@ def test_defaults_that_do_not_fit_the_log_are_refused(tmp_path, capsys):
 def test_every_numeric_option_has_a_declared_range():
     import argparse
 
-    from sensor_envs.cli.args import nonneg_int, path_arg, path_object
+    from sensor_envs.cli.args import nonneg_int, path_arg, path_object, text_arg
     from sensor_envs.cli.main import build_parser
 
     def walk(p):
@@ -171,7 +171,7 @@ def test_every_numeric_option_has_a_declared_range():
                 yield a
 
     for action in walk(build_parser()):
-        if action.type in (nonneg_int, path_arg, path_object):
+        if action.type in (nonneg_int, path_arg, path_object, text_arg):
             continue
         for bad in ("nan", "inf", "1e300", "1e12", "-1", "1_0"):
             with pytest.raises(argparse.ArgumentTypeError):
