@@ -480,6 +480,8 @@ def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[di
     )
     columns += list(real_models)
     seeds = list(range(args.seed0, args.seed0 + (args.seeds or preset["seeds"])))
+    if seeds[-1] >= 2**32:  # numpy and SB3 seed with 32 bits
+        raise UsageError(f"--seed0: the seeds {args.seed0}.. must stay below 2**32, got {args.seed0}")
     train_set = dict(preset["set"])
     from sensor_envs.training.train import check_device, set_value
 

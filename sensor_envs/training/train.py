@@ -213,7 +213,51 @@ def load_config(
         cfg["env_kwargs"] = sensor_kwargs(cfg, env_id, sensor, where=f"{path} [{env_id}]")
     else:
         sensor_table(cfg, where=f"{path} [{env_id}]")
+    check_arguments(cfg, env_id, f"{path} [{env_id}]")
     return cfg
+
+
+def _bad_number(x: Any) -> Any:
+    """The first number nested in ``x`` that is not finite or beyond 1e12 in size (``None`` if there is none)."""
+    stack = [x]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, dict):
+            stack.extend(v.values())
+        elif isinstance(v, (list, tuple)):
+            stack.extend(v)
+        elif isinstance(v, (int, float)) and not isinstance(v, bool) and not abs(v) <= 1e12:
+            return v
+    return None
+
+
+def check_arguments(cfg: dict[str, Any], env_id: str, where: str) -> None:
+    """Check ``hyperparams`` and ``env_kwargs`` before any output is made: finite numbers, known names, an env.
+
+    Else SB3 or the env would fail deep inside training (a ``ValueError`` for a NaN learning rate, a
+    ``TypeError`` for an unknown keyword argument).
+
+    Raises:
+        ConfigError: naming ``where`` and the key.
+    """
+    import inspect
+
+    import stable_baselines3 as sb3
+
+    for key in ("hyperparams", "env_kwargs"):
+        bad = _bad_number(cfg.get(key) or {})
+        if bad is not None:
+            raise ConfigError(f"{where}: {key}: {bad!r} is not a finite number within 1e12")
+    known = inspect.signature(getattr(sb3, cfg["algo"].upper())).parameters
+    unknown = sorted(set(cfg.get("hyperparams") or {}) - set(known) - {"policy", "env", "seed", "device"})
+    if unknown:
+        raise ConfigError(f"{where}: hyperparams: {unknown[0]!r} is no {cfg['algo']} argument")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            gym.make(env_id, **dict(cfg.get("env_kwargs") or {})).close()
+    except (InputError, TypeError) as exc:  # an unknown keyword argument is a TypeError of the constructor
+        raise ConfigError(f"{where}: env_kwargs: {' '.join(str(exc).split())}") from None
 
 
 def make_env(env_id: str, cfg: dict[str, Any], n_envs: int, seed: int) -> Any:
@@ -309,7 +353,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--env", required=True, help="registered env id, e.g. sensor_envs/Neato-v0")
     parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG, help="YAML config (default: the shipped one)")
     parser.add_argument("--out", type=Path, required=True, help="run folder (refused if it exists, unless --force)")
-    parser.add_argument("--seed", type=int, default=None, help="drawn and logged when absent")
+    parser.add_argument("--seed", type=int, default=None, help="drawn and logged when absent (at most 2**32 - 1)")
     parser.add_argument("--algo", choices=ALGOS, default=None, help="use the config's block for this algorithm")
     parser.add_argument("--sensor", default=None, help="the env's radar (highway ids) or lidar (Neato) name")
     parser.add_argument("--device", default=None, help="torch device: auto (default), cpu, cuda, cuda:1, ...")
@@ -328,6 +372,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         check_output(args.out, force=args.force, folder=True)
     except ValueError as err:  # ConfigError, OutputError
         _fail(str(err))
+    if args.seed is not None and not 0 <= args.seed < 2**32:  # numpy and SB3 seed with 32 bits
+        _fail(f"--seed: expected an integer in [0, 2**32 - 1], got {args.seed}")
     if args.device is not None:
         try:
             cfg["device"] = check_device(args.device)
