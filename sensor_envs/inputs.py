@@ -132,6 +132,8 @@ def check_regular_file(path: PathLike, field: str = "file", limit: int | None = 
         st = p.stat()
     except FileNotFoundError:
         raise FileNotFoundError(f"{p}: {field}: file not found") from None
+    except OSError as exc:  # a symbolic-link loop, a name too long, a folder we may not enter
+        raise InputError(f"{p}: {field}: cannot be read ({exc.strerror or type(exc).__name__})") from None
     if not stat.S_ISREG(st.st_mode):
         raise InputError(f"{p}: {field}: is {_kind(st.st_mode)}, expected a regular file")
     cap = LIMITS.file_bytes if limit is None else limit
@@ -219,11 +221,15 @@ def load_npz(path: PathLike, what: str = "npz file") -> dict[str, NDArray[Any]]:
         )
     try:
         with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
+            arrays = {k: z[k] for k in z.files}
     except MemoryError:
         raise InputError(f"{path}: not a readable {what} (an array is too large)") from None
     except Exception as exc:  # zip/npy damage, pickled content, ...: all the file's fault
         raise InputError(f"{path}: not a readable {what} ({' '.join(str(exc).split())})") from None
+    for k, a in arrays.items():
+        if a.dtype.names is not None or a.dtype.kind in "VMm":  # records, raw bytes, dates: no file holds them
+            raise InputError(f"{path}: field {k!r}: an array of dtype {a.dtype}, expected numbers")
+    return arrays
 
 
 def _check_tree(doc: Any, source: str) -> Any:
