@@ -227,6 +227,8 @@ def load_npz(path: PathLike, what: str = "npz file") -> dict[str, NDArray[Any]]:
     except Exception as exc:  # zip/npy damage, pickled content, ...: all the file's fault
         raise InputError(f"{path}: not a readable {what} ({' '.join(str(exc).split())})") from None
     for k, a in arrays.items():
+        if not isinstance(a, np.ndarray):  # a zip member that is no .npy (another zip, text): numpy hands bytes
+            raise InputError(f"{path}: field {k!r}: not an array (.npy) member of the {what}")
         if a.dtype.names is not None or a.dtype.kind in "VMm":  # records, raw bytes, dates: no file holds them
             raise InputError(f"{path}: field {k!r}: an array of dtype {a.dtype}, expected numbers")
     return arrays
