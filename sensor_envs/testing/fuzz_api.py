@@ -663,6 +663,13 @@ API_CLASSES: dict[str, Callable[[Chooser, Path], Case]] = {
 }
 
 
+def _second_round() -> None:
+    """Add the classes of odd types (:mod:`sensor_envs.testing.fuzz_api_types`, which builds on this module)."""
+    from sensor_envs.testing.fuzz_api_types import TYPE_CLASSES
+
+    API_CLASSES.update(TYPE_CLASSES)
+
+
 def make_api_case(cls: str, c: Chooser, d: Path) -> Case:
     """Build one generated call of class ``cls`` (files it needs go in the empty folder ``d``)."""
     return API_CLASSES[cls](c, d)
@@ -682,3 +689,6 @@ def warm_up() -> None:
         cached_env(env_id)
     with tempfile.TemporaryDirectory() as tmp:
         _small_log("GaussianRadar", Path(tmp))
+
+
+_second_round()

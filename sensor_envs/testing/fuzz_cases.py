@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from sensor_envs.testing.fuzz_folders import FOLDER_FAMILIES
+from sensor_envs.testing.fuzz_options import OPTION_FAMILIES
 from sensor_envs.testing.fuzz_pieces import (
     MAP_JSON,
     MAP_TXT,
@@ -45,6 +47,7 @@ from sensor_envs.testing.fuzz_pieces import (
     write_radar_csv,
     write_text_bytes,
 )
+from sensor_envs.testing.fuzz_structure import STRUCTURE_FAMILIES
 
 
 # --------------------------------------------------------------------------------------------- families
@@ -500,7 +503,12 @@ FAMILIES: dict[str, Callable[[Chooser, Path], Case]] = {
     "Astyx folder": _astyx,
     "command-line option": _option,
     "Python API": _api,
+    **STRUCTURE_FAMILIES,
+    **OPTION_FAMILIES,
+    **FOLDER_FAMILIES,
 }
+SECOND_ROUND = frozenset({*STRUCTURE_FAMILIES, *OPTION_FAMILIES, *FOLDER_FAMILIES})
+"""The families of the second round (issue 42: the structure of each format, every option, unsafe outputs)."""
 
 
 def make_case(family: str, c: Chooser, d: Path) -> Case:

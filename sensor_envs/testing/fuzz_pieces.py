@@ -82,7 +82,7 @@ def lidar_arrays() -> dict[str, np.ndarray]:
         "ranges": rng.uniform(0.5, 2.0, (4, 8, 3)),
         "bearings": np.linspace(0, 2 * np.pi, 8, endpoint=False),
         "poses": np.array([[2.0, 1.5, 0.1], [2.2, 1.4, 0.3], [1.8, 1.6, -0.2], [2.0, 1.2, 1.0]]),
-        "map_segments": SEGS,
+        "map_segments": SEGS.copy(),  # a copy: mutations edit arrays in place
         "t": np.array([0.0, 1.0, 2.0, 3.0]),
     }
 
