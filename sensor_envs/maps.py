@@ -264,6 +264,8 @@ def _read_image(img_path: Path, yaml_path: Path) -> NDArray[np.float64]:
             warnings.simplefilter("error", Image.DecompressionBombWarning)
             with Image.open(io.BytesIO(raw)) as im:
                 check_pixels(im.size[0], im.size[1], f"{img_path}: map image")  # from the header, before decoding
+                if im.mode.startswith(("I", "F")):  # convert("L") would clip, not scale: grey would turn white
+                    raise InputError(f"{img_path}: a map image of mode {im.mode} (more than 8 bits per sample)")
                 return np.asarray(im.convert("L"), dtype=np.float64)
     except InputError:
         raise

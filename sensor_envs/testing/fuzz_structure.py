@@ -371,7 +371,7 @@ def _image_bytes(c: Chooser) -> tuple[str, str, bytes, bool]:
     kind = c.choice(["I;16", "P", "CMYK", "1x1", "LA", "RGBA", "1", "trunc", "pgm16", "pgm ascii", "F", "0px"])
     if kind == "pgm16":
         raw = b"P5\n10 8\n65535\n" + (img.astype(">u2") * 257).tobytes()
-        return "16-bit PGM", ".pgm", raw, False
+        return "16-bit PGM", ".pgm", raw, True  # 8-bit samples only (a 16-bit grey is refused, never clipped)
     if kind == "pgm ascii":
         raw = b"P2\n10 8\n255\n" + " ".join(map(str, img.reshape(-1))).encode() + b"\n"
         return "ASCII PGM (P2)", ".pgm", raw, False
@@ -395,7 +395,7 @@ def _image_bytes(c: Chooser) -> tuple[str, str, bytes, bool]:
     if kind == "trunc":
         raw = raw[: c.integers(8, len(raw) - 13)]  # before the IEND chunk
     suffix = {"PNG": ".png", "TIFF": ".tif", "JPEG": ".jpg"}[fmt]
-    return f"{kind} image", suffix, raw, kind in ("trunc", "1x1")
+    return f"{kind} image", suffix, raw, kind in ("trunc", "1x1", "I;16", "F")
 
 
 def _map_image(c: Chooser, d: Path) -> Case:
