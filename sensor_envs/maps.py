@@ -190,13 +190,17 @@ MAX_ORIGIN = 1e6
 """Largest accepted ``|origin|`` coordinate [m]."""
 
 
+ROS_MAP_KEYS = frozenset({"image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh", "mode"})
+"""The fields of a ROS map_server YAML (an unknown one is refused, not ignored: a typo would drop a threshold)."""
+
+
 def ros_occupancy(yaml_path: str | os.PathLike[str]) -> tuple[NDArray[np.bool_], float, NDArray[np.float64]]:
     """Occupied cells ``(H, W)`` (row 0 at the smallest y), resolution [m], origin ``(x, y, yaw)`` of a ROS map.
 
     Every field is checked: ``image`` a file name beside the YAML (a regular file within the size and
     pixel limits), ``resolution`` in ``[1e-4, 100]`` m, ``origin`` three finite numbers, ``free_thresh`` a
     probability below 1 (default 0.196) and ``occupied_thresh`` one between it and 1 (exclusive), ``negate``
-    0 or 1.
+    0 or 1, ``mode`` trinary or scale (the occupied cells are the same in both); no other field.
 
     Raises:
         InputError: naming the file and the field.
@@ -206,6 +210,11 @@ def ros_occupancy(yaml_path: str | os.PathLike[str]) -> tuple[NDArray[np.bool_],
     for key in ("image", "resolution", "origin"):
         if not isinstance(meta, dict) or key not in meta:
             raise InputError(f"{path}: field {key!r} is missing (not a ROS map_server YAML)")
+    unknown = sorted(set(meta) - ROS_MAP_KEYS)
+    if unknown:
+        raise InputError(f"{path}: field {unknown[0]!r} is no ROS map_server field (expected {sorted(ROS_MAP_KEYS)})")
+    if meta.get("mode", "trinary") not in ("trinary", "scale"):  # raw: pixel values are occupancies, not greys
+        raise InputError(f"{path}: field 'mode' must be trinary or scale, got {meta['mode']!r:.40}")
     res = _yaml_number(meta, "resolution", path)
     if not MIN_RESOLUTION <= res <= MAX_RESOLUTION:
         raise InputError(f"{path}: field 'resolution' must be in [{MIN_RESOLUTION:g}, {MAX_RESOLUTION:g}] m, got {res}")

@@ -424,6 +424,9 @@ YAML_TRICKS: dict[str, tuple[str, bool]] = {
     "null key": ("~: 1\n", True),
     "complex key": ("? [a, b]\n: 1\n", True),
     "tab indent": ("origin:\n\t- 0\n", True),
+    "misspelt key": ("occupied_threshold: 0.5\n", True),
+    "mode raw": ("mode: raw\n", True),
+    "mode scale": ("mode: scale\n", False),
 }
 """YAML constructs a map file may not use (aliases, tags, ambiguous scalars) and whether to refuse them."""
 JSON_TRICKS: dict[str, tuple[str, bool]] = {
