@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, from_frame
-from sensor_envs.inputs import InputError, check_pixels, parse_json, parse_yaml, read_bytes, read_text
+from sensor_envs.inputs import InputError, bad_name, check_pixels, parse_json, parse_yaml, read_bytes, read_text
 
 __all__ = ["SegmentMap", "load_map", "BUILTIN_MAPS", "read_ros_map", "ros_occupancy", "occupancy_to_segments"]
 
@@ -131,8 +131,14 @@ def _load_map_file(path: Path) -> SegmentMap:
             return read_ros_map(path)
         if not isinstance(doc, dict) or "segments" not in doc:
             raise InputError(f"{path}: expected a mapping with a 'segments' list (or a ROS map_server 'image' key)")
+        unknown = sorted(set(doc) - {"name", "segments"})
+        if unknown:
+            raise InputError(f"{path}: field {unknown[0]!r:.60} is no map field (name, segments)")
+        name = doc.get("name", path.stem)
+        if bad_name(name):
+            raise InputError(f"{path}: field 'name' {bad_name(name)}")
         rows = _segment_rows(doc["segments"], path)
-        return SegmentMap(as_segments(rows, name=f"{path}: field 'segments'"), name=str(doc.get("name", path.stem)))
+        return SegmentMap(as_segments(rows, name=f"{path}: field 'segments'"), name=name)
     text_rows: list[list[float]] = []
     for lineno, line in enumerate(text.splitlines(), start=1):
         line = line.split("#", 1)[0].strip()
