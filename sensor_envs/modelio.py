@@ -515,7 +515,7 @@ def load_rig_file(
     if not isinstance(blob, dict):
         raise ModelFileError(f"{path}: a rig file must hold a JSON object")
     unknown = sorted(set(blob) - {"kind", "format_version", "params", "card"})
-    if unknown:  # a misspelt "params" would otherwise leave every parameter at its default silently
+    if unknown:  # never ignored: a misspelt "card" would drop the card silently
         raise ModelFileError(
             f"{path}: field {unknown[0]!r:.60} is no rig file field (kind, format_version, params, card)"
         )

@@ -460,13 +460,16 @@ def _json_text(c: Chooser, d: Path) -> Case:
     blob = json.loads((SHIPPED / "radar_rig.json").read_text())
     keys = [k for k, v in blob["params"].items() if isinstance(v, (int, float)) and not isinstance(v, bool)]
     key = c.choice(sorted(keys))
-    name = c.choice(sorted(JSON_TRICKS) + ["duplicate key", "duplicate params"])
+    name = c.choice(sorted(JSON_TRICKS) + ["duplicate key", "duplicate params", "unknown field"])
     text = json.dumps(blob)
     if name == "duplicate key":
         text = text.replace(f'"{key}": ', f'"{key}": 0.5, "{key}": ', 1)
         must = True
     elif name == "duplicate params":
         text = text[:-1] + ', "params": {}}'
+        must = True
+    elif name == "unknown field":
+        text = text[:-1] + ', "crad": {}}'
         must = True
     else:
         tok, must = JSON_TRICKS[name]
