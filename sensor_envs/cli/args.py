@@ -9,7 +9,7 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from sensor_envs.inputs import InputError
 
@@ -238,6 +238,31 @@ PATH_OPTIONS = frozenset(
 _UNBOUNDED = {positive_int, nonneg_int, positive_float, float, int}
 
 
+MAX_VALUES = 64
+"""Most values one list option holds (``--relevance-candidates``, ``--factors``, ``--set``, ``--exclude``, ...)."""
+_BOUNDED: dict[type, type] = {}
+
+
+def _bound_list(action: argparse.Action) -> None:
+    """Make ``action`` (``nargs='+'``/``'*'`` or ``append``) refuse more than :data:`MAX_VALUES` values in all.
+
+    A list is a count too: 100 000 bandwidth candidates would run for days. The error is argparse's own
+    one line, naming the option.
+    """
+    base = type(action)
+    if base not in _BOUNDED:
+
+        class Bounded(base):  # type: ignore[valid-type,misc]
+            def __call__(self, parser: Any, namespace: Any, values: Any, option_string: Any = None) -> None:
+                super().__call__(parser, namespace, values, option_string)
+                held = getattr(namespace, self.dest, None)
+                if isinstance(held, list) and len(held) > MAX_VALUES:
+                    raise argparse.ArgumentError(self, f"at most {MAX_VALUES} values, got {len(held)}")
+
+        _BOUNDED[base] = Bounded
+    action.__class__ = _BOUNDED[base]
+
+
 def declare_ranges(parser: argparse.ArgumentParser) -> None:
     """Give every numeric option of ``parser`` (and its sub-commands) its declared range, every path a check.
 
@@ -251,6 +276,8 @@ def declare_ranges(parser: argparse.ArgumentParser) -> None:
             for sub in action.choices.values():
                 declare_ranges(sub)
             continue
+        if action.nargs in ("+", "*") or isinstance(action, argparse._AppendAction):
+            _bound_list(action)
         if action.nargs == 0 or action.choices is not None:  # a flag, or a choice argparse checks
             continue
         if action.type is None:  # a path, or free text: never blank, never a control character
