@@ -227,6 +227,8 @@ def load_npz(path: PathLike, what: str = "npz file") -> dict[str, NDArray[Any]]:
     except Exception as exc:  # zip/npy damage, pickled content, ...: all the file's fault
         raise InputError(f"{path}: not a readable {what} ({' '.join(str(exc).split())})") from None
     for k, a in arrays.items():
+        if isinstance(a, np.ndarray) and a.dtype.kind == "f":  # -0.0 is 0.0 (numpy refuses a scale of -0.0)
+            arrays[k] = a = a + 0.0
         if not isinstance(a, np.ndarray):  # a zip member that is no .npy (another zip, text): numpy hands bytes
             raise InputError(f"{path}: field {k!r}: not an array (.npy) member of the {what}")
         if a.dtype.names is not None or a.dtype.kind in "VMm":  # records, raw bytes, dates: no file holds them
@@ -249,6 +251,14 @@ def _check_tree(doc: Any, source: str) -> Any:
             items = x.values() if isinstance(x, dict) else x
             stack.extend((v, d + 1) for v in items)
     return doc
+
+
+def _float(text: str) -> float:
+    """A float of an input file, ``-0.0`` read as ``0.0``.
+
+    numpy's samplers refuse a scale of ``-0.0`` (``scale < 0``) that every ``>= 0`` check lets through.
+    """
+    return float(text) + 0.0
 
 
 class _DuplicateKey(ValueError):
@@ -277,7 +287,7 @@ def parse_json(text: str | bytes, source: str) -> Any:
         InputError: ``"<source>: not valid JSON (...)"`` or a depth / size limit.
     """
     try:
-        doc = json.loads(text, object_pairs_hook=_unique_keys)
+        doc = json.loads(text, object_pairs_hook=_unique_keys, parse_float=_float)
     except RecursionError:
         raise InputError(f"{source}: nested deeper than {LIMITS.depth} levels") from None
     except _DuplicateKey as exc:
@@ -335,6 +345,10 @@ def _construct_mapping(loader: Any, node: Any, deep: bool = False) -> Any:
 
 
 _PlainLoader.add_constructor("tag:yaml.org,2002:map", lambda loader, node: _construct_mapping(loader, node, True))
+_PlainLoader.add_constructor(
+    _FLOAT,
+    lambda loader, node: yaml.SafeLoader.construct_yaml_float(loader, node) + 0.0,  # -0.0 is 0.0
+)
 
 
 _FLOW = re.compile(r"\"(?:[^\"\\\n]|\\.)*\"|'(?:[^'\n]|'')*'|#[^\n]*|[\[\]{}]")
@@ -427,7 +441,7 @@ def check_number(
     ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
     if integer:
         ok = ok and isinstance(value, (int, np.integer))
-    v = float(value) if ok else math.nan
+    v = float(value) + 0.0 if ok else math.nan  # -0.0 is 0.0
     if ok and math.isfinite(v):
         ok = (low is None or v > low or (v == low and not open_low)) and (high is None or v <= high)
     else:

@@ -214,3 +214,15 @@ def test_a_metrics_file_with_a_key_twice_is_refused(tmp_path) -> None:
     p.write_text(json.dumps({"measured": {}})[:-1] + ', "measured": {}}')
     with pytest.raises(MetricsFileError, match="appears twice"):
         read_metrics(p)
+
+
+def test_negative_zero_in_a_file_is_zero(tmp_path, capsys) -> None:
+    """A rig's ``scene_speed_std: -0.0`` passed the ``>= 0`` check and numpy's sampler refused it (``scale < 0``)."""
+    blob = json.loads((fp.SHIPPED / "radar_rig.json").read_text())
+    old = json.dumps(blob["params"]["scene_speed_std"])
+    text = json.dumps(blob).replace(f'"scene_speed_std": {old}', '"scene_speed_std": -0.0')
+    (tmp_path / "rig.json").write_text(text)
+    argv = ["record", "radar", "--rig", str(tmp_path / "rig.json"), "--out", str(tmp_path / "r.csv")]
+    code, err = _run([*argv, "--sequences", "1", "--cycles", "2"], capsys)
+    assert code == 0, err
+    assert str(parse_yaml("a: -0.0", "s")["a"]) == "0.0" and str(parse_json("[-0.0]", "s")[0]) == "0.0"
