@@ -244,7 +244,7 @@ _BOUNDED: dict[type, type] = {}
 
 
 def _bound_list(action: argparse.Action) -> None:
-    """Make ``action`` (``nargs='+'``/``'*'`` or ``append``) refuse more than :data:`MAX_VALUES` values in all.
+    """Make ``action`` (``nargs='+'``/``'*'`` or ``append``) refuse more than :data:`MAX_VALUES` values, or one twice.
 
     A list is a count too: 100 000 bandwidth candidates would run for days. The error is argparse's own
     one line, naming the option.
@@ -256,8 +256,12 @@ def _bound_list(action: argparse.Action) -> None:
             def __call__(self, parser: Any, namespace: Any, values: Any, option_string: Any = None) -> None:
                 super().__call__(parser, namespace, values, option_string)
                 held = getattr(namespace, self.dest, None)
-                if isinstance(held, list) and len(held) > MAX_VALUES:
+                held = held if isinstance(held, list) else []
+                if len(held) > MAX_VALUES:
                     raise argparse.ArgumentError(self, f"at most {MAX_VALUES} values, got {len(held)}")
+                twice = next((v for i, v in enumerate(held) if v in held[:i]), None)
+                if twice is not None:  # a sensor, a column, a candidate named twice: a typo, never meant
+                    raise argparse.ArgumentError(self, f"{twice!r:.60} is given twice")
 
         _BOUNDED[base] = Bounded
     action.__class__ = _BOUNDED[base]

@@ -4,7 +4,7 @@
   option of one sub-command gets a value no option of its kind may take: numbers spelled as ``nan``,
   ``1_0``, ``0x10``, ``1e``, ``+-1``, Arabic-Indic or full-width digits, ``1e309``, a subnormal, a
   number that rounds to zero, 30 digits; paths and free text that are blank, hold a NUL, a newline, a
-  tab or an escape sequence; choices outside the list; 65 values for a list option (at most 64). The
+  tab or an escape sequence; choices outside the list; 65 values, or one value twice, for a list option. The
   value must be refused when the command line is parsed (exit 2, one line naming the option): a case
   whose value the parser takes is accepted nonsense without running the command.
 * ``output target``: ``--out`` naming an input, a symbolic link to an input, a folder, a FIFO, an
@@ -83,12 +83,13 @@ def _every_option(c: Chooser, d: Path) -> Case:
     args = [a.replace("{d}", str(d)) for a in required]
     inputs = [Path(a) for a in args if not a.startswith("--")]
     many = action.option_strings and (action.nargs in ("+", "*") or isinstance(action, argparse._AppendAction))
-    if many and c.integers(0, 2) == 0:  # a list is a count too: at most 64 values
-        value = "65 plausible values"
-        one = {"number": "1", "text": "a", "choice": str(next(iter(action.choices or ["a"])))}[kind]
+    if many and c.integers(0, 2) == 0:  # a list is a count too (at most 64 values), and names each value once
+        n = c.choice([65, 2])
+        value = f"{n} equal values"
+        one = {"number": "1", "text": "a=1", "choice": str(next(iter(action.choices or ["a"])))}[kind]
         opt = action.option_strings[0]
         args = [a for i, a in enumerate(args) if a != opt and (i == 0 or args[i - 1] != opt)]
-        args += [opt, *[one] * 65] if action.nargs in ("+", "*") else [f"{opt}={one}"] * 65
+        args += [opt, *[one] * n] if action.nargs in ("+", "*") else [f"{opt}={one}"] * n
     elif action.option_strings:
         opt = action.option_strings[0]
         args = [a for i, a in enumerate(args) if a != opt and (i == 0 or args[i - 1] != opt)]

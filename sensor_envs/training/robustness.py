@@ -489,9 +489,12 @@ def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[di
         check_device(args.device)
     except ValueError as err:  # ConfigError
         raise UsageError(str(err)) from None
-    for item in args.set:
+    for k, item in enumerate(args.set):
+        key = item.partition("=")[0]
+        if key in {i.partition("=")[0] for i in args.set[:k]}:  # the last would win silently
+            raise UsageError(f"--set {key}: the key is given twice")
         try:
-            train_set[item.partition("=")[0]] = set_value(item)
+            train_set[key] = set_value(item)
         except ValueError as err:  # ConfigError
             raise UsageError(str(err)) from None
     eval_episodes = preset["eval_episodes"] if args.eval_episodes is None else args.eval_episodes

@@ -186,10 +186,14 @@ def load_config(
             expected = sorted(ALGO_KEYS)
             raise ConfigError(f"{path} [{env_id}]: algos.{algo}: unknown keys {sorted(bad)}; expected {expected}")
         cfg.update(alt, algo=algo)
+    given: set[str] = set()
     for item in overrides:
         key, sep, value = item.partition("=")
         if not sep:
             raise ConfigError(f"--set {item!r}: expected key=value")
+        if key in given:  # the last would win silently
+            raise ConfigError(f"--set {key}: the key is given twice")
+        given.add(key)
         cfg[key] = set_value(item)
     unknown = set(cfg) - KEYS
     if unknown:
