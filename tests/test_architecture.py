@@ -261,3 +261,20 @@ def test_no_benchmark_imports_a_test_module():
         if re.search(r"""sys\.path.*["']tests["']|parents\[\d\]\s*/\s*["']tests["']""", text):
             found.add((path.stem, "tests/ on sys.path"))
     assert not found, sorted(found)
+
+
+UNBOUNDED_READ = re.compile(r"yaml\.(safe_)?load\(|np\.load\(|json\.load\(|json\.loads\([^)\n]*\.read_(text|bytes)\(")
+
+
+def test_every_file_is_parsed_through_the_input_layer():
+    """YAML, JSON and .npz files are parsed by ``sensor_envs.inputs`` only (bounded reads, no alias bombs, no
+    duplicate keys; issue 42): a ``yaml.safe_load`` of a user's config once hung on a FIFO."""
+    found = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE).as_posix()
+        if rel == "inputs.py" or rel.startswith("testing/"):
+            continue
+        for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+            if UNBOUNDED_READ.search(line):
+                found.append(f"{rel}:{n}: {line.strip()}")
+    assert not found, found

@@ -348,9 +348,14 @@ def improvement(a: NDArray[np.float64], b: NDArray[np.float64], metric: str) -> 
     return {"p": p, "ci95": [lo, hi]}
 
 
+def _read_json(path: Path) -> Any:
+    """A job's JSON output in ``--out`` (written by this tool; read bounded, as any input)."""
+    return parse_json(read_text(path, "job result"), str(path))
+
+
 def build_matrix(out: Path, domain: str, rows: list[str], columns: list[str], seeds: list[int]) -> dict[str, Any]:
     """The jobs' ``eval.json`` as cells (IQM, mean, intervals) and the rows' probabilities of improvement."""
-    evals = {r: [json.loads((out / "runs" / r / f"seed{s}" / "eval.json").read_text()) for s in seeds] for r in rows}
+    evals = {r: [_read_json(out / "runs" / r / f"seed{s}" / "eval.json") for s in seeds] for r in rows}
     # a metric the jobs did not record (e.g. speed in jobs run before it was recorded) is left out
     metrics = [
         m
@@ -420,7 +425,7 @@ def model_hashes(
     written before jobs recorded them are hashed now (``hashed_at: "report"``).
     """
     jobs = {f"{r}/seed{s}": out / "runs" / r / f"seed{s}" for r in rows for s in seeds}
-    recorded = {k: json.loads((d / "eval.json").read_text()).get("sensor_models_sha256") for k, d in jobs.items()}
+    recorded = {k: _read_json(d / "eval.json").get("sensor_models_sha256") for k, d in jobs.items()}
     policies = {f"{k}/{policy}_model.zip": sha256(d / f"{policy}_model.zip") for k, d in jobs.items()}
     if any(v is None for v in recorded.values()):
         return {"hashed_at": "report", "sensor_models": sensor_model_hashes(domain, real_models), "policies": policies}
