@@ -155,5 +155,42 @@ def _output_target(c: Chooser, d: Path) -> Case:
     return Case("output target", what, argv, None, True, inputs)
 
 
-OPTION_FAMILIES = {"every option": _every_option, "output target": _output_target}
+CONFIG_KEYS = ["n_timesteps", "n_envs", "eval_freq", "eval_episodes", "device", "policy", "algo", "vec_env"]
+CONFIG_KEYS += ["hyperparams.learning_rate", "hyperparams.gamma", "hyperparams.nosuch", "env_kwargs.lidar"]
+CONFIG_KEYS += ["env_kwargs.nosuch"]
+CONFIG_VALUES = ["0", "-1", "1.5", "2", "0.5", "1e9", "10000000000", ".nan", ".inf", "true", "''", "x", "[1]"]
+CONFIG_VALUES += ["{a: 1}", "~", "cuda:7", "auto", "cpu", "MlpPolicy", "ppo", "dqn", "vector", "learned", "1_000"]
+
+
+def _config_must(key: str, v: Any) -> bool:
+    """Whether the value ``v`` of config ``key`` is certainly invalid (Neato-v0's block, this CPU machine)."""
+    from sensor_envs.training.train import COUNT_LIMITS
+
+    number = isinstance(v, (int, float)) and not isinstance(v, bool)
+    if key in COUNT_LIMITS:
+        return not (isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= COUNT_LIMITS[key])
+    if key.startswith("hyperparams.") or key.endswith("nosuch"):
+        return key.endswith("nosuch") or not (number and 0 < v <= 1)
+    allowed = {"device": ("auto", "cpu"), "policy": ("MlpPolicy",), "algo": ("ppo",), "vec_env": ("dummy", "vector")}
+    allowed["env_kwargs.lidar"] = ("ideal", "gaussian", "learned")
+    return v not in allowed[key]
+
+
+def _training_config(c: Chooser, d: Path) -> Case:
+    """A ``train --set`` override of one config key (or one entry of ``hyperparams``/``env_kwargs``)."""
+    from sensor_envs.inputs import parse_yaml
+    from sensor_envs.training.train import DEFAULT_CONFIG, load_config
+
+    key, value = c.choice(CONFIG_KEYS), c.choice(CONFIG_VALUES)
+    top, _, sub = key.partition(".")
+    base = {"hyperparams": "n_steps: 512, batch_size: 256, ", "env_kwargs": "map: seed_room, "}.get(top, "")
+    item = f"{top}={{{base}{sub}: {value}}}" if sub else f"{key}={value}"
+    must = _config_must(key, parse_yaml(value, "value"))
+    env = "sensor_envs/Neato-v0"
+    argv = ["train", "--env", env, "--out", str(d / "run"), "--set", item]
+    load = lambda: load_config(DEFAULT_CONFIG, env, [item])  # noqa: E731
+    return Case("training config", f"--set {item}", argv, load, must, [], command_when_loaded=False)
+
+
+OPTION_FAMILIES = {"every option": _every_option, "output target": _output_target, "training config": _training_config}
 """The second-round command-line families (:data:`sensor_envs.testing.fuzz_cases.FAMILIES` includes them)."""

@@ -68,7 +68,7 @@ DEFAULT_CONFIG = Path(__file__).with_name("configs") / "default.yaml"
 """The shipped config (package data ``sensor_envs/training/configs/default.yaml``)."""
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError):
     """A bad config file, config entry or argument (the message names the file and the key)."""
 
 
@@ -177,14 +177,16 @@ def load_config(
         known = sorted(doc) if isinstance(doc, dict) else []
         raise ConfigError(f"{path}: no config for env id {env_id!r}; known: {known}")
     cfg = dict(doc[env_id])
+    keys = [item.partition("=")[0] for item in overrides]  # named in every message: the value may come from --set
+    where = f"{path} [{env_id}]" + (f" with --set {', '.join(keys)}" if overrides else "")
     if algo is not None and algo != cfg.get("algo"):
         alt = (cfg.get("algos") or {}).get(algo)
         if not isinstance(alt, dict):
-            raise ConfigError(f"{path} [{env_id}]: algos.{algo}: no block for algo {algo!r}")
+            raise ConfigError(f"{where}: algos.{algo}: no block for algo {algo!r}")
         bad = set(alt) - ALGO_KEYS
         if bad:
             expected = sorted(ALGO_KEYS)
-            raise ConfigError(f"{path} [{env_id}]: algos.{algo}: unknown keys {sorted(bad)}; expected {expected}")
+            raise ConfigError(f"{where}: algos.{algo}: unknown keys {sorted(bad)}; expected {expected}")
         cfg.update(alt, algo=algo)
     given: set[str] = set()
     for item in overrides:
@@ -197,27 +199,27 @@ def load_config(
         cfg[key] = set_value(item)
     unknown = set(cfg) - KEYS
     if unknown:
-        raise ConfigError(f"{path} [{env_id}]: unknown keys {sorted(unknown)}; expected {sorted(KEYS)}")
+        raise ConfigError(f"{where}: unknown keys {sorted(unknown)}; expected {sorted(KEYS)}")
     if cfg.get("algo") not in ALGOS:
-        raise ConfigError(f"{path} [{env_id}]: algo must be one of {ALGOS}, got {cfg.get('algo')!r}")
+        raise ConfigError(f"{where}: algo must be one of {ALGOS}, got {cfg.get('algo')!r}")
     if cfg.setdefault("vec_env", "dummy") not in VEC_ENVS:
-        raise ConfigError(f"{path} [{env_id}]: vec_env must be one of {VEC_ENVS}, got {cfg['vec_env']!r}")
+        raise ConfigError(f"{where}: vec_env must be one of {VEC_ENVS}, got {cfg['vec_env']!r}")
     spec = gym.registry.get(env_id)
     if cfg["vec_env"] == "vector" and (spec is None or spec.vector_entry_point is None):
-        raise ConfigError(f"{path} [{env_id}]: vec_env: 'vector' needs a vector entry point, which this id has not")
-    check_device(cfg.setdefault("device", "auto"), f"{path} [{env_id}]: device")
+        raise ConfigError(f"{where}: vec_env: 'vector' needs a vector entry point, which this id has not")
+    check_device(cfg.setdefault("device", "auto"), f"{where}: device")
     for key, high in COUNT_LIMITS.items():
         value = cfg.get(key, 1)
         if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= high:
-            raise ConfigError(f"{path} [{env_id}]: {key} must be an integer in [1, {high}], got {value!r:.40}")
+            raise ConfigError(f"{where}: {key} must be an integer in [1, {high}], got {value!r:.40}")
     for key in ("env_kwargs", "hyperparams"):
         if not isinstance(cfg.get(key) or {}, dict):
-            raise ConfigError(f"{path} [{env_id}]: {key} must be a mapping, got {cfg[key]!r}")
+            raise ConfigError(f"{where}: {key} must be a mapping, got {cfg[key]!r}")
     if sensor is not None:
-        cfg["env_kwargs"] = sensor_kwargs(cfg, env_id, sensor, where=f"{path} [{env_id}]")
+        cfg["env_kwargs"] = sensor_kwargs(cfg, env_id, sensor, where=where)
     else:
-        sensor_table(cfg, where=f"{path} [{env_id}]")
-    check_arguments(cfg, env_id, f"{path} [{env_id}]")
+        sensor_table(cfg, where=where)
+    check_arguments(cfg, env_id, where)
     return cfg
 
 
@@ -248,20 +250,37 @@ def check_arguments(cfg: dict[str, Any], env_id: str, where: str) -> None:
 
     import stable_baselines3 as sb3
 
+    hp = cfg.get("hyperparams") or {}
     for key in ("hyperparams", "env_kwargs"):
         bad = _bad_number(cfg.get(key) or {})
         if bad is not None:
             raise ConfigError(f"{where}: {key}: {bad!r} is not a finite number within 1e12")
-    known = inspect.signature(getattr(sb3, cfg["algo"].upper())).parameters
-    unknown = sorted(set(cfg.get("hyperparams") or {}) - set(known) - {"policy", "env", "seed", "device"})
+    for key in ("gamma", "gae_lambda", "tau", "learning_rate"):  # SB3 takes them unchecked (gamma 2 diverges)
+        v = hp.get(key, 1.0)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v <= 1:
+            raise ConfigError(f"{where}: hyperparams: {key} must be a number in (0, 1], got {v!r:.40}")
+    unknown = sorted(set(hp) - set(inspect.signature(getattr(sb3, cfg["algo"].upper())).parameters))
     if unknown:
         raise ConfigError(f"{where}: hyperparams: {unknown[0]!r} is no {cfg['algo']} argument")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            gym.make(env_id, **dict(cfg.get("env_kwargs") or {})).close()
-    except (InputError, TypeError) as exc:  # an unknown keyword argument is a TypeError of the constructor
-        raise ConfigError(f"{where}: env_kwargs: {' '.join(str(exc).split())}") from None
+    _check_builds(cfg, env_id, where)
+
+
+def _check_builds(cfg: dict[str, Any], env_id: str, where: str) -> None:
+    """Build the env from ``env_kwargs`` and the SB3 model on it (CPU), turning their refusals into ConfigErrors."""
+    import stable_baselines3 as sb3
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            env = gym.make(env_id, **dict(cfg.get("env_kwargs") or {}))
+        except (InputError, TypeError) as exc:  # an unknown keyword argument is a TypeError of the constructor
+            raise ConfigError(f"{where}: env_kwargs: {' '.join(str(exc).split())}") from None
+        try:  # the policy name, the algorithm's action spaces and the hyperparameters' values, as SB3 checks them
+            getattr(sb3, cfg["algo"].upper())(cfg["policy"], env, device="cpu", **(cfg.get("hyperparams") or {}))
+        except (ValueError, TypeError, AssertionError, KeyError) as exc:
+            raise ConfigError(f"{where}: algo/policy/hyperparams: {' '.join(str(exc).split())[:200]}") from None
+        finally:
+            env.close()
 
 
 def make_env(env_id: str, cfg: dict[str, Any], n_envs: int, seed: int) -> Any:
