@@ -2,7 +2,7 @@
 
     PYTHONPATH=. python benchmarks/bad_input_report.py
 
-Runs each case of ``tests/test_bad_input.py`` (every CLI verb and the loaders behind it) in-process
+Runs each case of ``sensor_envs/testing/bad_options.py`` (every CLI verb and the loaders behind it) in-process
 in a fresh temporary folder and classifies the outcome: a traceback (uncaught exception), an exit
 status other than 2, several lines on stderr, a one-line message that misses the file or the field,
 or the contract (exit 2, one line naming file and field); ", files created/changed" is appended when
@@ -14,24 +14,20 @@ from __future__ import annotations
 import collections
 import contextlib
 import io
-import sys
 import tempfile
 import warnings
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-
-import test_bad_input as suite
-
 from sensor_envs.cli.main import main
+from sensor_envs.testing import bad_options, bad_pieces
 
 
-def outcome(case: suite.Case) -> str:
+def outcome(case: bad_pieces.Case) -> str:
     """How ``case`` ends (see the module docstring)."""
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
         argv, names = case.make(d)
-        before = suite.snapshot(d)
+        before = bad_pieces.snapshot(d)
         err = io.StringIO()
         try:
             with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
@@ -50,20 +46,20 @@ def outcome(case: suite.Case) -> str:
             kind = "exit 2, message misses file or field"
         else:
             kind = "exit 2, one line naming file and field"
-        return kind + (", files created/changed" if suite.snapshot(d) != before else "")
+        return kind + (", files created/changed" if bad_pieces.snapshot(d) != before else "")
 
 
 def main_report() -> None:
     """Print the table."""
     warnings.simplefilter("ignore")
     table: dict[str, collections.Counter[str]] = collections.defaultdict(collections.Counter)
-    for case in suite.CASES:
+    for case in bad_options.CASES:
         table[case.cls][outcome(case)] += 1
     print("| class of bad input | cases | outcome |\n|---|---:|---|")
     for cls, counts in table.items():
         text = "; ".join(f"{n} {k}" for k, n in counts.most_common())
         print(f"| {cls} | {sum(counts.values())} | {text} |")
-    print(f"| all | {len(suite.CASES)} | |")
+    print(f"| all | {len(bad_options.CASES)} | |")
 
 
 if __name__ == "__main__":

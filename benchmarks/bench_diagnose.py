@@ -8,7 +8,7 @@ rig sequences (``record_rig_log``, with ``rel_vx``/``rel_vy`` columns), measurem
 ``-0.4 s * relative velocity`` (undeclared latency), two noise columns and one weak correlate of the
 cause. Runs the full CLI path (read CSV, fit, rank, add, refit, report) with default settings.
 
-The lidar log: :func:`tests.test_diagnose_lidar.make_log`'s box world with a hidden range bias of
+The lidar log: :func:`sensor_envs.testing.synthetic_lidar.make_log`'s box world with a hidden range bias of
 3 cm per rad/s of turn rate (``omega``) beside the distractors ``v``, ``noise_a``, ``weak``.
 
 Usage: ``PYTHONPATH=. python benchmarks/bench_diagnose.py [--rows 20000] [--out DIR]``,
@@ -66,12 +66,8 @@ def run(rows: int, out: Path | None) -> None:
 
 def run_lidar(scans: int, bearings: int, out: Path | None) -> None:
     """Build the scan log, run ``diagnose lidar`` (default settings) and print size, wall time and result."""
-    import sys
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-    from test_diagnose_lidar import make_log
-
     from sensor_envs.lidar.log import save_log
+    from sensor_envs.testing.synthetic_lidar import make_log
 
     with tempfile.TemporaryDirectory() as tmp:
         path = save_log(make_log("omega", scans=scans, bearings=bearings), Path(tmp) / "log.npz")

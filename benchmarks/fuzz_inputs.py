@@ -5,7 +5,7 @@
 
 Run it under ``ulimit -v 8000000`` to bound the parent too: the children never raise their limit above it.
 
-For each case (``tests/fuzz_cases.py``: a valid piece, one generated mutation, the command that reads
+For each case (``sensor_envs/testing/fuzz_cases.py``: a valid piece, one generated mutation, the command that reads
 it and the loader behind it), a forked child process (the package imported once in the parent) with
 an address-space limit (``RLIMIT_AS``, ``ulimit -v``) of ``--memory-gb`` and a wall-clock limit of
 ``--timeout`` seconds runs the loader and then ``sensor-envs`` in-process, and reports its class:
@@ -18,7 +18,7 @@ an address-space limit (``RLIMIT_AS``, ``ulimit -v``) of ``--memory-gb`` and a w
 * ``hang``: killed at the time limit; ``memory``: ``MemoryError`` or killed under the memory limit;
 * ``files changed``: an input changed, or a file left behind by a failed command.
 
-With ``--api N``, N generated Python API calls follow (``tests/fuzz_api.py``: env constructors of every
+With ``--api N``, N generated Python API calls follow (``sensor_envs/testing/fuzz_api.py``: env constructors of every
 registered env id with their keyword arguments and highway-env config keys, ``reset`` and ``step`` with bad
 seeds, options and actions, the vector Neato entry, and ``fit`` / constructor / ``sample`` / ``log_prob`` /
 ``load`` of every model class), each in a forked child under the same limits, counted per call class.
@@ -44,12 +44,11 @@ import time
 import warnings
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import fuzz_api as fa
-import fuzz_cases as fc
+import sensor_envs.testing.fuzz_api as fa
+import sensor_envs.testing.fuzz_cases as fc
 
 BAD = ("traceback", "accepted nonsense", "hang", "memory", "files changed", "vague message", "exit", "harness error")
 
@@ -125,7 +124,7 @@ def main() -> None:
     ap.add_argument("--show", type=int, default=5, help="bad cases listed per class")
     ap.add_argument("--json", default=None, help="also write the counts to this file")
     ap.add_argument(
-        "--api", type=int, default=0, help="also this many generated Python API calls (tests/fuzz_api.py classes)"
+        "--api", type=int, default=0, help="also this many generated Python API calls (testing.fuzz_api classes)"
     )
     args = ap.parse_args()
     families = args.family or list(fc.FAMILIES)

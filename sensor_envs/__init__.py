@@ -12,7 +12,8 @@ imported lazily on first use (module-level ``__getattr__``, as ``gymnasium.wrapp
 ``import sensor_envs`` stays cheap.
 
 Packages: ``lidar`` and ``radar`` (the sensor models), ``envs`` (the worlds), ``diagnose``, ``evaluate`` and
-``training`` (tools), ``cli`` (the ``sensor-envs`` command). Shared modules: ``geometry`` (rays and segments), ``maps``
+``training`` (tools), ``cli`` (the ``sensor-envs`` command), ``testing`` (bad inputs shared by tests and
+benchmarks). Shared modules: ``geometry`` (rays and segments), ``maps``
 (2D segment maps), ``modelio`` (model files), ``constraints`` (the declared forms of hyperparameters and header
 fields), ``sensor_model`` (the one contract of the fitted sensor models:
 ``SensorModel``), ``outputs`` (safe output files), ``rng`` (seeded generators),

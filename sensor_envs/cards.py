@@ -28,14 +28,13 @@ where there is nothing.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, parse_json, read_text
 from sensor_envs.modelio import ModelFileError, read_header_and_arrays
 
 __all__ = ["read_header", "read_metrics", "render_card", "write_card", "MetricsFileError"]
@@ -109,12 +108,10 @@ def read_metrics(path: str | os.PathLike[str] | None) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such metrics file")
-    if path.stat().st_size > MAX_METRICS_BYTES:
-        raise MetricsFileError(f"{path}: larger than {MAX_METRICS_BYTES} bytes")
-    try:
-        blob = json.loads(path.read_text(encoding="utf-8"))
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise MetricsFileError(f"{path}: not valid UTF-8 JSON ({exc})") from exc
+    try:  # bounded: size, depth, no duplicate keys (sensor_envs.inputs)
+        blob = parse_json(read_text(path, "metrics", limit=MAX_METRICS_BYTES), str(path))
+    except InputError as exc:
+        raise MetricsFileError(str(exc)) from None
     if not isinstance(blob, dict):
         raise MetricsFileError(f"{path}: the top level must be a JSON object")
     for key in ("training_data", "rebuild", "limitations"):

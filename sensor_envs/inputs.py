@@ -132,6 +132,8 @@ def check_regular_file(path: PathLike, field: str = "file", limit: int | None = 
         st = p.stat()
     except FileNotFoundError:
         raise FileNotFoundError(f"{p}: {field}: file not found") from None
+    except OSError as exc:  # a symbolic-link loop, a name too long, a folder we may not enter
+        raise InputError(f"{p}: {field}: cannot be read ({exc.strerror or type(exc).__name__})") from None
     if not stat.S_ISREG(st.st_mode):
         raise InputError(f"{p}: {field}: is {_kind(st.st_mode)}, expected a regular file")
     cap = LIMITS.file_bytes if limit is None else limit
@@ -219,11 +221,19 @@ def load_npz(path: PathLike, what: str = "npz file") -> dict[str, NDArray[Any]]:
         )
     try:
         with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
+            arrays = {k: z[k] for k in z.files}
     except MemoryError:
         raise InputError(f"{path}: not a readable {what} (an array is too large)") from None
     except Exception as exc:  # zip/npy damage, pickled content, ...: all the file's fault
         raise InputError(f"{path}: not a readable {what} ({' '.join(str(exc).split())})") from None
+    for k, a in arrays.items():
+        if isinstance(a, np.ndarray) and a.dtype.kind == "f":  # -0.0 is 0.0 (numpy refuses a scale of -0.0)
+            arrays[k] = a = a + 0.0
+        if not isinstance(a, np.ndarray):  # a zip member that is no .npy (another zip, text): numpy hands bytes
+            raise InputError(f"{path}: field {k!r}: not an array (.npy) member of the {what}")
+        if a.dtype.names is not None or a.dtype.kind in "VMm":  # records, raw bytes, dates: no file holds them
+            raise InputError(f"{path}: field {k!r}: an array of dtype {a.dtype}, expected numbers")
+    return arrays
 
 
 def _check_tree(doc: Any, source: str) -> Any:
@@ -243,8 +253,31 @@ def _check_tree(doc: Any, source: str) -> Any:
     return doc
 
 
+def _float(text: str) -> float:
+    """A float of an input file, ``-0.0`` read as ``0.0``.
+
+    numpy's samplers refuse a scale of ``-0.0`` (``scale < 0``) that every ``>= 0`` check lets through.
+    """
+    return float(text) + 0.0
+
+
+class _DuplicateKey(ValueError):
+    """A JSON object that names one key twice (``json.loads`` would keep the last value silently)."""
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in pairs:
+        if k in out:
+            raise _DuplicateKey(f"the key {k!r:.60} appears twice in one object")
+        out[k] = v
+    return out
+
+
 def parse_json(text: str | bytes, source: str) -> Any:
-    """JSON text as Python data, bounded in depth and size (``NaN`` literals pass: the caller checks values).
+    """JSON text as Python data, bounded in depth and size, no key twice in one object.
+
+    ``NaN`` and ``Infinity`` literals pass (a model header writes "chosen by CV" as ``NaN``): the caller checks values.
 
     Args:
         text: the JSON text.
@@ -254,9 +287,11 @@ def parse_json(text: str | bytes, source: str) -> Any:
         InputError: ``"<source>: not valid JSON (...)"`` or a depth / size limit.
     """
     try:
-        doc = json.loads(text)
+        doc = json.loads(text, object_pairs_hook=_unique_keys, parse_float=_float)
     except RecursionError:
         raise InputError(f"{source}: nested deeper than {LIMITS.depth} levels") from None
+    except _DuplicateKey as exc:
+        raise InputError(f"{source}: {exc}") from None
     except ValueError as exc:  # JSONDecodeError, bad UTF-8, an integer of more than 4300 digits
         raise InputError(f"{source}: not valid JSON ({' '.join(str(exc).split())[:200]})") from None
     return _check_tree(doc, source)
@@ -268,8 +303,9 @@ class _PlainLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # type: igno
 
 _INT = "tag:yaml.org,2002:int"
 _FLOAT = "tag:yaml.org,2002:float"
+_TIMESTAMP = "tag:yaml.org,2002:timestamp"
 _PlainLoader.yaml_implicit_resolvers = {
-    first: [(tag, rx) for tag, rx in resolvers if tag not in (_INT, _FLOAT)]
+    first: [(tag, rx) for tag, rx in resolvers if tag not in (_INT, _FLOAT, _TIMESTAMP)]
     for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
 }
 _PlainLoader.add_implicit_resolver(_INT, re.compile(r"^[-+]?[0-9]+$"), list("-+0123456789"))
@@ -280,7 +316,39 @@ _PlainLoader.add_implicit_resolver(
     ),
     list("-+0123456789."),
 )
-"""Plain decimal numbers only (YAML 1.1 would read ``1_0.5`` as 10.5, ``0x10`` as 16 and ``1:30`` as 90)."""
+"""Plain decimal numbers only (YAML 1.1 would read ``1_0.5`` as 10.5, ``0x10`` as 16 and ``1:30`` as 90); no
+implicit dates (``2001-12-14`` stays text)."""
+
+_TAGS = frozenset({"!", *(f"tag:yaml.org,2002:{t}" for t in ("str", "int", "float", "bool", "null", "seq", "map"))})
+"""Explicit tags an input file may use: the plain JSON-like types (``!!binary``, ``!!set``, ``!!timestamp``,
+``!!python/...`` and local tags are refused)."""
+
+
+def _construct_mapping(loader: Any, node: Any, deep: bool = False) -> Any:
+    """A mapping whose keys are distinct strings (PyYAML keeps the last of two equal keys silently).
+
+    Merge keys (``<<``) are refused with the aliases they exist for; so are keys that are no string
+    (``~: 1``, ``1: 2``, ``on: 1``, ``[a, b]: 1``).
+    """
+    seen: set[str] = set()
+    for key_node, _ in node.value:
+        line = key_node.start_mark.line + 1
+        if key_node.tag == "tag:yaml.org,2002:merge":
+            raise yaml.constructor.ConstructorError(None, None, f"line {line}: merge keys (<<) are not accepted")
+        key = loader.construct_object(key_node, deep=True)
+        if not isinstance(key, str):
+            raise yaml.constructor.ConstructorError(None, None, f"line {line}: the key {key!r:.40} is not text")
+        if key in seen:
+            raise yaml.constructor.ConstructorError(None, None, f"line {line}: the key {key!r:.60} appears twice")
+        seen.add(key)
+    return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
+
+
+_PlainLoader.add_constructor("tag:yaml.org,2002:map", lambda loader, node: _construct_mapping(loader, node, True))
+_PlainLoader.add_constructor(
+    _FLOAT,
+    lambda loader, node: yaml.SafeLoader.construct_yaml_float(loader, node) + 0.0,  # -0.0 is 0.0
+)
 
 
 _FLOW = re.compile(r"\"(?:[^\"\\\n]|\\.)*\"|'(?:[^'\n]|'')*'|#[^\n]*|[\[\]{}]")
@@ -307,6 +375,11 @@ def _check_events(text: str, source: str) -> None:
     depth = count = 0
     for event in yaml.parse(text, Loader=_PlainLoader):
         count += 1
+        tag = getattr(event, "tag", None)
+        if tag is not None and tag not in _TAGS:
+            raise InputError(
+                f"{source}: line {event.start_mark.line + 1}: the tag {tag} is not accepted in input files"
+            )
         if isinstance(event, yaml.AliasEvent):
             raise InputError(
                 f"{source}: aliases (*name) are not accepted in input files (line {event.start_mark.line + 1})"
@@ -334,6 +407,8 @@ def parse_yaml(text: str, source: str) -> Any:
         doc = yaml.load(text, Loader=_PlainLoader)
     except RecursionError:
         raise InputError(f"{source}: nested deeper than {LIMITS.depth} levels") from None
+    except InputError:
+        raise
     except yaml.YAMLError as exc:
         raise InputError(f"{source}: not valid YAML ({' '.join(str(exc).split())[:200]})") from None
     except (ValueError, TypeError, OverflowError) as exc:  # e.g. a timestamp out of range
@@ -366,7 +441,7 @@ def check_number(
     ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
     if integer:
         ok = ok and isinstance(value, (int, np.integer))
-    v = float(value) if ok else math.nan
+    v = float(value) + 0.0 if ok else math.nan  # -0.0 is 0.0
     if ok and math.isfinite(v):
         ok = (low is None or v > low or (v == low and not open_low)) and (high is None or v <= high)
     else:

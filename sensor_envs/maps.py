@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, from_frame
-from sensor_envs.inputs import InputError, check_pixels, parse_json, parse_yaml, read_bytes, read_text
+from sensor_envs.inputs import InputError, bad_name, check_pixels, parse_json, parse_yaml, read_bytes, read_text
 
 __all__ = ["SegmentMap", "load_map", "BUILTIN_MAPS", "read_ros_map", "ros_occupancy", "occupancy_to_segments"]
 
@@ -131,8 +131,14 @@ def _load_map_file(path: Path) -> SegmentMap:
             return read_ros_map(path)
         if not isinstance(doc, dict) or "segments" not in doc:
             raise InputError(f"{path}: expected a mapping with a 'segments' list (or a ROS map_server 'image' key)")
+        unknown = sorted(set(doc) - {"name", "segments"})
+        if unknown:
+            raise InputError(f"{path}: field {unknown[0]!r:.60} is no map field (name, segments)")
+        name = doc.get("name", path.stem)
+        if bad_name(name):
+            raise InputError(f"{path}: field 'name' {bad_name(name)}")
         rows = _segment_rows(doc["segments"], path)
-        return SegmentMap(as_segments(rows, name=f"{path}: field 'segments'"), name=str(doc.get("name", path.stem)))
+        return SegmentMap(as_segments(rows, name=f"{path}: field 'segments'"), name=name)
     text_rows: list[list[float]] = []
     for lineno, line in enumerate(text.splitlines(), start=1):
         line = line.split("#", 1)[0].strip()
@@ -190,13 +196,17 @@ MAX_ORIGIN = 1e6
 """Largest accepted ``|origin|`` coordinate [m]."""
 
 
+ROS_MAP_KEYS = frozenset({"image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh", "mode"})
+"""The fields of a ROS map_server YAML (an unknown one is refused, not ignored: a typo would drop a threshold)."""
+
+
 def ros_occupancy(yaml_path: str | os.PathLike[str]) -> tuple[NDArray[np.bool_], float, NDArray[np.float64]]:
     """Occupied cells ``(H, W)`` (row 0 at the smallest y), resolution [m], origin ``(x, y, yaw)`` of a ROS map.
 
     Every field is checked: ``image`` a file name beside the YAML (a regular file within the size and
     pixel limits), ``resolution`` in ``[1e-4, 100]`` m, ``origin`` three finite numbers, ``free_thresh`` a
     probability below 1 (default 0.196) and ``occupied_thresh`` one between it and 1 (exclusive), ``negate``
-    0 or 1.
+    0 or 1, ``mode`` trinary or scale (the occupied cells are the same in both); no other field.
 
     Raises:
         InputError: naming the file and the field.
@@ -206,6 +216,11 @@ def ros_occupancy(yaml_path: str | os.PathLike[str]) -> tuple[NDArray[np.bool_],
     for key in ("image", "resolution", "origin"):
         if not isinstance(meta, dict) or key not in meta:
             raise InputError(f"{path}: field {key!r} is missing (not a ROS map_server YAML)")
+    unknown = sorted(set(meta) - ROS_MAP_KEYS)
+    if unknown:
+        raise InputError(f"{path}: field {unknown[0]!r} is no ROS map_server field (expected {sorted(ROS_MAP_KEYS)})")
+    if meta.get("mode", "trinary") not in ("trinary", "scale"):  # raw: pixel values are occupancies, not greys
+        raise InputError(f"{path}: field 'mode' must be trinary or scale, got {meta['mode']!r:.40}")
     res = _yaml_number(meta, "resolution", path)
     if not MIN_RESOLUTION <= res <= MAX_RESOLUTION:
         raise InputError(f"{path}: field 'resolution' must be in [{MIN_RESOLUTION:g}, {MAX_RESOLUTION:g}] m, got {res}")
@@ -264,6 +279,8 @@ def _read_image(img_path: Path, yaml_path: Path) -> NDArray[np.float64]:
             warnings.simplefilter("error", Image.DecompressionBombWarning)
             with Image.open(io.BytesIO(raw)) as im:
                 check_pixels(im.size[0], im.size[1], f"{img_path}: map image")  # from the header, before decoding
+                if im.mode.startswith(("I", "F")):  # convert("L") would clip, not scale: grey would turn white
+                    raise InputError(f"{img_path}: a map image of mode {im.mode} (more than 8 bits per sample)")
                 return np.asarray(im.convert("L"), dtype=np.float64)
     except InputError:
         raise

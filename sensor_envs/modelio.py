@@ -514,6 +514,11 @@ def load_rig_file(
         raise ModelFileError(str(exc)) from None
     if not isinstance(blob, dict):
         raise ModelFileError(f"{path}: a rig file must hold a JSON object")
+    unknown = sorted(set(blob) - {"kind", "format_version", "params", "card"})
+    if unknown:  # never ignored: a misspelt "card" would drop the card silently
+        raise ModelFileError(
+            f"{path}: field {unknown[0]!r:.60} is no rig file field (kind, format_version, params, card)"
+        )
     if blob.get("kind") != kind:
         raise ModelFileError(f"{path}: field 'kind' is {blob.get('kind')!r}, expected {kind!r}")
     if isinstance(blob.get("format_version"), bool) or blob.get("format_version") != RIG_FORMAT_VERSION:

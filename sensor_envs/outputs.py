@@ -119,6 +119,8 @@ def check_output(
         OutputError: naming the option and the file.
     """
     p = Path(path)
+    if not folder and os.fspath(path).endswith(("/", os.sep)):  # Path() would drop the slash silently
+        raise OutputError(f"{option}: {os.fspath(path)} ends in '/', which names a folder; expected a file name")
     if suffix is not None:
         check_suffix(p, suffix, option)
     for src in inputs:

@@ -35,6 +35,7 @@ LAYERS = {
     "evaluate": 3,
     "training": 3,
     "cli": 4,
+    "testing": 5,
 }
 # Sensor domains that must not import each other.
 SEPARATE = {("lidar", "radar"), ("radar", "lidar")}
@@ -156,8 +157,11 @@ def test_package_docstring_names_all_its_modules(package):
     assert not missing, f"{name}: docstring does not name {missing}"
 
 
-# Every subpackage hands on a curated public API; the command line's interface is the ``sensor-envs`` command.
-API_PACKAGES = sorted(_module_name(p / "__init__.py") for p in PACKAGES if p != PACKAGE and p.name != "cli")
+# Every subpackage hands on a curated public API; the command line's interface is the ``sensor-envs`` command,
+# and ``testing`` holds the suite's and benchmarks' case generators (no user API).
+API_PACKAGES = sorted(
+    _module_name(p / "__init__.py") for p in PACKAGES if p != PACKAGE and p.name not in ("cli", "testing")
+)
 
 
 @pytest.mark.parametrize("package", API_PACKAGES)
@@ -245,3 +249,44 @@ def test_no_benchmark_imports_another():
         text = path.read_text(encoding="utf-8")
         found |= {(path.stem, n) for n in names if n != path.stem and f"{n}.py" in text and "spec_from_file" in text}
     assert not found, sorted(found)
+
+
+def _imported_modules(path: Path) -> set[str]:
+    """Top-level names of every module ``path`` imports (anywhere in the file)."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            found |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            found.add(node.module.split(".")[0])
+    return found
+
+
+def test_no_benchmark_imports_a_test_module():
+    """Shared case generators live in ``sensor_envs.testing``: a benchmark neither puts ``tests/`` on the path
+    nor imports a module of it (issue 40)."""
+    test_modules = {p.stem for p in (ROOT / "tests").glob("*.py")} | {"tests"}
+    found = set()
+    for path in BENCHMARKS:
+        text = path.read_text(encoding="utf-8")
+        found |= {(path.stem, m) for m in _imported_modules(path) & test_modules}
+        if re.search(r"""sys\.path.*["']tests["']|parents\[\d\]\s*/\s*["']tests["']""", text):
+            found.add((path.stem, "tests/ on sys.path"))
+    assert not found, sorted(found)
+
+
+UNBOUNDED_READ = re.compile(r"yaml\.(safe_)?load\(|np\.load\(|json\.load\(|json\.loads\([^)\n]*\.read_(text|bytes)\(")
+
+
+def test_every_file_is_parsed_through_the_input_layer():
+    """YAML, JSON and .npz files are parsed by ``sensor_envs.inputs`` only (bounded reads, no alias bombs, no
+    duplicate keys; issue 42): a ``yaml.safe_load`` of a user's config once hung on a FIFO."""
+    found = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE).as_posix()
+        if rel == "inputs.py" or rel.startswith("testing/"):
+            continue
+        for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+            if UNBOUNDED_READ.search(line):
+                found.append(f"{rel}:{n}: {line.strip()}")
+    assert not found, found

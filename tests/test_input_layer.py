@@ -7,11 +7,12 @@ import gzip
 import json
 import os
 import sys
+from pathlib import Path
 
-import fuzz_cases as fc
 import numpy as np
 import pytest
 
+import sensor_envs.testing.fuzz_pieces as fp
 from sensor_envs import inputs
 from sensor_envs.cli.main import main
 from sensor_envs.inputs import InputError
@@ -60,7 +61,7 @@ def test_size_inflated_size_and_line_length_are_bounded(tmp_path, small_limits):
 
 def test_npz_bomb_is_refused_from_its_zip_directory(tmp_path):
     p = tmp_path / "log.npz"
-    p.write_bytes(fc.npz_bomb())
+    p.write_bytes(fp.npz_bomb())
     with pytest.raises(InputError, match="inflate to 2147483776 bytes"):
         inputs.load_npz(p)
 
@@ -79,7 +80,7 @@ def test_json_and_yaml_depth_aliases_and_size(tmp_path):
 
 
 def test_csv_field_limit_and_unclosed_quote_name_the_line(tmp_path, capsys):
-    p = fc.write_radar_csv(tmp_path)
+    p = fp.write_radar_csv(tmp_path)
     rows = p.read_text().splitlines()
     p.write_text("\n".join([*rows[:3], rows[3] + "," + "9" * 200_000, *rows[4:]]) + "\n")
     assert main(["fit", "radar", str(p), "--out", str(tmp_path / "m.npz")]) == 2
@@ -97,14 +98,14 @@ def test_only_input_errors_take_the_one_line_path(tmp_path, monkeypatch, capsys)
         raise ValueError("a bug inside numpy")
 
     monkeypatch.setattr(kde, "fit_cycle_time", bug)
-    p = fc.write_radar_csv(tmp_path)
+    p = fp.write_radar_csv(tmp_path)
     with pytest.raises(ValueError, match="a bug inside numpy"):
         main(["fit", "radar", str(p), "--out", str(tmp_path / "m.npz")])
     assert not (tmp_path / "m.npz").exists()
 
 
 def test_an_oserror_names_its_file(tmp_path, capsys):
-    p = fc.write_radar_csv(tmp_path)
+    p = fp.write_radar_csv(tmp_path)
     p.chmod(0)
     if os.access(p, os.R_OK):  # root reads anything
         pytest.skip("running as root: file permissions do not apply")
@@ -143,10 +144,10 @@ def test_rosbag_without_rosbags_says_how_to_install(tmp_path, monkeypatch):
 
 def test_defaults_that_do_not_fit_the_log_are_refused(tmp_path, capsys):
     log = tmp_path / "log.log"
-    log.write_text(fc.carmen_text())
+    log.write_text(fp.carmen_text())
     assert main(["fit", "lidar", str(log), "--out", str(tmp_path / "m.npz")]) == 2
     assert "--max-range: required" in _one_line(capsys)
-    root = fc.write_astyx(tmp_path)
+    root = fp.write_astyx(tmp_path)
     assert main(["fit", "radar", str(root), "--out", str(tmp_path / "m.npz")]) == 2
     assert "record radar --astyx" in _one_line(capsys)
     for opt in ("--rig", "--out"):
@@ -158,7 +159,7 @@ def test_defaults_that_do_not_fit_the_log_are_refused(tmp_path, capsys):
 def test_every_numeric_option_has_a_declared_range():
     import argparse
 
-    from sensor_envs.cli.args import nonneg_int, path_arg, path_object
+    from sensor_envs.cli.args import nonneg_int, path_arg, path_object, text_arg
     from sensor_envs.cli.main import build_parser
 
     def walk(p):
@@ -170,7 +171,7 @@ def test_every_numeric_option_has_a_declared_range():
                 yield a
 
     for action in walk(build_parser()):
-        if action.type in (nonneg_int, path_arg, path_object):
+        if action.type in (nonneg_int, path_arg, path_object, text_arg):
             continue
         for bad in ("nan", "inf", "1e300", "1e12", "-1", "1_0"):
             with pytest.raises(argparse.ArgumentTypeError):
@@ -181,7 +182,7 @@ def test_model_header_true_is_not_format_version_1(tmp_path):
     from sensor_envs.modelio import ModelFileError, read_model
     from sensor_envs.radar.gaussian import GaussianRadar
 
-    with np.load(fc.SHIPPED / "radar_gaussian.npz") as z:
+    with np.load(fp.SHIPPED / "radar_gaussian.npz") as z:
         data = {k: z[k] for k in z.files}
     h = json.loads(data["__header__"].tobytes())
     h["format_version"] = True
@@ -195,7 +196,7 @@ def test_a_log_whose_name_is_not_utf8_is_fitted_and_carded(tmp_path):
     import subprocess
 
     name = os.fsencode(tmp_path) + b"/log\xe9.npz"
-    fc.write_npz(fc.Path(os.fsdecode(name)), fc.lidar_arrays())
+    fp.write_npz(Path(os.fsdecode(name)), fp.lidar_arrays())
     cli = [sys.executable, "-m", "sensor_envs.cli.main", "fit", "lidar"]
     out = os.fsencode(tmp_path / "m.npz")
     r = subprocess.run(

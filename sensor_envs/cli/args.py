@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import math
 import re
+import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from sensor_envs.inputs import InputError
 
@@ -27,6 +28,7 @@ __all__ = [
     "FLOAT_RANGES",
     "add_force",
     "printable",
+    "text_arg",
     "MAX_SEED",
 ]
 
@@ -82,10 +84,30 @@ def bounded_int(low: int, high: int) -> Callable[[str], int]:
     return parse
 
 
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+"""Control characters (C0, DEL, C1): no file name or word of an option holds one (a newline would split a message)."""
+MAX_TEXT = 1000
+"""Longest free-text option value [characters] (a note, a name, a ``KEY=VALUE``)."""
+
+
 def path_arg(text: str) -> str:
-    """A path option (argparse ``type=``): a non-empty name without NUL bytes (``--rig ''`` is an error)."""
-    if not text.strip() or "\x00" in text:
+    """A path option (argparse ``type=``): a non-blank name without control characters (``--rig ''`` is an error).
+
+    A name that is not UTF-8 (surrogate escapes in ``sys.argv``) is a valid POSIX file name and passes.
+    """
+    if not text.strip() or _CONTROL.search(text):
         raise argparse.ArgumentTypeError(f"expected a file name, got {text!r}")
+    return text
+
+
+def text_arg(text: str) -> str:
+    """A free-text option (argparse ``type=``): non-blank printable text of at most :data:`MAX_TEXT` characters.
+
+    Every option without a declared type gets it (:func:`declare_ranges`): ``--extra-state ''``, ``--env ''``
+    or an escape sequence are errors naming the option, never an empty name passed on.
+    """
+    if not text.strip() or not text.isprintable() or len(text) > MAX_TEXT:
+        raise argparse.ArgumentTypeError(f"expected printable text of 1 to {MAX_TEXT} characters, got {text!r:.80}")
     return text
 
 
@@ -94,9 +116,24 @@ def path_object(text: str) -> Path:
     return Path(path_arg(text))
 
 
+def _decimal(text: str) -> float:
+    """``text`` as a float: plain ASCII decimal, finite, representable (NaN for anything else).
+
+    A subnormal (``4.9e-324``) or a non-zero number that rounds to zero (``1e-400``) is no value anyone
+    meant: NaN, refused by the caller. ``-0`` is ``0.0``.
+    """
+    m = _DECIMAL.fullmatch(text)
+    if not m:
+        return math.nan
+    value = float(text) + 0.0
+    if (value == 0.0 and re.search(r"[1-9]", m.group(1))) or 0.0 < abs(value) < sys.float_info.min:
+        return math.nan
+    return value
+
+
 def positive_float(text: str) -> float:
     """A finite number ``> 0`` (argparse ``type=``); ``nan``, ``inf``, ``0`` and negatives are refused."""
-    value = float(text) if _DECIMAL.fullmatch(text) else math.nan
+    value = _decimal(text)
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
     return value
@@ -106,7 +143,7 @@ def float_between(low: float, high: float) -> Callable[[str], float]:
     """An argparse ``type=`` accepting a finite number in ``[low, high]`` (e.g. a model's accepted range)."""
 
     def parse(text: str) -> float:
-        value = float(text) if _DECIMAL.fullmatch(text) else math.nan
+        value = _decimal(text)
         if not (math.isfinite(value) and low <= value <= high):
             raise argparse.ArgumentTypeError(f"expected a number in [{low:g}, {high:g}], got {text!r}")
         return value
@@ -195,10 +232,39 @@ FLOAT_RANGES: dict[str, tuple[float, float]] = {
 """Declared range of every real-valued option (by ``dest``): finite, sane magnitudes."""
 PATH_OPTIONS = frozenset(
     {"out", "log", "model", "map", "real_data", "real", "rig", "baseline", "baseline_out", "astyx", "base", "config"}
-    | {"spurious_only"}
+    | {"spurious_only", "json", "metrics", "recipes"}
 )
 """Options naming files: an empty name (``--rig ''``) is an error, never a silent fall-back to the default."""
 _UNBOUNDED = {positive_int, nonneg_int, positive_float, float, int}
+
+
+MAX_VALUES = 64
+"""Most values one list option holds (``--relevance-candidates``, ``--factors``, ``--set``, ``--exclude``, ...)."""
+_BOUNDED: dict[type, type] = {}
+
+
+def _bound_list(action: argparse.Action) -> None:
+    """Make ``action`` (``nargs='+'``/``'*'`` or ``append``) refuse more than :data:`MAX_VALUES` values, or one twice.
+
+    A list is a count too: 100 000 bandwidth candidates would run for days. The error is argparse's own
+    one line, naming the option.
+    """
+    base = type(action)
+    if base not in _BOUNDED:
+
+        class Bounded(base):  # type: ignore[valid-type,misc]
+            def __call__(self, parser: Any, namespace: Any, values: Any, option_string: Any = None) -> None:
+                super().__call__(parser, namespace, values, option_string)
+                held = getattr(namespace, self.dest, None)
+                held = held if isinstance(held, list) else []
+                if len(held) > MAX_VALUES:
+                    raise argparse.ArgumentError(self, f"at most {MAX_VALUES} values, got {len(held)}")
+                twice = next((v for i, v in enumerate(held) if v in held[:i]), None)
+                if twice is not None:  # a sensor, a column, a candidate named twice: a typo, never meant
+                    raise argparse.ArgumentError(self, f"{twice!r:.60} is given twice")
+
+        _BOUNDED[base] = Bounded
+    action.__class__ = _BOUNDED[base]
 
 
 def declare_ranges(parser: argparse.ArgumentParser) -> None:
@@ -214,9 +280,12 @@ def declare_ranges(parser: argparse.ArgumentParser) -> None:
             for sub in action.choices.values():
                 declare_ranges(sub)
             continue
-        if action.dest in PATH_OPTIONS and action.type is None and action.choices is None:
-            if not (action.dest == "model" and action.default == "fit"):
-                action.type = path_arg
+        if action.nargs in ("+", "*") or isinstance(action, argparse._AppendAction):
+            _bound_list(action)
+        if action.nargs == 0 or action.choices is not None:  # a flag, or a choice argparse checks
+            continue
+        if action.type is None:  # a path, or free text: never blank, never a control character
+            action.type = path_arg if action.dest in PATH_OPTIONS else text_arg
         if action.dest in PATH_OPTIONS and action.type is Path:
             action.type = path_object
         if action.type not in _UNBOUNDED or action.type is nonneg_int:

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from sensor_envs.cli.args import OneLineParser, add_force
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, parse_yaml, read_text
 from sensor_envs.outputs import output_folder
 
 __all__ = ["RECIPE_KEYS", "load_recipe", "recipe_names", "recipe_argv", "recipe_models", "rebuild", "register"]
@@ -43,12 +43,7 @@ def load_recipe(path: Path) -> dict[str, Any]:
     Raises:
         ValueError: naming the file and the field, for a malformed recipe.
     """
-    import yaml
-
-    try:
-        recipe = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        raise InputError(f"{path}: not YAML ({str(exc).splitlines()[0]})") from None
+    recipe = parse_yaml(read_text(path, "recipe"), str(path))  # bounded, no aliases or tags (sensor_envs.inputs)
     if not isinstance(recipe, dict):
         raise InputError(f"{path}: expected a mapping of {sorted(RECIPE_KEYS)}")
     unknown = set(recipe) - RECIPE_KEYS

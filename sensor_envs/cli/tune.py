@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from sensor_envs.cli.args import OneLineParser, about, add_force, float_between, positive_int
+from sensor_envs.cli.args import OneLineParser, about, add_force, bounded_int, float_between, positive_int
 from sensor_envs.inputs import InputError
 from sensor_envs.modelio import read_model
 from sensor_envs.outputs import OutputTransaction, check_inputs, check_output
@@ -69,7 +69,7 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
         help="--what tail: candidate widths of the wide component, in bandwidths (default: %(default)s)",
     )
     p.add_argument("--block", type=positive_int, default=10, help="frames per block (default 10)")
-    p.add_argument("--folds", type=float_between(2, 1000), default=5, help="folds of blocks (default 5)")
+    p.add_argument("--folds", type=bounded_int(2, 1000), default=5, help="folds of blocks (default 5)")
     p.add_argument("--chains", type=positive_int, default=16, help="rollouts per row of the stationary law")
     p.add_argument("--cycles", type=positive_int, default=5, help="cycles per rollout (the last is scored)")
     p.add_argument("--seed", type=int, default=0, help="seed of the stationary-law rollouts (default 0)")
@@ -92,9 +92,7 @@ def _tune(args: argparse.Namespace) -> int:
     from sensor_envs.radar.fidelity import check_folds, fold_rows, load_real_log
     from sensor_envs.radar.kde import KDERadarModel
 
-    folds_n = int(args.folds)
-    if folds_n != args.folds:
-        raise InputError(f"--folds: expected a whole number, got {args.folds}")
+    folds_n = args.folds
     if args.refit and args.what != "tail":
         raise InputError("--refit: only with --what tail")
     check_inputs(args.model, args.real)

@@ -325,8 +325,8 @@ def _map_or_none(map: Any) -> NDArray[np.float64] | None:
 # ---------------------------------------------------------------------------------------------- CARMEN
 def _parse_flaser(tok: list[str]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float, float]:
     n = int(tok[1])
-    if n < 2 or len(tok) < 9 + n:
-        raise InputError(f"{n} readings in a line of {len(tok)} fields; FLASER needs at least 2 and all its fields")
+    if n < 2 or len(tok) != 11 + n:  # FLASER n r_1..r_n x y theta odom_x odom_y odom_theta t host t_logger
+        raise InputError(f"{n} readings in a line of {len(tok)} fields; FLASER needs at least 2 and n + 11 fields")
     r = np.asarray(tok[2 : 2 + n], dtype=np.float64)
     pose = np.asarray(tok[2 + n : 5 + n], dtype=np.float64)
     b = -np.pi / 2 + np.arange(n) * np.pi / (n - 1)  # n beams over [-pi/2, pi/2], both ends included
@@ -342,8 +342,8 @@ def _parse_robotlaser1(
         raise InputError(f"{n} readings in a line of {len(tok)} fields")
     r = np.asarray(tok[9 : 9 + n], dtype=np.float64)
     m = int(tok[9 + n])
-    if not 0 <= m <= len(tok) - 10 - n - 12:
-        raise InputError(f"{m} remission values in a line of {len(tok)} fields")
+    if not 0 <= m or len(tok) != 24 + n + m:  # ... n ranges m remissions, 2 poses, 5 motion values, t host t_logger
+        raise InputError(f"{n} readings and {m} remission values in a line of {len(tok)} fields, not n + m + 24")
     if not (np.isfinite([start, res, max_r]).all() and res != 0 and max_r > 0):
         raise InputError(f"start angle {start:g}, resolution {res:g} and maximum range {max_r:g} are not a scan")
     rest = tok[10 + n + m :]
@@ -542,6 +542,8 @@ def read_rosbag(
         scans, st, pts, pt, twists, bearings = _read_bag_messages(p, scan_topic, pose_topic)
     except (AnyReaderError, Ros1Error, Ros2Error, EOFError, OSError, struct.error, UnicodeDecodeError) as exc:
         raise LidarLogError(f"{p}: not a readable ROS bag ({' '.join(str(exc).split())})") from None
+    except (AssertionError, IndexError, KeyError) as exc:  # rosbags checks its index records with assert
+        raise LidarLogError(f"{p}: not a readable ROS bag (damaged record: {type(exc).__name__})") from None
     if not scans:
         raise LidarLogError(f"{p}: field 'ranges': no message on {scan_topic!r}")
     if not pts:

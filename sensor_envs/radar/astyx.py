@@ -60,6 +60,14 @@ CLASS_CODES = ("Car", "Truck", "Bus", "Person", "Trailer", "Other Vehicle", "Tow
 """``class_code`` covariate: index into this tuple (-1 for other names)."""
 
 
+def _frame_name(stem: str) -> bool:
+    """Whether ``stem`` is a frame name: the index written with at least 6 digits, as ``read_frame`` writes it.
+
+    ``0.txt`` beside ``000000.txt`` would be frame 0 twice; ``0000001`` is no name ``read_frame`` opens.
+    """
+    return stem.isascii() and stem.isdigit() and len(stem) <= 9 and stem == f"{int(stem):06d}"
+
+
 def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.float64], list[str]]:
     """One frame: detections ``(m, 5)`` [x, y, z, v_r, mag], boxes ``(k, 8)`` and class names.
 
@@ -73,6 +81,10 @@ def read_frame(root: Path, index: int) -> tuple[NDArray[np.float64], NDArray[np.
     name = f"{index:06d}"
     pc_path = root / "radar_6455" / f"{name}.txt"
     text = read_text(pc_path, "field 'X Y Z V_r Mag'")
+    head = text.split("\n", 2)
+    if len(head) < 2 or head[1].split() != list(POINT_BOUNDS):  # the columns are read by position
+        got = head[1] if len(head) > 1 else ""
+        raise InputError(f"{pc_path}: field 'header': line 2 must be 'X Y Z V_r Mag', got {got!r:.60}")
     try:
         with warnings.catch_warnings():  # a frame without detections is valid; loadtxt warns about it
             warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
@@ -236,7 +248,7 @@ def load_astyx(
         raise InputError(f"position must be 'nearest' or 'centroid', got {cluster_args['position']!r}")
     if frames is None:
         files = sorted((root / "radar_6455").glob("*.txt"))
-        stray = [p for p in files if not (p.stem.isascii() and p.stem.isdigit() and len(p.stem) <= 9)]
+        stray = [p for p in files if not _frame_name(p.stem)]
         if stray:
             raise InputError(f"{stray[0]}: not an Astyx frame file (expected radar_6455/NNNNNN.txt)")
         frames = [int(p.stem) for p in files]

@@ -25,7 +25,6 @@ ones (quantiles). Frames: radar frame, x forward, y left [m]; speeds [m/s].
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -37,7 +36,7 @@ from numpy.typing import NDArray
 from sklearn.cluster import DBSCAN
 from tqdm import tqdm
 
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, parse_json, read_text
 from sensor_envs.modelio import default_model_path
 
 __all__ = [
@@ -309,11 +308,7 @@ def load_object_clutter(path: str | os.PathLike[str] | None = None) -> ObjectClu
         ValueError: naming the file and the field when the file is malformed or of another format version.
     """
     p = Path(path) if path is not None else default_model_path(OBJECT_CLUTTER_FILE)
-    try:
-        with open(p, encoding="utf-8") as fh:
-            doc = json.loads(fh.read(1_000_000))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{p}: not valid UTF-8 JSON ({' '.join(str(exc).split())})") from None
+    doc = parse_json(read_text(p, "object-clutter law", limit=1_000_000), str(p))  # bounded (sensor_envs.inputs)
     if not isinstance(doc, dict) or doc.get("format_version") != FORMAT_VERSION:
         raise InputError(f"{p}: field 'format_version': expected {FORMAT_VERSION}")
     law = doc.get("law")

@@ -40,10 +40,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, parse_json, read_text
 from sensor_envs.training import stats
 from sensor_envs.training.matrix_report import HIGHER_IS_BETTER, _write_atomic, write_reports
 from sensor_envs.training.matrix_report import headline as headline
@@ -349,9 +348,14 @@ def improvement(a: NDArray[np.float64], b: NDArray[np.float64], metric: str) -> 
     return {"p": p, "ci95": [lo, hi]}
 
 
+def _read_json(path: Path) -> Any:
+    """A job's JSON output in ``--out`` (written by this tool; read bounded, as any input)."""
+    return parse_json(read_text(path, "job result"), str(path))
+
+
 def build_matrix(out: Path, domain: str, rows: list[str], columns: list[str], seeds: list[int]) -> dict[str, Any]:
     """The jobs' ``eval.json`` as cells (IQM, mean, intervals) and the rows' probabilities of improvement."""
-    evals = {r: [json.loads((out / "runs" / r / f"seed{s}" / "eval.json").read_text()) for s in seeds] for r in rows}
+    evals = {r: [_read_json(out / "runs" / r / f"seed{s}" / "eval.json") for s in seeds] for r in rows}
     # a metric the jobs did not record (e.g. speed in jobs run before it was recorded) is left out
     metrics = [
         m
@@ -421,7 +425,7 @@ def model_hashes(
     written before jobs recorded them are hashed now (``hashed_at: "report"``).
     """
     jobs = {f"{r}/seed{s}": out / "runs" / r / f"seed{s}" for r in rows for s in seeds}
-    recorded = {k: json.loads((d / "eval.json").read_text()).get("sensor_models_sha256") for k, d in jobs.items()}
+    recorded = {k: _read_json(d / "eval.json").get("sensor_models_sha256") for k, d in jobs.items()}
     policies = {f"{k}/{policy}_model.zip": sha256(d / f"{policy}_model.zip") for k, d in jobs.items()}
     if any(v is None for v in recorded.values()):
         return {"hashed_at": "report", "sensor_models": sensor_model_hashes(domain, real_models), "policies": policies}
@@ -481,12 +485,23 @@ def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[di
     )
     columns += list(real_models)
     seeds = list(range(args.seed0, args.seed0 + (args.seeds or preset["seeds"])))
+    if seeds[-1] >= 2**32:  # numpy and SB3 seed with 32 bits
+        raise UsageError(f"--seed0: the seeds {args.seed0}.. must stay below 2**32, got {args.seed0}")
     train_set = dict(preset["set"])
-    for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise UsageError(f"--set {item!r}: expected key=value")
-        train_set[key] = yaml.safe_load(value)
+    from sensor_envs.training.train import check_device, set_value
+
+    try:
+        check_device(args.device)
+    except ValueError as err:  # ConfigError
+        raise UsageError(str(err)) from None
+    for k, item in enumerate(args.set):
+        key = item.partition("=")[0]
+        if key in {i.partition("=")[0] for i in args.set[:k]}:  # the last would win silently
+            raise UsageError(f"--set {key}: the key is given twice")
+        try:
+            train_set[key] = set_value(item)
+        except ValueError as err:  # ConfigError
+            raise UsageError(str(err)) from None
     eval_episodes = preset["eval_episodes"] if args.eval_episodes is None else args.eval_episodes
     if eval_episodes < 1:
         raise UsageError(f"--eval-episodes: must be >= 1, got {eval_episodes}")
@@ -618,7 +633,8 @@ def _run(args: argparse.Namespace, argv: list[str]) -> dict[str, Any]:
     args.out.mkdir(parents=True, exist_ok=True)
     stamp = args.out / "settings.json"
     if stamp.is_file() and not args.force:
-        old = json.loads(stamp.read_text())
+        old = parse_json(read_text(stamp, "settings"), f"{stamp}: settings")
+        old = old if isinstance(old, dict) else {}
         changed = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k))
         if changed:
             raise UsageError(f"--out {args.out}: made with other settings ({', '.join(changed)}); use --force")

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -26,10 +27,10 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import yaml
 from tqdm import TqdmExperimentalWarning
 
 import sensor_envs  # noqa: F401  (registers the ids)
+from sensor_envs.inputs import InputError, bad_name, parse_yaml, read_text
 
 __all__ = [
     "ALGOS",
@@ -67,7 +68,7 @@ DEFAULT_CONFIG = Path(__file__).with_name("configs") / "default.yaml"
 """The shipped config (package data ``sensor_envs/training/configs/default.yaml``)."""
 
 
-class ConfigError(ValueError):
+class ConfigError(InputError):
     """A bad config file, config entry or argument (the message names the file and the key)."""
 
 
@@ -117,6 +118,47 @@ def sensor_kwargs(cfg: dict[str, Any], env_id: str, sensor: str, where: str = "c
     return {**{k: v for k, v in kwargs.items() if k not in owned}, **table[sensor]}
 
 
+COUNT_LIMITS = {"n_timesteps": 10**9, "n_envs": 256, "eval_freq": 10**9, "eval_episodes": 10_000}
+"""Declared range of every count of a config: an integer in ``[1, limit]`` (``n_timesteps: 1e12`` is refused)."""
+_DEVICE = re.compile(r"auto|cpu|mps|cuda(?::[0-9]{1,3})?")
+
+
+def check_device(value: Any, where: str = "--device") -> str:
+    """``value`` if it names a torch device of this machine: ``auto``, ``cpu``, ``mps`` or an existing ``cuda[:N]``.
+
+    stable-baselines3 would fall back to the CPU silently for a CUDA device that is not there, and torch
+    raises a ``RuntimeError`` deep inside training for a name that is no device.
+
+    Raises:
+        ConfigError: ``"<where>: ..."``.
+    """
+    if not isinstance(value, str) or not _DEVICE.fullmatch(value):
+        raise ConfigError(f"{where}: expected auto, cpu, mps, cuda or cuda:N, got {value!r:.60}")
+    if value.startswith("cuda"):
+        import torch
+
+        n, k = torch.cuda.device_count(), int(value.partition(":")[2] or 0)
+        if k >= n:
+            raise ConfigError(f"{where}: {value} is not a device of this machine ({n} CUDA devices)")
+    return value
+
+
+def set_value(item: str, option: str = "--set") -> Any:
+    """The value of a ``key=value`` override (YAML, through the input layer: no aliases, tags or huge nesting).
+
+    Raises:
+        ConfigError: ``"--set <key>: ..."`` for an item without ``=``, an empty or unprintable key, or a value
+            that is no plain YAML value.
+    """
+    key, sep, value = item.partition("=")
+    if not sep or bad_name(key):
+        raise ConfigError(f"{option} {item!r:.80}: expected key=value with a key of printable text")
+    try:
+        return parse_yaml(value, f"{option} {key}")
+    except InputError as err:
+        raise ConfigError(str(err)) from None
+
+
 def load_config(
     path: Path, env_id: str, overrides: list[str], algo: str | None = None, sensor: str | None = None
 ) -> dict[str, Any]:
@@ -127,53 +169,118 @@ def load_config(
     any other name sets the ``radar`` / ``lidar`` keyword (:func:`sensor_kwargs`).
     Raises :class:`ConfigError` naming the file and the key.
     """
-    try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
-    except (OSError, yaml.YAMLError) as err:
-        raise ConfigError(f"{path}: cannot read the config ({type(err).__name__}: {err})".splitlines()[0]) from err
+    try:  # bounded: a regular file of sane size, no aliases, tags or duplicate keys (sensor_envs.inputs)
+        doc = parse_yaml(read_text(path, "config"), str(path)) or {}
+    except InputError as err:
+        raise ConfigError(str(err)) from None
     if not isinstance(doc, dict) or env_id not in doc or not isinstance(doc[env_id], dict):
         known = sorted(doc) if isinstance(doc, dict) else []
         raise ConfigError(f"{path}: no config for env id {env_id!r}; known: {known}")
     cfg = dict(doc[env_id])
+    keys = [item.partition("=")[0] for item in overrides]  # named in every message: the value may come from --set
+    where = f"{path} [{env_id}]" + (f" with --set {', '.join(keys)}" if overrides else "")
     if algo is not None and algo != cfg.get("algo"):
         alt = (cfg.get("algos") or {}).get(algo)
         if not isinstance(alt, dict):
-            raise ConfigError(f"{path} [{env_id}]: algos.{algo}: no block for algo {algo!r}")
+            raise ConfigError(f"{where}: algos.{algo}: no block for algo {algo!r}")
         bad = set(alt) - ALGO_KEYS
         if bad:
             expected = sorted(ALGO_KEYS)
-            raise ConfigError(f"{path} [{env_id}]: algos.{algo}: unknown keys {sorted(bad)}; expected {expected}")
+            raise ConfigError(f"{where}: algos.{algo}: unknown keys {sorted(bad)}; expected {expected}")
         cfg.update(alt, algo=algo)
+    given: set[str] = set()
     for item in overrides:
         key, sep, value = item.partition("=")
         if not sep:
             raise ConfigError(f"--set {item!r}: expected key=value")
-        try:
-            cfg[key] = yaml.safe_load(value)
-        except yaml.YAMLError as err:
-            raise ConfigError(f"--set {key}: not a YAML value: {value!r}") from err
+        if key in given:  # the last would win silently
+            raise ConfigError(f"--set {key}: the key is given twice")
+        given.add(key)
+        cfg[key] = set_value(item)
     unknown = set(cfg) - KEYS
     if unknown:
-        raise ConfigError(f"{path} [{env_id}]: unknown keys {sorted(unknown)}; expected {sorted(KEYS)}")
+        raise ConfigError(f"{where}: unknown keys {sorted(unknown)}; expected {sorted(KEYS)}")
     if cfg.get("algo") not in ALGOS:
-        raise ConfigError(f"{path} [{env_id}]: algo must be one of {ALGOS}, got {cfg.get('algo')!r}")
+        raise ConfigError(f"{where}: algo must be one of {ALGOS}, got {cfg.get('algo')!r}")
     if cfg.setdefault("vec_env", "dummy") not in VEC_ENVS:
-        raise ConfigError(f"{path} [{env_id}]: vec_env must be one of {VEC_ENVS}, got {cfg['vec_env']!r}")
+        raise ConfigError(f"{where}: vec_env must be one of {VEC_ENVS}, got {cfg['vec_env']!r}")
     spec = gym.registry.get(env_id)
     if cfg["vec_env"] == "vector" and (spec is None or spec.vector_entry_point is None):
-        raise ConfigError(f"{path} [{env_id}]: vec_env: 'vector' needs a vector entry point, which this id has not")
-    cfg.setdefault("device", "auto")
-    for key in ("n_timesteps", "n_envs", "eval_freq", "eval_episodes"):
-        if key in cfg and (not isinstance(cfg[key], int) or isinstance(cfg[key], bool) or cfg[key] < 1):
-            raise ConfigError(f"{path} [{env_id}]: {key} must be a positive integer, got {cfg[key]!r}")
+        raise ConfigError(f"{where}: vec_env: 'vector' needs a vector entry point, which this id has not")
+    check_device(cfg.setdefault("device", "auto"), f"{where}: device")
+    for key, high in COUNT_LIMITS.items():
+        value = cfg.get(key, 1)
+        if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= high:
+            raise ConfigError(f"{where}: {key} must be an integer in [1, {high}], got {value!r:.40}")
     for key in ("env_kwargs", "hyperparams"):
         if not isinstance(cfg.get(key) or {}, dict):
-            raise ConfigError(f"{path} [{env_id}]: {key} must be a mapping, got {cfg[key]!r}")
+            raise ConfigError(f"{where}: {key} must be a mapping, got {cfg[key]!r}")
     if sensor is not None:
-        cfg["env_kwargs"] = sensor_kwargs(cfg, env_id, sensor, where=f"{path} [{env_id}]")
+        cfg["env_kwargs"] = sensor_kwargs(cfg, env_id, sensor, where=where)
     else:
-        sensor_table(cfg, where=f"{path} [{env_id}]")
+        sensor_table(cfg, where=where)
+    check_arguments(cfg, env_id, where)
     return cfg
+
+
+def _bad_number(x: Any) -> Any:
+    """The first number nested in ``x`` that is not finite or beyond 1e12 in size (``None`` if there is none)."""
+    stack = [x]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, dict):
+            stack.extend(v.values())
+        elif isinstance(v, (list, tuple)):
+            stack.extend(v)
+        elif isinstance(v, (int, float)) and not isinstance(v, bool) and not abs(v) <= 1e12:
+            return v
+    return None
+
+
+def check_arguments(cfg: dict[str, Any], env_id: str, where: str) -> None:
+    """Check ``hyperparams`` and ``env_kwargs`` before any output is made: finite numbers, known names, an env.
+
+    Else SB3 or the env would fail deep inside training (a ``ValueError`` for a NaN learning rate, a
+    ``TypeError`` for an unknown keyword argument).
+
+    Raises:
+        ConfigError: naming ``where`` and the key.
+    """
+    import inspect
+
+    import stable_baselines3 as sb3
+
+    hp = cfg.get("hyperparams") or {}
+    for key in ("hyperparams", "env_kwargs"):
+        bad = _bad_number(cfg.get(key) or {})
+        if bad is not None:
+            raise ConfigError(f"{where}: {key}: {bad!r} is not a finite number within 1e12")
+    for key in ("gamma", "gae_lambda", "tau", "learning_rate"):  # SB3 takes them unchecked (gamma 2 diverges)
+        v = hp.get(key, 1.0)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v <= 1:
+            raise ConfigError(f"{where}: hyperparams: {key} must be a number in (0, 1], got {v!r:.40}")
+    unknown = sorted(set(hp) - set(inspect.signature(getattr(sb3, cfg["algo"].upper())).parameters))
+    if unknown:
+        raise ConfigError(f"{where}: hyperparams: {unknown[0]!r} is no {cfg['algo']} argument")
+    _check_builds(cfg, env_id, where)
+
+
+def _check_builds(cfg: dict[str, Any], env_id: str, where: str) -> None:
+    """Build the env from ``env_kwargs`` and the SB3 model on it (CPU), turning their refusals into ConfigErrors."""
+    import stable_baselines3 as sb3
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            env = gym.make(env_id, **dict(cfg.get("env_kwargs") or {}))
+        except (InputError, TypeError) as exc:  # an unknown keyword argument is a TypeError of the constructor
+            raise ConfigError(f"{where}: env_kwargs: {' '.join(str(exc).split())}") from None
+        try:  # the policy name, the algorithm's action spaces and the hyperparameters' values, as SB3 checks them
+            getattr(sb3, cfg["algo"].upper())(cfg["policy"], env, device="cpu", **(cfg.get("hyperparams") or {}))
+        except (ValueError, TypeError, AssertionError, KeyError) as exc:
+            raise ConfigError(f"{where}: algo/policy/hyperparams: {' '.join(str(exc).split())[:200]}") from None
+        finally:
+            env.close()
 
 
 def make_env(env_id: str, cfg: dict[str, Any], n_envs: int, seed: int) -> Any:
@@ -269,7 +376,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--env", required=True, help="registered env id, e.g. sensor_envs/Neato-v0")
     parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG, help="YAML config (default: the shipped one)")
     parser.add_argument("--out", type=Path, required=True, help="run folder (refused if it exists, unless --force)")
-    parser.add_argument("--seed", type=int, default=None, help="drawn and logged when absent")
+    parser.add_argument("--seed", type=int, default=None, help="drawn and logged when absent (at most 2**32 - 1)")
     parser.add_argument("--algo", choices=ALGOS, default=None, help="use the config's block for this algorithm")
     parser.add_argument("--sensor", default=None, help="the env's radar (highway ids) or lidar (Neato) name")
     parser.add_argument("--device", default=None, help="torch device: auto (default), cpu, cuda, cuda:1, ...")
@@ -288,8 +395,13 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         check_output(args.out, force=args.force, folder=True)
     except ValueError as err:  # ConfigError, OutputError
         _fail(str(err))
+    if args.seed is not None and not 0 <= args.seed < 2**32:  # numpy and SB3 seed with 32 bits
+        _fail(f"--seed: expected an integer in [0, 2**32 - 1], got {args.seed}")
     if args.device is not None:
-        cfg["device"] = args.device
+        try:
+            cfg["device"] = check_device(args.device)
+        except ConfigError as err:
+            _fail(str(err))
     seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy) % 2**31  # type: ignore[arg-type]
     resolved = {"env_id": args.env, "seed": seed, "config": cfg, "command": [sys.executable, *sys.argv]}
     # Built in the claimed temporary folder, replacing --out as a whole when it ends: with --force an old

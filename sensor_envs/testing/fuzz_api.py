@@ -24,9 +24,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import fuzz_cases as fc
 import numpy as np
-from fuzz_cases import Case, Chooser
+
+import sensor_envs.testing.fuzz_pieces as fp
+from sensor_envs.testing.fuzz_pieces import Case, Chooser
 
 ENV_IDS = (
     "sensor_envs/Neato-v0",
@@ -144,7 +145,7 @@ def _make(env_id: str, **kwargs: Any) -> Any:
         mode = kw.get("render_mode")
         if mode is None or isinstance(mode, str):
             return gym.make(env_id, **kw)
-        spec = gym.spec(env_id)
+        spec: Any = gym.spec(env_id)
         return gym.envs.registration.load_env_creator(spec.entry_point)(**{**spec.kwargs, **kw})
 
 
@@ -195,7 +196,7 @@ def _config_value(c: Chooser, env_id: str) -> tuple[str, Any, bool]:
     import sensor_envs  # noqa: F401
 
     base = gym.spec(env_id).kwargs["base_id"]
-    entry = gym.envs.registration.load_env_creator(gym.spec(base).entry_point)
+    entry: Any = gym.envs.registration.load_env_creator(str(gym.spec(base).entry_point))
     defaults = entry.default_config()
     key = c.choice(sorted(defaults) + ["unknown_key"])
     value = any_value(c)
@@ -377,6 +378,7 @@ def shipped_model(name: str) -> Any:
         from sensor_envs.radar.gaussian import GaussianRadar
         from sensor_envs.radar.kde import KDERadarModel
 
+        cls: Any
         cls, file = {
             "GaussianRadar": (GaussianRadar, "radar_gaussian.npz"),
             "KDERadarModel": (KDERadarModel, "radar_kde.npz"),
@@ -431,7 +433,7 @@ def _model_sample(c: Chooser, d: Path) -> Case:
     rng_v: Any = None
     if name == "LidarLWLR":
         poses = np.array([[2.0, 1.5, 0.1], [1.0, 1.0, 2.0]])
-        segs = fc.SEGS.copy()
+        segs = fp.SEGS.copy()
         reps: Any = None
         if what == "state":
             poses, desc, must = mutate_array(c, poses)
@@ -439,7 +441,7 @@ def _model_sample(c: Chooser, d: Path) -> Case:
             segs, desc, must = mutate_array(c, segs)
             must = must or (isinstance(segs, np.ndarray) and segs.size == 0)
             if c.integers(0, 1):
-                segs, reps = fc.SEGS.copy(), any_value(c)
+                segs, reps = fp.SEGS.copy(), any_value(c)
                 desc, must = (
                     f"n_repeats={reps!r:.30}",
                     not (
@@ -486,7 +488,7 @@ def _model_sample(c: Chooser, d: Path) -> Case:
             must = True  # a new track has no previous output
         desc = f"new_track {desc}"
 
-    def call() -> bool:
+    def call_radar() -> bool:
         m = shipped_model(name)
         rng = rng_v if what == "rng" else np.random.default_rng(0)
         extra = np.ones((2, 1)) if what == "extra" else None
@@ -494,7 +496,7 @@ def _model_sample(c: Chooser, d: Path) -> Case:
         z = np.asarray(z, dtype=np.float64)
         return bool(z.ndim == 2 and z.shape[1] == 2 and (np.isfinite(z).all(axis=1) | np.isnan(z).all(axis=1)).all())
 
-    return Case("model sample", f"{name}.sample({what}: {desc})", [], call, must, [], kind="checked")
+    return Case("model sample", f"{name}.sample({what}: {desc})", [], call_radar, must, [], kind="checked")
 
 
 def _model_log_prob(c: Chooser, d: Path) -> Case:
@@ -513,7 +515,7 @@ def _model_log_prob(c: Chooser, d: Path) -> Case:
             poses, desc, must = mutate_array(c, poses)
 
         def call() -> bool:
-            lp = shipped_model(name).log_prob(ranges, poses, fc.SEGS)
+            lp = shipped_model(name).log_prob(ranges, poses, fp.SEGS)
             return bool(not np.isnan(np.asarray(lp, dtype=np.float64)[np.isfinite(ranges)]).any())
 
         return Case("model log_prob", f"{name}.log_prob({which}: {desc})", [], call, must, [], kind="checked")
@@ -531,11 +533,11 @@ def _model_log_prob(c: Chooser, d: Path) -> Case:
         state, desc, _ = mutate_array(c, state)
         must = not _radar_state_sane(state) or np.shape(state)[0] != 2
 
-    def call() -> bool:
+    def call_radar() -> bool:
         lp = np.asarray(shipped_model(name).log_prob(z, state), dtype=np.float64)
         return bool(not np.isnan(lp).any() and (lp < np.inf).all())
 
-    return Case("model log_prob", f"{name}.log_prob({which}: {desc})", [], call, must, [], kind="checked")
+    return Case("model log_prob", f"{name}.log_prob({which}: {desc})", [], call_radar, must, [], kind="checked")
 
 
 def _constraints(name: str) -> dict[str, Any]:
@@ -567,16 +569,16 @@ def _small_log(name: str, d: Path) -> Any:
     from sensor_envs.radar.log import read_log
 
     if name == "LidarLWLR":
-        return load_log(fc.write_npz(d / "log.npz", fc.lidar_arrays()))
+        return load_log(fp.write_npz(d / "log.npz", fp.lidar_arrays()))
     p = d / "log.csv"
-    p.write_text("\n".join([fc.RADAR_HEADER, *fc.radar_rows(6, 12)]) + "\n", encoding="utf-8")
+    p.write_text("\n".join([fp.RADAR_HEADER, *fp.radar_rows(6, 12)]) + "\n", encoding="utf-8")
     return read_log(p)
 
 
 def _sane_fit(name: str, m: Any) -> bool:
     rng = np.random.default_rng(0)
     if name == "LidarLWLR":
-        r = m.sample(np.array([[2.0, 1.5, 0.1]]), fc.SEGS, rng)
+        r = m.sample(np.array([[2.0, 1.5, 0.1]]), fp.SEGS, rng)
         return bool(np.isfinite(r).all() and (r >= 0).all())
     z, _ = m.sample(np.array([[10.0, 1.0]]), rng)
     return bool((np.isfinite(z).all(axis=1) | np.isnan(z).all(axis=1)).all())
@@ -634,7 +636,7 @@ def _model_load(c: Chooser, d: Path) -> Case:
             "KDERadarModel": "neato_lidar.npz",
             "LidarLWLR": "radar_gaussian.npz",
         }
-        path = fc.SHIPPED / other[name]
+        path = fp.SHIPPED / other[name]
     elif kind == "devzero":
         path = "/dev/zero"
     else:
@@ -661,6 +663,13 @@ API_CLASSES: dict[str, Callable[[Chooser, Path], Case]] = {
 }
 
 
+def _second_round() -> None:
+    """Add the classes of odd types (:mod:`sensor_envs.testing.fuzz_api_types`, which builds on this module)."""
+    from sensor_envs.testing.fuzz_api_types import TYPE_CLASSES
+
+    API_CLASSES.update(TYPE_CLASSES)
+
+
 def make_api_case(cls: str, c: Chooser, d: Path) -> Case:
     """Build one generated call of class ``cls`` (files it needs go in the empty folder ``d``)."""
     return API_CLASSES[cls](c, d)
@@ -680,3 +689,6 @@ def warm_up() -> None:
         cached_env(env_id)
     with tempfile.TemporaryDirectory() as tmp:
         _small_log("GaussianRadar", Path(tmp))
+
+
+_second_round()

@@ -6,259 +6,48 @@ memory and a time limit). A case is built in a fresh folder by :func:`make_case`
 line, the loader call behind it and whether the mutation certainly breaks the format (``must_refuse``: a
 loader or command accepting it is "accepted nonsense").
 
-A *chooser* is anything with ``integers(lo, hi)`` (inclusive) and ``choice(seq)``.
+Valid pieces and mutations: :mod:`sensor_envs.testing.fuzz_pieces`.
 """
 
 from __future__ import annotations
 
 import io
 import json
-import os
 import shutil
-import zipfile
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
-SHIPPED = Path(__file__).resolve().parents[1] / "models"
-
-
-class Chooser(Protocol):
-    def integers(self, lo: int, hi: int) -> int: ...
-
-    def choice(self, seq: Sequence[Any]) -> Any: ...
-
-
-@dataclass
-class Case:
-    family: str
-    mutation: str
-    argv: list[str]
-    load: Callable[[], Any] | None  # the reader behind the command (None: options only)
-    must_refuse: bool
-    inputs: list[Path]
-    command_when_loaded: bool = True  # False: an input the loader takes is not also run through the command
-    kind: str = ""  # Python API cases: "env", "radar", "lidar" or "checked" (how a result is judged); "" for files
-
-
-# ------------------------------------------------------------------------------------------- valid pieces
-RADAR_HEADER = "sequence,frame,t,target,ref_x,ref_y,ref_heading,ref_length,ref_width,meas_x,meas_y,rcs"
-
-
-def radar_rows(n_seq: int = 3, n_frames: int = 6) -> list[str]:
-    rows = []
-    for s in range(n_seq):
-        for f in range(n_frames):
-            x = 10.0 + 2 * s + 0.5 * f
-            meas = f"{x - 2.2:.2f},{0.4 + 0.1 * s:.2f}" if f % 4 != 3 else ","
-            rows.append(f"{s},{f},{f * 1.0:.1f},{s},{x:.2f},1.0,0.1,4.5,1.8,{meas},{1.0 + f}")
-        rows.append(f"{s},0,0.0,-1,,,,,,25.0,-3.0,")
-    return rows
-
-
-def write_radar_csv(d: Path) -> Path:
-    p = d / "log.csv"
-    p.write_text("\n".join([RADAR_HEADER, *radar_rows()]) + "\n", encoding="utf-8")
-    return p
-
-
-SEGS = np.array([[[0, 0], [4, 0]], [[4, 0], [4, 3]], [[4, 3], [0, 3]], [[0, 3], [0, 0]]], dtype=float)
-
-
-def lidar_arrays() -> dict[str, np.ndarray]:
-    rng = np.random.default_rng(0)
-    return {
-        "ranges": rng.uniform(0.5, 2.0, (4, 8, 3)),
-        "bearings": np.linspace(0, 2 * np.pi, 8, endpoint=False),
-        "poses": np.array([[2.0, 1.5, 0.1], [2.2, 1.4, 0.3], [1.8, 1.6, -0.2], [2.0, 1.2, 1.0]]),
-        "map_segments": SEGS,
-        "t": np.array([0.0, 1.0, 2.0, 3.0]),
-    }
-
-
-def write_npz(p: Path, arrays: dict[str, Any]) -> Path:
-    np.savez(p, **arrays)
-    return p
-
-
-def carmen_text(n: int = 5) -> str:
-    lines = []
-    for i in range(n):
-        r = " ".join(f"{1.0 + 0.1 * ((i + k) % 7):.2f}" for k in range(8))
-        lines.append(f"FLASER 8 {r} {1.0 + 0.1 * i} 1.5 0.1 {1.0 + 0.1 * i} 1.5 0.1 {10.0 + i} host {10.0 + i}")
-    return "# a CARMEN log\n" + "\n".join(lines) + "\n"
-
-
-MAP_TXT = "0 0 4 0\n4 0 4 3\n4 3 0 3\n0 3 0 0\n1 1 2 1\n"
-MAP_JSON = json.dumps({"name": "box", "segments": [[0, 0, 4, 0], [4, 0, 4, 3], [4, 3, 0, 3], [0, 3, 0, 0]]})
-MAP_YAML = "segments:\n  - [0, 0, 4, 0]\n  - [4, 0, 4, 3]\n  - [4, 3, 0, 3]\n  - [0, 3, 0, 0]\n"
-ROS_YAML = (
-    "image: map.pgm\nresolution: 0.5\norigin: [0.0, 0.0, 0.0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+from sensor_envs.testing.fuzz_folders import FOLDER_FAMILIES
+from sensor_envs.testing.fuzz_options import OPTION_FAMILIES
+from sensor_envs.testing.fuzz_pieces import (
+    MAP_JSON,
+    MAP_TXT,
+    MAP_YAML,
+    NASTY_JSON,
+    ROS_YAML,
+    SEGS,
+    SHIPPED,
+    Case,
+    Chooser,
+    array_mutation,
+    carmen_text,
+    deep,
+    lidar_arrays,
+    npz_bomb,
+    pgm_bytes,
+    snapshot,
+    special_path,
+    text_mutation,
+    write_astyx,
+    write_bag,
+    write_npz,
+    write_radar_csv,
+    write_text_bytes,
 )
-
-
-def pgm_bytes() -> bytes:
-    img = np.full((8, 10), 254, dtype=np.uint8)
-    img[0, :] = img[-1, :] = img[:, 0] = img[:, -1] = 0
-    return b"P5\n10 8\n255\n" + img.tobytes()
-
-
-def write_astyx(d: Path, pc: str | None = None, gt: str | None = None, name: str = "000000") -> Path:
-    root = d / "astyx"
-    (root / "radar_6455").mkdir(parents=True, exist_ok=True)
-    (root / "groundtruth_obj3d").mkdir(exist_ok=True)
-    write_text_bytes(
-        root / "radar_6455" / f"{name}.txt",
-        pc if pc is not None else "\nX Y Z V_r Mag\n10.0 1.0 0.0 0.0 50.0\n10.5 1.2 0.0 0.0 40.0\n",
-    )
-    obj = {"center3d": [12.0, 1.0, 0.5], "dimension3d": [4.5, 1.8, 1.5], "orientation_quat": [1, 0, 0, 0]}
-    obj["classname"] = "Car"
-    write_text_bytes(
-        root / "groundtruth_obj3d" / f"{name}.json", gt if gt is not None else json.dumps({"objects": [obj]})
-    )
-    return root
-
-
-# ----------------------------------------------------------------------------------------------- mutations
-NASTY_TOKENS = ["nan", "inf", "-inf", "abc", "1_0.5", "1e300", "-1e300", "0x10", "--1", "1e", "١", "\x00", "�"]
-"""Tokens that are no valid value of any numeric field (a field holding one must be refused)."""
-NASTY_JSON: list[Any] = [True, None, "x", [], {}, 1e308, -1, [[[[[[[[1]]]]]]]], "NaN", 10**30]
-"""JSON values that are no valid hyperparameter / format field."""
-
-
-def deep(k: int, open_: str = "[", close: str = "]") -> str:
-    return open_ * k + close * k
-
-
-def text_mutation(c: Chooser, text: str, numeric_tokens: bool) -> tuple[str, str, bool]:
-    """A mutated ``text`` (name, new text, must_refuse)."""
-    kind = c.choice(["truncate", "token", "nul", "long", "quote", "nonutf8", "dupline", "delline", "deep"])
-    if kind == "truncate":
-        k = c.integers(0, max(len(text) - 1, 0))
-        return "truncate", text[:k], False
-    lines = text.splitlines(keepends=True)
-    i = c.integers(0, max(len(lines) - 1, 0))
-    if kind == "dupline":
-        return "duplicate line", "".join(lines[: i + 1] + [lines[i]] * c.integers(1, 3) + lines[i + 1 :]), False
-    if kind == "delline":
-        return "delete line", "".join(lines[:i] + lines[i + 1 :]), False
-    if kind == "token":
-        tokens = text.replace(",", " , ").split(" ")
-        numeric = [j for j, t in enumerate(tokens) if _is_number(t.strip())]
-        if not numeric:
-            return "token", text + c.choice(NASTY_TOKENS), False
-        j = c.choice(numeric)
-        tok = c.choice(NASTY_TOKENS)
-        tokens[j] = tok + ("\n" if tokens[j].endswith("\n") else "")
-        return f"token {tok!r}", " ".join(tokens).replace(" , ", ","), numeric_tokens
-    pos = c.integers(0, len(text))
-    insert = {
-        "nul": "\x00",
-        "long": "9" * 200_000 + "x",  # a token no number parser takes (a long digit string alone may be valid)
-        "quote": '"',
-        "nonutf8": "\udcff",
-        "deep": deep(c.choice([50, 1000, 100_000])),
-    }[kind]
-    must = kind == "nonutf8" or (kind in ("nul", "deep", "long") and numeric_tokens)  # CARMEN: comment lines
-    return kind, text[:pos] + insert + text[pos:], must
-
-
-def _is_number(t: str) -> bool:
-    try:
-        float(t)
-    except ValueError:
-        return False
-    return bool(t)
-
-
-def write_text_bytes(p: Path, text: str) -> Path:
-    p.write_bytes(text.encode("utf-8", errors="surrogateescape"))
-    return p
-
-
-def array_mutation(
-    c: Chooser, arrays: dict[str, Any], required: Sequence[str], optional: Sequence[str] = ()
-) -> tuple[str, bool]:
-    """Mutate ``arrays`` in place; returns (name, must_refuse)."""
-    key = c.choice(list(required))
-    a = np.asarray(arrays[key])
-    kind = c.choice(["drop", "bool", "complex", "str", "float16", "shape", "nan", "inf", "huge", "neg", "const", "rev"])
-    if kind == "drop":
-        arrays.pop(key)
-        return f"drop {key}", key not in optional
-    if kind == "bool":
-        arrays[key] = a.astype(bool)
-        return f"{key} as bool", key not in FLAG_ARRAYS
-    if kind == "complex":
-        arrays[key] = a.astype(complex) + 1j
-        return f"{key} as complex", True
-    if kind == "str":
-        arrays[key] = a.astype(str)
-        return f"{key} as str", True
-    if kind == "float16":
-        arrays[key] = a.astype(np.float16)
-        return f"{key} as float16", False
-    if kind == "shape":
-        arrays[key] = c.choice(
-            [a[None], a.reshape(-1), a[..., :1] if a.ndim else a[None], np.zeros((0,) + a.shape[1:])]
-        )
-        new = np.shape(arrays[key])
-        scan_log = key == "ranges" and len(new) in (2, 3) and new[:2] == a.shape[:2]  # (P, K) or (P, K, R)
-        return f"{key} reshaped", new != a.shape and not scan_log
-    flat = a.astype(np.float64).copy().reshape(-1)
-    if flat.size == 0:
-        return "noop", False
-    j = c.integers(0, flat.size - 1)
-    if kind == "const":
-        flat[:] = flat[0]
-        arrays[key] = flat.reshape(a.shape)
-        return f"{key} constant", False
-    if kind == "rev":
-        arrays[key] = flat[::-1].reshape(a.shape)
-        return f"{key} reversed", False
-    flat[j] = {"nan": np.nan, "inf": np.inf, "huge": 1e300, "neg": -1e9}[kind]
-    arrays[key] = flat.reshape(a.shape)
-    return f"{key}[{j}] = {kind}", kind in ("inf", "huge", "neg") or key != "ranges"
-
-
-FLAG_ARRAYS = ("new_track",)
-"""Arrays of 0/1 flags (uint8 in the files): stored as bool they hold the same values (the loader takes both)."""
-
-_BOMB: bytes | None = None
-
-
-def npz_bomb() -> bytes:
-    """A 2 MB ``.npz`` whose one array inflates to 2 GiB (zeros), built once per process."""
-    global _BOMB
-    if _BOMB is None:
-        header = io.BytesIO()
-        np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (2**28,)})
-        buf = io.BytesIO()
-        with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
-            with zf.open("ranges.npy", "w", force_zip64=True) as fh:
-                fh.write(header.getvalue())
-                chunk = bytes(2**24)
-                for _ in range(2**31 // 2**24):
-                    fh.write(chunk)
-        _BOMB = buf.getvalue()
-    return _BOMB
-
-
-def special_path(c: Chooser, d: Path) -> tuple[str, Path]:
-    """A path that is not a regular file: a FIFO, ``/dev/zero``, a folder."""
-    kind = c.choice(["fifo", "devzero", "folder"])
-    if kind == "fifo":
-        p = d / "pipe.csv"
-        os.mkfifo(p)
-        return "FIFO", p
-    if kind == "devzero":
-        return "/dev/zero", Path("/dev/zero")
-    p = d / "folder.npz"
-    p.mkdir()
-    return "folder", p
+from sensor_envs.testing.fuzz_structure import STRUCTURE_FAMILIES
 
 
 # --------------------------------------------------------------------------------------------- families
@@ -545,54 +334,6 @@ def _option(c: Chooser, d: Path) -> Case:
     return Case("command-line option", f"{cmd} {opt}={value!r}", argv, None, True, [log])
 
 
-def write_bag(d: Path, scan: dict[str, Any] | None = None, quat: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0)) -> Path:
-    """A small ROS1 bag: LaserScan on /scan (``scan`` overrides its fields) and Odometry on /odom."""
-    from rosbags.rosbag1 import Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    ts = get_typestore(Stores.ROS1_NOETIC)
-    t_ = ts.types
-    scan_t, odom_t = t_["sensor_msgs/msg/LaserScan"], t_["nav_msgs/msg/Odometry"]
-    vec = t_["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
-    p = d / "log.bag"
-    with Writer(p) as w:
-        c_scan = w.add_connection("/scan", scan_t.__msgtype__, typestore=ts)
-        c_odom = w.add_connection("/odom", odom_t.__msgtype__, typestore=ts)
-        for i in range(4):
-            stamp = int((1 + i) * 1e9)
-            hdr = t_["std_msgs/msg/Header"](
-                seq=i, stamp=t_["builtin_interfaces/msg/Time"](sec=1 + i, nanosec=0), frame_id="b"
-            )
-            x, y, z, qw = quat[1], quat[2], quat[3], quat[0]
-            pose = t_["geometry_msgs/msg/Pose"](
-                position=t_["geometry_msgs/msg/Point"](x=1.0 + 0.1 * i, y=1.0, z=0.0),
-                orientation=t_["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=qw),
-            )
-            odom = odom_t(
-                header=hdr,
-                child_frame_id="b",
-                pose=t_["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
-                twist=t_["geometry_msgs/msg/TwistWithCovariance"](
-                    twist=t_["geometry_msgs/msg/Twist"](linear=vec, angular=vec), covariance=np.zeros(36)
-                ),
-            )
-            w.write(c_odom, stamp, ts.serialize_ros1(odom, odom_t.__msgtype__))
-            fields = {
-                "angle_min": 0.0,
-                "angle_max": np.pi,
-                "angle_increment": np.pi / 3,
-                "time_increment": 0.0,
-                "scan_time": 0.1,
-                "range_min": 0.1,
-                "range_max": 5.0,
-                "ranges": np.array([1.0, 2.0, 0.0, 3.0], dtype=np.float32),
-                "intensities": np.zeros(4, dtype=np.float32),
-            }
-            fields.update(scan or {})
-            w.write(c_scan, stamp + 1000, ts.serialize_ros1(scan_t(header=hdr, **fields), scan_t.__msgtype__))
-    return p
-
-
 def _bag(c: Chooser, d: Path) -> Case:
     from sensor_envs.lidar.log import load_log
 
@@ -713,7 +454,7 @@ def _api(c: Chooser, d: Path) -> Case:
 
         def call() -> Any:
             model = GaussianRadar.load(default_model_path("radar_gaussian.npz"))
-            rng = 0 if rng_bad else np.random.default_rng(0)
+            rng: Any = 0 if rng_bad else np.random.default_rng(0)
             return model.sample(state, rng)[0]
 
         must = rng_bad or not (isinstance(bad, float) and np.isfinite(bad) and abs(bad) <= 1000)
@@ -733,7 +474,7 @@ def _api(c: Chooser, d: Path) -> Case:
     pose[0, c.integers(0, 2)] = value if isinstance(value, float) else np.nan
     fit_none = c.integers(0, 3) == 0
 
-    def call() -> Any:
+    def call_lidar() -> Any:
         model = LidarLWLR.load(default_model_path("neato_lidar.npz"))
         if fit_none:
             return model.fit(value)
@@ -744,7 +485,7 @@ def _api(c: Chooser, d: Path) -> Case:
         "Python API",
         f"LidarLWLR {'fit' if fit_none else 'sample'}({pose[0].tolist()})",
         [],
-        call,
+        call_lidar,
         must,
         [],
         kind="lidar",
@@ -762,27 +503,17 @@ FAMILIES: dict[str, Callable[[Chooser, Path], Case]] = {
     "Astyx folder": _astyx,
     "command-line option": _option,
     "Python API": _api,
+    **STRUCTURE_FAMILIES,
+    **OPTION_FAMILIES,
+    **FOLDER_FAMILIES,
 }
+SECOND_ROUND = frozenset({*STRUCTURE_FAMILIES, *OPTION_FAMILIES, *FOLDER_FAMILIES})
+"""The families of the second round (issue 42: the structure of each format, every option, unsafe outputs)."""
 
 
 def make_case(family: str, c: Chooser, d: Path) -> Case:
     """Build one generated case of ``family`` in the empty folder ``d``."""
     return FAMILIES[family](c, d)
-
-
-def snapshot(d: Path) -> dict[str, str]:
-    """``relative path -> content digest`` of every regular file under ``d`` (FIFOs by name only)."""
-    import hashlib
-    import stat
-
-    out = {}
-    for p in sorted(d.rglob("*")):
-        st = p.lstat()
-        if stat.S_ISREG(st.st_mode):
-            out[str(p.relative_to(d))] = hashlib.sha1(p.read_bytes()).hexdigest()
-        elif not stat.S_ISDIR(st.st_mode):
-            out[str(p.relative_to(d))] = "special"
-    return out
 
 
 def classify(case: Case, d: Path) -> str:
@@ -826,6 +557,7 @@ def classify(case: Case, d: Path) -> str:
         if loaded and not case.command_when_loaded:  # e.g. a model file: validating it takes minutes
             return "accepted nonsense" if case.must_refuse else "accepted"
     err = io.StringIO()
+    code: Any = None
     try:
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
             try:
