@@ -37,7 +37,8 @@ trend stays a trend), so the null spread of a score is that of a time-correlated
 (candidate, target, regressor) score is studentised by its own null distribution (``z``), so a
 target whose scores vary widely under the null (e.g. a drifting range residual) does not drown the
 others; the adjusted p-value is Westfall-Young max-T of ``z`` over all of them. Candidates are ranked
-by ``z`` (significant ones first).
+by ``z``, except that the significant ones come first, ordered by their held-out ``R^2`` (the largest
+effect first: the loop adds in this order).
 
 **Conditional check.** Among the top candidates, and the candidates whose rank scale is correlated
 (>= 0.5) with a top one, ``i`` is a *proxy* of ``j`` when, once ``j``'s fit is removed, ``i`` explains
@@ -448,7 +449,15 @@ def rank_candidates(
         )
     _settle_forms(effects, obs, d, targets, metrics, forms, alpha)
     _mark_proxies(effects, d, names, targets, metrics, forms, given_design)
-    effects.sort(key=lambda e: (e["proxy_of"] is not None, not e["significant"], -float(e["z"])))
+    # significant effects by how much of the held-out residual they explain (the loop adds the largest
+    # first), the others by how far their best cell lies in its null distribution
+    effects.sort(
+        key=lambda e: (
+            e["proxy_of"] is not None,
+            not e["significant"],
+            -float(e["score"] if e["significant"] else e["z"]),
+        )
+    )
     return Ranking(effects, alpha, min_score, n_permutations, refused, n_blocks[0])
 
 
