@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from sensor_envs.evaluate.metrics import wilson_interval
+from sensor_envs.inputs import parse_json, read_text
 from sensor_envs.training.matrix_report import _write_atomic
 
 __all__ = [
@@ -241,7 +242,7 @@ def replay_policy(task: dict[str, Any]) -> dict[str, Any]:
     torch.set_num_threads(1)  # as the matrix's jobs: one core, reproducible
     path = Path(task["run_dir"]) / f"{task['policy']}_model.zip"
     cache_path = Path(task["run_dir"]) / CACHE
-    cache = json.loads(cache_path.read_text()) if task.get("cache") and cache_path.is_file() else {}
+    cache = parse_json(read_text(cache_path), str(cache_path)) if task.get("cache") and cache_path.is_file() else {}
     model = None
     crashes: list[dict[str, Any]] = []
     outcomes: dict[str, list[float]] = {}
