@@ -325,7 +325,8 @@ def radar_case(kind: str, seed: int, sequences: int = 24, cycles: int = 30, targ
     elif kind == "rate":
         p_det = 1 - p_miss
         sdd = np.sqrt(np.mean(p_det * (1 - p_det)))
-        keep = rng.random(n) < np.clip(1 + strength * sdd * (f - f.max()) / np.clip(p_det, 0.05, 1), 0, 1)
+        top = np.percentile(f, 95)  # the drop spans the cause's 5-95 % range, not its extremes
+        keep = rng.random(n) < np.clip(1 + strength * sdd * (np.minimum(f, top) - top) / np.clip(p_det, 0.05, 1), 0, 1)
         det = det & keep
     znew = np.where(det[:, None], mu + dev, np.nan)
     c = {k: np.asarray(v).copy() for k, v in rig.columns.items()}
