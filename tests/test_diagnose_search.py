@@ -212,3 +212,21 @@ def test_coarse_carmen_times_are_derived_from_the_scan_rate_with_a_warning():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         np.testing.assert_array_equal(scan_times(fine, "x.log"), fine)
+
+
+def test_improvement_interval_excludes_zero_only_for_a_real_gain():
+    """Held-out NLL differences shared within blocks (drift): a gain of 0.001 nats per reading with
+    block-level noise of 0.05 is not an improvement; a gain of 0.05 is."""
+    from sensor_envs.diagnose.core import improvement_interval
+
+    rng = np.random.default_rng(0)
+    n, nb = 6000, 120
+    blocks = np.repeat(np.arange(nb), n // nb)
+    before = 1.0 + rng.normal(0.0, 0.3, n)
+    shared = rng.normal(0.0, 0.05, nb)[blocks]  # a block-level wobble of the difference
+    ev = Evaluation(nll=before, residuals={}, candidates={}, blocks=blocks)
+    for gain, real in ((0.001, False), (0.05, True)):
+        after = Evaluation(nll=before - gain - shared, residuals={}, candidates={}, blocks=blocks)
+        lo, hi = improvement_interval(ev, after, np.random.default_rng(1))
+        assert lo < gain < hi
+        assert (lo > 0) == real, (gain, lo, hi)

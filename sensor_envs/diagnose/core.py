@@ -20,7 +20,8 @@ adding them cannot help. ``effects`` holds the other candidates only.
 
 **Loop.** Fit the base model on the fit part, evaluate on the held-out part, rank; add the best
 significant candidate the model can take into its state, refit, re-measure on the SAME held-out part;
-keep it only when the held-out NLL improves (else it is reported as rejected and the next significant
+keep it only when the held-out NLL improves beyond its block-to-block noise (:func:`improvement_interval`;
+else it is reported as rejected and the next significant
 candidate is tried); re-rank after each addition; repeat while an effect is significant, with at most
 ``max_add`` (default 3) refits in all. An adapter with ``state_terms(name, form)`` turns a finding's form
 (e.g. an interaction with bearing) into the state terms that represent it; a significant effect the
@@ -46,6 +47,7 @@ __all__ = [
     "DiagnoseResult",
     "block_split",
     "bin_candidate",
+    "improvement_interval",
     "rank_candidates",
     "run_diagnose",
 ]
@@ -215,6 +217,27 @@ def _ranking_rows(r: Ranking) -> list[dict[str, Any]]:
     return [{k: e.get(k) for k in keys} for e in r.effects]
 
 
+def improvement_interval(
+    before: Evaluation, after: Evaluation, rng: np.random.Generator, n_boot: int = 999
+) -> tuple[float, float]:
+    """95 % interval of the held-out NLL improvement per reading [nats] (``before`` minus ``after``).
+
+    The readings' capped NLL differences are summed per held-out block and the blocks resampled with
+    replacement (a block bootstrap: readings of one block share their time correlation). An addition
+    is kept only when the interval excludes 0: a lower held-out NLL that the block-to-block noise
+    explains is not an improvement (a random walk following slow drift, a proxy added after its cause,
+    lower the NLL by a few thousandths by chance).
+    """
+    d = np.minimum(before.nll, NLL_CAP) - np.minimum(after.nll, NLL_CAP)
+    ok = np.isfinite(d)
+    _, blk = np.unique(before.blocks[ok], return_inverse=True)
+    sums, counts = np.bincount(blk, weights=d[ok]), np.bincount(blk).astype(np.float64)
+    idx = rng.integers(0, sums.size, size=(n_boot, sums.size))
+    boot = sums[idx].sum(axis=1) / counts[idx].sum(axis=1)
+    lo, hi = np.quantile(boot, [0.025, 0.975])
+    return float(lo), float(hi)
+
+
 def run_diagnose(
     adapter: DiagnoseAdapter,
     *,
@@ -244,6 +267,7 @@ def run_diagnose(
         The :class:`DiagnoseResult`; ``effects`` is the first ranking (of the base model's residuals).
     """
     rng = np.random.default_rng(seed)
+    boot_rng = np.random.default_rng([seed, 1])  # the improvement intervals' own stream
     bar = tqdm(total=max_add + 1, disable=not progress, desc=f"diagnose {adapter.kind}")
     model = base_model if base_model is not None else adapter.fit(base_state)
     ev = adapter.evaluate(model)
@@ -298,8 +322,13 @@ def run_diagnose(
             "baseline_with": adapter.baseline((*state, *terms)),
         }
         step["attempts"].append(attempt)
-        if not new_ev.error < ev.error:
-            attempt["decision"] = f"{pick['name']} rejected: held-out NLL {new_ev.error:.4f} >= {ev.error:.4f}"
+        low, high = improvement_interval(ev, new_ev, boot_rng)
+        attempt["improvement_interval"] = [low, high]
+        if not low > 0.0:
+            attempt["decision"] = (
+                f"{pick['name']} rejected: held-out NLL {ev.error:.4f} -> {new_ev.error:.4f}, improvement "
+                f"[{low:.4f}, {high:.4f}] nats per reading (95 %, held-out blocks resampled) does not exclude 0"
+            )
             step["decision"] = attempt["decision"]
             rejected.append(pick["name"])
             continue
