@@ -226,3 +226,38 @@ def test_negative_zero_in_a_file_is_zero(tmp_path, capsys) -> None:
     code, err = _run([*argv, "--sequences", "1", "--cycles", "2"], capsys)
     assert code == 0, err
     assert str(parse_yaml("a: -0.0", "s")["a"]) == "0.0" and str(parse_json("[-0.0]", "s")[0]) == "0.0"
+
+
+@pytest.mark.parametrize("verbose", [float("nan"), {}, 1e-5, np.array([1.0, 1.0])])
+def test_verbose_is_a_flag_checked_at_fit_not_coerced_in_the_constructor(verbose, tmp_path) -> None:
+    from sensor_envs.lidar.lwlr import LidarLWLR
+
+    model = LidarLWLR(n_folds=2, variant="seed", verbose=verbose)  # stores it as given (sklearn style)
+    with pytest.raises(InputError, match="verbose"):
+        model.fit(fa._small_log("LidarLWLR", tmp_path))
+
+
+def test_masked_entries_are_refused_never_unmasked() -> None:
+    state = np.ma.masked_array([[10.0, 1.0]], mask=[[True, False]])
+    with pytest.raises(InputError, match="masked"):
+        fa.shipped_model("GaussianRadar").sample(state, np.random.default_rng(0))
+
+
+def test_the_vector_env_takes_its_action_space_shape_only() -> None:
+    import gymnasium as gym
+
+    env = gym.make_vec("sensor_envs/Neato-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    env.reset(seed=0)
+    with pytest.raises(InputError, match="actions"):
+        env.step(np.array([0.5, 0.2, 0.5, 0.2]))  # a flat batch: (4,), not (2, 2)
+
+
+def test_a_clutter_row_copied_whole_is_refused(tmp_path) -> None:
+    from sensor_envs.radar.log import read_log
+
+    rows = fp.radar_rows()
+    clutter = next(r for r in rows if ",-1," in r)
+    p = tmp_path / "log.csv"
+    p.write_text("\n".join([fp.RADAR_HEADER, *rows, clutter]) + "\n")
+    with pytest.raises(InputError, match="repeats the clutter detection"):
+        read_log(p)
