@@ -521,6 +521,8 @@ def check_array(
     Raises:
         InputError: ``"<name>: ..."`` naming the first offending entry.
     """
+    if isinstance(value, np.ma.MaskedArray) and np.ma.getmaskarray(value).any():  # asarray would drop the mask
+        raise InputError(f"{name}: expected real numbers, got a masked array with masked entries")
     try:
         arr = np.asarray(value)
     except (TypeError, ValueError) as exc:  # ragged nesting, unconvertible objects
