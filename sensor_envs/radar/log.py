@@ -242,6 +242,7 @@ def _check_consistency(out: dict[str, NDArray], clutter: NDArray[np.bool_], sour
     bad = clutter & (out["target"] != -1)
     if bad.any():
         raise RadarLogError(f"{source}: column 'target' row {_first(bad)} is a clutter row (no ref) but not -1")
+    _check_clutter_repeats(out, clutter, source)
     seq, frame, t = out["sequence"], out["frame"], out["t"]
     order = np.lexsort((frame, seq))
     same_seq = seq[order][1:] == seq[order][:-1]
@@ -252,6 +253,19 @@ def _check_consistency(out: dict[str, NDArray], clutter: NDArray[np.bool_], sour
         raise RadarLogError(
             f"{source}: column 't' row {r} does not increase with 'frame' within sequence {int(seq[r])} "
             "(each cycle has one time, later frames later times)"
+        )
+
+
+def _check_clutter_repeats(out: dict[str, NDArray], clutter: NDArray[np.bool_], source: str) -> None:
+    """No clutter detection twice in one cycle: the same (sequence, frame, meas_x, meas_y) is a row copied whole."""
+    rows = np.flatnonzero(clutter)
+    key = np.stack([out[k][rows] for k in ("sequence", "frame", "meas_x", "meas_y")], axis=1)
+    order = np.lexsort(key.T[::-1])
+    dup = (np.diff(key[order], axis=0) == 0).all(axis=1)
+    if dup.any():
+        r = int(rows[order[1:][dup][0]])
+        raise RadarLogError(
+            f"{source}: row {r} repeats the clutter detection (sequence, frame, meas_x, meas_y) of an earlier row"
         )
 
 
