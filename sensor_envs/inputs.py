@@ -145,9 +145,11 @@ def check_regular_file(path: PathLike, field: str = "file", limit: int | None = 
 def read_bytes(path: PathLike, field: str = "file", limit: int | None = None) -> bytes:
     """The bytes of a regular file of at most ``limit`` bytes (see :func:`check_regular_file`)."""
     cap = LIMITS.file_bytes if limit is None else limit
-    check_regular_file(path, field, cap)
+    size = check_regular_file(path, field, cap)
     with open(path, "rb") as fh:
-        data = fh.read(cap + 1)  # the file may have grown since the check
+        data = fh.read(size + 1)  # read(cap + 1) would allocate cap bytes up front, whatever the file's size
+        if len(data) > size:  # the file has grown since the check
+            data += fh.read(cap + 1 - len(data))
     if len(data) > cap:
         raise InputError(f"{path}: {field}: the file has more than the limit of {cap} bytes")
     return data
@@ -286,6 +288,9 @@ def parse_json(text: str | bytes, source: str) -> Any:
     Raises:
         InputError: ``"<source>: not valid JSON (...)"`` or a depth / size limit.
     """
+    sep = text.count(",") + text.count(":") if isinstance(text, str) else text.count(b",") + text.count(b":")
+    if sep > 2 * LIMITS.nodes:  # before parsing: json.loads would build every value first
+        raise InputError(f"{source}: holds more than {LIMITS.nodes} values")
     try:
         doc = json.loads(text, object_pairs_hook=_unique_keys, parse_float=_float)
     except RecursionError:

@@ -261,3 +261,26 @@ def test_a_clutter_row_copied_whole_is_refused(tmp_path) -> None:
     p.write_text("\n".join([fp.RADAR_HEADER, *rows, clutter]) + "\n")
     with pytest.raises(InputError, match="repeats the clutter detection"):
         read_log(p)
+
+
+def test_a_radar_log_is_read_in_a_few_times_its_size(tmp_path) -> None:
+    """Rows are parsed into 8-byte columns as they are read (they were held as lists of strings: 35x the file)."""
+    import tracemalloc
+
+    from sensor_envs.radar.log import read_log
+
+    rows = [f"{i // 100},{i % 100},{i % 100}.0,0,10.0,1.0,0.1,4.5,1.8,8.0,1.1,1.0" for i in range(20_000)]
+    p = tmp_path / "log.csv"
+    p.write_text("\n".join([fp.RADAR_HEADER, *rows]) + "\n")
+    tracemalloc.start()
+    read_log(p)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 12 * p.stat().st_size, (peak, p.stat().st_size)
+
+
+def test_a_json_document_of_too_many_values_is_refused_before_parsing() -> None:
+    from sensor_envs.inputs import LIMITS
+
+    with pytest.raises(InputError, match="more than"):
+        parse_json("[" + "0," * (2 * LIMITS.nodes + 1) + "0]", "src")

@@ -246,8 +246,9 @@ def _baseline_path(model: str) -> Path:
     return next((c for c in candidates if c.exists()), candidates[0])
 
 
-MAX_RECORD_ROWS = 10_000_000
-"""Most target rows of ``record radar`` (``--sequences x --cycles x --targets``)."""
+MAX_RECORD_ROWS = 1_000_000
+"""Most target rows of ``record radar`` (``--sequences x --cycles x --targets``): the CSV (about 70 bytes a row,
+clutter rows besides) stays within the radar log reader's limit (:data:`sensor_envs.radar.log.MAX_LOG_BYTES`)."""
 
 
 def _record(args: argparse.Namespace) -> int:
