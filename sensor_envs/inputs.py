@@ -51,6 +51,7 @@ __all__ = [
     "parse_yaml",
     "check_pixels",
     "check_number",
+    "plain_decimal",
     "check_count",
     "check_rng",
     "bad_name",
@@ -427,6 +428,18 @@ def check_pixels(width: int, height: int, source: str) -> None:
         raise InputError(f"{source}: fields 'width'/'height' must be >= 1, got {width} x {height}")
     if width * height > LIMITS.pixels:
         raise InputError(f"{source}: the image has {width} x {height} pixels, more than the limit of {LIMITS.pixels}")
+
+
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+
+
+def plain_decimal(text: str) -> float | None:
+    """``text`` as a float if it is plain ASCII decimal text (``-0`` as ``0.0``), else ``None``.
+
+    ``float`` alone would take ``1_0.5`` (10.5), ``nan``, ``infinity``, padding and other scripts' digits
+    (``١``, ``１``): text readers use this instead.
+    """
+    return float(text) + 0.0 if _DECIMAL.fullmatch(text) else None
 
 
 def check_number(

@@ -284,3 +284,12 @@ def test_a_json_document_of_too_many_values_is_refused_before_parsing() -> None:
 
     with pytest.raises(InputError, match="more than"):
         parse_json("[" + "0," * (2 * LIMITS.nodes + 1) + "0]", "src")
+
+
+@pytest.mark.parametrize("token", ["1_0.5", "nan", "infinity", "١", "１", " 1e"])
+def test_a_text_map_takes_plain_decimal_numbers_only(token, tmp_path) -> None:
+    from sensor_envs.maps import load_map
+
+    (tmp_path / "m.txt").write_text(fp.MAP_TXT.replace("4 0 4 3", f"{token} 0 4 3"))
+    with pytest.raises(InputError, match="four numbers"):
+        load_map(tmp_path / "m.txt")
