@@ -98,7 +98,7 @@ def lidar_metrics(data: Path) -> dict[str, Any]:
 
     model = LidarLWLR.load(default_model_path(DEFAULT_MODEL_FILE))
     log = load_real_log(data)
-    gaussian = GaussianLidar(**model.card_extra_["gaussian_baseline"])
+    gaussian = model.baseline() or GaussianLidar()
     rows = _pose_table(model, log, gaussian)
     rng = np.random.default_rng(0)
     poses = np.arange(log.n_poses)

@@ -2,7 +2,7 @@
 
     python benchmarks/highway_matrix_report.py --run runs/highway_matrix \
         --md docs/results/highway_matrix.md --png docs/results/highway_matrix.png \
-        --json docs/results/highway_matrix.json --force
+        --json docs/results/highway_matrix.json [--baseline ideal_surround] --force
 
 Reads the run folder (``matrix.json``, ``matrix.md``, ``matrix.png``, and per job ``eval.json``,
 ``config.json`` and the ``EvalCallback`` learning curve ``evaluations.npz``) and writes below the marker
@@ -112,8 +112,8 @@ def callback_episodes(run: Path, matrix: dict) -> str:
     return str(np.load(job / "evaluations.npz")["results"].shape[1])
 
 
-def render(run: Path) -> str:
-    """The generated part of the page."""
+def render(run: Path, baseline: str = "ideal") -> str:
+    """The generated part of the page (issue 41's targets against the ``baseline`` row)."""
     matrix = json.loads((run / "matrix.json").read_text())
     meta = matrix["run"]
     table = (run / "matrix.md").read_text().split("\n", 2)[2]  # without the title line
@@ -128,7 +128,7 @@ def render(run: Path) -> str:
         + (" (EvalCallback's best on held-out seeds)" if meta.get("policy") == "best" else "")
         + ". Page: `python benchmarks/highway_matrix_report.py --run <out> --md ... --force`.",
         "",
-        *targets(matrix),
+        *targets(matrix, baseline),
         table.replace("\n## ", "\n### "),
         "## Learning curves and cost per job",
         "",
@@ -156,6 +156,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--md", type=Path, required=True, help="results page (text above the marker is kept)")
     parser.add_argument("--png", type=Path, default=None, help="copy of the run's matrix.png")
     parser.add_argument("--json", type=Path, default=None, help="copy of the run's matrix.json (cells, hashes)")
+    parser.add_argument(
+        "--baseline", default="ideal", help="the row issue 41's targets compare with (e.g. ideal_surround)"
+    )
     parser.add_argument("--force", action="store_true", help="replace existing --md / --png")
     args = parser.parse_args(argv)
     if not (args.run / "matrix.json").is_file():
@@ -168,7 +171,7 @@ def main(argv: list[str] | None = None) -> None:
     head = ""
     if args.md.is_file():
         head = args.md.read_text(encoding="utf-8").split(MARKER)[0]
-    body = render(args.run)
+    body = render(args.run, args.baseline)
     write_atomic(args.md, (head + body).encode("utf-8"))
     if args.png is not None:
         write_atomic(args.png, (args.run / "matrix.png").read_bytes())

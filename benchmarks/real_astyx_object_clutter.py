@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from sensor_envs.outputs import atomic_write
-from sensor_envs.radar.object_clutter import FORMAT_VERSION, measure_object_clutter
+from sensor_envs.radar.object_clutter import measure_object_clutter, object_clutter_document
 
 
 def _write(path: Path, text: str, force: bool) -> None:
@@ -101,20 +101,11 @@ def main() -> None:
     if a.json:
         _write(a.json, json.dumps(runs, indent=1), a.force)
     if a.law:
-        doc = {
-            "format_version": FORMAT_VERSION,
-            "kind": "radar_object_clutter",
-            "law": runs[a.law_min_points]["law"],
-            "card": {
-                "data": "astyx_hires2019",
-                "frames": runs[a.law_min_points]["frames"],
-                "command": command,
-                "params": runs[a.law_min_points]["params"],
-                "point_level": runs[a.law_min_points]["point_level"],
-                "note": "moving/stationary split unreliable on Astyx (aliased Doppler, no odometry); "
-                "the highway wrapper uses the total per range bin",
-            },
-        }
+        note = (
+            "moving/stationary split unreliable on Astyx (aliased Doppler, no odometry); "
+            "the highway wrapper uses the total per range bin"
+        )
+        doc = object_clutter_document(runs[a.law_min_points], "astyx_hires2019", command, note)
         _write(a.law, json.dumps(doc, indent=1) + "\n", a.force)
     if a.md:
         _write(a.md, _markdown(runs, a.law_min_points, command), a.force)

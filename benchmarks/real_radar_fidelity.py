@@ -3,18 +3,16 @@
 The whole chain runs from a fresh clone (~30-45 min on 2 shared cores, most of it the `cv_state` fit;
 `--models-from` skips it, ~3 min):
 
-1. AFTER models: record the calibrated rig (``--rig``, default ``models/radar_rig.json``) with the
-   command of the model card (``record radar ... --in-view-only``; ``--all-targets`` records every
-   box, the chain of the models shipped until 2026-11-24) and fit the KDE (``--relevance cv_state
-   --relevance-candidates 6 12 24 48 96 192 --output-frame polar --azimuth-bias fit --bandwidth-scale 0.3
-   --start-bandwidth-scale 0.7``, options of this script; ``--rig`` = the rig of b005a25 with
-   ``--bandwidth-scale 0.35 --start-bandwidth-scale 0.85`` is the chain of the eighth change's file,
-   ``--azimuth-bias 0 --bandwidth-scale 0.7`` the chain
-   of the file shipped at daf3071 (with ``--start-bandwidth-scale none``), ``--output-frame cartesian`` that
-   of the file shipped at 6f662ae; ``--relevance cv_axes`` with ``--rig`` = the rig file of commit 8e72122 is
-   the chain of the models shipped there) and the Gaussian baseline on it, both through the ``sensor-envs`` CLI
-   (``--models-from DIR`` skips this and uses
-   ``DIR/radar_kde.npz`` and ``DIR/radar_gaussian.npz``, e.g. ``models``);
+1. AFTER models: the shipped 1 s radar's recipe (``models/recipes/radar_kde.yaml``, what ``sensor-envs
+   rebuild-models --only radar_kde`` runs: ``record radar`` from the calibrated rig, ``fit radar`` of the KDE and
+   its Gaussian baseline, the bandwidth factors and tail mixture), through the ``sensor-envs`` CLI, with
+   ``--rig`` (default ``models/radar_rig.json``) and ``--seed``; the chain options of this script override the
+   recipe's (``--all-targets``: every box recorded, the chain of the models shipped until 2026-11-24; ``--rig`` =
+   the rig of b005a25 with ``--bandwidth-scale 0.35 --start-bandwidth-scale 0.85``: the eighth change's file;
+   ``--azimuth-bias 0 --bandwidth-scale 0.7 --start-bandwidth-scale none``: the file shipped at daf3071;
+   ``--output-frame cartesian``: that of 6f662ae; ``--relevance cv_axes`` with the rig file of commit 8e72122:
+   the models shipped there). ``--models-from DIR`` skips this and uses ``DIR/radar_kde.npz`` and
+   ``DIR/radar_gaussian.npz``, e.g. ``models``;
 2. BEFORE models (optional, ``--before DIR``): ``DIR/radar_kde.npz`` and ``DIR/radar_gaussian.npz`` of an
    earlier change, scored beside (until 2026-11-28 this script took them from ``git show`` of an old commit;
    no figure depends on the repository's history any more);
@@ -85,12 +83,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from sensor_envs.cli.rebuild import load_recipe, recipe_argv, recipes_folder
 from sensor_envs.outputs import write_json
 from sensor_envs.radar.astyx import load_astyx
 from sensor_envs.radar.calibrate import DET_AZIMUTH_EDGES, calibrate_rig, frames_from_log
 from sensor_envs.radar.features import model_extra
+from sensor_envs.radar.fidelity import ENERGY_TARGET, marginal, target_gaps
 from sensor_envs.radar.fidelity import fold_rows as _fold_rows
-from sensor_envs.radar.fidelity import marginal
 from sensor_envs.radar.gaussian import GaussianRadar
 from sensor_envs.radar.kde import KDERadarModel
 from sensor_envs.radar.log import RadarLog, TargetTuples
@@ -120,21 +119,10 @@ def cli(*args: str) -> None:
     subprocess.run([sys.executable, "-m", "sensor_envs.cli.main", *args], check=True, cwd=ROOT, env=env)
 
 
-RELEVANCE = "cv_state"
-"""Relevance mode of the shipped model's fit (``fit radar --relevance``): x and y corner variances, then the
-``z_{t-1}`` variance, by CV on the rig log (``cv_axes``: the model shipped at 8e72122, with that commit's rig)."""
-RELEVANCE_CANDIDATES = (6.0, 12.0, 24.0, 48.0, 96.0, 192.0)
-"""Corner variances [m^2] the shipped model's CV tried (``fit radar --relevance-candidates``)."""
+RECIPE = load_recipe(recipes_folder() / "radar_kde.yaml")
+"""The shipped 1 s radar's recipe (``models/recipes/radar_kde.yaml``, what ``rebuild-models`` runs): the chain's
+``record radar`` and ``fit radar`` options and bandwidth factors; this script's chain options override them."""
 
-
-OUTPUT_FRAME = "polar"
-"""Output frame of the shipped KDE (``fit radar --output-frame``; ``"cartesian"`` for the files up to 6f662ae)."""
-BANDWIDTH_SCALE = 0.3
-"""Contribution-bandwidth factor of the shipped KDE (``fit radar --bandwidth-scale``; see the model card)."""
-START_BANDWIDTH_SCALE: float | None = 0.7
-"""The start trees' factor of the shipped KDE (``fit radar --start-bandwidth-scale``; None: ``BANDWIDTH_SCALE``)."""
-AZIMUTH_BIAS = "fit"
-"""Mounting yaw error of the shipped KDE (``fit radar --azimuth-bias``: estimated from the rig log)."""
 RIG_OPTIONS: dict[str, Any] = {
     "offset_law": "mixture",
     "mixture_min_range": 30.0,
@@ -150,40 +138,27 @@ MAIN_FACTORS = (0.2, 0.25, 0.3, 0.35, 0.5, 0.6, 0.7, 0.85, 1.0)
 
 
 def chain(
-    work: Path,
-    rig: str,
-    seed: int,
-    in_view_only: bool = True,
-    relevance: str = RELEVANCE,
-    candidates: tuple[float, ...] | None = RELEVANCE_CANDIDATES,
-    bandwidth_scale: float = BANDWIDTH_SCALE,
-    output_frame: str = OUTPUT_FRAME,
-    azimuth_bias: str = AZIMUTH_BIAS,
-    start_bandwidth_scale: float | None = START_BANDWIDTH_SCALE,
+    work: Path, rig: str, seed: int, record: dict[str, Any], fit: dict[str, Any], factors: dict[str, Any]
 ) -> tuple[Path, Path]:
-    """Record the calibrated rig and fit the KDE and Gaussian as the model card says; returns their paths.
+    """Record the calibrated rig and fit the KDE and Gaussian as the recipe says; returns their paths.
 
-    The defaults are the card's commands of the shipped model (2026-11-27): ``record radar
-    --in-view-only`` (boxes wholly outside the rig's field of view left out of the log) and ``fit radar
-    --relevance cv_state --relevance-candidates 6 12 24 48 96 192 --output-frame polar --azimuth-bias fit
-    --bandwidth-scale B --start-bandwidth-scale S``, the factors the shipped file carries (chosen on Astyx by
-    ``real_radar_bandwidth_scale.py``; 0.35 / 0.85 for the eighth change's file, b005a25; 1 for the files before
-    commit 621e782, one factor up to daf3071).
-    ``relevance="cv_axes"`` (with the rig of commit 8e72122) is the chain of the models shipped at 8e72122;
-    ``in_view_only=False, relevance="cv", candidates=None`` that of the models shipped before (commit 156053f).
+    Runs :data:`RECIPE`'s ``record radar`` and ``fit radar`` command lines (``rebuild-models``'s, through
+    :func:`~sensor_envs.cli.rebuild.recipe_argv`) with ``rig``, ``seed`` and the entries of ``record``, ``fit``
+    and ``factors`` in place of the recipe's (a ``None`` value drops the option). Older chains are the recipe
+    with overrides, e.g. ``--relevance cv_axes`` with the rig of commit 8e72122 (the models shipped there);
+    ``--all-targets --relevance cv`` with the CLI's candidates those shipped before (commit 156053f).
     """
     work.mkdir(parents=True, exist_ok=True)
-    log = work / "rig_train.csv"
-    kde, gauss = work / "radar_kde.npz", work / "radar_gaussian.npz"
-    view = ["--in-view-only"] if in_view_only else []
-    cand = ["--relevance-candidates", *(f"{c:g}" for c in candidates)] if candidates else []
-    start = ["--start-bandwidth-scale", f"{start_bandwidth_scale:g}"] if start_bandwidth_scale is not None else []
-    cli("record", "radar", "--rig", rig, "--out", str(log), "--seed", str(seed), "--sequences", "50",
-        "--cycles", "40", "--targets", "8", "--cycle-time", "1.0", *view, "--force")  # fmt: skip
-    cli("fit", "radar", str(log), "--out", str(kde), "--baseline-out", str(gauss), "--cycle-time", "1.0",
-        "--seed", str(seed), "--relevance", relevance, *cand, "--bandwidth-scale", f"{bandwidth_scale:g}",
-        "--output-frame", output_frame, "--azimuth-bias", azimuth_bias, *start, "--force")  # fmt: skip
-    return kde, gauss
+    recipe = {
+        **RECIPE,
+        "record": {**RECIPE["record"], "seed": seed, **record},
+        "fit": {**RECIPE["fit"], "seed": seed, **fit},
+        "factors": {**RECIPE.get("factors", {}), **factors},
+    }
+    for argv in recipe_argv(recipe, Path(rig), work, work):
+        cli(*argv, "--force")
+    outputs = RECIPE["outputs"]
+    return work / outputs["model"], work / outputs["baseline"]
 
 
 def rig_per_fold_model(
@@ -299,10 +274,6 @@ def real_rates(corner: NDArray, z: NDArray, block: NDArray, rng: np.random.Gener
     return out
 
 
-ENERGY_TARGET = 1.15
-"""The energy-distance target (issue 12): at most this multiple of the real-fitted KDE's, per range bin."""
-
-
 def energy_intervals(
     samples: dict[str, NDArray], corner: NDArray, z: NDArray, block: NDArray, rng: np.random.Generator,
     ref: str = "kde_real_fitted", n_boot: int = 1000,
@@ -342,35 +313,6 @@ def energy_intervals(
 
 def fmt(v: Any, nd: int = 3) -> str:
     return "-" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.{nd}f}"
-
-
-def targets(row: dict, real: dict, ref: dict) -> dict[str, Any]:
-    """Worst gaps to the targets: detection |model - real| per bin, metric ratio to the real-fitted KDE."""
-
-    def det_gaps(other: dict) -> list[float]:  # |model - other| per detection bin (range, then azimuth)
-        return [abs(a - b) for k in ("det_range", "det_azimuth") for a, b in zip(row[k], other[k], strict=True)
-                if a is not None and b is not None]  # fmt: skip
-
-    gaps, ref_gaps = det_gaps(real), det_gaps(ref)
-    inside = [lo <= a <= hi for k in ("det_range", "det_azimuth") for a, (lo, hi) in zip(row[k], real[f"{k}_ci"],
-              strict=True) if a is not None]  # fmt: skip
-    out: dict[str, Any] = {
-        "max_det_gap": max(gaps),
-        "det_bins_within_0.05": f"{sum(g <= 0.05 for g in gaps)}/{len(gaps)}",
-        "det_bins_within_block_ci": f"{sum(inside)}/{len(inside)}",
-        "max_det_gap_to_real_fitted": max(ref_gaps),
-        "det_bins_within_0.05_of_real_fitted": f"{sum(g <= 0.05 for g in ref_gaps)}/{len(ref_gaps)}",
-    }
-    for k in ("nll_outcome", "nll_z_given_detected"):
-        out[f"{k}_rel"] = None if row[k] is None else (row[k] - ref[k]) / abs(ref[k])
-    for key in ("energy", "energy_one_sample", "energy_all"):
-        e = [(a - b) / b for a, b in zip(row[key], ref[key], strict=True) if np.isfinite(a) and b > 0]
-        out[f"{key}_max_rel"] = max(e) if e else None
-    margins = row["energy_margin_ci"]
-    within = sum(a <= ENERGY_TARGET * b for a, b in zip(row["energy_all"], ref["energy_all"], strict=True))
-    out["energy_bins_within_target"] = f"{within}/{len(margins)}"
-    out["energy_bins_missed_beyond_ci"] = f"{sum(m[0] > 0 for m in margins)}/{len(margins)}"
-    return out
 
 
 def markdown(rep: dict) -> str:
@@ -452,9 +394,8 @@ def main() -> None:
         "--in-view-only",
         dest="in_view_only",
         action="store_true",
-        default=True,
-        help="chain: record radar --in-view-only (leave boxes wholly outside the rig's field of view out of "
-        "the log), as the shipped model of the card (the default; kept for older command lines)",
+        default=None,
+        help="chain: record radar --in-view-only (the recipe's; kept for older command lines)",
     )
     view.add_argument(
         "--all-targets",
@@ -462,45 +403,46 @@ def main() -> None:
         action="store_false",
         help="chain: record every target box (the log of the models shipped until 2026-11-24, commit 156053f)",
     )
+    fit, factors = RECIPE["fit"], RECIPE.get("factors", {})
     ap.add_argument(
         "--relevance",
         choices=["paper", "cv", "cv_axes", "cv_state"],
-        default=RELEVANCE,
-        help=f"chain: fit radar --relevance (default {RELEVANCE}, the shipped model; cv: the models before)",
+        default=None,
+        help=f"chain: fit radar --relevance (default: the recipe's, {fit.get('relevance')}; cv: the models before)",
     )
     ap.add_argument(
         "--relevance-candidates",
         type=float,
         nargs="+",
-        default=list(RELEVANCE_CANDIDATES),
-        help="chain: fit radar --relevance-candidates [m^2] (default "
-        + " ".join(f"{c:g}" for c in RELEVANCE_CANDIDATES)
-        + "; the models before used the CLI's default 3 6 12 24 48)",
+        default=None,
+        help=f"chain: fit radar --relevance-candidates [m^2] (default: the recipe's, {fit.get('relevance_candidates')}"
+        "; the models before used the CLI's default 3 6 12 24 48)",
     )
     ap.add_argument(
         "--bandwidth-scale",
         type=float,
-        default=BANDWIDTH_SCALE,
-        help=f"chain: fit radar --bandwidth-scale (default {BANDWIDTH_SCALE:g}, the shipped model's; "
+        default=None,
+        help=f"chain: fit radar --bandwidth-scale (default: the recipe's, {factors.get('bandwidth_scale')}; "
         "1: files before 621e782)",
     )
     ap.add_argument(
         "--start-bandwidth-scale",
-        type=lambda text: None if text.lower() == "none" else float(text),
-        default=START_BANDWIDTH_SCALE,
-        help=f"chain: fit radar --start-bandwidth-scale (default {START_BANDWIDTH_SCALE}, the shipped model's; "
-        "none up to daf3071)",
+        type=lambda text: "none" if text.lower() == "none" else float(text),
+        default=None,
+        help="chain: fit radar --start-bandwidth-scale (default: the recipe's, "
+        f"{factors.get('start_bandwidth_scale')}; none up to daf3071)",
     )
     ap.add_argument(
         "--output-frame",
         choices=["cartesian", "polar"],
-        default=OUTPUT_FRAME,
-        help=f"chain: fit radar --output-frame (default {OUTPUT_FRAME}, the shipped model's; cartesian: up to 6f662ae)",
+        default=None,
+        help=f"chain: fit radar --output-frame (default: the recipe's, {fit.get('output_frame')}; cartesian: up to "
+        "6f662ae)",
     )
     ap.add_argument(
         "--azimuth-bias",
-        default=AZIMUTH_BIAS,
-        help=f"chain: fit radar --azimuth-bias (default {AZIMUTH_BIAS}, the shipped model's; 0: up to daf3071)",
+        default=None,
+        help=f"chain: fit radar --azimuth-bias (default: the recipe's, {fit.get('azimuth_bias')}; 0: up to daf3071)",
     )
     ap.add_argument(
         "--before",
@@ -548,17 +490,15 @@ def main() -> None:
     if args.models_from:
         kde_after, gauss_after = Path(args.models_from) / "radar_kde.npz", Path(args.models_from) / "radar_gaussian.npz"
     else:
+        given = {k: getattr(args, k) for k in ("relevance", "relevance_candidates", "output_frame", "azimuth_bias")}
+        scales = {k: getattr(args, k) for k in ("bandwidth_scale", "start_bandwidth_scale")}
         kde_after, gauss_after = chain(
             out / "chain",
             args.rig,
             args.seed,
-            in_view_only=args.in_view_only,
-            relevance=args.relevance,
-            candidates=tuple(args.relevance_candidates),
-            bandwidth_scale=args.bandwidth_scale,
-            output_frame=args.output_frame,
-            azimuth_bias=args.azimuth_bias,
-            start_bandwidth_scale=args.start_bandwidth_scale,
+            record={} if args.in_view_only is None else {"in_view_only": args.in_view_only},
+            fit={k: v for k, v in given.items() if v is not None},
+            factors={k: (None if v == "none" else v) for k, v in scales.items() if v is not None},
         )
     if args.rig_per_fold:
         per_fold_base, _ = load_rig(args.per_fold_base)
@@ -650,7 +590,7 @@ def main() -> None:
         "azimuth_bins_deg": AZ_DEG.tolist(),
         "real": real,
         "models": models,
-        "targets": {n: targets(m, real, models["kde_real_fitted"]) for n, m in models.items()},
+        "targets": {n: target_gaps(m, real, models["kde_real_fitted"]) for n, m in models.items()},
         "per_fold": per_fold,
         "rig_per_fold": rig_folds,
         "seconds": round(time.perf_counter() - t0, 1),

@@ -43,7 +43,7 @@ _PUBLIC: dict[str, str] = {
     # lidar
     "LidarSensor": "sensor_envs.lidar.sensors",
     "IdealLidar": "sensor_envs.lidar.sensors",
-    "GaussianLidar": "sensor_envs.lidar.sensors",
+    "GaussianLidar": "sensor_envs.lidar.gaussian",
     "make_lidar": "sensor_envs.lidar.sensors",
     "LidarLWLR": "sensor_envs.lidar.lwlr",
     "LearnedLidar": "sensor_envs.lidar.lwlr",

@@ -45,12 +45,22 @@ from sensor_envs.modelio import (
     validate_params,
 )
 
-__all__ = ["SensorModel", "has_capability", "CAPABILITIES", "upgrade_model_file", "set_param_defaults", "NOT_SAVED"]
+__all__ = [
+    "SensorModel",
+    "has_capability",
+    "extra_state_names",
+    "CAPABILITIES",
+    "upgrade_model_file",
+    "set_param_defaults",
+    "NOT_SAVED",
+]
 
-CAPABILITIES = ("new_track", "extra_state", "prev_output", "log_prob", "clutter")
+CAPABILITIES = ("new_track", "extra_state", "prev_output", "log_prob", "clutter", "output_frame", "bin_probabilities")
 """Capabilities a sensor model may declare: ``new_track`` (``sample_cycle``/``log_prob`` take the per-target
 new-track flags), ``extra_state`` (queries take ``extra`` values of ``extra_state_``), ``prev_output`` (the state
-holds the previous output ``z_{t-1}``), ``log_prob`` (scores outcomes), ``clutter`` (draws clutter)."""
+holds the previous output ``z_{t-1}``), ``log_prob`` (scores outcomes), ``clutter`` (draws clutter),
+``output_frame`` (``to_output_frame``: offsets on the axes its kernels act on), ``bin_probabilities`` (exact
+probabilities of output bins, for chi-square checks of its samples)."""
 NOT_SAVED = ("random_state", "verbose")
 """Hyperparameters of a run, never written to a model file (a loaded model gets their defaults)."""
 
@@ -71,6 +81,14 @@ def has_capability(model: object, capability: str) -> bool:
     return capability in getattr(type(model), "CAPABILITIES", frozenset())
 
 
+def extra_state_names(model: object) -> tuple[str, ...]:
+    """The extra state variables of a fitted ``model`` (``extra_state_``) if it declares ``"extra_state"``, else ``()``.
+
+    What callers pass as ``extra`` columns; read from the declaration, not by probing for the attribute.
+    """
+    return tuple(model.extra_state_) if has_capability(model, "extra_state") else ()  # type: ignore[attr-defined]
+
+
 class SensorModel(BaseEstimator):
     """Base of the fitted sensor models: parameter table, fitted check, card, versioned file with upgrades.
 
@@ -84,8 +102,8 @@ class SensorModel(BaseEstimator):
         >>> from sensor_envs import GaussianRadar, KDERadarModel, LidarLWLR, SensorModel
         >>> all(issubclass(c, SensorModel) for c in (GaussianRadar, KDERadarModel, LidarLWLR))
         True
-        >>> KDERadarModel.KIND, KDERadarModel.FORMAT_VERSION, sorted(KDERadarModel.CAPABILITIES)[:2]
-        ('radar_kde', 8, ['clutter', 'extra_state'])
+        >>> KDERadarModel.KIND, KDERadarModel.FORMAT_VERSION, "clutter" in KDERadarModel.CAPABILITIES
+        ('radar_kde', 8, True)
     """
 
     KIND: ClassVar[str] = ""
@@ -110,6 +128,8 @@ class SensorModel(BaseEstimator):
     """Hyperparameters a current-format file may lack, read with these values."""
     _hyperparameter_constraints: ClassVar[dict[str, list[Constraint]]] = {}
     """Alias of ``_parameter_constraints`` (its name before the contract)."""
+    _file: Path | None = None
+    """The file :meth:`load` read the model from (``None``: fitted in memory); files beside it are found from it."""
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -145,11 +165,14 @@ class SensorModel(BaseEstimator):
         return bool(progress)
 
     def baseline(self) -> Any:
-        """The simple baseline this model is judged against, as fitted with it, or ``None`` if it keeps none.
+        """The simple baseline this model is judged against, fitted with it on the same data, ready to simulate.
 
-        The lidar keeps its Gaussian baseline's keyword arguments in its card (``gaussian_baseline``) and returns
-        them; a radar's Gaussian baseline is a model file of its own, beside it (``sensor-envs fit radar
-        --baseline-out``), and this returns ``None``.
+        One way for every sensor: the learned lidar returns its
+        :class:`~sensor_envs.lidar.gaussian.GaussianLidar` (whose keyword arguments its card keeps, as
+        ``gaussian_baseline``), the KDE radar its :class:`~sensor_envs.radar.gaussian.GaussianRadar` (a model file
+        of its own, beside the file the KDE was loaded from: :func:`~sensor_envs.radar.gaussian.baseline_file`).
+        ``None`` when the model keeps none: a baseline itself, a KDE fitted in memory or without the file beside it,
+        a lidar whose card lacks the entry.
         """
         return None
 
@@ -229,6 +252,7 @@ class SensorModel(BaseEstimator):
         header, arrays = cls.read_current(path)
         model = cls._from_file(Path(path), header, arrays)
         model.card_ = dict(header.get("card", {}))
+        model._file = Path(path)
         return model
 
     @classmethod

@@ -157,6 +157,25 @@ def test_package_docstring_names_all_its_modules(package):
     assert not missing, f"{name}: docstring does not name {missing}"
 
 
+# Every subpackage hands on a curated public API; the command line's interface is the ``sensor-envs`` command,
+# and ``testing`` holds the suite's and benchmarks' case generators (no user API).
+API_PACKAGES = sorted(
+    _module_name(p / "__init__.py") for p in PACKAGES if p != PACKAGE and p.name not in ("cli", "testing")
+)
+
+
+@pytest.mark.parametrize("package", API_PACKAGES)
+def test_subpackage_exports_its_public_names(package):
+    """A non-empty ``__all__`` in each subpackage's ``__init__``, every name of it resolving from the package."""
+    import importlib
+
+    pkg = importlib.import_module(package)
+    assert pkg.__all__, f"{package}: no __all__"
+    assert len(set(pkg.__all__)) == len(pkg.__all__), f"{package}: duplicates in __all__"
+    missing = [n for n in pkg.__all__ if getattr(pkg, n, None) is None]
+    assert not missing, f"{package}: {missing} do not resolve"
+
+
 LAZY_PACKAGES = [
     "sensor_envs.lidar",
     "sensor_envs.radar",
@@ -205,13 +224,6 @@ def test_exported_names_are_not_module_names(package):
 
 ROOT = PACKAGE.parent
 BENCHMARKS = sorted((ROOT / "benchmarks").glob("*.py"))
-# Waiting on the radar work of issue 40 (the bandwidth choice and the fidelity scoring move into the package):
-# until then these tests still load the two radar scripts, and the bandwidth script imports the fidelity one.
-PENDING_TEST_IMPORTS = {"test_bandwidth_choice.py", "test_radar_target_resolution.py"}
-PENDING_BENCH_IMPORTS = {
-    ("real_radar_bandwidth_scale", "real_radar_fidelity"),
-    ("real_radar_fidelity", "real_radar_bandwidth_scale"),
-}
 
 
 def _loads_a_benchmark(path: Path) -> bool:
@@ -222,7 +234,7 @@ def _loads_a_benchmark(path: Path) -> bool:
 def test_no_test_imports_a_benchmark_script():
     tests = [p for p in (ROOT / "tests").glob("test_*.py") if p.name != Path(__file__).name]
     found = {p.name for p in tests if _loads_a_benchmark(p)}
-    assert found <= PENDING_TEST_IMPORTS, sorted(found - PENDING_TEST_IMPORTS)
+    assert not found, sorted(found)
 
 
 def test_no_benchmark_imports_another():
@@ -236,7 +248,7 @@ def test_no_benchmark_imports_another():
                 found.add((path.stem, node.module))
         text = path.read_text(encoding="utf-8")
         found |= {(path.stem, n) for n in names if n != path.stem and f"{n}.py" in text and "spec_from_file" in text}
-    assert found <= PENDING_BENCH_IMPORTS, sorted(found - PENDING_BENCH_IMPORTS)
+    assert not found, sorted(found)
 
 
 def _imported_modules(path: Path) -> set[str]:

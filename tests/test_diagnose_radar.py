@@ -218,8 +218,8 @@ def test_world_state_values_in_the_sensor_frame():
     """Ego heading +90 deg at speed 10 m/s; a target 20 m ahead (world +y) driving at 15 m/s along world +x."""
     from types import SimpleNamespace
 
-    from sensor_envs.envs.highway.frame import Truth
     from sensor_envs.envs.highway.sensor import world_state
+    from sensor_envs.envs.highway.step_record import Truth
 
     truth = Truth(
         objects=[object()],

@@ -541,7 +541,7 @@ def test_public_names_of_the_split_modules():
 
     for name in hw.__all__:
         assert getattr(hw, name) is not None
-    for module in ("sensor", "frame", "observation", "render", "wrapper"):
+    for module in ("sensor", "step_record", "observation", "render", "wrapper"):
         mod = __import__(f"sensor_envs.envs.highway.{module}", fromlist=["__all__"])
         assert all(hasattr(mod, name) for name in mod.__all__), module
     assert hw.RadarInfo.__module__ == "sensor_envs.envs.highway.step_record"

@@ -108,10 +108,15 @@ def test_compiled_scan_gives_the_numpy_numbers(rig_fit, which, compiled_kernels)
     the grids, one and several leading axes; the draws come from the same generator states.
     """
     from sensor_envs.jit import compiled
-    from sensor_envs.lidar import kernel, scan_sampler
+    from sensor_envs.lidar import local_regression, scan_sampler
     from sensor_envs.rng import RowGenerators
 
-    passes = (scan_sampler.scan_nodes, scan_sampler.scan_gather, scan_sampler.scan_readings, kernel._bilinear_loops)
+    passes = (
+        scan_sampler.scan_nodes,
+        scan_sampler.scan_gather,
+        scan_sampler.scan_readings,
+        local_regression._bilinear_loops,
+    )
     assert all(compiled(f) is not None for f in passes)
     model = rig_fit[which]
     k = model.tables_.shape[1]
@@ -139,7 +144,7 @@ def test_compiled_scan_gives_the_numpy_numbers(rig_fit, which, compiled_kernels)
     aq = np.nan_to_num(a)
     rq = np.where(np.isfinite(r), r, model.range_grid_[-1])
     args = (model.tables_, model.range_grid_, model.alpha_grid_, rq, aq)
-    assert np.array_equal(kernel._bilinear(*args), kernel._bilinear_numpy(*args))
+    assert np.array_equal(local_regression._bilinear(*args), local_regression._bilinear_numpy(*args))
 
 
 def test_log_prob_integrates_to_one(rig_fit):

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from sensor_envs.lidar.fit_readings import block_folds, block_length, check_map_covers
 from sensor_envs.lidar.log import LidarLogError, load_log, log_from_arrays, motion_covariates, save_log
 from sensor_envs.lidar.lwlr import LidarLWLR, lidar_features
 from sensor_envs.lidar.mapping import (
@@ -22,7 +23,6 @@ from sensor_envs.lidar.mapping import (
     scan_points,
     split_parts,
 )
-from sensor_envs.lidar.readings import block_folds, block_length, check_map_covers
 from sensor_envs.lidar.rig import NeatoRig
 from sensor_envs.lidar.validate_readings import (
     baseline_params,

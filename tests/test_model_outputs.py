@@ -3,8 +3,10 @@
 Reference outputs live in ``tests/data/model_outputs.npz``: for every shipped model file (keyed by its
 sha256), ``sample``/``sample_cycle``/``sample_clutter`` draws for fixed seeds and ``log_prob`` on a fixed
 set of states; and, independent of the shipped files, small fits of each model class on seeded rig logs.
-A refactor must reproduce them (the draws' discrete parts exactly, the numbers to 1e-12 relative; with
-``SENSOR_ENVS_BIT_EXACT=1`` every array bit for bit, as on the machine that recorded them).
+A refactor must reproduce them (the draws' discrete parts exactly; the shipped files' numbers to 1e-12
+relative; a fit's numbers to 1e-6 relative, :data:`FIT_RTOL`: a fit's float32 tables come out of long sums
+whose last bit depends on the numpy/BLAS build, and the tests run on whatever build the registry serves;
+with ``SENSOR_ENVS_BIT_EXACT=1`` every array bit for bit, as on the machine that recorded them).
 
 A shipped model refitted on purpose has another sha256: its cases skip with a message. Regenerate the
 file then with ``python tests/test_model_outputs.py --regenerate`` (on the code before the refactor).
@@ -153,7 +155,11 @@ def _reference() -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
 
 
-def _compare(case: str, got: dict[str, np.ndarray], ref: dict[str, np.ndarray]) -> None:
+FIT_RTOL = 1e-6
+"""Relative tolerance of a fit's floating outputs (a few float32 ulps of its tables)."""
+
+
+def _compare(case: str, got: dict[str, np.ndarray], ref: dict[str, np.ndarray], rtol: float = 1e-12) -> None:
     keys = sorted(k.split("/", 1)[1] for k in ref if k.startswith(case + "/") and not k.endswith("#sha256"))
     assert keys and sorted(got) == keys, (sorted(got), keys)
     exact = os.environ.get("SENSOR_ENVS_BIT_EXACT") == "1"
@@ -164,7 +170,7 @@ def _compare(case: str, got: dict[str, np.ndarray], ref: dict[str, np.ndarray]) 
             assert _digest(a) == _digest(b), f"{case}/{k} differs"
         else:
             np.testing.assert_array_equal(np.isnan(a), np.isnan(b), err_msg=f"{case}/{k}: NaN pattern")
-            np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-300, err_msg=f"{case}/{k}")
+            np.testing.assert_allclose(a, b, rtol=rtol, atol=1e-300, err_msg=f"{case}/{k}")
 
 
 def _digest(a: np.ndarray) -> str:
@@ -192,7 +198,7 @@ SLOW_FITS = {"fit_kde_recipe", "fit_kde_extra", "fit_lidar_extended"}
 )
 def test_fits_reproduce_the_recorded_models(case):
     ref = _reference()
-    _compare(case, _fit_cases()[case](), ref)
+    _compare(case, _fit_cases()[case](), ref, rtol=FIT_RTOL)
 
 
 def test_reference_covers_every_shipped_model_and_fit():

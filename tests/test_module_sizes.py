@@ -1,8 +1,8 @@
-"""The package's pieces stay small (issue 40): modules of at most ~700 lines, classes of at most ~400.
+"""The package's pieces stay small (issue 40): modules of at most ~700 lines, classes of at most 400.
 
-Counted as physical lines, docstrings included. The class limit has a small allowance over 400 for the three
-classes at its edge today (the two model estimators, whose numpydoc Args/Attributes sections are long, and the
-highway wrapper); a piece that grows past a limit is split by job, as ``radar/kde_*.py`` and ``lidar/fit_*.py``.
+Counted as physical lines, docstrings included. A piece that grows past a limit is split by job, as
+``radar/kde_*.py`` and ``lidar/fit_*.py``: the model estimators keep their numpydoc and delegate the work (e.g.
+``KDERadarModel.with_*`` to ``kde_params``, ``LidarLWLR.params_from_features`` to ``reading_law``).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "sensor_envs"
 MAX_MODULE_LINES = 700
-MAX_CLASS_LINES = 430
+MAX_CLASS_LINES = 400
 
 
 def _sizes() -> tuple[dict[str, int], dict[str, int]]:

@@ -9,7 +9,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import sensor_envs  # noqa: F401  (registers the ids)
 from sensor_envs.envs.neato import NeatoEnv
-from sensor_envs.lidar.sensors import GaussianLidar
+from sensor_envs.lidar.gaussian import GaussianLidar
 
 LIDARS = ["ideal", "gaussian", "learned"]
 
@@ -170,7 +170,7 @@ def test_compiled_observation_gives_the_numpy_numbers(monkeypatch, compiled_kern
 def test_compiled_gaussian_lidar_gives_the_numpy_numbers(monkeypatch, compiled_kernels, lidar):
     """The Gaussian lidar's compiled pass and its numpy path: same readings from the same draws, bit for bit
     (misses, NaN/+-inf incidence, incidences beyond alpha_max, a spread that overflows, dropout)."""
-    from sensor_envs.lidar import sensors
+    from sensor_envs.lidar import gaussian
     from sensor_envs.rng import RowGenerators
 
     rng = np.random.default_rng(0)
@@ -181,7 +181,7 @@ def test_compiled_gaussian_lidar_gives_the_numpy_numbers(monkeypatch, compiled_k
     for kernel in (True, False):
         with monkeypatch.context() as m:
             if not kernel:
-                m.setattr(sensors, "compiled", lambda loops: None)
+                m.setattr(gaussian, "compiled", lambda loops: None)
             rows = lidar.measure(r, a, RowGenerators([np.random.default_rng(i) for i in range(6)]))
             one = lidar.measure(r[0], a[0], np.random.default_rng(1))
             out.append((rows, one))

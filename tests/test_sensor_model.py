@@ -14,9 +14,10 @@ import pytest
 from sensor_envs.cli.main import main
 from sensor_envs.lidar.lwlr import LidarLWLR
 from sensor_envs.lidar.rig import NeatoRig
+from sensor_envs.lidar.sensors import GaussianLidar
 from sensor_envs.maps import load_map
 from sensor_envs.modelio import ModelFileError, default_model_path
-from sensor_envs.radar.gaussian import GaussianRadar
+from sensor_envs.radar.gaussian import GaussianRadar, baseline_file
 from sensor_envs.radar.kde import KDERadarModel
 from sensor_envs.radar.rig import record_rig_log
 from sensor_envs.radar.sensors import IdealRadar, takes_new_track
@@ -255,7 +256,20 @@ def test_the_card_is_the_models(small_models, tmp_path):
     lidar = LidarLWLR.load(small_models["lidar"])
     assert "training" not in lidar.card_ and lidar.training_  # fitted attributes, not card entries
     lidar.update_card(gaussian_baseline={"sigma0": 0.01, "k_range": 0.001})
-    assert lidar.baseline() == {"sigma0": 0.01, "k_range": 0.001}
+    assert vars(lidar.baseline()) == vars(GaussianLidar(sigma0=0.01, k_range=0.001))
     header, _ = _read(lidar.save(tmp_path / "l.npz"))
     assert header["card"]["training"] == lidar.training_ and header["card"]["gaussian_baseline"]["sigma0"] == 0.01
-    assert KDERadarModel.load(small_models["kde"]).baseline() is None
+    assert KDERadarModel.load(small_models["kde"]).baseline() is None  # no kde_gaussian.npz beside it
+
+
+@pytest.mark.parametrize(
+    ("kde", "gaussian"), [("radar_kde.npz", "radar_gaussian.npz"), ("radar_kde_fast.npz", "radar_gaussian_fast.npz")]
+)
+def test_one_baseline_method_for_both_sensors(kde, gaussian, small_models):
+    """``baseline()`` is the fitted baseline ready to simulate: the radar's file beside it, the lidar's card entry."""
+    base = KDERadarModel.load(default_model_path(kde)).baseline()
+    assert isinstance(base, GaussianRadar) and base.baseline() is None
+    assert base._file == default_model_path(gaussian)
+    assert baseline_file(default_model_path(kde)) == default_model_path(gaussian)
+    assert isinstance(LidarLWLR.load(default_model_path("neato_lidar.npz")).baseline(), GaussianLidar)
+    assert KDERadarModel(random_state=0).fit(record_rig_log(6, 12, 5, np.random.default_rng(0))).baseline() is None

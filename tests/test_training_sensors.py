@@ -1,12 +1,16 @@
 """Named sensor variants of the training config (`sensors:`) in `train` and the robustness matrix."""
 
 import json
+import math
+import warnings
 
 import gymnasium as gym
 import pytest
 import yaml
+from gymnasium.utils.env_checker import check_env
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import sensor_envs  # noqa: F401  (registers the ids)
 from sensor_envs.training import robustness
@@ -19,7 +23,10 @@ SHIPPED = {
     "kde": {"radar": "kde"},
     "kde_drop": {"radar": "kde", "stationary": "drop"},
     "kde_tracks": {"radar": "kde", "stationary": "drop", "tracks": True},
+    "ideal_surround": {"radar": "ideal", "fov": 2 * math.pi},
+    "kde_tracks_surround": {"radar": "kde", "stationary": "drop", "tracks": True, "fov": 2 * math.pi},
 }
+SURROUND = ("ideal_surround", "kde_tracks_surround")
 
 
 def _config(tmp_path, block):
@@ -35,6 +42,29 @@ def test_shipped_highway_sensors_select_their_env_kwargs_and_nothing_stale(name)
     kwargs = cfg["env_kwargs"]
     assert {k: v for k, v in kwargs.items() if k in table_keys} == SHIPPED[name]
     assert robustness.column_kwargs("highway", name, {}) == kwargs  # columns resolve as rows train
+
+
+@pytest.mark.parametrize("name", SURROUND)
+def test_surround_variants_build_pass_the_checkers_and_show_cars_behind(name):
+    kwargs = train_module.load_config(train_module.DEFAULT_CONFIG, HW, [], algo="dqn", sensor=name)["env_kwargs"]
+    env = gym.make(HW, **kwargs)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warnings.filterwarnings("ignore", message=".*is different from the unwrapped version.*")
+        warnings.filterwarnings("ignore", category=DeprecationWarning, message=".*out of date.*")
+        warnings.filterwarnings("ignore", message=".*unconventional shape.*")  # Kinematics is a table by design
+        check_env(env, skip_render_check=True)
+        sb3_check_env(env, warn=True)
+    # the ego starts among traffic: over a few idle steps a car behind the front bumper is reported
+    behind = []
+    obs, info = env.reset(seed=0)
+    for _ in range(6):
+        assert obs in env.observation_space
+        behind.append(bool(((obs[1:, 0] > 0) & (obs[1:, 1] < 0)).any()))  # presence, x relative to the ego
+        obs, _, terminated, truncated, info = env.step(1)
+        if terminated or truncated:
+            break
+    assert any(behind)
 
 
 def test_a_name_outside_the_table_sets_the_sensor_keyword_as_before():

@@ -233,19 +233,6 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     val.set_defaults(func=_validate)
 
 
-def _baseline_path(model: str) -> Path:
-    """The Gaussian baseline beside ``model``.
-
-    ``<stem>_gaussian.npz``, else ``<name>_gaussian.npz`` for a model called ``<name>_kde.npz`` (the
-    shipped pair ``radar_kde.npz`` / ``radar_gaussian.npz``).
-    """
-    p = Path(model)
-    candidates = [p.with_name(p.stem + "_gaussian.npz")]
-    if p.stem.endswith("_kde"):
-        candidates.append(p.with_name(p.stem.removesuffix("_kde") + "_gaussian.npz"))
-    return next((c for c in candidates if c.exists()), candidates[0])
-
-
 MAX_RECORD_ROWS = 1_000_000
 """Most target rows of ``record radar`` (``--sequences x --cycles x --targets``): the CSV (about 70 bytes a row,
 clutter rows besides) stays within the radar log reader's limit (:data:`sensor_envs.radar.log.MAX_LOG_BYTES`)."""
@@ -448,12 +435,13 @@ def gaussian_from_args(args: argparse.Namespace) -> Any:
 
 
 def _fit(args: argparse.Namespace) -> int:
+    from sensor_envs.radar.gaussian import baseline_file
     from sensor_envs.radar.log import read_log
 
     check_inputs(args.log)
     out = check_output(args.out, inputs=[args.log], force=args.force, suffix=".npz")
     base_out = check_output(
-        args.baseline_out or _baseline_path(str(out)),
+        args.baseline_out or baseline_file(str(out)),
         inputs=[args.log, out],
         force=args.force,
         suffix=".npz",
@@ -501,14 +489,14 @@ def _fit(args: argparse.Namespace) -> int:
 
 def _validate(args: argparse.Namespace) -> int:
     from sensor_envs.radar.fidelity import BASELINE, frames_report, load_real_log, verdict_lines
-    from sensor_envs.radar.gaussian import GaussianRadar
+    from sensor_envs.radar.gaussian import GaussianRadar, baseline_file
     from sensor_envs.radar.kde import KDERadarModel
     from sensor_envs.radar.log import target_tuples
     from sensor_envs.radar.sensors import IdealRadar
     from sensor_envs.radar.validate import validate, write_report
 
     check_inputs(args.model, args.log)
-    base_path = Path(args.baseline) if args.baseline else _baseline_path(args.model)
+    base_path = Path(args.baseline) if args.baseline else baseline_file(args.model)
     out = check_output(args.out, inputs=[args.model, base_path, args.log], force=args.force, folder=True)
     model = read_model(KDERadarModel, args.model)
     if not base_path.exists():

@@ -8,7 +8,9 @@ given to the tool.
 
 Lidar logs (:func:`lidar_case`) are scan logs in a random rectangular room with a box obstacle, built
 with :func:`~sensor_envs.lidar.log.log_from_arrays` and the project's raycaster; radar logs
-(:func:`radar_case`) take the target states of the project's rig (:func:`~sensor_envs.radar.rig.record_rig_log`)
+(:func:`radar_case`: interactions with the azimuth side or the range, on either axis; in half the cases
+a slowly drifting offset shared by all targets) take the target states of the project's rig
+(:func:`~sensor_envs.radar.rig.record_rig_log`)
 and draw outputs from a Gaussian radar fitted to it (outputs then depend on the corner only, so nothing
 else in the log matters unless planted).
 
@@ -277,6 +279,12 @@ def radar_case(kind: str, seed: int, sequences: int = 24, cycles: int = 30, targ
     frac = float(rng.uniform(0.0, 0.5)) if rng.random() < 0.5 else 0.0
     dev = np.sqrt(1 - frac**2) * dev + frac * sd * ar
     info["track_ar1"] = {"rho": rho_t, "share_sd": frac}
+    if kind == "null" or rng.random() < 0.5:  # a slowly drifting offset shared by all targets (a temperature)
+        rho_d, sd_d = float(rng.uniform(0.9, 0.99)), float(rng.uniform(0.2, 0.5))
+        frames = tt.sequence * (cycles + 1) + tt.frame  # the log's cycles in time order
+        drift = np.stack([_ar1(rng, sequences * (cycles + 1), rho_d) for _ in range(2)], axis=1)
+        dev = dev + sd_d * sd * drift[frames]
+        info["drift"] = {"rho": rho_d, "sd_in_sd": sd_d}
     # covariates: per (sequence, frame) slow processes plus a per-target level
     n = tt.z.shape[0]
     seq_frame = tt.sequence * (cycles + 1) + tt.frame
@@ -298,10 +306,17 @@ def radar_case(kind: str, seed: int, sequences: int = 24, cycles: int = 30, targ
         axis = int(rng.integers(2))
         dev[:, axis] += strength * sd[axis] * f
         info["axis"] = "xy"[axis]
-    elif kind == "interaction":  # lateral offset whose sign follows the side of the target (azimuth)
-        side = np.sign(tt.corner[:, 1] - np.median(tt.corner[:, 1]))
-        dev[:, 1] += strength * sd[1] * f * side
-        info["interaction"] = "sign of the lateral position (azimuth side)"
+    elif kind == "interaction":  # an offset whose sign follows the model's own state: azimuth side or range
+        axis = int(rng.integers(2))
+        if rng.random() < 0.5:
+            sign = np.sign(tt.corner[:, 1] - np.median(tt.corner[:, 1]))
+            info["interaction"] = "sign of the lateral position (azimuth side)"
+        else:
+            rank = np.argsort(np.argsort(np.hypot(*tt.corner.T)))
+            sign = np.sqrt(3.0) * (2.0 * (rank + 0.5) / rank.size - 1.0)  # unit variance, flips at the median
+            info["interaction"] = "range (linear in its rank, sign flips at the median range)"
+        dev[:, axis] += strength * sd[axis] * f * sign
+        info["axis"] = "xy"[axis]
     elif kind == "spread":
         strength = float(rng.uniform(0.3, 0.6))
         scale = np.exp(np.log1p(strength) * (f - f.min()) / max(np.ptp(f), 1e-12))
@@ -310,7 +325,8 @@ def radar_case(kind: str, seed: int, sequences: int = 24, cycles: int = 30, targ
     elif kind == "rate":
         p_det = 1 - p_miss
         sdd = np.sqrt(np.mean(p_det * (1 - p_det)))
-        keep = rng.random(n) < np.clip(1 + strength * sdd * (f - f.max()) / np.clip(p_det, 0.05, 1), 0, 1)
+        top = np.percentile(f, 95)  # the drop spans the cause's 5-95 % range, not its extremes
+        keep = rng.random(n) < np.clip(1 + strength * sdd * (np.minimum(f, top) - top) / np.clip(p_det, 0.05, 1), 0, 1)
         det = det & keep
     znew = np.where(det[:, None], mu + dev, np.nan)
     c = {k: np.asarray(v).copy() for k, v in rig.columns.items()}

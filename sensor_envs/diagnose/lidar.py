@@ -14,7 +14,10 @@ Residuals of a fitted model on the held-out part:
   tails moves it while the mean residual stays 0; an offset shared by a scan, e.g. slow drift, does not).
 
 Interaction features (the model's own state, see :mod:`sensor_envs.diagnose.search`): bearing,
-nominal range and incidence. A finding's form maps to state terms (:meth:`LidarAdapter.state_terms`):
+nominal range, incidence and ``range_slope``, the nominal range's slope along the scan [m/rad] (an
+error from a reading taken later or earlier than its bearing says, e.g. a scan smeared by the robot's
+turn, follows the wall's slope: found as turn rate x ``range_slope``; the model has no such term, so the
+report says so in words). A finding's form maps to state terms (:meth:`LidarAdapter.state_terms`):
 a main effect to the variable itself (``<name>``, and ``<name>@sq`` for a U-shaped one), an interaction
 with bearing to ``<name>``, ``<name>@cos_bearing``, ``<name>@sin_bearing``
 (:mod:`sensor_envs.lidar.extra_state`), each acting on the null, bias and log-sigma parts.
@@ -112,6 +115,7 @@ class LidarAdapter:
         segs = log.require_map()
         max_range = float(base_model.max_range if base_model is not None else self.params.get("max_range", 5.0))
         self.r, self.a = lidar_features(log.poses, log.bearings, segs, max_range)
+        self.slope = _range_slope(self.r, log.bearings)
         x = log.ranges[:, :, 0]
         self.x = x
         sel = self.held[:, None] & np.isfinite(self.r) & ~np.isnan(x)  # (S, K) held-out readings on hit rays
@@ -207,10 +211,32 @@ class LidarAdapter:
             candidates=cand,
             blocks=self.blocks,
             order=s + k / kb,
-            state={"bearing": k.astype(np.float64), "range": self.r[s, k], "incidence": np.nan_to_num(self.a[s, k])},
+            state={
+                "bearing": k.astype(np.float64),
+                "range": self.r[s, k],
+                "incidence": np.nan_to_num(self.a[s, k]),
+                "range_slope": self.slope[s, k],
+            },
             metric_kinds={"null": "rate", "range": "mean", "pit": "mean", "range_spread": "spread"},
         )
 
     def baseline(self, extra_state: tuple[str, ...]) -> float | None:
         """No baseline with extra state for the lidar (``None``)."""
         return None
+
+
+def _range_slope(r: NDArray[np.float64], bearings: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(S, K)`` slope of the nominal range along the scan, ``dr / d bearing`` [m/rad] (central difference).
+
+    A reading taken a little later or earlier than its bearing says (a scan smeared by the robot's turn,
+    a timing offset) is off by this slope times the angle turned: its error follows the wall's slope
+    along the scan. 0 where a neighbour misses the map or the two sides disagree in sign (an edge).
+    """
+    if r.shape[1] < 3:
+        return np.zeros_like(r)
+    db = np.diff(np.unwrap(np.r_[bearings[-1] - 2 * np.pi, bearings, bearings[0] + 2 * np.pi]))
+    with np.errstate(invalid="ignore"):  # inf - inf where both neighbours miss the map: no slope
+        fwd = (np.roll(r, -1, axis=1) - r) / db[None, 1:]
+        back = (r - np.roll(r, 1, axis=1)) / db[None, :-1]
+    ok = np.isfinite(fwd) & np.isfinite(back) & (np.sign(fwd) == np.sign(back))
+    return np.where(ok, 0.5 * (fwd + back), 0.0)

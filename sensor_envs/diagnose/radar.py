@@ -48,6 +48,7 @@ from sensor_envs.radar.features import state_matrix, with_derived_columns
 from sensor_envs.radar.gaussian import GaussianRadar
 from sensor_envs.radar.kde import CV_RELEVANCE, KDERadarModel
 from sensor_envs.radar.log import INT_COLUMNS, REQUIRED_COLUMNS, RadarLog, TargetTuples, target_tuples
+from sensor_envs.sensor_model import extra_state_names
 
 __all__ = ["RadarAdapter", "radar_blocks", "DIAGNOSE_KDE_PARAMS"]
 
@@ -199,7 +200,7 @@ class RadarAdapter:
 
     def evaluate(self, model: Any) -> Evaluation:
         """Residuals, candidates and NLL of ``model`` on the held-out target rows."""
-        names = tuple(getattr(model, "extra_state_", ()))
+        names = extra_state_names(model)
         ex = state_matrix(self.held_log, names, self._tt.row) if names else None
         z, new = self._tt.z, self._new_track()
         lp = model.log_prob(z, self._state, extra=ex, new_track=new)

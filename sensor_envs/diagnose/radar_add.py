@@ -26,6 +26,7 @@ from sensor_envs.inputs import InputError
 from sensor_envs.radar.correction import CorrectedRadar, Term, fit_term
 from sensor_envs.radar.features import state_matrix
 from sensor_envs.radar.log import RadarLog, target_tuples
+from sensor_envs.sensor_model import extra_state_names
 
 __all__ = ["fit_corrected", "parse_label", "is_label", "radar_blocks", "tune_relevance", "describe_terms", "nll_parts"]
 
@@ -253,7 +254,7 @@ def nll_parts(adapter: Any, model: Any) -> dict[str, float]:
     ``rate``: ``-log P(detected)`` or ``-log P(miss)`` per reading; ``position``: ``-log p(z | x, detected)``
     per detected reading; ``total``: the mean of the sum (as the loop's error, each reading capped at 50).
     """
-    names = tuple(getattr(model, "extra_state_", ()))
+    names = extra_state_names(model)
     tt = adapter._tt
     ex = state_matrix(adapter.held_log, names, tt.row) if names else None
     st, new = adapter._state, ~tt.has_prev_row

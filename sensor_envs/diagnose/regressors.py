@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["GAP", "N_SEGMENTS", "POLY_DEGREE", "bin_candidate", "rank_basis", "time_folds"]
+__all__ = ["GAP", "N_SEGMENTS", "POLY_DEGREE", "bin_candidate", "interaction_basis", "rank_basis", "time_folds"]
 
 N_SEGMENTS = 6
 """Contiguous time segments of the held-out readings, dealt alternately to the two cross-fitting folds."""
@@ -69,6 +69,20 @@ def rank_basis(x: NDArray, degree: int = POLY_DEGREE) -> NDArray[np.float64]:
     basis = np.polynomial.legendre.legvander(u, degree)
     basis[~ok, 1:] = 0.0
     return np.concatenate([basis, (~ok).astype(np.float64)[:, None]], axis=1)
+
+
+def interaction_basis(main: NDArray, state: NDArray) -> NDArray[np.float64]:
+    """Smooth candidate x state basis ``(..., n, p + 4 d)``: the main basis, ``P_j(u) x state`` before its NaN column.
+
+    ``main (..., n, p)`` is :func:`rank_basis` of the candidate (NaN indicator last), ``state (n, 4)`` the
+    state feature's smooth basis (``cos``, ``sin`` of ``pi u_s``, ``P1(u_s)``, ``P2(u_s)``): an effect whose
+    sign or size follows the state (a bearing's ``cos``, a trend in range), linear or U-shaped in the
+    candidate (``P1``, ``P2``: ``d`` = 2), with 8 more coefficients than the main effect, where a binned
+    grid needs dozens. The state's own additive pattern is not in it: the
+    targets are freed of it first.
+    """
+    prod = [main[..., j : j + 1] * state for j in range(1, main.shape[-1] - 1)]  # P1 .. P_degree, each x state
+    return np.concatenate([main[..., :-1], *prod, main[..., -1:]], axis=-1)
 
 
 def _main_stats(basis: NDArray, r: NDArray, fold: NDArray, block: NDArray, n_blocks: int) -> tuple[NDArray, ...]:
@@ -139,6 +153,8 @@ def _chunk_predict(xa: NDArray, ra: NDArray, xb: NDArray, ridge: NDArray) -> NDA
     a curvature is not extrapolated).
     """
     beta = np.linalg.solve(xa.T @ xa + ridge, xa.T @ ra)
+    if xa.shape[1] != POLY_DEGREE + 2:  # an interaction basis (:func:`interaction_basis`): no extrapolation rule
+        return np.asarray(xb @ beta, dtype=np.float64)
     lin = [0, 1, xa.shape[1] - 1]  # intercept, u, NaN indicator
     slope = np.linalg.solve(xa[:, lin].T @ xa[:, lin] + ridge[np.ix_(lin, lin)], xa[:, lin].T @ ra)[1]
     u = xb[:, 1]

@@ -96,39 +96,63 @@ def describe_effect(ev: Evaluation, effect: dict[str, Any]) -> dict[str, Any]:
         text = f"slope of {metric} per unit of {name}, by {form[2:]} quarter: " + ", ".join(
             f"{p['slope_per_unit']:+.3g} {unit} ({form[2:]} {p['state_from']:.3g}..{p['state_to']:.3g})" for p in parts
         )
+    if effect.get("via_proxy"):
+        text += f"; found through its proxy {effect['via_proxy']}, which it explains (not the other way round)"
     out["text"] = text
     return out
 
 
-def plot_effect(before: Evaluation, after: Evaluation, name: str, metric: str, path: Path) -> Path:
-    """Residual ``metric`` vs candidate ``name`` on the held-out readings, before and after (PNG)."""
+def plot_effect(before: Evaluation, after: Evaluation, name: str, metric: str, path: Path, form: str = "main") -> Path:
+    """Residual ``metric`` vs candidate ``name`` on the held-out readings, before and after (PNG).
+
+    An interaction (``form`` ``x <state feature>``): one panel per quarter of that state feature (e.g.
+    bearing sector, range band), so a sign that follows the state shows; a main effect: one panel.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
-    for ev, label, colour in ((before, "before", "tab:red"), (after, "after", "tab:blue")):
-        x, r = ev.candidates[name], ev.residuals[metric]
-        ok = np.isfinite(x) & np.isfinite(r)
-        idx = np.flatnonzero(ok)
-        if idx.size > 3000:
-            idx = idx[:: idx.size // 3000]
-        ax.scatter(x[idx], r[idx], s=3, alpha=0.15, color=colour)
-        c, m, se = _binned(x, r)
-        ax.errorbar(c, m, yerr=2 * se, color=colour, marker="o", ms=3, lw=1.5, label=f"{label} (binned mean, 2 s.e.)")
-    ax.axhline(0.0, color="k", lw=0.5)
+    state = form[2:] if form.startswith("x ") and form[2:] in before.state else ""
+    panels = _state_quarters(before, state) if state else [("", None)]
+    fig, axes = plt.subplots(1, len(panels), figsize=(3.6 * len(panels) + 1.2, 4.0), squeeze=False, sharey=True)
+    unit = UNITS.get(metric, "")
     lo, hi = np.nanpercentile(np.concatenate([before.residuals[metric], after.residuals[metric]]), [1, 99])
     pad = 0.1 * (hi - lo + 1e-9)
-    ax.set_ylim(lo - pad, hi + pad)
-    ax.set_xlabel(name)
-    ax.set_ylabel(f"held-out residual {metric}")
-    ax.set_title(f"{metric} vs {name}")
-    ax.legend(fontsize=8)
+    for ax, (label, sel) in zip(axes[0], panels, strict=True):
+        for ev, when, colour in ((before, "before", "tab:red"), (after, "after", "tab:blue")):
+            x, r = ev.candidates[name], ev.residuals[metric]
+            keep = np.isfinite(x) & np.isfinite(r) & (True if sel is None else sel)
+            idx = np.flatnonzero(keep)
+            if idx.size > 3000:
+                idx = idx[:: idx.size // 3000]
+            ax.scatter(x[idx], r[idx], s=3, alpha=0.15, color=colour)
+            if keep.sum() >= 2:
+                c, m, se = _binned(x[keep], r[keep], 10)
+                ax.errorbar(c, m, yerr=2 * se, color=colour, marker="o", ms=3, lw=1.5, label=f"{when} (mean, 2 s.e.)")
+        ax.axhline(0.0, color="k", lw=0.5)
+        ax.set_ylim(lo - pad, hi + pad)
+        ax.set_xlabel(name)
+        ax.set_title(label or f"{metric} vs {name}", fontsize=9)
+    axes[0][0].set_ylabel(f"held-out residual {metric}" + (f" [{unit}]" if unit else ""))
+    axes[0][0].legend(fontsize=7)
+    if state:
+        fig.suptitle(f"{metric} vs {name}, by quarter of {state}", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def _state_quarters(ev: Evaluation, state: str) -> list[tuple[str, np.ndarray]]:
+    """``(label, mask)`` of each quarter of a state feature's held-out values."""
+    s = ev.state[state]
+    edges = np.nanpercentile(s, [0, 25, 50, 75, 100])
+    out = []
+    for k in range(4):
+        sel = (s >= edges[k]) & ((s < edges[k + 1]) if k < 3 else (s <= edges[k + 1]))
+        out.append((f"{state} {edges[k]:.3g}..{edges[k + 1]:.3g}", sel))
+    return out
 
 
 def write_report(result: DiagnoseResult, out: Path, source: str = "") -> dict[str, Any]:
@@ -151,7 +175,7 @@ def write_report(result: DiagnoseResult, out: Path, source: str = "") -> dict[st
         )
         metric = e["metric"] if e else "nll"
         fname = f"effect_{_slug(name)}_{metric}.png"
-        plot_effect(result.before, result.after, name, metric, out / fname)
+        plot_effect(result.before, result.after, name, metric, out / fname, str(e.get("form", "main")) if e else "main")
         figs.append((name, metric, fname))
     data["details"]["figures"] = [f for _, _, f in figs]
     findings = [e for e in result.effects if e["significant"]] or result.effects[:1]

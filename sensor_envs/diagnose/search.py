@@ -12,9 +12,11 @@ excess NLL), so an effect on the spread or on a rate is as visible as one on the
   shrunk toward 0 with ``10 x D`` pseudo-readings, ``D`` the mean run length of equal consecutive
   values: a per-scan covariate repeated over K bearings carries one scan's information, not K
   readings'): monotone, U-shaped and step effects alike;
-* interaction with each of the model's state features ``s`` (e.g. bearing sector, range, azimuth):
-  ``r ~ h(bin(c), bin(s))`` on a 6 x 8 grid, so an effect whose sign follows the bearing (zero mean
-  over the scan) is seen.
+* interaction with each of the model's state features ``s`` (e.g. bearing sector, range, azimuth),
+  in two forms: ``r ~ h(bin(c), bin(s))`` on a 6 x 8 grid (any shape, many cells), and a smooth one,
+  the main basis plus ``P1(u_c), P2(u_c) x (cos, sin of pi u_s, P1(u_s), P2(u_s))`` (8 more coefficients: an
+  effect whose sign follows the bearing, the azimuth side or the range, with zero mean over a scan or
+  a cycle, is seen at a strength the grid's cells dilute).
 
 Every target is first freed of the additive binned pattern of the state features (misfit along the
 model's own state, e.g. a kernel width, is not credited to a candidate that correlates with the state).
@@ -35,11 +37,14 @@ trend stays a trend), so the null spread of a score is that of a time-correlated
 (candidate, target, regressor) score is studentised by its own null distribution (``z``), so a
 target whose scores vary widely under the null (e.g. a drifting range residual) does not drown the
 others; the adjusted p-value is Westfall-Young max-T of ``z`` over all of them. Candidates are ranked
-by ``z`` (significant ones first).
+by ``z``, except that the significant ones come first, ordered by their held-out ``R^2`` (the largest
+effect first: the loop adds in this order).
 
-**Conditional check.** Among the top candidates, ``i`` is a *proxy* of ``j`` when, once ``j``'s fit
-is removed, ``i`` explains less than a fifth of its own score and less than ``j`` does given ``i``;
-a proxy is not significant and is ranked below its cause.
+**Conditional check.** Among the top candidates, and the candidates whose rank scale is correlated
+(>= 0.5) with a top one, ``i`` is a *proxy* of ``j`` when, once ``j``'s fit is removed, ``i`` explains
+less than a fifth of its own score and less than ``j`` does given ``i``; a proxy is not significant and
+is ranked below its cause, and a cause that the test had not found itself takes its significant proxy's
+finding (``via_proxy``): the effect was found, the conditional check says whose it is.
 """
 
 from __future__ import annotations
@@ -60,6 +65,7 @@ from sensor_envs.diagnose.regressors import (
     _main_stats,
     _r2_from_stats,
     bin_candidate,
+    interaction_basis,
     rank_basis,
     time_folds,
 )
@@ -80,6 +86,8 @@ MIN_BLOCKS = 16
 _SHRINK = 10.0
 _INT_BINS = (6, 8)
 _TOP_COND = 5
+_PROXY_CORR = 0.5
+"""Rank correlation above which a candidate outside the top is checked as the cause of a top candidate."""
 
 
 @dataclass
@@ -93,6 +101,10 @@ class _Design:
     state_bins: list[NDArray[np.int64]]  # per state feature (n,)
     state_basis: list[NDArray[np.float64]]  # per state feature (n, 4): cos, sin of pi u, P1(u), P2(u) of its ranks
     state_names: list[str]
+
+    def smooth_basis(self, s: int) -> NDArray[np.float64]:
+        """``(C, n, p + 4)``: every candidate's smooth interaction basis with state feature ``s``."""
+        return interaction_basis(self.main_basis, self.state_basis[s][None])
 
 
 def _design(cands: dict[str, NDArray], names: list[str], state: dict[str, NDArray]) -> _Design:
@@ -182,9 +194,11 @@ def _free_of_state(r: NDArray, state_bins: list[NDArray], mask: NDArray, passes:
 
 
 def _all_stats(d: _Design, targets: list, n_blocks: tuple[int, int]) -> list[list[tuple[NDArray, ...]]]:
-    """Per target, per regressor (main, then each state interaction): the block statistics.
+    """Per target, per regressor (main, each state's grid, each state's smooth interaction): block statistics.
 
-    ``n_blocks``: blocks of the main regressors' and of the interactions' targets.
+    ``n_blocks``: blocks of the main regressors' and of the grids' targets. The grids see the
+    within-instant residual (an instant's shared drift left out); the smooth interactions, few
+    coefficients, see the residual itself, with the main regressors' blocks.
     """
     nc, ns = _INT_BINS
     nbi = (nc + 1) * (ns + 1)
@@ -201,12 +215,14 @@ def _all_stats(d: _Design, targets: list, n_blocks: tuple[int, int]) -> list[lis
                     sh_int,
                 )
             )
+        smooth = [d.smooth_basis(s) for s in range(len(d.state_bins))]
+        row += [_main_stats(b[:, mask], r, fold, block, n_blocks[0]) for b in smooth]
         out.append(row)
     return out
 
 
 def _scores(stats: list, flips: tuple[NDArray, NDArray], n_cand: int, null: bool = True) -> NDArray[np.float64]:
-    """``(P, C, m, 1 + S)`` scores for block sign-flips of the residual targets.
+    """``(P, C, m, 1 + 2 S)`` scores (main, S grids, S smooth interactions) for block sign-flips of the targets.
 
     ``flips``: ``(P, blocks)`` signs for the main regressors' targets and for the interactions' targets
     (drawn independently: the max over cells is then, if anything, conservative). ``null``: the main
@@ -216,9 +232,12 @@ def _scores(stats: list, flips: tuple[NDArray, NDArray], n_cand: int, null: bool
     m, f = len(stats), len(stats[0])
     out = np.full((flips[0].shape[0], n_cand, m, f), -np.inf)
     for j, row in enumerate(stats):
-        gram, xr, rr, xe, ee = row[0]
-        out[:, :, j, 0] = _main_r2(gram, xe, ee, flips[0]) if null else _main_r2(gram, xr, rr, flips[0])
-        for g, (cnt, sx, sxx, sr_b, sxr_b, rr, shrink) in enumerate(row[1:], start=1):
+        for g, st in enumerate(row):
+            if len(st) == 5:  # least squares on a basis: the main regressor, a smooth interaction
+                gram, xr, rr, xe, ee = st
+                out[:, :, j, g] = _main_r2(gram, xe, ee, flips[0]) if null else _main_r2(gram, xr, rr, flips[0])
+                continue
+            cnt, sx, sxx, sr_b, sxr_b, rr, shrink = st
             fl = flips[1]
             sr = np.tensordot(fl, sr_b, axes=(1, 0))
             sxr = np.tensordot(fl, sxr_b, axes=(1, 0))
@@ -257,13 +276,15 @@ def _refusal(x: NDArray) -> str | None:
 
 
 def _form_basis(d: _Design, i: int, form: int, mask: NDArray) -> NDArray[np.float64]:
-    """Smooth regressors of candidate ``i`` in ``form`` (0: main; ``1 + s``: main and its products with state ``s``)."""
+    """Smooth regressors of candidate ``i`` in ``form`` (0: main; ``1 + s``: with its state-``s`` products).
+
+    The state's own pattern is not in it (the targets are freed of it): the smooth interaction basis of
+    the scores (:func:`~sensor_envs.diagnose.regressors.interaction_basis`).
+    """
     main = d.main_basis[i, mask]
     if form == 0:
         return main
-    sb = d.state_basis[form - 1][mask]
-    prod = (main[:, 1:, None] * sb[:, None, :]).reshape(main.shape[0], -1)
-    return np.concatenate([main, prod, sb], axis=1)
+    return interaction_basis(main, d.state_basis[(form - 1) % len(d.state_basis)][mask])
 
 
 def _cond(
@@ -404,7 +425,7 @@ def rank_candidates(
     perm_best = z_perm.max(axis=2)  # (P, C)
     p_raw = (1 + np.sum(perm_best >= best_z[None], axis=0)) / (1 + n_permutations)
     p_adj = (1 + np.sum(perm_best.max(axis=1)[:, None] >= best_z[None], axis=0)) / (1 + n_permutations)
-    forms = ["main", *(f"x {s}" for s in d.state_names)]
+    forms = ["main", *(f"x {s}" for s in d.state_names), *(f"x {s}" for s in d.state_names)]
     effects: list[dict[str, Any]] = []
     crit = float(np.quantile(z_perm.max(axis=(1, 2)), 1 - alpha))  # family-wise critical z of one cell
     spread = np.array([kinds.get(m, "mean") == "spread" for m in metrics])
@@ -428,7 +449,15 @@ def rank_candidates(
         )
     _settle_forms(effects, obs, d, targets, metrics, forms, alpha)
     _mark_proxies(effects, d, names, targets, metrics, forms, given_design)
-    effects.sort(key=lambda e: (e["proxy_of"] is not None, not e["significant"], -float(e["z"])))
+    # significant effects by how much of the held-out residual they explain (the loop adds the largest
+    # first), the others by how far their best cell lies in its null distribution
+    effects.sort(
+        key=lambda e: (
+            e["proxy_of"] is not None,
+            not e["significant"],
+            -float(e["score"] if e["significant"] else e["z"]),
+        )
+    )
     return Ranking(effects, alpha, min_score, n_permutations, refused, n_blocks[0])
 
 
@@ -466,6 +495,19 @@ def _interaction_gain(d: _Design, i: int, s: int, r: NDArray, mask: NDArray, fol
     return float(out)
 
 
+def _smooth_gain(d: _Design, i: int, s: int, r: NDArray, mask: NDArray, fold: NDArray) -> float:
+    """Held-out ``R^2`` the smooth candidate x state basis adds beyond the candidate's main basis."""
+    main = d.main_basis[i, mask]
+    both = interaction_basis(main, d.state_basis[s][mask])
+    out = 0.0
+    for a in (0, 1):
+        fa, fb = fold == a, fold == 1 - a
+        sse_main = np.sum((r[fb] - _fit_predict(main, r, fa)[fb]) ** 2)
+        sse_both = np.sum((r[fb] - _fit_predict(both, r, fa)[fb]) ** 2)
+        out += 0.5 * (sse_main - sse_both) / max(np.sum((r[fb] - r[fa].mean()) ** 2), 1e-300)
+    return float(out)
+
+
 def _settle_forms(
     effects: list[dict[str, Any]], obs: NDArray, d: _Design, targets: list, metrics: list, forms: list, alpha: float
 ) -> None:
@@ -479,7 +521,7 @@ def _settle_forms(
         j = metrics.index(e["metric"])
         r, mask, _, fold, _b, _bi = targets[j]
         s = forms.index(e["form"]) - 1
-        gain = _interaction_gain(d, i, s, r, mask, fold)
+        gain = max(_interaction_gain(d, i, s, r, mask, fold), _smooth_gain(d, i, s, r, mask, fold))
         e["interaction_gain"] = gain
         main = float(obs[i, j, 0])
         if gain < max(0.001, 0.1 * max(main, 0.0)):
@@ -504,24 +546,49 @@ def _mark_proxies(
     """
     top = sorted(range(len(effects)), key=lambda i: -effects[i]["z"])[:_TOP_COND]
     top = [i for i in top if effects[i]["p_raw"] < 0.05]
+    u = d.main_basis[:, :, 1]  # rank scales: a proxy's is correlated with its cause's, whatever their units
+    corr = np.abs(np.nan_to_num(np.corrcoef(u))) if len(names) > 1 else np.zeros((1, 1))
     for i in top:
         ei = effects[i]
         jm = metrics.index(ei["metric"])
         r, mask, _, fold, _b, _bi = targets[jm]
         fi = forms.index(ei["form"])
+        # the other top candidates, and any candidate correlated with i (a cause may score below its noisy
+        # copy by chance, even out of the top: it is still the better explanation given the copy)
+        near = [j for j in np.flatnonzero(corr[i] >= _PROXY_CORR) if j != i and j not in top]
         others: list[tuple[_Design, int, int, str]] = [
             (d, j, forms.index(effects[j]["form"]), names[j]) for j in top if j != i and effects[j]["proxy_of"] is None
-        ]
+        ] + [(d, int(j), fi, names[j]) for j in near]
         if given is not None:
             others += [(given, g, _best_form(given, g, r, mask, fold), n) for g, n in enumerate(given.names)]
         for dj, j, fj, name in others:
             ci = _cond(d, i, fi, dj, j, fj, r, mask, fold)
             cj = _cond(dj, j, fj, d, i, fi, r, mask, fold)
             if ci < 0.2 * ei["score"] and cj > ci:
+                if dj is d and ei["significant"] and not effects[j]["significant"]:
+                    _inherit(effects[j], ei, cj)
                 ei["proxy_of"] = name
                 ei["conditional_score"] = ci
                 ei["significant"] = False
                 break
+
+
+def _inherit(cause: dict[str, Any], proxy: dict[str, Any], gain: float) -> None:
+    """The cause of a significant proxy takes its finding: the effect the test found is the cause's.
+
+    The family-wise test found the proxy's effect; the conditional check attributes it to ``cause``
+    (which explains it given the proxy, not the other way round), so ``cause`` is significant in the
+    proxy's metric and form, at the proxy's p-value, scored by its conditional gain (``via_proxy``).
+    """
+    cause.update(
+        significant=True,
+        p_value=min(cause["p_value"], proxy["p_value"]),
+        metric=proxy["metric"],
+        kind=proxy["kind"],
+        form=proxy["form"],
+        score=max(cause["score"], gain),
+        via_proxy=proxy["name"],
+    )
 
 
 def _best_form(d: _Design, i: int, r: NDArray, mask: NDArray, fold: NDArray) -> int:

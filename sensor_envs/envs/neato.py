@@ -46,7 +46,7 @@ from sensor_envs.lidar.sensors import GaussianLidar, IdealLidar, LidarSensor, ma
 from sensor_envs.maps import SegmentMap, load_map
 from sensor_envs.modelio import Constraint, Interval, validate_params
 from sensor_envs.rng import RowGenerators, sensor_rng
-from sensor_envs.sensor_model import has_capability
+from sensor_envs.sensor_model import extra_state_names
 
 __all__ = ["NeatoEnv", "NULL_VALUES", "unicycle_step", "apply_null", "collides", "step_reward", "observe_batch"]
 
@@ -523,7 +523,7 @@ def step_reward(
 def lidar_extra_state(lidar: LidarSensor) -> tuple[str, ...]:
     """Names of a learned lidar's extra state variables (``()`` for other lidars or a model without any)."""
     model = getattr(lidar, "model", None)
-    return tuple(model.extra_state_) if model is not None and has_capability(model, "extra_state") else ()
+    return extra_state_names(model) if model is not None else ()
 
 
 def measure_rows(

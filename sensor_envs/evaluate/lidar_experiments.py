@@ -3,7 +3,7 @@
 * :func:`log_experiment` (seed Sec. IV-A on a static-pose log such as the real Neato data): the
   detector's trajectory on the log's own scans, and on scans sampled at the log's poses and map by
   the learned model (:meth:`~sensor_envs.lidar.lwlr.LidarLWLR.sample`, pose uncertainty included)
-  and by the Gaussian baseline (:class:`~sensor_envs.lidar.sensors.GaussianLidar` on the nominal
+  and by the Gaussian baseline (:class:`~sensor_envs.lidar.gaussian.GaussianLidar` on the nominal
   raycast) and the ideal lidar. Unless a model file is given, the model and the baseline are fitted
   leave-poses-out: the poses are dealt into ``folds`` folds, and the scans of each fold are simulated
   by a model fitted on the other folds (never on the scans being compared).
@@ -89,11 +89,6 @@ def _SOURCES(model: Any, gaussian: Any) -> tuple[tuple[str, Any], ...]:
     return (("model", model), ("model_world", model), ("baseline", gaussian), ("ideal", IdealLidar()))
 
 
-def _gaussian_from_card(model: LidarLWLR) -> GaussianLidar | None:
-    kwargs = model.baseline()
-    return None if kwargs is None else GaussianLidar(**kwargs)
-
-
 def summarise(trajs: dict[str, list[dict[str, Any]]], reference: str = "real") -> dict[str, float]:
     """``distance_to_<reference>`` of every other trajectory (mean point-wise distance in P-R space)."""
     return {k: round(trajectory_distance(v, trajs[reference]), 4) for k, v in trajs.items() if k != reference}
@@ -155,7 +150,7 @@ def log_experiment(
                 g = fit_gaussian_lidar(train, m.spur_above, max_range)
             fits.append({"fold": f, "train_poses": int((~test).sum()), "test_poses": int(test.sum()), "h": m.h_})
         else:
-            m, g = model, _gaussian_from_card(model) or GaussianLidar()
+            m, g = model, model.baseline() or GaussianLidar()
         poses = log.poses[test]
         for name, sensor in _SOURCES(m, g):
             sims[name][test] = simulate(
@@ -255,7 +250,7 @@ def boxworld_experiment(
     from sensor_envs.lidar.rig import NeatoRig
 
     rig = NeatoRig(unit_seed=unit_seed, max_range=max_range)
-    g = baseline or _gaussian_from_card(model) or GaussianLidar()
+    g = baseline or model.baseline() or GaussianLidar()
     rng = np.random.default_rng(seed)
     per: dict[str, list[list[dict[str, Any]]]] = {}
     totals: dict[str, list[dict[str, Any]]] = {}

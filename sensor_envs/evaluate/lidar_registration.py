@@ -138,7 +138,7 @@ def registration_experiment(
     from sensor_envs.modelio import default_model_path
 
     m = model if isinstance(model, LidarLWLR) else LidarLWLR.load(model or default_model_path(DEFAULT_MODEL_FILE))
-    gauss = GaussianLidar(**(m.baseline() or {}))
+    gauss = m.baseline() or GaussianLidar()
     rig = NeatoRig()
     segs = load_map("corridor").segments
     truth = corridor_trajectory(n_poses)

@@ -1,18 +1,19 @@
 """Planar lidar: sensors, the learned model, logs, rig, calibration, validation.
 
-Modules: ``sensors`` (the :class:`~sensor_envs.lidar.sensors.LidarSensor` protocol, ideal and Gaussian lidars,
-``make_lidar``), ``lwlr`` (the learned per-bearing model, :class:`~sensor_envs.lidar.lwlr.LidarLWLR`), its pieces,
-one job each: ``fit_cells`` (its per-cell fit strategy, logs with repeats), ``fit_readings`` (its per-reading fit
-strategy, scan logs; block folds), ``readings`` (the former name of ``fit_readings``), ``scan_sampler`` (its
-compiled scan draw), ``reading_law`` (its per-reading mixture law, null counts), ``lwlr_io`` (its file format and
-upgrades), ``kernel`` (its locally weighted regression and shrinkage choice), ``bias_transfer`` (its bias pooled
-over bearings plus a weighted per-bearing part), ``extra_state`` (extra state terms: previous reading, time),
-``model_call`` (the checked arguments of its ``fit``, ``sample`` and ``log_prob``), ``log`` (lidar logs: npz,
-CARMEN, ROS bags), ``mapping`` (maps from scans, occupancy grids), ``pose_correction``
-(scan-to-map pose correction), ``rig`` (the reference rig that records synthetic logs), ``calibrate`` (the rig
-fitted to a real log: the search), ``calibrate_stats`` (the statistics it matches), ``calibrate_laws`` (the laws it
-fits in closed form), ``validate`` (per-bearing reports, the Gaussian baseline), ``validate_readings`` (per-reading
-reports).
+Modules: ``sensors`` (the :class:`~sensor_envs.lidar.sensors.LidarSensor` protocol, the ideal lidar,
+``make_lidar``), ``gaussian`` (the Gaussian baseline lidar, :class:`~sensor_envs.lidar.gaussian.GaussianLidar`),
+``lwlr`` (the learned per-bearing model, :class:`~sensor_envs.lidar.lwlr.LidarLWLR`), its pieces, one job each:
+``fit_cells`` (its per-cell fit strategy, logs with repeats), ``fit_readings`` (its per-reading fit strategy, scan
+logs; block folds), ``readings`` (the deprecated former name of ``fit_readings``), ``scan_sampler`` (its compiled scan
+draw), ``reading_law`` (its per-reading mixture law, null counts), ``lwlr_io`` (its file format and upgrades),
+``local_regression`` (its locally weighted linear regression (LWLR) kernel fits, table lookup and shrinkage choice;
+``kernel`` is its deprecated former name), ``bias_transfer`` (its bias pooled over bearings plus a weighted
+per-bearing part), ``extra_state`` (extra state terms: previous reading, time), ``model_call`` (the checked arguments
+of its ``fit``, ``sample`` and ``log_prob``), ``log`` (lidar logs: npz, CARMEN, ROS bags), ``mapping`` (maps from
+scans, occupancy grids), ``pose_correction`` (scan-to-map pose correction), ``rig`` (the reference rig that records
+synthetic logs), ``calibrate`` (the rig fitted to a real log: the search), ``calibrate_stats`` (the statistics it
+matches), ``calibrate_laws`` (the laws it fits in closed form), ``validate`` (per-bearing reports, the Gaussian
+baseline), ``validate_readings`` (per-reading reports).
 
 The public names below are importable from here (``from sensor_envs.lidar import LidarLWLR``), each
 imported on first use.
@@ -23,13 +24,13 @@ from sensor_envs.lazy import lazy_exports
 _PUBLIC: dict[str, str] = {
     "LidarSensor": "sensor_envs.lidar.sensors",
     "IdealLidar": "sensor_envs.lidar.sensors",
-    "GaussianLidar": "sensor_envs.lidar.sensors",
+    "GaussianLidar": "sensor_envs.lidar.gaussian",
     "make_lidar": "sensor_envs.lidar.sensors",
     "LIDAR_NAMES": "sensor_envs.lidar.sensors",
     "LidarLWLR": "sensor_envs.lidar.lwlr",
     "LearnedLidar": "sensor_envs.lidar.lwlr",
     "load_learned_lidar": "sensor_envs.lidar.lwlr",
-    "choose_shrinkage": "sensor_envs.lidar.kernel",
+    "choose_shrinkage": "sensor_envs.lidar.local_regression",
     "fit_per_reading": "sensor_envs.lidar.fit_readings",
     "check_extra_state": "sensor_envs.lidar.extra_state",
     "LidarLog": "sensor_envs.lidar.log",

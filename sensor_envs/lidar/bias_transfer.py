@@ -9,13 +9,12 @@ poses, yet a per-bearing regression on ``(r, alpha)`` learns it as bias wherever
 With ``bias_model="pooled"`` (:class:`~sensor_envs.lidar.lwlr.LidarLWLR`'s default) the bias is
 
     bias_k(r, alpha) = G(r, alpha) + lam L_k(r, alpha),    mu = r + (1 - s) bias_k(r, alpha),
-
-where ``G`` is an LWLR of every bearing's cells pooled (the part many poses and bearings support; kernel widths and
+ where ``G`` is an LWLR of every bearing's cells pooled (the part many poses and bearings support; kernel widths and
 degree chosen by the leave-poses-out folds), ``L_k`` the per-bearing LWLR of the residual ``bias - G`` (the model's
 usual per-bearing fit), set to 0 outside the range/incidence span of bearing ``k``'s own training cells
 (:func:`support_gate`: no extrapolation of a per-bearing effect), and the local weight ``lam`` (in
-:data:`LOCAL_WEIGHT_GRID`) and the shrinkage ``s`` (in :data:`~sensor_envs.lidar.kernel.SHRINKAGE_GRID`) are chosen
-together by :func:`choose_bias`: the pair of least pooled held-out MAE of ``mu`` among those no worse than the
+:data:`LOCAL_WEIGHT_GRID`) and the shrinkage ``s`` (in :data:`~sensor_envs.lidar.local_regression.SHRINKAGE_GRID`) are
+chosen together by :func:`choose_bias`: the pair of least pooled held-out MAE of ``mu`` among those no worse than the
 raycast in EVERY fold (``s = 1`` always is). The held-out predictions are honest: per fold, ``G`` and ``L`` are
 refitted on the training poses only.
 
@@ -32,7 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.lidar.kernel import _bilinear, choose_shrinkage, lwlr
+from sensor_envs.lidar.local_regression import _bilinear, choose_shrinkage, lwlr
 
 __all__ = [
     "GLOBAL_H_RANGE_GRID",
@@ -216,7 +215,8 @@ def choose_bias(
 ) -> tuple[float, float, dict[str, Any]]:
     """Local weight ``lam`` and shrinkage ``s`` of ``mu = r + (1 - s) (G + lam L)``, checked fold by fold.
 
-    For every ``lam`` in :data:`LOCAL_WEIGHT_GRID`, :func:`~sensor_envs.lidar.kernel.choose_shrinkage` picks ``s``
+    For every ``lam`` in :data:`LOCAL_WEIGHT_GRID`, :func:`~sensor_envs.lidar.local_regression.choose_shrinkage`
+    picks ``s``
     (its rule: no worse than the raycast in any fold, least pooled MAE; or ``setting`` when a number); the pair of
     least pooled CV MAE among those that pass every fold wins (ties: the smaller ``lam``). ``lam = 0, s = 1`` is the
     raycast, so some pair always passes.

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from sensor_envs.geometry import as_segments, raycast_pose
 from sensor_envs.inputs import InputError
-from sensor_envs.lidar.kernel import P_EPS
+from sensor_envs.lidar.local_regression import P_EPS
 from sensor_envs.lidar.log import LidarLog
 
 if TYPE_CHECKING:

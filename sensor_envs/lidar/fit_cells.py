@@ -27,7 +27,7 @@ from sensor_envs.lidar.bias_transfer import (
     pooled_oof,
     support_gate,
 )
-from sensor_envs.lidar.kernel import (
+from sensor_envs.lidar.local_regression import (
     P_EPS,
     SIGMA_FLOOR,
     TAU_CLIP,

@@ -53,7 +53,7 @@ from numpy.typing import NDArray
 from tqdm.auto import tqdm
 
 from sensor_envs.inputs import InputError
-from sensor_envs.lidar.kernel import (
+from sensor_envs.lidar.local_regression import (
     P_EPS,
     SIGMA_FLOOR,
     _bearing_offsets,

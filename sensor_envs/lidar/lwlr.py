@@ -71,22 +71,27 @@ from sensor_envs.lidar import scan_sampler
 from sensor_envs.lidar.bias_transfer import (
     BIAS_MODELS,
 )
-from sensor_envs.lidar.extra_state import apply_extra, check_extra_state, fit_extra_terms
+from sensor_envs.lidar.extra_state import check_extra_state, fit_extra_terms
 from sensor_envs.lidar.fit_cells import RHO_GRID, cell_statistics, fit_cells, lidar_features, pose_fold_groups
 from sensor_envs.lidar.fit_readings import fit_per_reading
-from sensor_envs.lidar.kernel import (
+from sensor_envs.lidar.gaussian import GaussianLidar
+from sensor_envs.lidar.local_regression import (
     P_EPS,
-    P_SPUR_EPS,
     SHRINKAGE_GRID,
     SIGMA_FLOOR,
-    _bilinear,
     choose_shrinkage,
     lwlr,
 )
 from sensor_envs.lidar.log import LidarLog
 from sensor_envs.lidar.lwlr_io import HEADER_SCHEMA, MAX_SIGMA, UPGRADES, from_file, to_file
 from sensor_envs.lidar.model_call import check_model_call, check_query
-from sensor_envs.lidar.reading_law import cell_probability, mixture_log_prob, null_count_log_prob
+from sensor_envs.lidar.reading_law import (
+    cell_probability,
+    draw_readings,
+    mixture_log_prob,
+    null_count_log_prob,
+    reading_params,
+)
 from sensor_envs.modelio import (
     RANDOM_STATE,
     Constraint,
@@ -341,16 +346,16 @@ class LidarLWLR(SensorModel):
         if "tables_" not in self.__dict__:
             super()._check_fitted()
 
-    def baseline(self) -> dict[str, float] | None:
-        """Keyword arguments of the :class:`~sensor_envs.lidar.sensors.GaussianLidar` fitted with this model.
+    def baseline(self) -> GaussianLidar | None:
+        """The :class:`~sensor_envs.lidar.gaussian.GaussianLidar` fitted with this model (:meth:`SensorModel.baseline`).
 
-        From the card's ``gaussian_baseline``; ``None`` when the model keeps none.
+        Built from the card's ``gaussian_baseline`` keyword arguments; ``None`` when the card keeps none.
         """
         g = self.__dict__.get("card_", {}).get("gaussian_baseline")
         if not isinstance(g, dict):
             return None
         keys = ("sigma0", "k_range", "k_incidence", "alpha_max", "p_null_floor")
-        return {k: float(g[k]) for k in keys if k in g}
+        return GaussianLidar(**{k: float(g[k]) for k in keys if k in g})
 
     @property
     def card_extra_(self) -> dict[str, Any]:
@@ -379,34 +384,7 @@ class LidarLWLR(SensorModel):
             readings) and ``tau`` [m] (spread of a cell's mean around ``mu`` at an approximate pose; 0 for
             the seed variant), each ``(..., K)``.
         """
-        r = scan_sampler.nominal_ranges(self, r)
-        hit = np.isfinite(r)
-        rq = np.where(hit, r, self.range_grid_[-1])
-        aq = np.nan_to_num(np.asarray(alpha, dtype=np.float64), nan=0.0)
-        v = _bilinear(self.tables_, self.range_grid_, self.alpha_grid_, rq, aq)
-        out = dict(zip(self.param_names_, v, strict=True))
-        out["bias"] = (1.0 - getattr(self, "bias_shrinkage_", 0.0)) * out["bias"]  # toward the raycast
-        if getattr(self, "extra_state_", ()) and not base_only:
-            out = apply_extra(self, out, hit, extra)
-        p_null = np.where(hit, out["p_null"], 1 - P_EPS)
-        if "p_spur" in out:  # null takes precedence: the three outcomes keep >= P_EPS for in-range readings
-            p_null = np.minimum(p_null, 1 - P_EPS - P_SPUR_EPS)
-            p_spur = np.clip(out["p_spur"], P_SPUR_EPS, 1 - P_EPS - p_null)
-        else:
-            p_spur = np.zeros_like(rq)
-        sigma = np.exp(out["log_sigma"]) if "log_sigma" in out else out["sigma"]
-        tau = np.sqrt(np.maximum(out["tau2"], 0.0)) if "tau2" in out else np.zeros_like(rq)
-        return {
-            "p_null": p_null,
-            "p_spur": p_spur,
-            "mu": rq + out["bias"],
-            "sigma": sigma,
-            "tau": tau,
-            "p_out": np.full(rq.shape, self.p_out_),
-            "out_range": np.full(rq.shape, self.max_range),
-            "null_rho": np.full(rq.shape, self.null_rho_),
-            "spur_rho": np.full(rq.shape, self.spur_rho_),
-        }
+        return reading_params(self, r, alpha, extra, base_only)
 
     def params(
         self, poses: ArrayLike, map_segments: ArrayLike
@@ -445,24 +423,7 @@ class LidarLWLR(SensorModel):
         (persistent nulls; ``p_null`` itself where ``null_rho`` is 0 or absent), then its spurious probability
         from the same Beta with mean ``p_spur`` and ``spur_rho`` (at most ``1 -`` the cell's null probability).
         """
-        shape = p["mu"].shape if shape is None else shape
-        u = rng.random(shape)
-        z = rng.standard_normal(shape)
-        mu, p_null, p_spur = p["mu"], p["p_null"], p["p_spur"]
-        if pose_uncertainty:
-            cell = p["tau"].shape
-            mu = np.where(
-                rng.random(cell) < p["p_out"],
-                rng.uniform(0.0, 1.0, cell) * p["out_range"],
-                mu + p["tau"] * rng.standard_normal(cell),
-            )
-            p_null = cell_probability(p_null, p.get("null_rho"), rng)
-            p_spur = np.minimum(cell_probability(p_spur, p.get("spur_rho"), rng), 1 - p_null)
-        x = np.maximum(mu + p["sigma"] * z, 1e-4)
-        if self.variant == "extended":
-            spur = (u >= p_null) & (u < p_null + p_spur)
-            x = np.where(spur, self.spur_mu_ + self.spur_sigma_ * z, x)
-        return np.where(u < p_null, 0.0, x)
+        return draw_readings(self, p, rng, shape, pose_uncertainty)
 
     def sample_scan(
         self, r: NDArray[np.float64], alpha: NDArray[np.float64], rng: np.random.Generator, null: float = 0.0

@@ -13,6 +13,7 @@ import numpy as np
 from sensor_envs.geometry import as_segments
 from sensor_envs.inputs import InputError, check_array, check_count, check_rng
 from sensor_envs.lidar.log import MAX_COORD, MAX_RANGE, LidarLog
+from sensor_envs.sensor_model import extra_state_names
 
 __all__ = ["check_model_call", "check_query", "MAX_REPEATS"]
 
@@ -82,7 +83,7 @@ def check_query(
     Raises:
         InputError: naming the argument (``ranges: ... got None`` for ``log_prob`` without readings).
     """
-    names = tuple(getattr(model, "extra_state_", ()))
+    names = extra_state_names(model)
     if ranges is _UNSET:
         check_model_call(poses, map_segments, rng, extra_names=names, **kwargs)
         return

@@ -2,7 +2,7 @@
 
 It stands in for recorded scans when no real data is at hand, and is the ground truth of the
 recovery tests (its per-bearing bias and blocked bearings are known). Its default effects were set
-from the real log ``neato_mar27_train.npz`` (``python benchmarks/real_neato_report.py --data
+from the real log ``neato_mar27_train.npz`` (``python docs/history/scripts/real_neato_report.py --data
 ../shared/data/real`` prints the real and rig statistics side by side; the figures measured when each
 effect was added are in the documentation, concepts/rigs.md):
 

@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.inputs import InputError
 from sensor_envs.jit import compiled
-from sensor_envs.lidar.kernel import (
+from sensor_envs.lidar.local_regression import (
     P_EPS,
     P_SPUR_EPS,
 )
@@ -182,11 +182,11 @@ def scan_gather(
 ) -> None:
     """Pass 2 of :meth:`LidarLWLR.sample_scan`: the bilinear values of the 4 table slots of every cell.
 
-    ``flat`` is :func:`scan_tables`' array raveled (float32 or float64, read as float64), ``row``
-    the offset of the next range node (``4 na``), ``node, wr, wa`` :func:`scan_nodes`' output. Writes slots
-    0-3 (``p_null``, bias, scale, ``p_spur``) into ``v0..v3``, each :func:`~sensor_envs.lidar.kernel._bilinear`'s
-    expression. The loop does only the table reads and their weighting (two runs of 8 adjacent values per
-    cell); a per-cell gather does not vectorise, so everything that can is left to the passes around it.
+    ``flat`` is :func:`scan_tables`' array raveled (float32 or float64, read as float64), ``row`` the offset of the
+    next range node (``4 na``), ``node, wr, wa`` :func:`scan_nodes`' output. Writes slots 0-3 (``p_null``, bias,
+    scale, ``p_spur``) into ``v0..v3``, each :func:`~sensor_envs.lidar.local_regression._bilinear`'s expression. The
+    loop does only the table reads and their weighting (two runs of 8 adjacent values per cell); a per-cell gather
+    does not vectorise, so everything that can is left to the passes around it.
     """
     nd, wrf, waf = node.ravel(), wr.ravel(), wa.ravel()
     o0, o1, o2, o3 = v0.ravel(), v1.ravel(), v2.ravel(), v3.ravel()

@@ -26,7 +26,7 @@ Definitions (written into every ``report.json``):
   outcome) have ``p_spur = 0``, scored at the floor ``P_EPS``.
 * Baselines (same features): ``ideal`` has ``mu = r``, ``sigma = IDEAL_SIGMA`` (the 1 mm range quantum:
   a floor that keeps its likelihood finite) and ``p_null = P_EPS`` on a hit (``1 - P_EPS`` without);
-  ``gaussian`` is :class:`~sensor_envs.lidar.sensors.GaussianLidar` with its ``sigma0``, ``k_range``,
+  ``gaussian`` is :class:`~sensor_envs.lidar.gaussian.GaussianLidar` with its ``sigma0``, ``k_range``,
   ``k_incidence`` and ``p_null_floor`` refitted to the training data (:func:`fit_gaussian_lidar`).
 """
 
@@ -180,8 +180,8 @@ def validate(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     r, a = lidar_features(log.poses, log.bearings, log.require_map(), model.max_range)
-    if gaussian is None and (kwargs := model.baseline()) is not None:
-        gaussian = GaussianLidar(**kwargs)
+    if gaussian is None:
+        gaussian = model.baseline()
     params = {
         f"model_{model.variant}": model.params_from_features(r, a),
         "ideal": baseline_params("ideal", r, a),

@@ -14,7 +14,7 @@ For each model (the fitted one, ``ideal`` and ``gaussian``). Definitions (writte
   ``Phi^-1(u)`` of the non-null readings (``acf1_range``) and of the null residuals
   ``null - p_null`` (``acf1_null``); per bearing and the mean over bearings (ideal: 0, white residuals).
 * Baselines: ``ideal`` has ``mu = r``, ``sigma = 1 mm`` and ``p_null = P_EPS`` on a hit; ``gaussian``
-  is :class:`~sensor_envs.lidar.sensors.GaussianLidar` refitted per reading to the training part
+  is :class:`~sensor_envs.lidar.gaussian.GaussianLidar` refitted per reading to the training part
   (:func:`fit_gaussian_readings`).
 """
 
@@ -181,8 +181,8 @@ def validate_readings(
     """
     r, a = map_features(log.poses, log.bearings, log.require_map(), model.max_range)
     check_map_covers(log, r, model.max_range)
-    if gaussian is None and (kwargs := model.baseline()) is not None:
-        gaussian = GaussianLidar(**kwargs)
+    if gaussian is None:
+        gaussian = model.baseline()
     p_model = model.params_from_features(r, a)
     params = {
         f"model_{model.variant}": (p_model, (model.spur_mu_, model.spur_sigma_)),

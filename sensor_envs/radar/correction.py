@@ -42,6 +42,7 @@ from numpy.typing import NDArray
 
 from sensor_envs.inputs import InputError
 from sensor_envs.modelio import Constraint, InstanceOf, ModelFileError, Names, load_model_file, save_model_file
+from sensor_envs.sensor_model import extra_state_names
 
 __all__ = [
     "KIND",
@@ -267,7 +268,7 @@ class CorrectedRadar:
         self.terms = list(terms)
         self.free_previous = bool(free_previous)
         self.card_: dict[str, Any] = {}
-        base_names = tuple(getattr(base, "extra_state_", ()) or ())
+        base_names = extra_state_names(base)
         own = tuple(dict.fromkeys(t.column for t in self.terms if t.column not in base_names))
         self.extra_state_ = (*base_names, *own)
         self._n_base = len(base_names)

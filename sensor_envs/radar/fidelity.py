@@ -48,6 +48,8 @@ __all__ = [
     "verdict_lines",
     "AZIMUTH_BINS_DEG",
     "BASELINE",
+    "ENERGY_TARGET",
+    "target_gaps",
 ]
 
 VERDICTS = ("better", "not distinguishable", "worse")
@@ -400,3 +402,53 @@ def verdict_lines(report: dict[str, Any], model: str = "model") -> list[str]:
                     f"{row[f'{model}_verdict'].upper()}"
                 )
     return lines
+
+
+ENERGY_TARGET = 1.15
+"""The energy-distance target (issue 12): at most this multiple of the real-fitted KDE's, per range bin."""
+
+
+def target_gaps(row: dict[str, Any], real: dict[str, Any], ref: dict[str, Any]) -> dict[str, Any]:
+    """A model's worst gaps to the fidelity targets (issue 12) on real frames, counted both ways the issue reads.
+
+    Args:
+        row: the model's per-bin figures: ``det_range``/``det_azimuth`` (detection probability per bin, ``None``
+            where a bin has no row), ``nll_outcome``, ``nll_z_given_detected`` [nats], ``energy``,
+            ``energy_one_sample``, ``energy_all`` (energy distance per range bin [m]) and ``energy_margin_ci``
+            (interval of ``E_model - ENERGY_TARGET * E_ref`` per range bin).
+        real: the measured detection shares ``det_range``/``det_azimuth`` and their block intervals
+            (``det_range_ci``/``det_azimuth_ci``).
+        ref: the real-fitted KDE's figures, keyed as ``row``.
+
+    Returns:
+        Detection gaps to the measured share (``max_det_gap``, ``det_bins_within_0.05``, within the block
+        interval) and to the real-fitted KDE (``..._to_real_fitted``), the NLLs relative to the real-fitted KDE
+        (``*_rel``), the worst relative energy distance per estimator (``*_max_rel``) and the energy bins within
+        ``ENERGY_TARGET`` times the real-fitted KDE's (``energy_bins_within_target``; beyond the interval:
+        ``energy_bins_missed_beyond_ci``). Counts are ``"k/n"`` strings.
+    """
+
+    def det_gaps(other: dict) -> list[float]:  # |model - other| per detection bin (range, then azimuth)
+        return [abs(a - b) for k in ("det_range", "det_azimuth") for a, b in zip(row[k], other[k], strict=True)
+                if a is not None and b is not None]  # fmt: skip
+
+    gaps, ref_gaps = det_gaps(real), det_gaps(ref)
+    inside = [lo <= a <= hi for k in ("det_range", "det_azimuth") for a, (lo, hi) in zip(row[k], real[f"{k}_ci"],
+              strict=True) if a is not None]  # fmt: skip
+    out: dict[str, Any] = {
+        "max_det_gap": max(gaps),
+        "det_bins_within_0.05": f"{sum(g <= 0.05 for g in gaps)}/{len(gaps)}",
+        "det_bins_within_block_ci": f"{sum(inside)}/{len(inside)}",
+        "max_det_gap_to_real_fitted": max(ref_gaps),
+        "det_bins_within_0.05_of_real_fitted": f"{sum(g <= 0.05 for g in ref_gaps)}/{len(ref_gaps)}",
+    }
+    for k in ("nll_outcome", "nll_z_given_detected"):
+        out[f"{k}_rel"] = None if row[k] is None else (row[k] - ref[k]) / abs(ref[k])
+    for key in ("energy", "energy_one_sample", "energy_all"):
+        e = [(a - b) / b for a, b in zip(row[key], ref[key], strict=True) if np.isfinite(a) and b > 0]
+        out[f"{key}_max_rel"] = max(e) if e else None
+    margins = row["energy_margin_ci"]
+    within = sum(a <= ENERGY_TARGET * b for a, b in zip(row["energy_all"], ref["energy_all"], strict=True))
+    out["energy_bins_within_target"] = f"{within}/{len(margins)}"
+    out["energy_bins_missed_beyond_ci"] = f"{sum(m[0] > 0 for m in margins)}/{len(margins)}"
+    return out

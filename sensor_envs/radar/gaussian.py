@@ -51,7 +51,7 @@ from sensor_envs.radar.log import (
 )
 from sensor_envs.sensor_model import Arrays, Header, SensorModel, set_param_defaults
 
-__all__ = ["GaussianRadar"]
+__all__ = ["GaussianRadar", "baseline_file"]
 
 KIND = "radar_gaussian"
 FORMAT_VERSION = 2
@@ -330,6 +330,22 @@ class GaussianRadar(SensorModel):
         m.cycle_time_ = optional_positive(path, "cycle_time", header.get("cycle_time"))
         _load_extra(m, a, path)
         return m
+
+
+def baseline_file(model: str | os.PathLike[str]) -> Path:
+    """The Gaussian baseline's file beside a KDE radar file (``sensor-envs fit radar`` writes the pair).
+
+    ``<stem>_gaussian.npz``, else the model's name with its last ``_kde`` word as ``_gaussian`` (the shipped pairs
+    ``radar_kde.npz`` / ``radar_gaussian.npz`` and ``radar_kde_fast.npz`` / ``radar_gaussian_fast.npz``): the first
+    of the two that exists, else the first.
+    """
+    p = Path(model)
+    candidates = [p.with_name(p.stem + "_gaussian.npz")]
+    words = p.stem.split("_")
+    if "kde" in words[1:]:
+        i = len(words) - 1 - words[::-1].index("kde")
+        candidates.append(p.with_name("_".join([*words[:i], "gaussian", *words[i + 1 :]]) + ".npz"))
+    return next((c for c in candidates if c.exists()), candidates[0])
 
 
 def _check_arrays(path: str | os.PathLike[str], a: dict[str, NDArray[Any]]) -> None:

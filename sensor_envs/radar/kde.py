@@ -101,7 +101,6 @@ pair is chosen on real held-out rows by :mod:`sensor_envs.radar.tune` (``sensor-
 
 from __future__ import annotations
 
-import copy
 import os
 from pathlib import Path
 from typing import Any, ClassVar
@@ -109,11 +108,12 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.modelio import Constraint, validate_params
-from sensor_envs.radar import kde_density, kde_frames, kde_samplers, kde_trees
+from sensor_envs.modelio import Constraint
+from sensor_envs.radar import kde_density, kde_frames, kde_params, kde_samplers, kde_trees
+from sensor_envs.radar.gaussian import GaussianRadar, baseline_file
 from sensor_envs.radar.kde_bandwidth import corner_features, cv_bandwidth_table, relevance_features
 from sensor_envs.radar.kde_fit import fit_model
-from sensor_envs.radar.kde_io import UPGRADES, from_file, to_file
+from sensor_envs.radar.kde_io import ARRAY_SCHEMA, UPGRADES, from_file, to_file
 from sensor_envs.radar.kde_params import (
     AUTO_BUCKET_MIN_NEIGHBOURS,
     AZIMUTH_CANDIDATES,
@@ -291,20 +291,11 @@ class KDERadarModel(SensorModel):
 
     KIND = KIND
     FORMAT_VERSION = FORMAT_VERSION
-    CAPABILITIES = frozenset({"new_track", "extra_state", "prev_output", "log_prob", "clutter"})
+    CAPABILITIES = frozenset(
+        {"new_track", "extra_state", "prev_output", "log_prob", "clutter", "output_frame", "bin_probabilities"}
+    )
     _FITTED = "states_"
-    _SCHEMA: ClassVar[dict[str, tuple[str, int | None, bool]]] = {
-        "states": ("f", 2, False),
-        "z": ("f", 2, False),
-        "log_row": ("iu", 1, True),
-        "grid_x": ("f", 1, True),
-        "grid_y": ("f", 1, True),
-        "log_h": ("f", 3, True),
-        "cv_counts": ("iu", 2, True),
-        "cv_candidates": ("f", 1, True),
-        "clutter_counts": ("iu", 1, True),
-        "clutter_xy": ("f", 2, True),
-    }
+    _SCHEMA = ARRAY_SCHEMA
     _PARAM_DEFAULTS: ClassVar[dict[str, Any]] = {  # files written before the factors and the prev CV
         "relevance_candidates_prev": PREV_CANDIDATES,
         "bandwidth_scale": 1.0,
@@ -532,13 +523,7 @@ class KDERadarModel(SensorModel):
         after the bandwidth CV, and no random draw of :meth:`fit` depends on it).
         """
         self._check_fitted()
-        check = {"bandwidth_scale": self._parameter_constraints["bandwidth_scale"]}
-        for value in (factor, self.bandwidth_scale * factor):  # the factor, and the model's factor after it
-            validate_params({"bandwidth_scale": value}, check)
-        out = copy.deepcopy(self)
-        out.bandwidth_scale = float(self.bandwidth_scale * factor)
-        out.log_h_ = self.log_h_ + np.log(factor)
-        return out
+        return kde_params.scaled_copy(self, factor)
 
     def with_start_bandwidth_scale(self, value: float | None) -> KDERadarModel:
         """A copy with ``start_bandwidth_scale = value``: the same model as a fit with it.
@@ -547,10 +532,7 @@ class KDERadarModel(SensorModel):
         are unchanged.
         """
         self._check_fitted()
-        validate_params({"start_bandwidth_scale": value}, self._parameter_constraints)
-        out = copy.deepcopy(self)
-        out.start_bandwidth_scale = None if value is None else float(value)
-        return out
+        return kde_params.start_scaled_copy(self, value)
 
     def with_tail(self, weight: float, scale: float) -> KDERadarModel:
         """A copy with the tail mixture ``tail_weight = weight``, ``tail_scale = scale`` (checked).
@@ -559,10 +541,15 @@ class KDERadarModel(SensorModel):
         random draw of :meth:`fit` depends on it.
         """
         self._check_fitted()
-        validate_params({"tail_weight": weight, "tail_scale": scale}, self._parameter_constraints)
-        out = copy.deepcopy(self)
-        out.tail_weight, out.tail_scale = float(weight), float(scale)
-        return out
+        return kde_params.tail_copy(self, weight, scale)
+
+    def baseline(self) -> GaussianRadar | None:
+        """The Gaussian baseline fitted with this model (:meth:`SensorModel.baseline`), or ``None``.
+
+        The file beside the one this model was loaded from (:func:`~sensor_envs.radar.gaussian.baseline_file`).
+        """
+        base = None if self._file is None else baseline_file(self._file)
+        return GaussianRadar.load(base) if base is not None and base.is_file() else None
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()

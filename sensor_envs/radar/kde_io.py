@@ -33,7 +33,7 @@ from sensor_envs.sensor_model import Arrays, Header, Upgrade, set_param_defaults
 if TYPE_CHECKING:
     from sensor_envs.radar.kde import KDERadarModel
 
-__all__ = ["to_file", "from_file", "UPGRADES"]
+__all__ = ["to_file", "from_file", "UPGRADES", "ARRAY_SCHEMA"]
 
 
 def to_file(m: KDERadarModel) -> tuple[Header, Arrays]:
@@ -246,6 +246,20 @@ def _load_extra(model: KDERadarModel, header: dict[str, Any], a: dict[str, NDArr
     model.extra_variance_, model.extra_fill_ = tuple(float(v) for v in var), fill
     model.extra_scale_ = np.sqrt(var)
 
+
+ARRAY_SCHEMA: dict[str, tuple[str, int | None, bool]] = {
+    "states": ("f", 2, False),
+    "z": ("f", 2, False),
+    "log_row": ("iu", 1, True),
+    "grid_x": ("f", 1, True),
+    "grid_y": ("f", 1, True),
+    "log_h": ("f", 3, True),
+    "cv_counts": ("iu", 2, True),
+    "cv_candidates": ("f", 1, True),
+    "clutter_counts": ("iu", 1, True),
+    "clutter_xy": ("f", 2, True),
+}
+"""Arrays every supported format holds: ``name -> (dtype kinds, ndim, finite)`` (``SensorModel._SCHEMA``)."""
 
 UPGRADES: dict[int, Upgrade] = {
     1: _upgrade_1,

@@ -6,15 +6,39 @@ One declarative table (:data:`KDE_PARAMETERS`) checks the hyperparameters in ``f
 
 from __future__ import annotations
 
-from typing import Any
+import copy
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from sensor_envs.inputs import InputError
-from sensor_envs.modelio import CYCLE_TIME, RANDOM_STATE, Constraint, InstanceOf, Interval, Names, Numbers, Options
+from sensor_envs.modelio import (
+    CYCLE_TIME,
+    RANDOM_STATE,
+    Constraint,
+    InstanceOf,
+    Interval,
+    Names,
+    Numbers,
+    Options,
+    validate_params,
+)
 from sensor_envs.radar.alignment import MAX_AZIMUTH_BIAS
 
-__all__ = ["KDE_PARAMETERS", "HEADER_SCHEMA", "check_extra_params", "CV_RELEVANCE", "STATE_TRANSFORMS", "OUTPUT_FRAMES"]
+if TYPE_CHECKING:
+    from sensor_envs.radar.kde import KDERadarModel
+
+__all__ = [
+    "KDE_PARAMETERS",
+    "HEADER_SCHEMA",
+    "check_extra_params",
+    "CV_RELEVANCE",
+    "STATE_TRANSFORMS",
+    "OUTPUT_FRAMES",
+    "scaled_copy",
+    "start_scaled_copy",
+    "tail_copy",
+]
 
 STATE_TRANSFORMS = ("cartesian", "polar")
 """Corner features of the relevance kernel: ``(c_x, c_y)`` [m] or ``(range [m], azimuth [rad])``."""
@@ -115,3 +139,31 @@ def check_extra_params(names: Any, variance: Any, candidates: Any) -> None:
     c = np.asarray(candidates, dtype=np.float64)
     if c.ndim != 1 or c.size == 0 or not (np.isfinite(c).all() and (c > 0).all()):
         raise InputError(f"extra_candidates must be positive factors, got {candidates!r}")
+
+
+# --------------------------------------------------------------------- post-fit copies (KDERadarModel.with_*)
+def scaled_copy(model: KDERadarModel, factor: float) -> KDERadarModel:
+    """A copy of a fitted ``model`` with every contribution bandwidth (and ``bandwidth_scale``) times ``factor``."""
+    check = {"bandwidth_scale": KDE_PARAMETERS["bandwidth_scale"]}
+    for value in (factor, model.bandwidth_scale * factor):  # the factor, and the model's factor after it
+        validate_params({"bandwidth_scale": value}, check)
+    out = copy.deepcopy(model)
+    out.bandwidth_scale = float(model.bandwidth_scale * factor)
+    out.log_h_ = model.log_h_ + np.log(factor)
+    return out
+
+
+def start_scaled_copy(model: KDERadarModel, value: float | None) -> KDERadarModel:
+    """A copy of a fitted ``model`` with ``start_bandwidth_scale = value`` (checked)."""
+    validate_params({"start_bandwidth_scale": value}, KDE_PARAMETERS)
+    out = copy.deepcopy(model)
+    out.start_bandwidth_scale = None if value is None else float(value)
+    return out
+
+
+def tail_copy(model: KDERadarModel, weight: float, scale: float) -> KDERadarModel:
+    """A copy of a fitted ``model`` with the tail mixture ``tail_weight = weight``, ``tail_scale = scale`` (checked)."""
+    validate_params({"tail_weight": weight, "tail_scale": scale}, KDE_PARAMETERS)
+    out = copy.deepcopy(model)
+    out.tail_weight, out.tail_scale = float(weight), float(scale)
+    return out

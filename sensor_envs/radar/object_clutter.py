@@ -47,13 +47,15 @@ __all__ = [
     "sensor_velocity",
     "frame_clutter_objects",
     "measure_object_clutter",
+    "object_clutter_document",
     "load_object_clutter",
 ]
 
 RANGE_EDGES = (0.0, 15.0, 30.0, 50.0, 75.0, 100.0, 150.0)
 """Range bins [m] of the law (those of the rig's clutter range shares)."""
 OBJECT_CLUTTER_FILE = "radar_object_clutter.json"
-"""File name in ``models/`` of the shipped law (written by ``benchmarks/real_astyx_object_clutter.py``)."""
+"""File name in ``models/`` of the shipped law (written by ``benchmarks/real_astyx_object_clutter.py``
+through :func:`object_clutter_document`)."""
 FORMAT_VERSION = 1
 N_QUANTILES = 21
 _VX_GRID_STEP, _VY_GRID = 0.05, np.arange(-1.0, 1.0001, 0.1)
@@ -276,6 +278,27 @@ def _point_level_counts(xy: NDArray[np.float64], eps: float, edges: NDArray[np.f
     every = np.concatenate([np.asarray(near), r[labels < 0]])
     b = np.clip(np.searchsorted(edges, every, side="right") - 1, 0, edges.size - 2)
     return np.bincount(b, minlength=edges.size - 1).astype(np.float64)
+
+
+def object_clutter_document(run: dict[str, Any], data: str, command: str, note: str = "") -> dict[str, Any]:
+    """The law file's content (what :func:`load_object_clutter` reads) from a :func:`measure_object_clutter` run.
+
+    Args:
+        run: the measurement (its ``law``, ``frames``, ``params`` and ``point_level`` are kept).
+        data: the data set's name.
+        command: the command that measured it.
+        note: a caveat for the card (left out when empty).
+    """
+    card = {
+        "data": data,
+        "frames": run["frames"],
+        "command": command,
+        "params": run["params"],
+        "point_level": run["point_level"],
+    }
+    if note:
+        card["note"] = note
+    return {"format_version": FORMAT_VERSION, "kind": "radar_object_clutter", "law": run["law"], "card": card}
 
 
 def load_object_clutter(path: str | os.PathLike[str] | None = None) -> ObjectClutterLaw:

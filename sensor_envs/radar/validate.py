@@ -27,6 +27,7 @@ from sensor_envs.outputs import write_json
 from sensor_envs.radar.features import model_extra
 from sensor_envs.radar.log import RadarLog, TargetTuples, target_tuples
 from sensor_envs.rng import fold_ids
+from sensor_envs.sensor_model import has_capability
 
 __all__ = [
     "RANGE_BINS",
@@ -363,7 +364,7 @@ def chi_square(
     z, _ = model.sample(
         np.repeat(state[None], n, axis=0), rng, **_extra_kw(None if xe is None else np.repeat(xe, n, 0))
     )
-    if hasattr(model, "to_output_frame"):  # bins along the axes the model's kernels are aligned with
+    if has_capability(model, "output_frame"):  # bins along the axes the model's kernels are aligned with
         z = model.to_output_frame(z, np.repeat(state[None, :2], n, axis=0))
     det = ~np.isnan(z[:, 0])
     lo, hi = np.nanpercentile(z, 0.1, axis=0), np.nanpercentile(z, 99.9, axis=0)
@@ -489,7 +490,7 @@ def plot_all(report: dict[str, Any], model: Any, log: RadarLog, out: Path) -> No
         ex = None if extra is None else extra[0]
         prev = tt.z_prev[i] if np.isfinite(tt.z_prev[i, 0]) else None
         plot_pdf_heatmap(model, box, prev, out / "pdf_heatmap.png", extra=ex)
-        if hasattr(model, "bin_probabilities"):
+        if has_capability(model, "bin_probabilities"):
             st = np.concatenate([tt.corner[i], tt.z_prev[i]])
             report["model"]["chi_square_at_example_state"] = plot_pdf_vs_samples(
                 model, st, np.random.default_rng(0), out / "pdf_vs_samples.png", extra=ex

@@ -118,10 +118,11 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
         },
     },
     # "full" is sized for the shared 2-core machine without a GPU (README: budgets, wall time, how much the
-    # policies learned): Neato 8 seeds (~25 min with 2 workers). Highway-fast: 5 seeds, DQN with highway-env's
-    # documented settings (the config's `algos: dqn` block) for 6,000 steps, EvalCallback every 1,000 steps on 10
-    # episodes of other seeds, and the matrix evaluates that best checkpoint on 30 episodes per cell: the final
-    # model regresses (docs/results/highway_matrix.md); highway-env's own simulation sets the pace.
+    # policies learned): Neato 8 seeds (~25 min with 2 workers). Highway-fast: issue 41's recipe, 5 seeds, DQN with
+    # highway-env's documented settings (the config's `algos: dqn` block) and highway-env's documented 20,000 steps,
+    # EvalCallback every 2,000 steps on 20 episodes of other seeds, and the matrix evaluates that best checkpoint on
+    # 30 episodes per cell: the final model regresses (docs/results/highway_matrix.md); highway-env's own
+    # simulation sets the pace.
     "full": {
         "neato": {
             "seeds": 8,
@@ -136,7 +137,7 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
             "eval_episodes": 30,
             "max_episode_steps": None,
             "policy": "best",
-            "set": {"n_timesteps": 6000, "n_envs": 1, "eval_freq": 1000, "eval_episodes": 10},
+            "set": {"n_timesteps": 20000, "n_envs": 1, "eval_freq": 2000, "eval_episodes": 20},
             "hyperparams": None,
         },
     },

@@ -1,6 +1,10 @@
 """Learned lidar mean vs the raycast on unseen real poses: bias shrinkage and pose correction (issue #12).
 
-    PYTHONPATH=. python benchmarks/real_lidar_bias.py --data ../shared/data/real --out DIR [--folds 10]
+Record (issue 40; not maintained, see docs/history/scripts.md). Found: per-fold MAE of `mu` on held-out real poses
+for the raycast, the learned bias unshrunk and CV-shrunk, with and without pose correction (`0fdb5b9`); its outcome
+is the default `bias_shrinkage="cv"`.
+
+    PYTHONPATH=. python docs/history/scripts/real_lidar_bias.py --data ../shared/data/real --out DIR [--folds 10]
         [--inner-folds 10] [--seed 0] [--variant extended] [--force]
 
 On the real Neato log ``neato_mar27_train.npz`` (29 static poses, approximate poses), leave-poses-out

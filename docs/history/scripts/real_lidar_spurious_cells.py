@@ -1,6 +1,10 @@
 """Per-cell structure of the spurious far returns: the real Neato log vs logs the learned lidar samples at its poses.
 
-    python benchmarks/real_lidar_spurious_cells.py --data ../shared/data/real
+Record (issue 40; not maintained, see docs/history/scripts.md). Found: the real unit's spurious far returns persist
+per cell (few cells have any, those have them in almost every reading); led to `spur_rho_` (model format 5) and the
+beta-binomial score of `p_spur` (`319863c`).
+
+    python docs/history/scripts/real_lidar_spurious_cells.py --data ../shared/data/real
         [--model models/neato_lidar.npz [--model OTHER.npz ...]] [--seeds 3]
 
 A cell is one pose and one bearing of the real log ``neato_mar27_train.npz`` (29 poses x 360 bearings x
@@ -33,7 +37,7 @@ from sensor_envs.lidar.lwlr import LidarLWLR, cell_statistics, lidar_features
 from sensor_envs.lidar.validate import table_one
 from sensor_envs.rng import fold_ids
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def cell_summary(frac: NDArray[np.float64]) -> dict[str, float]:

@@ -1,5 +1,9 @@
 """A tracker-state radar model's detection probability at the real Astyx boxes, split by the previous cycle.
 
+Record (issue 40; not maintained, see docs/history/scripts.md). Found: repeated misses are where the KDE's
+stationary law loses detections (detection probability at the real boxes as a new track, after a miss and after a
+detection; `2721bdd`).
+
 For every real car row (closest corner of its reference box) the model's detection probability is
 queried as a NEW track (``z_{t-1}`` missing, ``new_track=True``), AFTER A MISS (``z_{t-1}`` missing,
 ``new_track=False``) and AFTER A DETECTION (``z_{t-1}`` = one sample of the model's own new-track
@@ -9,7 +13,7 @@ detection rate of the two-state chain (what a running radar at a static box conv
 corner-range bin and per signed azimuth bin (left > 0) next to the real detected share: it shows
 where the stationary law of ``benchmarks/real_radar_fidelity.py`` loses detections (a repeated miss).
 
-    python benchmarks/real_radar_detection_by_previous.py --data ../shared/data/real/astyx_hires2019 \
+    python docs/history/scripts/real_radar_detection_by_previous.py --data ../shared/data/real/astyx_hires2019 \
         --model models/radar_kde.npz [--bootstrap 2000]
 
 ``--bootstrap B`` also prints the real detected share per bin with 95 % percentile intervals of a cluster
@@ -29,7 +33,7 @@ from sensor_envs.radar.calibrate import DET_AZIMUTH_EDGES, load_real
 from sensor_envs.radar.kde import KDERadarModel
 from sensor_envs.radar.validate import RANGE_BINS
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def main() -> None:

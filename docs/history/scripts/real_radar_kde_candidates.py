@@ -1,5 +1,8 @@
 """Candidate fixes of the shipped KDE radar, scored at the real Astyx reference boxes (issue 12).
 
+Record (issue 40; not maintained, see docs/history/scripts.md). Found: scored KDE variants at the real Astyx boxes;
+introduced `relevance="cv_axes"` and the `fit radar --relevance`/`--state-transform` options (`38bb8b4`).
+
 Every candidate is a KDE radar (the paper's model: joint KDE, two-stage sampling, ``z_{t-1}`` in the
 state, leave-one-track-out contribution bandwidths) fitted on a log of the calibrated rig
 (``--rig``, default ``models/radar_rig.json``) recorded as the model card says (seed 0, 50 sequences
@@ -26,7 +29,8 @@ benchmark takes one chain per row). Per fold: NLL of outcomes, so a candidate is
 block of held-out frames, not only on the pooled mean. The rig itself is calibrated on all 400
 frames; the KDE never sees a real frame.
 
-    python benchmarks/real_radar_kde_candidates.py --data ../shared/data/real/astyx_hires2019 --out /tmp/radar_cand
+    python docs/history/scripts/real_radar_kde_candidates.py --data ../shared/data/real/astyx_hires2019 \
+        --out /tmp/radar_cand
 """
 
 from __future__ import annotations
@@ -51,7 +55,7 @@ from sensor_envs.radar.log import RadarLog, target_tuples
 from sensor_envs.radar.rig import load_rig, record_rig_log
 from sensor_envs.radar.validate import RANGE_BINS, energy_distance_2d, split_by_blocks
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 WIDE = (6.0, 12.0, 24.0, 48.0, 96.0, 192.0)
 """Corner variances [m^2] of the ``-wide`` CV candidates (the default list stops at 48, where the CV chose)."""
 CANDIDATES: dict[str, dict[str, Any]] = {

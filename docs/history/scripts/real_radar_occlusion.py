@@ -1,5 +1,8 @@
 """Occlusion on real Astyx frames: what it does to the radar, what the rig does, what a KDE gains from it.
 
+Record (issue 40; not maintained, see docs/history/scripts.md). Found: detection share and polar offsets per
+occluded-fraction bin, real vs rig, and the real-fitted KDE with each occlusion state (`114afe1`).
+
 1. Per bin of the geometric occluded fraction (``features.occluded_column``: the share of a car box's
    angular extent hidden behind the frame's other car boxes; 0, (0, 0.5), [0.5, 1]): the measured
    detection share and the detected offsets ``z = meas - closest corner`` in the corner's polar frame
@@ -10,7 +13,7 @@
    ``occlusion`` label (0/1/2), the geometric ``occluded`` fraction (variance by CV). Held-out NLL of
    outcomes and of z given a detection [nats], detection log-loss [nats], detection rate per azimuth bin.
 
-    python benchmarks/real_radar_occlusion.py --data ../shared/data/real/astyx_hires2019 [--rig RIG.json]
+    python docs/history/scripts/real_radar_occlusion.py --data ../shared/data/real/astyx_hires2019 [--rig RIG.json]
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from sensor_envs.radar.log import RadarLog, target_tuples
 from sensor_envs.radar.rig import RadarRig, SnapshotDraws, load_rig
 from sensor_envs.radar.validate import split_by_blocks
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 OCC_BINS = ((0.0, 1e-9, "0"), (1e-9, 0.5, "(0, 0.5)"), (0.5, 1.01, "[0.5, 1]"))
 
 

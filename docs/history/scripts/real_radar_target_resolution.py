@@ -1,5 +1,9 @@
 """How finely the real Astyx frames resolve issue 12's radar targets: two real-fitted KDEs against each other.
 
+Record (issue 40; not maintained, see docs/history/scripts.md). Found: two real-fitted KDEs on disjoint halves of
+the frames differ by more than 1.15x in 25-47 % of the bins: the real frames cannot resolve issue 12's energy target
+finely (`f579b14`).
+
 The radar targets compare the shipped KDE with a KDE fitted on the real training folds (the "real-fitted"
 reference of ``real_radar_fidelity.py``): energy distance per corner-range bin within 1.15x of the reference's,
 detection rate within 0.05 per range and azimuth bin. This script asks what those comparisons give for a
@@ -28,7 +32,7 @@ A target whose same-kind ratio exceeds 1.15x in a large share of the splits cann
 reference at this data size; the shipped model's figure is then judged by whether it lies outside the
 same-kind spread (the control shows whether the comparison can tell anything at all).
 
-    python benchmarks/real_radar_target_resolution.py --data ../shared/data/real/astyx_hires2019 \
+    python docs/history/scripts/real_radar_target_resolution.py --data ../shared/data/real/astyx_hires2019 \
         --out /tmp/radar_resolution
 
 ~40 s per split on 2 cores (10 KDE fits of a few seconds) and ~40 s per draw seed (the shipped model's rollouts).
@@ -57,7 +61,7 @@ from sensor_envs.radar.validate import RANGE_BINS, row_energy_terms, split_by_bl
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import real_radar_fidelity as fidelity  # benchmarks/ is not a package: its folder on the path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 TARGET = fidelity.ENERGY_TARGET
 REF_VARIANCE = (48.0, 48.0, 0.03, 0.03)
 """The real-fitted reference's relevance variances (``real_radar_fidelity.py``)."""

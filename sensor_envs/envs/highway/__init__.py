@@ -1,12 +1,12 @@
 """highway-env with a radar instead of ideal perception (see :mod:`sensor_envs.envs.highway.wrapper`).
 
 Modules: ``wrapper`` (:class:`RadarObservation`, :func:`make_highway`), ``sensor`` (what the radar can see: model
-loading, field of view, occlusion, reference points), ``step_record`` (one step's record: the truth it looked at,
-its output and ``info["radar"]``), ``frame`` (the former name of ``step_record``), ``observation`` (highway-env's
-``Kinematics`` layout), ``render`` (the overlay), ``hooks`` (the wrapper's hooks into highway-env's road step and
-observation), ``stacking`` (frame stacking: ``StackedRows``), ``wrapper_schema`` (the declared arguments of the
-wrapper and ``make_highway``, a reset's ``options["config"]``), ``clutter`` (object-level clutter and the Doppler
-stationary filter), ``tracker`` (the multi-target tracker of ``tracks=True``).
+loading, field of view, occlusion, reference points), ``step_record`` (one step's record: the truth it looked at, its
+output and ``info["radar"]``), ``frame`` (the deprecated former name of ``step_record``), ``observation``
+(highway-env's ``Kinematics`` layout), ``render`` (the overlay), ``hooks`` (the wrapper's hooks into highway-env's
+road step and observation), ``stacking`` (frame stacking: ``StackedRows``), ``wrapper_schema`` (the declared arguments
+of the wrapper and ``make_highway``, a reset's ``options["config"]``), ``clutter`` (object-level clutter and the
+Doppler stationary filter), ``tracker`` (the multi-target tracker of ``tracks=True``).
 """
 
 from sensor_envs.envs.highway.clutter import CLUTTER_LEVELS, STATIONARY_MODES

@@ -20,7 +20,7 @@ from sensor_envs.geometry import closest_corner, from_frame, occluded_fraction, 
 from sensor_envs.inputs import InputError
 from sensor_envs.modelio import Constraint, Interval, Numbers, Options, validate_params
 from sensor_envs.radar.sensors import RADAR_NAMES, RadarSensor, make_radar
-from sensor_envs.sensor_model import has_capability
+from sensor_envs.sensor_model import extra_state_names
 
 __all__ = [
     "RADAR_NAMES",
@@ -235,7 +235,7 @@ def model_state_names(radar: Any) -> tuple[str, ...]:
     """
     from sensor_envs.radar.features import WORLD_VARIABLES
 
-    names = tuple(radar.extra_state_) if has_capability(radar, "extra_state") else ()  # declared, not probed
+    names = extra_state_names(radar)  # declared, not probed
     for name in names:
         if name not in WORLD_VARIABLES:
             raise InputError(

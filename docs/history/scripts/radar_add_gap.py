@@ -1,5 +1,10 @@
 """Held-out NLL of the radar models on the suite's families, with and without the planted cause's correction.
 
+Record (issue 40; not maintained, see docs/history/scripts.md). Found: on the diagnose suite's Gaussian-drawn
+families the KDE is structurally worse than the Gaussian and re-tuning its state kernel closes most of the gap
+(held-out NLL per reading, mean seed 2000: paper kernel 2.174, re-tuned 1.961, Gaussian 1.912); the planted cause's
+correction then gains 0.006-0.031 nats (`89a73aa`; table in docs/results/diagnose_suite.md).
+
 For each case (``sensor_envs.diagnose.families.radar_case``; outputs drawn from a Gaussian radar, one
 planted cause), fits on the fit part and scores on the held-out part (the split ``diagnose`` uses):
 
@@ -12,7 +17,7 @@ Prints one line per case and model (held-out NLL per reading [nats], lower is be
 
 Usage::
 
-    nice -n 10 python benchmarks/radar_add_gap.py --cases mean:2000 interaction:1017 spread:34 rate:1051
+    nice -n 10 python docs/history/scripts/radar_add_gap.py --cases mean:2000 interaction:1017 spread:34 rate:1051
 """
 
 from __future__ import annotations

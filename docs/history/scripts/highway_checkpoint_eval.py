@@ -1,6 +1,11 @@
 """Evaluate the model a robustness run did NOT evaluate (EvalCallback's `best_model.zip` or `final_model.zip`).
 
-    python benchmarks/highway_checkpoint_eval.py --run runs/highway_matrix --columns ideal kde_tracks \
+Record (issue 40; not maintained, see docs/history/scripts.md). Found: in the 2-seed highway matrix (10,000 steps),
+EvalCallback's best checkpoint collided less than the final model on the held-out episodes (ideal 0.38 vs 0.65,
+tracked KDE 0.27 vs 0.45; `2e25ba0`, `91ecbc0`); hence `sensor-envs robustness --policy best`, the full highway
+preset's default.
+
+    python docs/history/scripts/highway_checkpoint_eval.py --run runs/highway_matrix --columns ideal kde_tracks \
         [--episodes 30] [--json out.json]
 
 For every job of the run (``runs/<row>/seed<s>/``), plays ``--episodes`` deterministic episodes of the

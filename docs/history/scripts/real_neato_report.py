@@ -1,6 +1,12 @@
 """Real-data figures of the learned lidar (issue #3): cross-validated Table I, LL, rig calibration.
 
-    python benchmarks/real_neato_report.py --data ../shared/data/real [--folds 10] [--inner-folds 10] [--out DIR]
+Record (issue 40; not maintained, see docs/history/scripts.md). Found: the real-versus-rig statistics that set the
+Neato rig's defaults (per-bearing bias Normal(3.8 mm, 7.6 mm), 26 bearings blocked by the casing's posts, noise sd
+per 0.5 m range bin; docs/concepts/rigs.md) and the cross-validated Table I of the seed and extended models on the
+29 real poses (`0b8f74a`, `20e635d`). The rig is calibrated by `sensor-envs calibrate lidar` since.
+
+    python docs/history/scripts/real_neato_report.py --data ../shared/data/real [--folds 10] \
+        [--inner-folds 10] [--out DIR]
 
 Fits the seed and extended models on the real Neato log (29 poses) with leave-poses-out CV (each
 outer fold refits both models, with their own inner CV of kernel widths, and the Gaussian baseline
