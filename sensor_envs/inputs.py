@@ -51,6 +51,7 @@ __all__ = [
     "parse_yaml",
     "check_pixels",
     "check_number",
+    "plain_decimal",
     "check_count",
     "check_rng",
     "bad_name",
@@ -145,9 +146,11 @@ def check_regular_file(path: PathLike, field: str = "file", limit: int | None = 
 def read_bytes(path: PathLike, field: str = "file", limit: int | None = None) -> bytes:
     """The bytes of a regular file of at most ``limit`` bytes (see :func:`check_regular_file`)."""
     cap = LIMITS.file_bytes if limit is None else limit
-    check_regular_file(path, field, cap)
+    size = check_regular_file(path, field, cap)
     with open(path, "rb") as fh:
-        data = fh.read(cap + 1)  # the file may have grown since the check
+        data = fh.read(size + 1)  # read(cap + 1) would allocate cap bytes up front, whatever the file's size
+        if len(data) > size:  # the file has grown since the check
+            data += fh.read(cap + 1 - len(data))
     if len(data) > cap:
         raise InputError(f"{path}: {field}: the file has more than the limit of {cap} bytes")
     return data
@@ -286,6 +289,9 @@ def parse_json(text: str | bytes, source: str) -> Any:
     Raises:
         InputError: ``"<source>: not valid JSON (...)"`` or a depth / size limit.
     """
+    sep = text.count(",") + text.count(":") if isinstance(text, str) else text.count(b",") + text.count(b":")
+    if sep > 2 * LIMITS.nodes:  # before parsing: json.loads would build every value first
+        raise InputError(f"{source}: holds more than {LIMITS.nodes} values")
     try:
         doc = json.loads(text, object_pairs_hook=_unique_keys, parse_float=_float)
     except RecursionError:
@@ -424,6 +430,18 @@ def check_pixels(width: int, height: int, source: str) -> None:
         raise InputError(f"{source}: the image has {width} x {height} pixels, more than the limit of {LIMITS.pixels}")
 
 
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+
+
+def plain_decimal(text: str) -> float | None:
+    """``text`` as a float if it is plain ASCII decimal text (``-0`` as ``0.0``), else ``None``.
+
+    ``float`` alone would take ``1_0.5`` (10.5), ``nan``, ``infinity``, padding and other scripts' digits
+    (``١``, ``１``): text readers use this instead.
+    """
+    return float(text) + 0.0 if _DECIMAL.fullmatch(text) else None
+
+
 def check_number(
     value: Any,
     name: str,
@@ -521,6 +539,8 @@ def check_array(
     Raises:
         InputError: ``"<name>: ..."`` naming the first offending entry.
     """
+    if isinstance(value, np.ma.MaskedArray) and np.ma.getmaskarray(value).any():  # asarray would drop the mask
+        raise InputError(f"{name}: expected real numbers, got a masked array with masked entries")
     try:
         arr = np.asarray(value)
     except (TypeError, ValueError) as exc:  # ragged nesting, unconvertible objects

@@ -25,7 +25,16 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from sensor_envs.geometry import as_segments, from_frame
-from sensor_envs.inputs import InputError, bad_name, check_pixels, parse_json, parse_yaml, read_bytes, read_text
+from sensor_envs.inputs import (
+    InputError,
+    bad_name,
+    check_pixels,
+    parse_json,
+    parse_yaml,
+    plain_decimal,
+    read_bytes,
+    read_text,
+)
 
 __all__ = ["SegmentMap", "load_map", "BUILTIN_MAPS", "read_ros_map", "ros_occupancy", "occupancy_to_segments"]
 
@@ -145,10 +154,10 @@ def _load_map_file(path: Path) -> SegmentMap:
         if not line:
             continue
         parts = line.replace(",", " ").split()
-        try:
-            vals = [float(p) for p in parts]
-        except ValueError:
-            raise InputError(f"{path}:{lineno}: expected four numbers 'x1 y1 x2 y2', got {line!r}") from None
+        parsed = [plain_decimal(p) for p in parts]  # float() would take 1_0.5, nan and other scripts' digits
+        vals = [v for v in parsed if v is not None]
+        if len(vals) != len(parsed):
+            raise InputError(f"{path}:{lineno}: expected four numbers 'x1 y1 x2 y2', got {line!r:.80}")
         if len(vals) != 4:
             raise InputError(f"{path}:{lineno}: expected four numbers 'x1 y1 x2 y2', got {len(vals)}")
         text_rows.append(vals)
@@ -315,6 +324,9 @@ def _parse_pgm_raw(raw: bytes, path: Path) -> NDArray[np.float64]:
         while pos < len(raw) and not raw[pos : pos + 1].isspace():
             pos += 1
         tokens.append(raw[start:pos])
+    bad = next((t for t in tokens if not (t.isascii() and t.isdigit())), None)
+    if bad is not None:  # int() would take b"1_0" as 10
+        raise InputError(f"{path}: PGM header field {bad[:20]!r} is not a plain decimal integer")
     width, height, maxval = (int(t) for t in tokens)
     pos += 1
     check_pixels(width, height, f"{path}: PGM header")

@@ -153,10 +153,14 @@ class SensorModel(BaseEstimator):
         check_is_fitted(self, self._FITTED, msg=msg)
 
     @staticmethod
-    def _deprecated_progress(progress: bool | None, verbose: bool) -> bool:
-        """``verbose``, or the deprecated ``progress`` flag it replaces (with a ``FutureWarning``)."""
+    def _deprecated_progress(progress: bool | None, verbose: Any) -> Any:
+        """``verbose``, or the deprecated ``progress`` flag it replaces (with a ``FutureWarning``).
+
+        ``verbose`` is handed on as given (``fit`` checks it is a flag): ``bool(verbose)`` here would turn
+        ``nan`` into ``True`` and an array into a ``ValueError`` inside the constructor.
+        """
         if progress is None:
-            return bool(verbose)
+            return verbose
         warnings.warn("'progress' is deprecated; use the 'verbose' hyperparameter", FutureWarning, stacklevel=3)
         return bool(progress)
 

@@ -226,3 +226,70 @@ def test_negative_zero_in_a_file_is_zero(tmp_path, capsys) -> None:
     code, err = _run([*argv, "--sequences", "1", "--cycles", "2"], capsys)
     assert code == 0, err
     assert str(parse_yaml("a: -0.0", "s")["a"]) == "0.0" and str(parse_json("[-0.0]", "s")[0]) == "0.0"
+
+
+@pytest.mark.parametrize("verbose", [float("nan"), {}, 1e-5, np.array([1.0, 1.0])])
+def test_verbose_is_a_flag_checked_at_fit_not_coerced_in_the_constructor(verbose, tmp_path) -> None:
+    from sensor_envs.lidar.lwlr import LidarLWLR
+
+    model = LidarLWLR(n_folds=2, variant="seed", verbose=verbose)  # stores it as given (sklearn style)
+    with pytest.raises(InputError, match="verbose"):
+        model.fit(fa._small_log("LidarLWLR", tmp_path))
+
+
+def test_masked_entries_are_refused_never_unmasked() -> None:
+    state = np.ma.masked_array([[10.0, 1.0]], mask=[[True, False]])
+    with pytest.raises(InputError, match="masked"):
+        fa.shipped_model("GaussianRadar").sample(state, np.random.default_rng(0))
+
+
+def test_the_vector_env_takes_its_action_space_shape_only() -> None:
+    import gymnasium as gym
+
+    env = gym.make_vec("sensor_envs/Neato-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    env.reset(seed=0)
+    with pytest.raises(InputError, match="actions"):
+        env.step(np.array([0.5, 0.2, 0.5, 0.2]))  # a flat batch: (4,), not (2, 2)
+
+
+def test_a_clutter_row_copied_whole_is_refused(tmp_path) -> None:
+    from sensor_envs.radar.log import read_log
+
+    rows = fp.radar_rows()
+    clutter = next(r for r in rows if ",-1," in r)
+    p = tmp_path / "log.csv"
+    p.write_text("\n".join([fp.RADAR_HEADER, *rows, clutter]) + "\n")
+    with pytest.raises(InputError, match="repeats the clutter detection"):
+        read_log(p)
+
+
+def test_a_radar_log_is_read_in_a_few_times_its_size(tmp_path) -> None:
+    """Rows are parsed into 8-byte columns as they are read (they were held as lists of strings: 35x the file)."""
+    import tracemalloc
+
+    from sensor_envs.radar.log import read_log
+
+    rows = [f"{i // 100},{i % 100},{i % 100}.0,0,10.0,1.0,0.1,4.5,1.8,8.0,1.1,1.0" for i in range(20_000)]
+    p = tmp_path / "log.csv"
+    p.write_text("\n".join([fp.RADAR_HEADER, *rows]) + "\n")
+    tracemalloc.start()
+    read_log(p)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 12 * p.stat().st_size, (peak, p.stat().st_size)
+
+
+def test_a_json_document_of_too_many_values_is_refused_before_parsing() -> None:
+    from sensor_envs.inputs import LIMITS
+
+    with pytest.raises(InputError, match="more than"):
+        parse_json("[" + "0," * (2 * LIMITS.nodes + 1) + "0]", "src")
+
+
+@pytest.mark.parametrize("token", ["1_0.5", "nan", "infinity", "١", "１", " 1e"])
+def test_a_text_map_takes_plain_decimal_numbers_only(token, tmp_path) -> None:
+    from sensor_envs.maps import load_map
+
+    (tmp_path / "m.txt").write_text(fp.MAP_TXT.replace("4 0 4 3", f"{token} 0 4 3"))
+    with pytest.raises(InputError, match="four numbers"):
+        load_map(tmp_path / "m.txt")

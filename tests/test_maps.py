@@ -32,7 +32,7 @@ def test_text_json_yaml_formats_agree(tmp_path):
     "content, suffix, msg",
     [
         ("", ".txt", "no segments"),
-        ("0 0 1 nan\n", ".txt", "NaN"),
+        ("0 0 1 nan\n", ".txt", "four numbers"),
         ("0 0 0 0\n", ".txt", "zero length"),
         ("0 0 1\n", ".txt", "expected four numbers"),
         ("0 0 a 1\n", ".txt", "expected four numbers"),

@@ -81,7 +81,7 @@ def test_recipe_argv_spells_the_card_commands():
         ("sensor: lidar\noutputs: {model: m.npz}\nrig: r.json\nrecord: {}\nfit: {}\nfactors: {a: 1}\n", "'factors'"),
         ("sensor: radar\noutputs: {}\nrig: r.json\nrecord: {}\nfit: {}\n", "'outputs.model'"),
         ("sensor: radar\nbogus: 1\n", "unknown field"),
-        ("sensor: [\n", "not YAML"),
+        ("sensor: [\n", "not valid YAML"),
     ],
 )
 def test_bad_recipe_is_one_line_naming_the_file_and_field(tmp_path, capsys, text, field):

@@ -233,8 +233,9 @@ def register(verbs: dict[str, "argparse._SubParsersAction[OneLineParser]"]) -> N
     val.set_defaults(func=_validate)
 
 
-MAX_RECORD_ROWS = 10_000_000
-"""Most target rows of ``record radar`` (``--sequences x --cycles x --targets``)."""
+MAX_RECORD_ROWS = 1_000_000
+"""Most target rows of ``record radar`` (``--sequences x --cycles x --targets``): the CSV (about 70 bytes a row,
+clutter rows besides) stays within the radar log reader's limit (:data:`sensor_envs.radar.log.MAX_LOG_BYTES`)."""
 
 
 def _record(args: argparse.Namespace) -> int:

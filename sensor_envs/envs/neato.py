@@ -342,6 +342,8 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
 
     def _pose_option(self, options: dict[str, Any], key: str) -> NDArray[np.float64]:
         p = check_array(options[key], f"options[{key!r}]", (3,), low=-1e6, high=1e6)  # a finite pose (x, y, theta)
+        if abs(p[2]) > 4 * np.pi:  # any heading is written within +-2 pi; 1e6 rad is a unit or parsing slip
+            raise InputError(f"options[{key!r}]: heading {p[2]:g} rad is beyond +-4 pi")
         if not self._enclosed(p):
             raise InputError(f"options[{key!r}]: {options[key]!r} lies outside map {self.world_map.name!r}")
         if key == "start" and self._collides(p):

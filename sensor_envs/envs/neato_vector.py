@@ -156,9 +156,8 @@ class NeatoVectorEnv(VectorEnv[NDArray[np.float32], NDArray[np.float32], NDArray
         """
         if not self._started:
             raise RuntimeError("NeatoVectorEnv: call reset() before step()")
-        flat = np.ndim(actions) == 1 and np.size(actions) == 2 * self.num_envs  # a flat batch, as before
-        batch = np.reshape(actions, (-1, 2)) if flat else actions
-        a = check_array(batch, "actions", (self.num_envs, 2), low=-1.0, high=1.0)
+        # exactly the action space's (num_envs, 2): a flat (2 num_envs,) batch is refused, not reshaped
+        a = check_array(actions, "actions", (self.num_envs, 2), low=-1.0, high=1.0)
         env = self.envs[0]
         restart = self._autoreset  # these robots start a new episode this step (NEXT_STEP autoreset)
         # every robot moves (numpy's elementwise arithmetic: a row's result does not depend on the others);

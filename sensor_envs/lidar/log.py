@@ -56,6 +56,8 @@ PathLike = str | os.PathLike[str]
 
 MAX_RANGE = 1000.0
 """Largest accepted reading [m] (long-range lidars reach ~300 m)."""
+MAX_SCANS = 200_000
+"""Most scans of a CARMEN log or ROS bag (intel has 910; 200 000 scans of 360 readings are 0.6 GB, minutes to read)."""
 MAX_COORD = 1e6
 """Largest accepted ``|pose|`` coordinate [m] and ``|covariate|``."""
 
@@ -415,6 +417,8 @@ def _read_carmen_lines(p: Path, max_range: float | None) -> tuple[list[Any], lis
             raise LidarLogError(f"{p}:{lineno}: field 'ranges': {b.size} readings, expected {bearings.size}")
         thr = mx if max_range is None else max_range
         scans.append(np.where((r >= thr) | (r <= 0), 0.0, r))
+        if len(scans) > MAX_SCANS:
+            raise LidarLogError(f"{p}:{lineno}: field 'ranges': more than {MAX_SCANS} scans")
         poses.append(pose)
         times.append(ts)
     return scans, poses, times, bearings
@@ -614,6 +618,8 @@ def _read_bag_messages(
                 )
             null = ~np.isnan(r) & ((r <= 0) | ~np.isfinite(r) | (r < msg.range_min) | (r > msg.range_max))
             scans.append(np.where(null, 0.0, r))
+            if len(scans) > MAX_SCANS:
+                raise LidarLogError(f"{p}: field 'ranges': more than {MAX_SCANS} scans on {scan_topic!r}")
             st.append(t * 1e-9)
     return scans, st, pts, pt, twists, bearings
 

@@ -56,6 +56,8 @@ MAX_BOX_SIZE = 100.0
 """Largest length, width or height [m] of a labelled object."""
 MAX_FRAME = 999_999_999
 """Largest frame index (nine digits: ``f * 1000 + box`` ids stay exact)."""
+MAX_FRAMES = 100_000
+"""Most frames in one folder (the HiRes2019 set has 546; every frame is two files read and checked)."""
 CLASS_CODES = ("Car", "Truck", "Bus", "Person", "Trailer", "Other Vehicle", "Towed Object", "Cyclist")
 """``class_code`` covariate: index into this tuple (-1 for other names)."""
 
@@ -247,7 +249,12 @@ def load_astyx(
     if cluster_args.get("position", "nearest") not in ("nearest", "centroid"):
         raise InputError(f"position must be 'nearest' or 'centroid', got {cluster_args['position']!r}")
     if frames is None:
-        files = sorted((root / "radar_6455").glob("*.txt"))
+        files = []
+        for f in (root / "radar_6455").glob("*.txt"):  # counted while listed: a folder of 10^7 files is refused
+            files.append(f)
+            if len(files) > MAX_FRAMES:
+                raise InputError(f"{root / 'radar_6455'}: more than {MAX_FRAMES} frame files")
+        files.sort()
         stray = [p for p in files if not _frame_name(p.stem)]
         if stray:
             raise InputError(f"{stray[0]}: not an Astyx frame file (expected radar_6455/NNNNNN.txt)")

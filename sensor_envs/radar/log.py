@@ -25,7 +25,7 @@ meas_x, meas_y m     the radar's reported object position, sensor frame
   ``ref_y``, ``meas_x``, ``meas_y`` within :data:`MAX_POSITION` (1 km) of the sensor, box sizes
   ``ref_length``/``ref_width`` at most :data:`MAX_SIZE` (100 m), integer ids below ``2**53``.
 * the file is UTF-8 (a byte-order mark, as Excel writes, is accepted) and comma-separated, at most
-  :data:`sensor_envs.inputs.LIMITS` ``.file_bytes`` long; a field over the csv module's field limit or
+  :data:`MAX_LOG_BYTES` (128 MiB) long; a field over the csv module's field limit or
   an unclosed quote is an error naming the line. Numbers are plain decimal text (``1_0.5`` is refused).
 * consistency: every column name is non-empty; clutter rows have ``target`` -1; rows of one cycle
   ``(sequence, frame)`` share one ``t``, and ``t`` increases with ``frame`` within a sequence;
@@ -39,6 +39,7 @@ previous output ``z_{t-1}`` of the same target (``NaN`` when the previous cycle 
 
 from __future__ import annotations
 
+import array
 import csv
 import io
 import os
@@ -77,6 +78,8 @@ MAX_HEADING = 4 * np.pi
 """Largest accepted ``|ref_heading|`` [rad] (any heading can be written within +-2 pi)."""
 MAX_VALUE = 1e12
 """Largest accepted ``|t|`` [s] and ``|covariate|`` (a Unix time in seconds is ~2e9)."""
+MAX_LOG_BYTES = 128 * 2**20
+"""Largest radar log CSV [bytes]: about 2 million rows, read in about a minute and 1 GB (the real logs are MBs)."""
 MAX_ID = 2.0**53
 """Integer columns must stay below this in magnitude (exact in float64, no int64 wrap-around)."""
 REF_COLUMNS = ("ref_x", "ref_y", "ref_heading", "ref_length", "ref_width")
@@ -242,6 +245,7 @@ def _check_consistency(out: dict[str, NDArray], clutter: NDArray[np.bool_], sour
     bad = clutter & (out["target"] != -1)
     if bad.any():
         raise RadarLogError(f"{source}: column 'target' row {_first(bad)} is a clutter row (no ref) but not -1")
+    _check_clutter_repeats(out, clutter, source)
     seq, frame, t = out["sequence"], out["frame"], out["t"]
     order = np.lexsort((frame, seq))
     same_seq = seq[order][1:] == seq[order][:-1]
@@ -252,6 +256,19 @@ def _check_consistency(out: dict[str, NDArray], clutter: NDArray[np.bool_], sour
         raise RadarLogError(
             f"{source}: column 't' row {r} does not increase with 'frame' within sequence {int(seq[r])} "
             "(each cycle has one time, later frames later times)"
+        )
+
+
+def _check_clutter_repeats(out: dict[str, NDArray], clutter: NDArray[np.bool_], source: str) -> None:
+    """No clutter detection twice in one cycle: the same (sequence, frame, meas_x, meas_y) is a row copied whole."""
+    rows = np.flatnonzero(clutter)
+    key = np.stack([out[k][rows] for k in ("sequence", "frame", "meas_x", "meas_y")], axis=1)
+    order = np.lexsort(key.T[::-1])
+    dup = (np.diff(key[order], axis=0) == 0).all(axis=1)
+    if dup.any():
+        r = int(rows[order[1:][dup][0]])
+        raise RadarLogError(
+            f"{source}: row {r} repeats the clutter detection (sequence, frame, meas_x, meas_y) of an earlier row"
         )
 
 
@@ -298,7 +315,7 @@ def read_log(path: str | os.PathLike[str]) -> RadarLog:
     if path.is_dir():
         hint = " (convert an Astyx folder with: sensor-envs record radar --astyx FOLDER --out LOG.csv)"
         raise RadarLogError(f"{src}: is a folder; a radar log is a CSV file{hint}")
-    raw = read_bytes(path, "radar log")
+    raw = read_bytes(path, "radar log", limit=MAX_LOG_BYTES)
     try:
         text = raw.decode("utf-8-sig")  # Excel writes a byte-order mark
     except UnicodeDecodeError as exc:
@@ -306,6 +323,7 @@ def read_log(path: str | os.PathLike[str]) -> RadarLog:
         raise RadarLogError(
             f"{src}: line {line}: byte {raw[exc.start : exc.start + 1]!r} is not UTF-8 text (save the CSV as UTF-8)"
         ) from None
+    del raw
     reader = csv.reader(io.StringIO(text, newline=""), strict=True)
     try:
         return _read_rows(reader, src)
@@ -333,15 +351,14 @@ def _read_rows(reader: Any, src: str) -> RadarLog:
         astyx = Path(src).parent.name.startswith("radar_") or not any(header)
         hint = " (an Astyx frame? convert the folder with: sensor-envs record radar --astyx FOLDER --out LOG.csv)"
         raise RadarLogError(f"{src}: required column {missing[0]!r} is missing from the header{hint if astyx else ''}")
-    rows = [r for r in reader if r]
     req = [h in REQUIRED_COLUMNS for h in header]
-    cols: dict[str, list[float]] = {h: [] for h in header}
-    for i, r in enumerate(rows):
+    cols = {h: array.array("d") for h in header}  # 8 bytes a cell, rows never held as lists of strings
+    for i, r in enumerate(r for r in reader if r):
         if len(r) != len(header):
             raise RadarLogError(f"{src}: row {i} has {len(r)} fields, the header has {len(header)}")
         for h, cell, rq in zip(header, r, req, strict=True):
             cols[h].append(_parse_cell(cell, h, i, src, rq))
-    return RadarLog({h: np.asarray(v, dtype=np.float64) for h, v in cols.items()}, source=src)
+    return RadarLog({h: np.frombuffer(v, dtype=np.float64).copy() for h, v in cols.items()}, source=src)
 
 
 def write_log(log: RadarLog, path: str | os.PathLike[str]) -> Path:

@@ -524,7 +524,7 @@ CASES += [
     C(
         ASTYX,
         "radar-four-columns",
-        lambda d: record_astyx(astyx(d, pc="\nX Y Z V_r\n1 2 3 4\n"), d / "astyx" / "radar_6455" / "000000.txt"),
+        lambda d: record_astyx(astyx(d, pc="\nX Y Z V_r Mag\n1 2 3 4\n"), d / "astyx" / "radar_6455" / "000000.txt"),
         "5 columns",
     ),
     C(

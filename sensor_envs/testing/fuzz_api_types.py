@@ -62,8 +62,10 @@ def odd_array(c: Chooser, base: np.ndarray) -> tuple[Any, str, bool | None]:
         return np.repeat(base, 2, axis=-1)[..., ::2], kind, False
     if kind == "object":
         return base.astype(object), kind, True
-    if kind == "masked":
-        return np.ma.masked_array(base, mask=np.zeros_like(base, dtype=bool)), kind, True
+    if kind == "masked":  # the first entry masked: its value must not be used
+        mask = np.zeros_like(base, dtype=bool)
+        mask.reshape(-1)[0] = True
+        return np.ma.masked_array(base, mask=mask), kind, True
     if kind == "row":
         return base[None], f"shape {base[None].shape}", None
     if kind == "f16":

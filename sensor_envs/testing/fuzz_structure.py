@@ -392,8 +392,8 @@ def _image_bytes(c: Chooser) -> tuple[str, str, bytes, bool]:
         pil = pil.convert(kind)
     pil.save(buf, format=fmt)
     raw = buf.getvalue()
-    if kind == "trunc":
-        raw = raw[: c.integers(8, len(raw) - 13)]  # before the IEND chunk
+    if kind == "trunc":  # inside the pixel data: the 12-byte IEND chunk and IDAT's 4-byte CRC end the file
+        raw = raw[: c.integers(8, len(raw) - 17)]
     suffix = {"PNG": ".png", "TIFF": ".tif", "JPEG": ".jpg"}[fmt]
     return f"{kind} image", suffix, raw, kind in ("trunc", "1x1", "I;16", "F")
 
