@@ -5,8 +5,8 @@ shipped one in ``configs/default.yaml``), ``robustness`` (``sensor-envs robustne
 evaluate on every sensor, on a process pool or a Ray cluster), ``matrix_report`` (its reports: ``matrix.json``,
 ``matrix.md``, ``matrix.png``), ``stats`` (rliable-style statistics: IQM,
 bootstrap intervals, probability of improvement), ``collisions`` (a highway run's collision anatomy: what the
-observation showed in the last second before each crash) and ``collision_report`` (its page, JSON and plot). Training needs the ``train`` extra
-(``pip install 'sensor_envs[train]'``).
+observation showed in the last second before each crash) and ``collision_report`` (its page, JSON and plot).
+Training needs the ``train`` extra (``pip install 'sensor_envs[train]'``).
 """
 
 from sensor_envs.lazy import lazy_exports
