@@ -86,9 +86,8 @@ def plot(summary: dict[str, Any], path: Path) -> None:
     rate = np.array([cells[k]["collision"]["rate"] for k in keys])
     ci = np.array([cells[k]["collision"]["ci95"] for k in keys])
     ax0.bar(x, rate, color="0.5", label="collision rate")
-    ax0.errorbar(
-        x, rate, yerr=[rate - ci[:, 0], ci[:, 1] - rate], fmt="none", color="k", capsize=3, label="95 % Wilson"
-    )
+    yerr = np.clip([rate - ci[:, 0], ci[:, 1] - rate], 0, None)  # Wilson bounds hold the rate up to rounding
+    ax0.errorbar(x, rate, yerr=yerr, fmt="none", color="k", capsize=3, label="95 % Wilson")
     ax0.set(xticks=x, ylim=(0, 1), ylabel="share of evaluation episodes", title="Collision rate per cell")
     ax0.set_xticklabels(labels, fontsize=7, rotation=90)
     ax0.legend(fontsize=8)
@@ -100,7 +99,8 @@ def plot(summary: dict[str, Any], path: Path) -> None:
         hi = np.array([s["ci95"][1] for s in shares])
         pos = x + (i - (len(SHARES) - 1) / 2) * width
         ax1.bar(pos, val, width, label=label)
-        ax1.errorbar(pos, val, yerr=[val - lo, hi - val], fmt="none", color="k", capsize=2, lw=0.8)
+        err = np.clip([val - lo, hi - val], 0, None)
+        ax1.errorbar(pos, val, yerr=err, fmt="none", color="k", capsize=2, lw=0.8)
     ax1.set(xticks=x, ylim=(0, 1.05), ylabel="share of the cell's crashes", title="What preceded the crashes")
     ax1.set_xticklabels(labels, fontsize=7, rotation=90)
     ax1.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))

@@ -10,7 +10,9 @@ observation the policy acted on (``t - 1 s``, the step that ended in the crash);
 
 The car hit is the crashed vehicle nearest to the ego at the crash (highway-env marks both vehicles of a
 collision ``crashed``). Geometry, at the last observation: ``bearing_ego_deg`` is the direction of the hit
-car's centre from the ego's centre in the ego frame [deg] (0 ahead, +90 left, -90 right, +-180 behind);
+car's centre from the ego's centre, in the ego frame rotated from highway-env's road frame [deg] (0 ahead,
++-180 behind; positive towards highway-env's +y, the side of the higher lane index, i.e. the driver's right
+on highway-env's screen, whose y axis points down);
 ``bearing_ego_crash_deg`` the same at the crash; ``bearing_sensor_deg`` the direction of its radar
 reference point (closest corner) from the sensor (front bumper, x forward) [deg]; ``dx_m`` its centre's
 longitudinal offset from the ego's centre [m]; ``zone`` is ``"ahead"`` when ``dx_m > LENGTH``,
@@ -273,7 +275,8 @@ def replay_run(
 
     Episodes default to the run's evaluation episodes, ``seeds`` to the run's (a subset: e.g. the seeds whose
     jobs are done). With ``cache``, each job folder keeps its replays (:data:`CACHE`), reused while the
-    policy file, the column's env keywords and the episodes are the same. Returns ``settings`` (the run's),
+    policy file, the column's env keywords and the episodes are the same (not the code: delete the caches after
+    changing what a record holds). Returns ``settings`` (the run's),
     ``rows``, ``columns``, ``seeds``, ``episodes``, ``crashes`` (all records), ``collision`` (``{row: {seed:
     {column: [0/1 per episode]}}}``) and ``matrix_collision`` (the same from the run's ``eval.json``, for the
     check that the replay reproduces the matrix).
