@@ -238,5 +238,5 @@ def _range_slope(r: NDArray[np.float64], bearings: NDArray[np.float64]) -> NDArr
     with np.errstate(invalid="ignore"):  # inf - inf where both neighbours miss the map: no slope
         fwd = (np.roll(r, -1, axis=1) - r) / db[None, 1:]
         back = (r - np.roll(r, 1, axis=1)) / db[None, :-1]
-    ok = np.isfinite(fwd) & np.isfinite(back) & (np.sign(fwd) == np.sign(back))
-    return np.where(ok, 0.5 * (fwd + back), 0.0)
+        ok = np.isfinite(fwd) & np.isfinite(back) & (np.sign(fwd) == np.sign(back))
+        return np.where(ok, 0.5 * (fwd + back), 0.0)
