@@ -24,21 +24,9 @@ import sensor_envs.testing.fuzz_api as fa
 import sensor_envs.testing.fuzz_cases as fc
 from sensor_envs.inputs import InputError
 from sensor_envs.testing.fuzz_api_types import TYPE_CLASSES
+from sensor_envs.testing.fuzz_pieces import DrawnChooser
 
 FAST = settings(max_examples=6, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
-
-
-class Drawn:
-    """A ``fuzz_cases`` chooser whose choices hypothesis draws (and shrinks)."""
-
-    def __init__(self, data: st.DataObject) -> None:
-        self.data = data
-
-    def integers(self, lo: int, hi: int) -> int:
-        return self.data.draw(st.integers(lo, hi))
-
-    def choice(self, seq):
-        return self.data.draw(st.sampled_from(list(seq)))
 
 
 @pytest.mark.parametrize("family", [f for f in fc.FAMILIES if f not in fc.SECOND_ROUND])
@@ -47,7 +35,7 @@ class Drawn:
 def test_every_reader_and_option_refuses_a_mutation_cleanly_or_accepts_it_sanely(family, data) -> None:
     warnings.simplefilter("ignore")
     with tempfile.TemporaryDirectory() as tmp:
-        case = fc.make_case(family, Drawn(data), Path(tmp))
+        case = fc.make_case(family, DrawnChooser(data), Path(tmp))
         outcome = fc.classify(case, Path(tmp))
     assert outcome in ("clean error", "accepted"), f"{family}: {case.mutation!r} -> {outcome}"
 
@@ -230,10 +218,10 @@ def test_lidar_model_samples_and_scores_or_refuses(lidar_model, poses, seed) -> 
 @FAST
 @given(data=st.data())
 def test_every_api_class_refuses_a_bad_argument_cleanly_or_gives_sane_results(cls, data) -> None:
-    """Generated calls of every env id and model class (``tests/fuzz_api.py``): InputError, or a sane result."""
+    """Generated calls of every env id and model class (``sensor_envs/testing/fuzz_api.py``): InputError, or a sane result."""
     warnings.simplefilter("ignore")
     with tempfile.TemporaryDirectory() as tmp:
-        case = fa.make_api_case(cls, Drawn(data), Path(tmp))
+        case = fa.make_api_case(cls, DrawnChooser(data), Path(tmp))
         outcome = fc.classify(case, Path(tmp))
     assert outcome in ("clean error", "accepted"), f"{cls}: {case.mutation!r} -> {outcome}"
 

@@ -26,21 +26,9 @@ import sensor_envs.testing.fuzz_pieces as fp
 from sensor_envs.cli.main import main
 from sensor_envs.inputs import InputError, parse_json, parse_yaml
 from sensor_envs.testing.fuzz_api_types import TYPE_CLASSES
+from sensor_envs.testing.fuzz_pieces import DrawnChooser
 
 SMALL = settings(max_examples=3, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
-
-
-class Drawn:
-    """A chooser whose choices hypothesis draws (and shrinks)."""
-
-    def __init__(self, data: st.DataObject) -> None:
-        self.data = data
-
-    def integers(self, lo: int, hi: int) -> int:
-        return self.data.draw(st.integers(lo, hi))
-
-    def choice(self, seq):
-        return self.data.draw(st.sampled_from(list(seq)))
 
 
 @pytest.mark.parametrize("family", sorted(fc.SECOND_ROUND))
@@ -49,7 +37,7 @@ class Drawn:
 def test_every_structural_malformation_is_refused_cleanly_or_accepted_sanely(family, data) -> None:
     warnings.simplefilter("ignore")
     with tempfile.TemporaryDirectory() as tmp:
-        case = fc.make_case(family, Drawn(data), Path(tmp))
+        case = fc.make_case(family, DrawnChooser(data), Path(tmp))
         outcome = fc.classify(case, Path(tmp))
     assert outcome in ("clean error", "accepted"), f"{family}: {case.mutation!r} -> {outcome}"
 
@@ -60,7 +48,7 @@ def test_every_structural_malformation_is_refused_cleanly_or_accepted_sanely(fam
 def test_odd_types_of_plausible_api_values_are_refused_or_give_sane_results(cls, data) -> None:
     warnings.simplefilter("ignore")
     with tempfile.TemporaryDirectory() as tmp:
-        case = fa.make_api_case(cls, Drawn(data), Path(tmp))
+        case = fa.make_api_case(cls, DrawnChooser(data), Path(tmp))
         outcome = fc.classify(case, Path(tmp))
     assert outcome in ("clean error", "accepted"), f"{cls}: {case.mutation!r} -> {outcome}"
 

@@ -35,6 +35,25 @@ class Chooser(Protocol):
         ...
 
 
+class DrawnChooser:
+    """A :class:`Chooser` whose choices hypothesis draws (and shrinks), from a test's ``st.data()``."""
+
+    def __init__(self, data: Any) -> None:
+        self.data = data
+
+    def integers(self, lo: int, hi: int) -> int:
+        """An integer in ``[lo, hi]`` drawn by hypothesis."""
+        from hypothesis import strategies as st  # the test extra: imported by the tests that draw only
+
+        return int(self.data.draw(st.integers(lo, hi)))
+
+    def choice(self, seq: Sequence[Any]) -> Any:
+        """One element of ``seq`` drawn by hypothesis."""
+        from hypothesis import strategies as st
+
+        return self.data.draw(st.sampled_from(list(seq)))
+
+
 @dataclass
 class Case:
     """One generated case: the command line, the loader behind it and whether it must be refused."""
