@@ -218,7 +218,7 @@ def test_lidar_model_samples_and_scores_or_refuses(lidar_model, poses, seed) -> 
 @FAST
 @given(data=st.data())
 def test_every_api_class_refuses_a_bad_argument_cleanly_or_gives_sane_results(cls, data) -> None:
-    """Generated calls of every env id and model class (``sensor_envs/testing/fuzz_api.py``): InputError, or a sane result."""
+    """Generated calls of every env id and model class (``testing/fuzz_api.py``): InputError, or a sane result."""
     warnings.simplefilter("ignore")
     with tempfile.TemporaryDirectory() as tmp:
         case = fa.make_api_case(cls, DrawnChooser(data), Path(tmp))
