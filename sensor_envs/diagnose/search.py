@@ -204,6 +204,7 @@ def _all_stats(d: _Design, targets: list, n_blocks: tuple[int, int]) -> list[lis
     nbi = (nc + 1) * (ns + 1)
     sh_int = _SHRINK * np.maximum(1.0, d.deff / ns)
     out = []
+    smooth = [d.smooth_basis(s) for s in range(len(d.state_bins))]  # (C, n, p) each, shared by the targets
     for r, mask, variants, fold, block, block_int in targets:
         row: list[tuple[NDArray, ...]] = [_main_stats(d.main_basis[:, mask], r, fold, block, n_blocks[0])]
         for sb, rv in zip(d.state_bins, variants, strict=True):
@@ -215,7 +216,6 @@ def _all_stats(d: _Design, targets: list, n_blocks: tuple[int, int]) -> list[lis
                     sh_int,
                 )
             )
-        smooth = [d.smooth_basis(s) for s in range(len(d.state_bins))]
         row += [_main_stats(b[:, mask], r, fold, block, n_blocks[0]) for b in smooth]
         out.append(row)
     return out
