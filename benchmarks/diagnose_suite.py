@@ -11,7 +11,10 @@ fast seed variant unless ``--full-fit``), and prints, per sensor and kind:
 
 * recall: the cause ranked first AND added AND the held-out NLL down; the share of cases where a
   proxy, and where any column other than the cause (proxy or distractor), was added;
-* for null logs, the false-positive rate: any effect significant (and, separately, any added).
+* for null logs, the false-positive rate: any effect significant (and, separately, any added);
+* detectability: whether an oracle that knows the cause finds it in the base model's held-out
+  residuals at ``alpha / candidates`` (:func:`sensor_envs.diagnose.power.detectable`), and the recall
+  on the detectable cases: a miss below the log's detection limit is told from a miss of the search.
 
 On a real log only the planted columns count: "ranked first" is first among them, a false positive
 is a planted distractor significant (the log's own time, speed, turn-rate effects may be real).
@@ -51,6 +54,7 @@ from sensor_envs.diagnose.families import (
     radar_case,
     static_scan_log,
 )
+from sensor_envs.diagnose.power import detectable
 
 LIDAR_FIT = {
     "variant": "seed",
@@ -148,6 +152,9 @@ def score_case(case: Case, res: Any) -> dict[str, Any]:
             if k in res.extra
         },
     }
+    if case.cause is not None and res.before is not None and case.cause in res.before.candidates:
+        ok, test = detectable(res.before, case.cause, len(res.effects))  # the candidates the search tested
+        out["detectable"], out["oracle"] = ok, test
     if case.kind == "null":  # on a real log only the planted columns count
         out["false_positive"] = any(planted is None or s in planted for s in sig)
         out["false_addition"] = any(planted is None or s in planted for s in res.added)
@@ -172,6 +179,9 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
                 d["cause_first"] = float(np.mean([r["top"] == r["cause"] for r in sel]))
                 d["proxy_added"] = float(np.mean([r["proxy_added"] for r in sel]))
                 d["other_added"] = float(np.mean([any(a != r["cause"] for a in r["added"]) for r in sel]))
+                det = [r for r in sel if r.get("detectable")]
+                d["detectable"] = len(det)
+                d["recall_detectable"] = float(np.mean([r["recall"] for r in det])) if det else float("nan")
             out[f"{sensor}/{kind}"] = d
     return out
 
@@ -181,9 +191,9 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]], command: str) 
     lines = ["# diagnose suite", "", f"Command: `{command}`", ""]
     lines += [
         "| sensor/kind | cases | recall | cause first | proxy added | any non-cause added | false pos. (significant) "
-        "| false pos. (added) |"
+        "| false pos. (added) | detectable (oracle) | recall on detectable |"
     ]
-    lines += ["|---|---|---|---|---|---|---|---|"]
+    lines += ["|---|---|---|---|---|---|---|---|---|---|"]
     for k, d in summary.items():
 
         def f(key: str, d: dict[str, Any] = d) -> str:
@@ -191,14 +201,17 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]], command: str) 
 
         lines.append(
             f"| {k} | {d['cases']} | {f('recall')} | {f('cause_first')} | {f('proxy_added')} | {f('other_added')} | "
-            f"{f('false_positive_rate')} | {f('false_addition_rate')} |"
+            f"{f('false_positive_rate')} | {f('false_addition_rate')} | {d.get('detectable', '')} | "
+            f"{f('recall_detectable')} |"
         )
     lines += ["", "## Cases", ""]
     for r in rows:
         lines.append(
             f"- {r['sensor']} {r['kind']} seed {r['seed']}: cause {r['cause']}, top {r['top3']}, added {r['added']}, "
             f"NLL {r['error_before']:.4f} -> {r['error_after']:.4f}, strength {r['info'].get('strength', 0):.2f} "
-            f"({r['info'].get('form')}), {r['seconds']:.0f} s"
+            f"({r['info'].get('form')}), "
+            + (f"oracle p {r['oracle']['p_value']:.2g} ({r['oracle']['best']}), " if "oracle" in r else "")
+            + f"{r['seconds']:.0f} s"
         )
     return "\n".join(lines) + "\n"
 
@@ -239,7 +252,8 @@ def main(argv: list[str] | None = None) -> int:
         ok = row.get("recall", not row.get("false_positive", False))
         print(
             f"{label} {kind} seed {seed}: {'ok' if ok else 'MISS'} top {row['top3'][:2]} "
-            f"cause {case.cause} added {row['added']} ({row['seconds']:.0f} s)",
+            f"cause {case.cause} added {row['added']} oracle {row.get('oracle', {}).get('p_value', float('nan')):.2g} "
+            f"({row['seconds']:.0f} s)",
             file=sys.stderr,
             flush=True,
         )

@@ -16,10 +16,10 @@ Residuals of a fitted model on the held-out part:
 Interaction features (the model's own state, see :mod:`sensor_envs.diagnose.search`): bearing,
 nominal range, incidence and ``range_slope``, the nominal range's slope along the scan [m/rad] (an
 error from a reading taken later or earlier than its bearing says, e.g. a scan smeared by the robot's
-turn, follows the wall's slope: found as turn rate x ``range_slope``; the model has no such term, so the
-report says so in words). A finding's form maps to state terms (:meth:`LidarAdapter.state_terms`):
-a main effect to the variable itself (``<name>``, and ``<name>@sq`` for a U-shaped one), an interaction
-with bearing to ``<name>``, ``<name>@cos_bearing``, ``<name>@sin_bearing``
+turn, follows the wall's slope: found as turn rate x ``range_slope``). A finding's form maps to state
+terms (:meth:`LidarAdapter.state_terms`): a main effect to the variable itself (``<name>``, and
+``<name>@sq`` for a U-shaped one), an interaction with bearing to ``<name>``, ``<name>@cos_bearing``,
+``<name>@sin_bearing``, with range, incidence or range slope to ``<name>`` and ``<name>@range`` (...)
 (:mod:`sensor_envs.lidar.extra_state`), each acting on the null, bias and log-sigma parts.
 
 Candidates: every per-scan covariate of the log by its name (``cov_omega`` as ``omega``), ``time``
@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 
 from sensor_envs.diagnose.core import Evaluation
 from sensor_envs.inputs import InputError
-from sensor_envs.lidar.extra_state import PREV, TIME, fit_extra_terms, scan_features
+from sensor_envs.lidar.extra_state import GEOMETRY_MODIFIERS, PREV, TIME, fit_extra_terms, range_slope, scan_features
 from sensor_envs.lidar.log import LidarLog
 from sensor_envs.lidar.lwlr import LidarLWLR, lidar_features, mixture_log_prob
 from sensor_envs.lidar.validate_readings import _pit
@@ -115,7 +115,7 @@ class LidarAdapter:
         segs = log.require_map()
         max_range = float(base_model.max_range if base_model is not None else self.params.get("max_range", 5.0))
         self.r, self.a = lidar_features(log.poses, log.bearings, segs, max_range)
-        self.slope = _range_slope(self.r, log.bearings)
+        self.slope = range_slope(self.r, log.bearings)
         x = log.ranges[:, :, 0]
         self.x = x
         sel = self.held[:, None] & np.isfinite(self.r) & ~np.isnan(x)  # (S, K) held-out readings on hit rays
@@ -150,8 +150,10 @@ class LidarAdapter:
     def state_terms(self, candidate: str, form: str = "main") -> tuple[str, ...] | None:
         """State terms representing a finding of ``candidate`` with ``form`` (``main``, ``x bearing``, ...).
 
-        ``None`` when the model cannot take it: not a state variable, or an interaction with range or
-        incidence (the extra terms have no such form; reported in words).
+        An interaction with the bearing maps to ``<var>@cos_bearing``, ``<var>@sin_bearing``; with the
+        range, incidence or the range's slope along the scan to ``<var>@range``, ``<var>@incidence``,
+        ``<var>@range_slope`` (:mod:`sensor_envs.lidar.extra_state`), each beside the variable itself.
+        ``None`` when the model cannot take it (not a state variable).
         """
         var = self.state_name(candidate)
         if var is None:
@@ -160,6 +162,8 @@ class LidarAdapter:
             return (var, f"{var}@sq") if var != PREV else (var,)
         if form == "x bearing":
             return (var, f"{var}@cos_bearing", f"{var}@sin_bearing")
+        if form.startswith("x ") and form[2:] in GEOMETRY_MODIFIERS:
+            return (var, f"{var}@{form[2:]}")
         return None
 
     def state_features(self) -> tuple[str, ...]:
@@ -185,7 +189,7 @@ class LidarAdapter:
         base = model.params_from_features(self.r, self.a, base_only=True)
         mu_table = np.where(np.isfinite(self.r), base["mu"], np.nan)
         names = tuple(model.extra_state_)
-        feats = scan_features(self.log, tuple(dict.fromkeys((*names, PREV))), mu_table)
+        feats = scan_features(self.log, tuple(dict.fromkeys((*names, PREV))), mu_table, self.r, self.a)
         extra = feats[..., : len(names)] if names else None
         p = model.params_from_features(self.r, self.a, extra) if names else base
         s, k = self.scan_idx, self.bearing_idx
@@ -223,20 +227,3 @@ class LidarAdapter:
     def baseline(self, extra_state: tuple[str, ...]) -> float | None:
         """No baseline with extra state for the lidar (``None``)."""
         return None
-
-
-def _range_slope(r: NDArray[np.float64], bearings: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``(S, K)`` slope of the nominal range along the scan, ``dr / d bearing`` [m/rad] (central difference).
-
-    A reading taken a little later or earlier than its bearing says (a scan smeared by the robot's turn,
-    a timing offset) is off by this slope times the angle turned: its error follows the wall's slope
-    along the scan. 0 where a neighbour misses the map or the two sides disagree in sign (an edge).
-    """
-    if r.shape[1] < 3:
-        return np.zeros_like(r)
-    db = np.diff(np.unwrap(np.r_[bearings[-1] - 2 * np.pi, bearings, bearings[0] + 2 * np.pi]))
-    with np.errstate(invalid="ignore"):  # inf - inf where both neighbours miss the map: no slope
-        fwd = (np.roll(r, -1, axis=1) - r) / db[None, 1:]
-        back = (r - np.roll(r, 1, axis=1)) / db[None, :-1]
-        ok = np.isfinite(fwd) & np.isfinite(back) & (np.sign(fwd) == np.sign(back))
-        return np.where(ok, 0.5 * (fwd + back), 0.0)

@@ -20,7 +20,12 @@ State variables (names):
 * ``<name>@cos_bearing`` / ``<name>@sin_bearing``: an interaction term, the variable ``<name>`` times
   the cosine / sine of the reading's bearing (an effect whose sign follows the bearing, e.g. a range
   bias from translating during the scan: its mean over the scan is zero); ``<name>@sq``: its square
-  (a U-shaped effect, standardised like every term).
+  (a U-shaped effect, standardised like every term);
+* ``<name>@range`` / ``<name>@incidence`` / ``<name>@range_slope``: the variable times the ray's nominal
+  range [m], incidence [rad] or the nominal range's slope along the scan [m/rad] (:func:`range_slope`;
+  e.g. a scan smeared by the robot's turn: each reading is taken a little later than its bearing says,
+  so its error is the turn rate times the wall's slope along the scan). They are computed from the
+  map's raycast at the reading's pose, in the log as in the worlds.
 
 The terms are fitted after the tables (on the same readings), so the tables stay what they were.
 """
@@ -48,6 +53,8 @@ __all__ = [
     "check_extra_state",
     "split_term",
     "modify",
+    "range_slope",
+    "GEOMETRY_MODIFIERS",
     "scan_features",
     "fit_extra_terms",
     "apply_extra",
@@ -60,8 +67,10 @@ PREV_CLIP = 1.0
 MAX_COEF = 50.0
 """Largest magnitude of a fitted coefficient (logit, m, log m per standard deviation) in a model file."""
 _RIDGE = 1.0
-MODIFIERS = ("cos_bearing", "sin_bearing", "sq")
+MODIFIERS = ("cos_bearing", "sin_bearing", "sq", "range", "incidence", "range_slope")
 """Interaction / shape modifiers of a state term ``<name>@<modifier>``."""
+GEOMETRY_MODIFIERS = ("range", "incidence", "range_slope")
+"""Modifiers that need the ray's nominal range and incidence (the map's raycast)."""
 
 
 def split_term(name: str) -> tuple[str, str | None]:
@@ -78,13 +87,58 @@ def split_term(name: str) -> tuple[str, str | None]:
     return base, mod
 
 
-def modify(values: NDArray[np.float64], mod: str | None, bearings: NDArray[np.float64]) -> NDArray[np.float64]:
-    """A variable's values ``(..., K)`` with the modifier applied (``bearings`` ``(K,)`` [rad])."""
+def range_slope(r: NDArray[np.float64], bearings: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(..., K)`` slope of the nominal range along the scan, ``dr / d bearing`` [m/rad] (central difference).
+
+    A reading taken a little later or earlier than its bearing says (a scan smeared by the robot's turn,
+    a timing offset) is off by this slope times the angle turned: its error follows the wall's slope
+    along the scan. 0 where a neighbour misses the map or the two sides disagree in sign (an edge).
+    """
+    r = np.asarray(r, dtype=np.float64)
+    if r.shape[-1] < 3:
+        return np.zeros_like(r)
+    db = np.diff(np.unwrap(np.r_[bearings[-1] - 2 * np.pi, bearings, bearings[0] + 2 * np.pi]))
+    with np.errstate(invalid="ignore"):  # inf - inf where both neighbours miss the map: no slope
+        fwd = (np.roll(r, -1, axis=-1) - r) / db[1:]
+        back = (r - np.roll(r, 1, axis=-1)) / db[:-1]
+        ok = np.isfinite(fwd) & np.isfinite(back) & (np.sign(fwd) == np.sign(back))
+        return np.where(ok, 0.5 * (fwd + back), 0.0)
+
+
+def modify(
+    values: NDArray[np.float64],
+    mod: str | None,
+    bearings: NDArray[np.float64],
+    nominal: NDArray[np.float64] | None = None,
+    incidence: NDArray[np.float64] | None = None,
+) -> NDArray[np.float64]:
+    """A variable's values ``(..., K)`` with the modifier applied.
+
+    Args:
+        values: the variable at every reading ``(..., K)``.
+        mod: the modifier (:data:`MODIFIERS`) or ``None``.
+        bearings: ``(K,)`` [rad].
+        nominal: ``(..., K)`` nominal ranges [m] (non-finite off the map); needed by the
+            :data:`GEOMETRY_MODIFIERS` (a ray off the map gets 0: the terms act at hits only).
+        incidence: ``(..., K)`` incidence angles [rad]; needed by ``incidence``.
+    """
     if mod is None:
         return values
     if mod == "sq":
         return values**2
-    return values * (np.cos(bearings) if mod == "cos_bearing" else np.sin(bearings))
+    if mod in ("cos_bearing", "sin_bearing"):
+        return values * (np.cos(bearings) if mod == "cos_bearing" else np.sin(bearings))
+    if nominal is None or (mod == "incidence" and incidence is None):
+        raise ValueError(f"modifier {mod!r} needs the nominal range and incidence of the rays")
+    r = np.asarray(nominal, dtype=np.float64)
+    if mod == "range":
+        factor = np.where(np.isfinite(r), r, 0.0)
+    elif mod == "incidence":
+        a = np.asarray(incidence, dtype=np.float64)
+        factor = np.where(np.isfinite(r) & np.isfinite(a), a, 0.0)
+    else:
+        factor = range_slope(r, bearings)
+    return values * factor
 
 
 def check_extra_state(names: Any) -> tuple[str, ...]:
@@ -115,13 +169,21 @@ def consecutive(t: NDArray[np.float64] | None, n: int) -> NDArray[np.bool_]:
     return ok
 
 
-def scan_features(log: LidarLog, names: tuple[str, ...], mu_table: NDArray[np.float64] | None) -> NDArray[np.float64]:
+def scan_features(
+    log: LidarLog,
+    names: tuple[str, ...],
+    mu_table: NDArray[np.float64] | None,
+    nominal: NDArray[np.float64] | None = None,
+    incidence: NDArray[np.float64] | None = None,
+) -> NDArray[np.float64]:
     """Raw extra variables ``(S, K, d)`` of the log's readings (see the module docstring).
 
     Args:
         log: a scan log ``(S, K, 1)``.
         names: the state variable names.
         mu_table: ``(S, K)`` tables' mean [m] (``NaN``/``inf`` off the map); needed for ``prev_residual``.
+        nominal: ``(S, K)`` nominal ranges [m] of the map's raycast; needed by the :data:`GEOMETRY_MODIFIERS`.
+        incidence: ``(S, K)`` incidence angles [rad] of the raycast.
 
     Raises:
         ValueError: naming the variable the log lacks.
@@ -149,7 +211,7 @@ def scan_features(log: LidarLog, names: tuple[str, ...], mu_table: NDArray[np.fl
                     f"(covariates: {sorted(log.covariates)})"
                 )
             out[:, :, i] = np.asarray(log.covariates[n], dtype=np.float64)[:, None]
-        out[:, :, i] = modify(out[:, :, i], mod, log.bearings)
+        out[:, :, i] = modify(out[:, :, i], mod, log.bearings, nominal, incidence)
     if not np.isfinite(out).all():
         bad = names[int(np.argmin(np.isfinite(out).all(axis=(0, 1))))]
         raise InputError(f"{log.source}: extra state variable {bad!r} holds NaN or infinite values")
@@ -222,7 +284,7 @@ def fit_extra_terms(model: LidarLWLR, log: LidarLog) -> None:
     r, a, _ = raycast_pose(log.poses, model.bearings_, as_segments(log.require_map(), name="map"), model.max_range)
     p = model.params_from_features(r, a, extra=None, base_only=True)
     hit = np.isfinite(r)
-    raw = scan_features(log, names, np.where(hit, p["mu"], np.nan))
+    raw = scan_features(log, names, np.where(hit, p["mu"], np.nan), r, a)
     x = log.ranges[:, :, 0]
     valid = hit & ~np.isnan(x)
     mean = raw[valid].mean(0) if valid.any() else np.zeros(d)
