@@ -1,43 +1,199 @@
-"""The oracle's detectability test: it finds a planted effect and holds its level on slow null residuals."""
+"""Power and proxies of the ``diagnose`` search, the static-pose shape, planted real-log effects, its defaults.
+
+Seeded families of held-out evaluations (no model fit, fast): non-monotone causes of slow covariates
+(U shapes, steps) found; a proxy of a cause already added to the model not significant; the main
+basis of a candidate is a function of its ranks. The loop on one static pose recorded over time, the
+planting of effects into a scan log, and the CLI's defaults are the package's.
+"""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from sensor_envs.diagnose.core import Evaluation
-from sensor_envs.diagnose.power import detectable, oracle_test
+from sensor_envs.diagnose.core import DEFAULTS, Evaluation
+from sensor_envs.diagnose.families import PLANT_KINDS, lidar_case, plant_lidar, static_scan_log
+from sensor_envs.diagnose.search import rank_basis, rank_candidates
+
+K = 24
 
 
-def _ev(rng: np.random.Generator, effect: float, n: int = 3000) -> Evaluation:
-    """Residuals with slow AR(1) drift, a random-walk candidate ``c`` and a lateral state; ``effect`` x c x side."""
-    drift = np.zeros(n)
+def _ar1(rng: np.random.Generator, n: int, rho: float) -> np.ndarray:
+    e = rng.normal(size=n) * np.sqrt(1 - rho**2)
+    out = np.empty(n)
+    out[0] = rng.normal()
     for i in range(1, n):
-        drift[i] = 0.99 * drift[i - 1] + 0.14 * rng.normal()
-    c = np.cumsum(rng.normal(size=n)) / np.sqrt(n)
-    y = rng.normal(size=n)
-    side = np.sign(y)
-    cz = (c - c.mean()) / c.std()
-    r = rng.standard_t(4, size=n) + drift + effect * cz * side
+        out[i] = rho * out[i - 1] + e[i]
+    return out
+
+
+def _evaluation(resid: np.ndarray, cands: dict[str, np.ndarray]) -> Evaluation:
+    s = resid.shape[0]
+    scan = np.repeat(np.arange(s), K)
+    bearing = np.tile(np.arange(K), s).astype(float)
     return Evaluation(
-        nll=np.zeros(n),
-        residuals={"offset": r, "noise": rng.normal(size=n)},
-        candidates={"c": c, "other": rng.normal(size=n)},
-        blocks=np.arange(n) // 50,
-        order=np.arange(n, dtype=np.float64),
-        state={"lateral": y},
+        nll=np.zeros(s * K),
+        residuals={"range": resid.ravel()},
+        candidates={n: np.repeat(v, K) for n, v in cands.items()},
+        blocks=scan // 5,
+        order=scan + bearing / K,
+        state={"bearing": bearing},
+        metric_kinds={"range": "mean"},
     )
 
 
-def test_a_planted_interaction_is_detectable_and_located() -> None:
-    rng = np.random.default_rng(3)
-    ok, t = detectable(_ev(rng, 0.6), "c", n_candidates=30)
-    assert ok and t["best"].startswith("offset x lateral")
-    assert t["tests"] == 2 * 3  # two targets x (main + two factors of one state feature)
+def _shape(rng: np.random.Generator, c: np.ndarray) -> np.ndarray:
+    """A U shape or a step of ``c`` (drawn), spanning 0..1 over its 5-95 % range, mean 0."""
+    lo, hi = np.percentile(c, [5, 95])
+    u = (c - lo) / (hi - lo)
+    g = 4 * (u - 0.5) ** 2 if rng.random() < 0.5 else 1 / (1 + np.exp(-(u - rng.uniform(0.3, 0.7)) * 12))
+    return g - g.mean()
 
 
-def test_slow_null_residuals_keep_the_oracle_near_its_level() -> None:
-    rng = np.random.default_rng(4)
-    tests = [oracle_test(_ev(rng, 0.0), "c", n_flips=4000) for _ in range(60)]
-    # the best raw p of 6 tests: about 1 - 0.95 ** 6 = 0.26 of null draws fall below 0.05
-    assert np.mean([t["p_raw"] < 0.05 for t in tests]) < 0.45
-    assert np.mean([t["p_value"] < 0.05 for t in tests]) <= 0.15  # Bonferroni over the 6: about 0.05
+def test_non_monotone_effects_of_slow_causes_are_found():
+    """0.4 noise sd across a slow AR(1) cause's range, U-shaped or a step, AR(1) drift beside: >= 4 of 6 found.
+
+    (A binned regressor shrunk by the cause's design effect saw a U shape at R^2 ~ 0 here; the
+    curvature is not extrapolated beyond a time fold's range, which costs some power at this size.)
+    """
+    wins = []
+    for seed in range(6):
+        rng = np.random.default_rng(500 + seed)
+        n = 800
+        cause = _ar1(rng, n, 0.95)
+        resid = rng.standard_t(5, size=(n, K)) / np.sqrt(5 / 3) + 0.2 * _ar1(rng, n, 0.9)[:, None]
+        resid += 0.4 * _shape(rng, cause)[:, None]
+        walk = np.cumsum(rng.normal(size=n))
+        ev = _evaluation(resid, {"cause": cause, "walk": walk, "white": rng.normal(size=n)})
+        rk = rank_candidates(ev, n_permutations=99, rng=np.random.default_rng(seed))
+        wins.append(rk.effects[0]["name"] == "cause" and rk.effects[0]["significant"])
+    assert sum(wins) >= 4, wins
+
+
+def test_a_proxy_of_a_cause_already_added_is_not_significant():
+    """The model took the cause as a linear term; its U-shaped remainder shows through a noisy copy of it."""
+    hits = []
+    for seed in range(4):
+        rng = np.random.default_rng(600 + seed)
+        n = 800
+        cause = _ar1(rng, n, 0.9)
+        proxy = 0.9 * cause + np.sqrt(1 - 0.81) * rng.normal(size=n)
+        resid = rng.normal(size=(n, K)) + 0.5 * (cause**2 - 1)[:, None]  # the misfit left after a linear term
+        ev = _evaluation(resid, {"cause": cause, "proxy": proxy, "white": rng.normal(size=n)})
+        rk = rank_candidates(ev, ("cause",), n_permutations=99, given=("cause",), rng=np.random.default_rng(seed))
+        px = next(e for e in rk.effects if e["name"] == "proxy")
+        hits.append(px["proxy_of"] == "cause" and not px["significant"])
+    assert sum(hits) >= 3, hits
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    st.lists(st.one_of(st.integers(-1000, 1000).map(float), st.just(float("nan"))), min_size=3, max_size=60),
+    st.sampled_from([lambda v: np.arctan(v / 10), lambda v: v**3, lambda v: 3 * v - 7]),
+)
+def test_rank_basis_depends_on_ranks_only(values, transform):
+    """A strictly increasing transform of a candidate gives the same basis (ties and NaN kept)."""
+    x = np.asarray(values)
+    b = rank_basis(x)
+    y = np.where(np.isfinite(x), transform(np.nan_to_num(x)), np.nan)
+    np.testing.assert_allclose(rank_basis(y), b, atol=1e-9)
+    assert b.shape == (x.size, 4)
+    assert np.all(np.abs(b[:, 1:3]) <= 1 + 1e-9)
+    np.testing.assert_array_equal(b[:, 3], np.isnan(x))
+
+
+def test_the_cli_takes_its_search_defaults_from_the_package():
+    from sensor_envs.cli.main import build_parser
+
+    for kind in ("lidar", "radar"):
+        args = build_parser().parse_args(["diagnose", kind, "x", "--out", "y"])
+        assert args.permutations == DEFAULTS["n_permutations"]
+        assert args.alpha == DEFAULTS["alpha"]
+        assert args.min_score == DEFAULTS["min_score"]
+        assert args.max_add == DEFAULTS["max_add"]
+    from sensor_envs.cli.diagnose import DIAGNOSE_MAX_READINGS as CLI_ROWS
+    from sensor_envs.diagnose.lidar import DIAGNOSE_MAX_READINGS
+
+    assert build_parser().parse_args(["diagnose", "lidar", "x", "--out", "y"]).max_readings == DIAGNOSE_MAX_READINGS
+    assert CLI_ROWS == DIAGNOSE_MAX_READINGS
+
+
+FAST = {"variant": "seed", "n_folds": 3, "h_range_grid": (0.25, 1.6), "h_alpha_grid": (0.5, 4.0), "verbose": False}
+
+
+def test_one_static_pose_over_time_is_diagnosed():
+    """The calibration shape: one pose, many scans; folds are blocks of time. A planted mean effect is found."""
+    from sensor_envs.diagnose.core import block_split, run_diagnose
+    from sensor_envs.diagnose.lidar import LidarAdapter, lidar_blocks
+
+    case = lidar_case("mean", 3, scans=400, bearings=24, static=True)
+    assert np.unique(case.log.poses, axis=0).shape[0] == 1
+    blocks = lidar_blocks(case.log.n_poses, 5)
+    adapter = LidarAdapter(case.log, block_split(blocks), blocks, params=FAST, max_readings=100)
+    res = run_diagnose(adapter, base_state=case.base_state, n_permutations=99, max_add=1)
+    assert res.effects[0]["name"] == case.cause, res.effects[:2]
+    assert res.added == [case.cause] and res.error_after < res.error_before
+
+
+def test_static_scan_log_takes_one_pose_of_a_repeated_log():
+    from sensor_envs.lidar.log import log_from_arrays
+
+    box = np.array([[[0, 0], [4, 0]], [[4, 0], [4, 3]], [[4, 3], [0, 3]], [[0, 3], [0, 0]]], dtype=float)
+    rng = np.random.default_rng(0)
+    rep = log_from_arrays(rng.uniform(1, 2, (2, 8, 30)), np.linspace(0, 6, 8), [[2, 1.5, 0], [1, 1, 0]], box)
+    log = static_scan_log(rep, 1)
+    assert log.ranges.shape == (30, 8, 1) and np.all(log.poses == [1, 1, 0]) and log.t is not None
+    np.testing.assert_array_equal(log.ranges[:, :, 0], rep.ranges[1].T)
+
+
+@pytest.mark.parametrize("kind", PLANT_KINDS)
+def test_planted_effects_move_the_readings_as_stated(kind):
+    """Planting into a scan log: the cause and distractors are new columns; the readings move only as planted."""
+    log = lidar_case("null", 11, scans=300, bearings=24).log
+    base = replace(log, covariates={k: v for k, v in log.covariates.items() if k in ("v", "omega")})
+    case = plant_lidar(base, kind, 4, strength=1.0)
+    x0, x1 = base.ranges[..., 0], case.log.ranges[..., 0]
+    assert set(case.log.covariates) - set(base.covariates) == set(case.info["planted"])
+    assert case.base_state == ("prev_residual",)
+    if kind == "null":
+        assert case.cause is None
+        np.testing.assert_array_equal(x0, x1)
+        return
+    c = case.log.covariates[case.cause]
+    hi, lo = c > np.median(c), c <= np.median(c)
+    if kind == "rate":
+        assert np.mean(x1 == 0) > np.mean(x0 == 0)
+        assert np.all((x1 == x0) | (x1 == 0))
+    elif kind == "spread":
+        d = np.abs(x1 - x0)
+        assert d.max() > 0 and np.all(x1[x0 == 0] == 0)
+    else:
+        assert np.any(x1 != x0) and np.all(x1[x0 == 0] == 0)
+        assert not np.allclose(np.mean((x1 - x0)[hi]), np.mean((x1 - x0)[lo]), atol=1e-6) or kind == "interaction"
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="known miss (issue 39, docs/results/diagnose_suite.md, real logs): on the real intel log a planted "
+    "random walk and the log's own `v` rank above the planted cause; passes (and must be un-marked) once fixed",
+)
+@pytest.mark.parametrize("kind", ["mean", "rate"])
+def test_an_effect_planted_in_the_real_intel_log_is_found(real_data, kind):
+    """The CSAIL CARMEN log with a planted cause of 1 residual sd (mean) or a null rate rising by 1 sd."""
+    from sensor_envs.diagnose.core import block_split, run_diagnose
+    from sensor_envs.diagnose.lidar import LidarAdapter, lidar_blocks
+    from sensor_envs.lidar.log import load_log
+    from sensor_envs.lidar.mapping import prepare_log
+
+    log, _ = prepare_log(load_log(real_data / "carmen/intel-corrected.log.gz"), max_range=30.0)
+    case = plant_lidar(log, kind, 1, strength=1.0)
+    blocks = lidar_blocks(case.log.n_poses, 5)
+    params = {**FAST, "max_range": 30.0, "spur_above": 31.0, "table_range_step": 0.25}
+    adapter = LidarAdapter(case.log, block_split(blocks), blocks, params=params, max_readings=150)
+    res = run_diagnose(adapter, base_state=case.base_state)
+    assert case.cause in res.added, [(e["name"], e["p_value"]) for e in res.effects[:4]]
