@@ -20,7 +20,7 @@ import pytest
 from sensor_envs.diagnose.core import block_split, run_diagnose
 from sensor_envs.diagnose.lidar import LidarAdapter, lidar_blocks
 from sensor_envs.geometry import raycast_pose
-from sensor_envs.lidar.extra_state import range_slope
+from sensor_envs.lidar.extra_state import SLOPE_CAP, range_slope
 from sensor_envs.lidar.log import LidarLog, log_from_arrays, save_log
 from sensor_envs.lidar.lwlr import LidarLWLR, lidar_features
 from sensor_envs.modelio import ModelFileError
@@ -118,10 +118,12 @@ def test_neato_supplies_the_learned_lidars_extra_state():
     ex = env.unwrapped
     ex.reset(seed=1)
     ex.step(np.array([0.5, 1.0], dtype=np.float32))  # moving and turning: the terms are not all 0
-    values = ex._extra_state()[0]
-    assert np.abs(values[:, 4]).max() > 0 and np.abs(values[:, 5]).max() > 0  # the world's ray geometry terms: the variable times the raycast's factor
+    values = ex._extra_state()[0]  # the world's ray terms: the variable times the raycast's factor
+    assert np.abs(values[:, 4]).max() > 0 and np.abs(values[:, 5]).max() > 0
     nominal, incidence, _ = raycast_pose(ex.pose[None], ex.bearings, ex.world_map.segments, ex.max_range)
-    np.testing.assert_allclose(values[:, 4], ex._motion[1] * range_slope(nominal[0], ex.bearings))
+    r = np.where(np.isfinite(nominal[0]), nominal[0], 0.0)
+    slope = np.clip(range_slope(nominal[0], ex.bearings), -SLOPE_CAP * r, SLOPE_CAP * r)
+    np.testing.assert_allclose(values[:, 4], ex._motion[1] * slope)
     np.testing.assert_allclose(values[:, 5], ex._motion[0] * np.where(np.isfinite(nominal[0]), incidence[0], 0.0))
     check_env(env.unwrapped, skip_render_check=True)
     obs_a, _ = env.reset(seed=3)

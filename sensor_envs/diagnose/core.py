@@ -21,8 +21,8 @@ adding them cannot help. ``effects`` holds the other candidates only.
 **Loop.** Fit the base model on the fit part, evaluate on the held-out part, rank; add the best
 significant candidate the model can take into its state, refit, re-measure on the SAME held-out part;
 keep it only when the held-out NLL improves beyond its block-to-block noise (:func:`improvement_interval`;
-else it is reported as rejected and the next significant
-candidate is tried); re-rank after each addition; repeat while an effect is significant, with at most
+else it is reported as rejected; an interaction is then tried as a main effect, and after that the
+next significant candidate); re-rank after each addition; repeat while an effect is significant, with at most
 ``max_add`` (default 3) refits in all. An adapter with ``state_terms(name, form)`` turns a finding's form
 (e.g. an interaction with bearing) into the state terms that represent it; a significant effect the
 model cannot take is reported in words (``unrepresented``) with its kind and form.
@@ -284,7 +284,8 @@ def run_diagnose(
         tuple(c for c in ev.candidates if c not in feats),
         **opts,  # type: ignore[arg-type]
     )
-    rejected: list[str] = []
+    rejected: list[tuple[str, str]] = []  # (candidate, form) refits that did not improve
+    tried: set[tuple[str, ...]] = set()  # their state terms
     unrepresented: dict[str, str] = {}
     ranking: Ranking | None = None
     step: dict[str, Any] = {}
@@ -296,17 +297,23 @@ def run_diagnose(
             steps.append(step)
         pick, terms = None, None
         for e in ranking.significant():
-            if e["name"] in rejected:
-                continue
-            terms = _terms(adapter, e)
-            if terms is None:
-                unrepresented.setdefault(e["name"], _why_not(adapter, e))
-                if e.get("form", "main") != "main":  # represent what the model can: its main effect
-                    terms = _terms(adapter, {**e, "form": "main"})
-                if terms is None:
+            # the effect in its form, then as a main effect: what the model cannot take in that form, or
+            # what did not carry over to the held-out part in it (e.g. a steep interaction term), may
+            # still be represented by its main terms
+            tries = [e] if e.get("form", "main") == "main" else [e, {**e, "form": "main"}]
+            for t in tries:
+                if (t["name"], t.get("form", "main")) in rejected:
                     continue
-            pick = e
-            break
+                terms = _terms(adapter, t)
+                if terms is None:
+                    unrepresented.setdefault(t["name"], _why_not(adapter, t))
+                    continue
+                if tuple(terms) in tried:  # the same refit under another form's name
+                    continue
+                pick = t
+                break
+            if pick is not None:
+                break
         if pick is None or terms is None:
             step["decision"] = "no (further) significant effect the model can take"
             break
@@ -330,7 +337,8 @@ def run_diagnose(
                 f"[{low:.4f}, {high:.4f}] nats per reading (95 %, held-out blocks resampled) does not exclude 0"
             )
             step["decision"] = attempt["decision"]
-            rejected.append(pick["name"])
+            rejected.append((pick["name"], pick.get("form", "main")))
+            tried.add(tuple(terms))
             continue
         attempt["decision"] = step["decision"] = f"added {pick['name']} as {', '.join(terms)}"
         state, model, ev = (*state, *terms), new_model, new_ev

@@ -22,7 +22,8 @@ State variables (names):
   bias from translating during the scan: its mean over the scan is zero); ``<name>@sq``: its square
   (a U-shaped effect, standardised like every term);
 * ``<name>@range`` / ``<name>@incidence`` / ``<name>@range_slope``: the variable times the ray's nominal
-  range [m], incidence [rad] or the nominal range's slope along the scan [m/rad] (:func:`range_slope`;
+  range [m], incidence [rad] or the nominal range's slope along the scan [m/rad] (:func:`range_slope`,
+  clipped to :data:`SLOPE_CAP` times the range;
   e.g. a scan smeared by the robot's turn: each reading is taken a little later than its bearing says,
   so its error is the turn rate times the wall's slope along the scan). They are computed from the
   map's raycast at the reading's pose, in the log as in the worlds.
@@ -55,6 +56,7 @@ __all__ = [
     "modify",
     "range_slope",
     "GEOMETRY_MODIFIERS",
+    "SLOPE_CAP",
     "scan_features",
     "fit_extra_terms",
     "apply_extra",
@@ -71,6 +73,10 @@ MODIFIERS = ("cos_bearing", "sin_bearing", "sq", "range", "incidence", "range_sl
 """Interaction / shape modifiers of a state term ``<name>@<modifier>``."""
 GEOMETRY_MODIFIERS = ("range", "incidence", "range_slope")
 """Modifiers that need the ray's nominal range and incidence (the map's raycast)."""
+SLOPE_CAP = 5.7
+"""``<name>@range_slope`` uses the slope clipped to ``+- SLOPE_CAP x`` the nominal range (``dr / d bearing =
+r tan(incidence)``: 5.7 is an incidence of 80 deg). Near-grazing rays' slopes grow without bound; unclipped,
+a few of them would set a linear term's fit."""
 
 
 def split_term(name: str) -> tuple[str, str | None]:
@@ -137,7 +143,8 @@ def modify(
         a = np.asarray(incidence, dtype=np.float64)
         factor = np.where(np.isfinite(r) & np.isfinite(a), a, 0.0)
     else:
-        factor = range_slope(r, bearings)
+        reach = SLOPE_CAP * np.where(np.isfinite(r), r, 0.0)
+        factor = np.clip(range_slope(r, bearings), -reach, reach)
     return values * factor
 
 
