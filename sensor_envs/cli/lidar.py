@@ -375,7 +375,7 @@ def _validate(args: argparse.Namespace) -> int:
         with about(args.log):
             report = validate(model, log, folder)
         if per_reading:  # per-reading report (scans at moving poses)
-            print(readings_markdown(report["metrics"]))
+            print(readings_markdown(report["metrics"], Path(str(log.source)).name, log.n_poses))
             report["log_preparation"] = prep
             write_json(folder / "report.json", report)
         else:
