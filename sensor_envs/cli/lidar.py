@@ -325,6 +325,8 @@ def _fit(args: argparse.Namespace) -> int:
     log, prep = _prepared_log(args, max_range, default)
     t0 = time.perf_counter()
     model = lwlr_from_args(args)
+    # on stdout (the command's account, beside its last line): stderr keeps bad input's one line
+    print(f"fitting {log.n_poses} scans x {log.n_bearings} bearings (kernel widths by cross-validation)", flush=True)
     with about(args.log):
         if log.ranges.shape[2] == 1:
             from sensor_envs.lidar.mapping import map_features

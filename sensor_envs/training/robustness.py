@@ -598,7 +598,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--columns",
         nargs="+",
         default=None,
-        help="evaluation sensors (columns); default: the preset's (else the domain's) and the rows",
+        help="evaluation sensors (columns); default: the preset's or domain's, and the rows",
     )
     parser.add_argument(
         "--eval-episodes", type=int, default=None, help="episodes per seed and cell (default: preset's)"
@@ -659,9 +659,7 @@ def _run(args: argparse.Namespace, argv: list[str]) -> dict[str, Any]:
         try:
             import ray  # noqa: F401
         except ImportError:
-            raise UsageError(
-                "--backend ray: ray is not installed (pip install ray; in a clone: pip install -e '.[ray]')"
-            ) from None
+            raise UsageError("--backend ray: ray is not installed (pip install ray, or the ray extra)") from None
     real: dict[str, str] = {}
     if args.real_data:  # the real-data models are cached in --out
         args.out.mkdir(parents=True, exist_ok=True)
