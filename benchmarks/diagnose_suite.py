@@ -188,7 +188,12 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 def markdown(summary: dict[str, Any], rows: list[dict[str, Any]], command: str) -> str:
     """The summary table and one line per case."""
-    lines = ["# diagnose suite", "", f"Command: `{command}`", ""]
+    lines = [
+        "# diagnose suite",
+        "",
+        f"Command: `{command}`, run on {time.strftime('%Y-%m-%d', time.gmtime())} (UTC).",
+        "",
+    ]
     lines += [
         "| sensor/kind | cases | recall | cause first | proxy added | any non-cause added | false pos. (significant) "
         "| false pos. (added) | detectable (oracle) | recall on detectable |"

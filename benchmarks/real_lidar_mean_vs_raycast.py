@@ -199,6 +199,9 @@ def markdown(res: dict[str, Any], args: argparse.Namespace, real: Any) -> str:
     lines = [
         "# Learned lidar mean vs the raycast at unseen real poses (issue 43)",
         "",
+        f"Generated on {time.strftime('%Y-%m-%d', time.gmtime())} (UTC) by "
+        f"`python benchmarks/real_lidar_mean_vs_raycast.py {' '.join(sys.argv[1:])}`.",
+        "",
         f"Real log `{Path(real.source).name}` (sha256 of ranges `{ranges_sha256(real)[:16]}...`): {real.n_poses} "
         f"static poses x {real.n_bearings} bearings x {real.ranges.shape[2]} repeats. {args.folds} leave-poses-out "
         f"folds per fold assignment (seeds {', '.join(map(str, args.seeds))}"

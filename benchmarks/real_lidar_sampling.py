@@ -147,6 +147,9 @@ def main() -> None:
     lines = [
         "# Sampling semantics of the learned lidar vs the real repeated scans (issue 43)",
         "",
+        f"Generated on {time.strftime('%Y-%m-%d', time.gmtime())} (UTC) by "
+        f"`python benchmarks/real_lidar_sampling.py {' '.join(sys.argv[1:])}`.",
+        "",
         f"Real log `{Path(real.source).name}` (sha256 of ranges `{ranges_sha256(real)[:16]}...`), "
         f"{real.n_poses} poses; {args.folds} leave-poses-out folds (seed {args.seed}), {repeats} repeats per "
         "sampled pose. "

@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import copy
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -130,6 +131,9 @@ def markdown(out: dict[str, Any], kde_name: str) -> str:
     d = out["diagnosis"]
     lines = [
         f"### Diagnosis: trigger zone 40 m x +-1.75 m, all {out['cycles']} frames, {kde_name} as shipped",
+        "",
+        f"Generated on {time.strftime('%Y-%m-%d', time.gmtime())} (UTC) by "
+        f"`python benchmarks/real_radar_trigger.py {' '.join(sys.argv[1:])}`.",
         "",
         "| source | false triggers (share of cycles without a car in the zone) | fired by clutter | fired by a "
         "target | clutter in the lane per cycle, x 0-10 / 10-20 / 20-30 / 30-40 m | target outputs moved into the "

@@ -138,7 +138,7 @@ def test_rosbag_without_rosbags_says_how_to_install(tmp_path, monkeypatch):
     for name in [m for m in sys.modules if m == "rosbags" or m.startswith("rosbags.")]:
         monkeypatch.delitem(sys.modules, name)
     monkeypatch.setitem(sys.modules, "rosbags", None)  # an install without the ros extra
-    with pytest.raises(LidarLogError, match=r"pip install 'sensor_envs\[ros\]'"):
+    with pytest.raises(LidarLogError, match=r"pip install rosbags"):
         load_log(bag)
 
 

@@ -173,6 +173,10 @@ def test_validate_readings_writes_report(fitted, tmp_path):
     assert m["model_extended"]["ece"] < 0.05 and len(m["model_extended"]["pit_hist"]) == 10
     assert (tmp_path / "per_reading.png").stat().st_size > 1000
     assert json.loads((tmp_path / "report.json").read_text())["n_scans"] == 40
+    text = (tmp_path / "report.md").read_text()
+    assert text.startswith("# Per-reading validation on ") and "40 scans, " in text
+    # the model nearest the ideal on the log-likelihood is named (here the fitted model: lowest NLL above)
+    assert "Nearest the ideal value (no interval: one log): NLL/reading: model_extended;" in text
 
 
 def test_map_from_scans_and_coverage():

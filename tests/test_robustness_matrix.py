@@ -89,6 +89,20 @@ def test_full_highway_preset_evaluates_the_best_checkpoint_with_enough_episodes(
     assert final["policy"] == "final"
 
 
+@pytest.mark.parametrize(
+    ("domain", "rows", "algo"), [("highway", ["ideal", "kde_tracks"], "dqn"), ("neato", ["ideal", "learned"], None)]
+)
+def test_quick_preset_trains_ideal_and_realistic_rows_once_each(tmp_path, domain, rows, algo):
+    specs, settings = robustness.plan(_args(tmp_path, domain=domain, preset="quick", sensors=None, seeds=None), {})
+    assert settings["rows"] == rows and settings["columns"] == rows and settings["seeds"] == [0]
+    assert [s["sensor"] for s in specs] == rows and settings["algo"] == algo and settings["policy"] == "final"
+    # --sensors / --columns still choose
+    _, narrowed = robustness.plan(
+        _args(tmp_path, domain=domain, preset="quick", sensors=["ideal"], columns=["ideal"], seeds=None), {}
+    )
+    assert narrowed["rows"] == ["ideal"] and narrowed["columns"] == ["ideal"]
+
+
 def test_best_policy_without_evaluations_is_a_usage_error(tmp_path):
     with pytest.raises(robustness.UsageError, match="--policy best"):
         robustness.plan(_args(tmp_path, set=["eval_freq=1000000000"]), {})

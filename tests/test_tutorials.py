@@ -1,4 +1,4 @@
-"""Every tutorial of the documentation runs end to end (docs/tutorials/*.md), so the docs cannot rot.
+"""Every tutorial of the documentation (docs/tutorials/*.md) and the README's quick starts run end to end.
 
 Each tutorial's fenced ``python`` and ``bash`` blocks are run in order, as one program, in a temporary folder:
 python blocks share one namespace, each bash block runs in ``bash -euo pipefail`` with the test's Python
@@ -66,13 +66,35 @@ TUTORIALS: dict[str, Tutorial] = {
 }
 
 
-def blocks(path: Path) -> list[tuple[str, str]]:
-    """The ``(language, code)`` of each fenced python / bash block of a markdown file, in order."""
-    return [(m.group(1), m.group(2)) for m in FENCE.finditer(path.read_text(encoding="utf-8"))]
+# The README's two quick starts (its sections whose heading starts with the key), run the same way
+README = ROOT / "README.md"
+QUICK_STARTS: dict[str, Tutorial] = {
+    "## Quick start: a highway agent": Tutorial(
+        shrink={"--preset quick --out": "--preset quick --set n_timesteps=40 --eval-episodes 1 --out"},
+        needs=("stable_baselines3",),
+    ),
+    "## Quick start: a lidar fitted": Tutorial(
+        real=True, shrink={"--part train --out": "--part train --max-readings 24 --out"}, needs=("rosbags",)
+    ),
+}
 
 
-def program(path: Path, shrink: dict[str, str]) -> str:
-    """One Python program running the tutorial's blocks in order, budgets shrunk."""
+def blocks(path: Path | str) -> list[tuple[str, str]]:
+    """The ``(language, code)`` of each fenced python / bash block of a markdown file (or text), in order."""
+    text = path.read_text(encoding="utf-8") if isinstance(path, Path) else path
+    return [(m.group(1), m.group(2)) for m in FENCE.finditer(text)]
+
+
+def readme_section(heading: str) -> str:
+    """The README's section whose heading starts with ``heading``, up to the next ``## `` heading."""
+    text = README.read_text(encoding="utf-8")
+    start = text.index(heading)
+    end = text.find("\n## ", start + len(heading))
+    return text[start : end if end >= 0 else len(text)]
+
+
+def program(path: Path | str, shrink: dict[str, str]) -> str:
+    """One Python program running the tutorial's (or a text's) blocks in order, budgets shrunk."""
     parts = ["import subprocess as _subprocess\n"]
     for lang, code in blocks(path):
         for old, new in shrink.items():
@@ -97,10 +119,22 @@ def test_every_tutorial_is_run_and_every_budget_replacement_applies():
         assert f"({name})" in index, f"{name} is not listed in tutorials/index.md"
 
 
+def test_every_readme_quick_start_is_run_and_every_budget_replacement_applies():
+    headings = [line for line in README.read_text(encoding="utf-8").splitlines() if line.startswith("## Quick start")]
+    assert len(headings) == len(QUICK_STARTS)
+    assert all(any(h.startswith(key) for h in headings) for key in QUICK_STARTS)
+    for heading, quick in QUICK_STARTS.items():
+        text = readme_section(heading)
+        assert blocks(text), f"{heading}: no python or bash block"
+        for old in quick.shrink:
+            assert old in text, f"{heading}: the budget {old!r} is no longer in the README"
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("name", sorted(TUTORIALS))
+@pytest.mark.parametrize("name", sorted(TUTORIALS) + sorted(QUICK_STARTS))
 def test_tutorial_runs_end_to_end(name, tmp_path, request):
-    tutorial = TUTORIALS[name]
+    tutorial = TUTORIALS.get(name) or QUICK_STARTS[name]
+    source = TUTORIAL_DIR / name if name in TUTORIALS else readme_section(name)
     for module in tutorial.needs:
         pytest.importorskip(module, reason=f"{name} needs {module}")
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"}
@@ -108,6 +142,6 @@ def test_tutorial_runs_end_to_end(name, tmp_path, request):
     if tutorial.real:
         env["SENSOR_ENVS_REAL_DATA"] = str(request.getfixturevalue("real_data"))
     script = tmp_path / "tutorial.py"
-    script.write_text(program(TUTORIAL_DIR / name, tutorial.shrink), encoding="utf-8")
+    script.write_text(program(source, tutorial.shrink), encoding="utf-8")
     run = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True)
     assert run.returncode == 0, f"{name} failed:\n{run.stdout[-3000:]}\n{run.stderr[-3000:]}"

@@ -325,6 +325,8 @@ def _fit(args: argparse.Namespace) -> int:
     log, prep = _prepared_log(args, max_range, default)
     t0 = time.perf_counter()
     model = lwlr_from_args(args)
+    # on stdout (the command's account, beside its last line): stderr keeps bad input's one line
+    print(f"fitting {log.n_poses} scans x {log.n_bearings} bearings (kernel widths by cross-validation)", flush=True)
     with about(args.log):
         if log.ranges.shape[2] == 1:
             from sensor_envs.lidar.mapping import map_features
@@ -375,7 +377,7 @@ def _validate(args: argparse.Namespace) -> int:
         with about(args.log):
             report = validate(model, log, folder)
         if per_reading:  # per-reading report (scans at moving poses)
-            print(readings_markdown(report["metrics"]))
+            print(readings_markdown(report["metrics"], Path(str(log.source)).name, log.n_poses))
             report["log_preparation"] = prep
             write_json(folder / "report.json", report)
         else:

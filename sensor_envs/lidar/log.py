@@ -538,7 +538,8 @@ def read_rosbag(
         from rosbags.rosbag2 import ReaderError as Ros2Error
     except ImportError:
         raise LidarLogError(
-            f"{p}: reading a ROS bag needs the optional package rosbags: pip install 'sensor_envs[ros]'"
+            f"{p}: reading a ROS bag needs the optional package rosbags: pip install rosbags "
+            "(in a clone: pip install -e '.[ros]')"
         ) from None
     if not p.is_dir():  # a ROS2 bag may be a folder; a FIFO or device is refused before rosbags opens it
         check_regular_file(p, "ROS bag")

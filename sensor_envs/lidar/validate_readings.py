@@ -207,7 +207,7 @@ def validate_readings(
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         write_json(out / "report.json", report)
-        (out / "report.md").write_text(readings_markdown(metrics))
+        (out / "report.md").write_text(readings_markdown(metrics, Path(str(log.source)).name, log.n_poses))
         plot_readings(metrics, np.rad2deg(log.bearings), out / "per_reading.png")
     return report
 
@@ -222,9 +222,30 @@ def _pool(ms: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def readings_markdown(metrics: dict[str, dict[str, Any]]) -> str:
-    """A Markdown table of the scalar per-reading metrics keyed by model name."""
-    lines = [
+# (column, metric key, how far from the ideal value): the columns that rank the models
+RANKED = (
+    ("NLL/reading", "nll_per_reading", lambda v: v),
+    ("null-rate ECE", "ece", lambda v: v),
+    ("PIT KS", "pit_ks", lambda v: v),
+    ("lag-1 ACF range", "acf1_range_mean", abs),
+    ("lag-1 ACF null", "acf1_null_mean", abs),
+)
+
+
+def readings_markdown(metrics: dict[str, dict[str, Any]], source: str | None = None, n_scans: int | None = None) -> str:
+    """A Markdown report of the scalar per-reading metrics keyed by model name, the nearest to ideal per column.
+
+    Args:
+        metrics: per model name, the output of :func:`reading_metrics`.
+        source: the log's name for the title (``None``: no title).
+        n_scans: the log's scan count for the title line.
+    """
+    lines = []
+    if source is not None:
+        n = next(iter(metrics.values()))["n_readings"] if metrics else 0
+        scans = "" if n_scans is None else f"{n_scans} scans, "
+        lines += [f"# Per-reading validation on {source}", "", f"{scans}{n} readings per model.", ""]
+    lines += [
         "| model | NLL/reading | NLL null | NLL return | null-rate ECE | PIT KS | lag-1 ACF range | lag-1 ACF null |",
         "|" + "---|" * 8,
     ]
@@ -233,7 +254,18 @@ def readings_markdown(metrics: dict[str, dict[str, Any]]) -> str:
         f += [m["acf1_range_mean"], m["acf1_null_mean"]]
         lines.append(f"| {k} | " + " | ".join("n/a" if v is None else f"{v:.4g}" for v in f) + " |")
     lines.append("")
-    lines.append("Ideal values: ECE 0, PIT KS 0 (uniform PIT), lag-1 ACF 0 (white residuals).")
+    lines.append(
+        "NLL: minus the mean log-likelihood of a reading (a null's probability, a return's density in 1/m; lower is "
+        "better; NLL null / NLL return split it by outcome). Ideal values: ECE 0, PIT KS 0 (uniform PIT), lag-1 ACF 0 "
+        "(white residuals)."
+    )
+    best = []
+    for column, key, distance in RANKED:
+        scored = {k: distance(m[key]) for k, m in metrics.items() if m.get(key) is not None and np.isfinite(m[key])}
+        if scored:
+            best.append(f"{column}: {min(scored, key=lambda k: scored[k])}")
+    if best:
+        lines += ["", "Nearest the ideal value (no interval: one log): " + "; ".join(best) + "."]
     return "\n".join(lines) + "\n"
 
 

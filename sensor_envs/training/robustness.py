@@ -1,5 +1,6 @@
 """The robustness matrix: train on one sensor, evaluate on every sensor.
 
+    sensor-envs robustness --domain highway --preset quick --out runs/quick
     sensor-envs robustness --domain neato --preset short --out runs/robust_neato
     sensor-envs robustness --domain highway --preset full --out runs/robust_hw --backend ray [--address auto]
         [--real-data ../shared/data/real] [--workers 2]
@@ -83,8 +84,32 @@ DOMAINS: dict[str, dict[str, Any]] = {
 }
 
 # per domain: training budget and evaluation size; `set` entries override the env's training config, `algo` (optional)
-# picks the config's block for that algorithm (`--algo` overrides it)
+# picks the config's block for that algorithm (`--algo` overrides it), `sensors` / `columns` (optional) the rows and
+# columns when `--sensors` / `--columns` are not given
 PRESETS: dict[str, dict[str, dict[str, Any]]] = {
+    # the README's quick start: one seed per row, the two rows trained side by side (one job per core), a few minutes
+    # on 2 cores; shows that the pipeline runs and what a policy does after a short run, not which sensor is better
+    "quick": {
+        "neato": {
+            "seeds": 1,
+            "eval_episodes": 10,
+            "max_episode_steps": 200,
+            "sensors": ["ideal", "learned"],
+            "columns": ["ideal", "learned"],
+            "set": {"n_timesteps": 8192, "n_envs": 4, "eval_freq": 10**9, "eval_episodes": 1},
+            "hyperparams": None,
+        },
+        "highway": {
+            "algo": "dqn",
+            "seeds": 1,
+            "eval_episodes": 10,
+            "max_episode_steps": None,
+            "sensors": ["ideal", "kde_tracks"],
+            "columns": ["ideal", "kde_tracks"],
+            "set": {"n_timesteps": 3000, "n_envs": 1, "eval_freq": 10**9, "eval_episodes": 1},
+            "hyperparams": None,
+        },
+    },
     "short": {
         "neato": {
             "seeds": 2,
@@ -280,14 +305,16 @@ def run_jobs(specs: list[dict[str, Any]], backend: str, workers: int, address: s
     bar = tqdm(total=len(cmds), desc=f"jobs ({backend})", unit="job")
     run: dict[str, Any] = {"capture_output": True, "text": True, "check": False}
     t0 = time.perf_counter()
+    done: list[str] = []  # a disabled bar (stderr not a terminal) does not count
 
     def finished(cmd: list[str]) -> None:
         """Advance the bar; when stderr is not a terminal (a log file: the CLI disables the bar), print a line."""
         bar.update()
+        done.append(cmd[-1])
         if not sys.stderr.isatty():
             spec = json.loads(cmd[-1])
             print(
-                f"job {spec['sensor']} seed {spec['seed']} done ({bar.n} of {len(cmds)}; "
+                f"job {spec['sensor']} seed {spec['seed']} done ({len(done)} of {len(cmds)}; "
                 f"{time.perf_counter() - t0:.0f} s since start)",
                 file=sys.stderr,
                 flush=True,
@@ -475,15 +502,14 @@ def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[di
         known = sensor_names(args.domain, args.config)
     except ValueError as err:  # ConfigError
         raise UsageError(f"--config: {err}") from None
-    rows = list(args.sensors or DOMAINS[args.domain]["sensors"])
+    rows = list(args.sensors or preset.get("sensors") or DOMAINS[args.domain]["sensors"])
     for flag, names in (("--sensors", rows), ("--columns", args.columns or [])):
         bad = sorted(set(names) - set(known))
         if bad:
             raise UsageError(f"{flag}: unknown {bad} for domain {args.domain!r}; choose from {known}")
     # every default sensor and every trained row is evaluated unless --columns names the columns
-    columns = list(
-        args.columns or DOMAINS[args.domain]["sensors"] + [r for r in rows if r not in DOMAINS[args.domain]["sensors"]]
-    )
+    defaults = preset.get("columns") or DOMAINS[args.domain]["sensors"]
+    columns = list(args.columns or defaults + [r for r in rows if r not in defaults])
     columns += list(real_models)
     seeds = list(range(args.seed0, args.seed0 + (args.seeds or preset["seeds"])))
     if seeds[-1] >= 2**32:  # numpy and SB3 seed with 32 bits
@@ -548,7 +574,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``sensor-envs robustness``."""
     parser.add_argument("--domain", choices=sorted(DOMAINS), default="neato", help="world (default neato)")
     parser.add_argument(
-        "--preset", choices=sorted(PRESETS), default="short", help="training budget and evaluation size (default short)"
+        "--preset",
+        choices=sorted(PRESETS),
+        default="short",
+        help="training budget, evaluation size and default rows: quick (the README's: 1 seed, minutes), short (a "
+        "smoke test), medium, full (default short)",
     )
     parser.add_argument("--out", type=Path, required=True, help="output folder (a rerun with its settings resumes)")
     parser.add_argument(
@@ -561,10 +591,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--sensors",
         nargs="+",
         default=None,
-        help="training sensors (rows): the domain's or the config's `sensors` names",
+        help="training sensors (rows): the domain's or the config's `sensors` names (default: the preset's, else "
+        "the domain's)",
     )
     parser.add_argument(
-        "--columns", nargs="+", default=None, help="evaluation sensors (columns); default: the domain's and the rows"
+        "--columns",
+        nargs="+",
+        default=None,
+        help="evaluation sensors (columns); default: the preset's or domain's, and the rows",
     )
     parser.add_argument(
         "--eval-episodes", type=int, default=None, help="episodes per seed and cell (default: preset's)"
@@ -625,7 +659,7 @@ def _run(args: argparse.Namespace, argv: list[str]) -> dict[str, Any]:
         try:
             import ray  # noqa: F401
         except ImportError:
-            raise UsageError("--backend ray: ray is not installed (pip install 'sensor_envs[ray]')") from None
+            raise UsageError("--backend ray: ray is not installed (pip install ray, or the ray extra)") from None
     real: dict[str, str] = {}
     if args.real_data:  # the real-data models are cached in --out
         args.out.mkdir(parents=True, exist_ok=True)
