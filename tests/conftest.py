@@ -20,6 +20,16 @@ def real_data() -> Path:
     return REAL_DATA
 
 
+@pytest.fixture(scope="session")
+def astyx_log(real_data):
+    """The whole Astyx HiRes2019 recording (400 frames) as a radar log (``load_astyx``), converted once for the
+    session. Each frame is converted on its own, so its rows of some frames (``log.select(log["frame"] % 4 == 0)``)
+    are ``load_astyx(root, frames=range(0, 400, 4))``: the tests take subsets of it."""
+    from sensor_envs.radar.astyx import load_astyx
+
+    return load_astyx(real_data / "astyx_hires2019")
+
+
 @pytest.fixture
 def compiled_kernels() -> None:
     """Skips the test unless the numba kernels are in use: numba installed and ``SENSOR_ENVS_NO_NUMBA`` unset."""

@@ -345,12 +345,10 @@ def test_cli_bad_input_exit_2_one_line(tmp_path, capsys, case):
     assert not (tmp_path / "r.json").exists() and not (tmp_path / "l.csv").exists()
 
 
-def test_shipped_rig_matches_real_astyx_detection_rates(real_data):
+def test_shipped_rig_matches_real_astyx_detection_rates(astyx_log):
     """The shipped rig at real boxes (every 4th frame, for speed): detection rate per range bin close to the
     real one, where the generic rig is far off (the full figures: benchmarks/real_radar_fidelity.py)."""
-    from sensor_envs.radar.astyx import load_astyx
-
-    frames = frames_from_log(load_astyx(real_data / "astyx_hires2019", frames=range(0, 400, 4)))
+    frames = frames_from_log(astyx_log.select(astyx_log["frame"] % 4 == 0))
     real = real_statistics(frames)
     ok = real["n_range"] >= 80
     assert ok.sum() >= 3
@@ -362,13 +360,11 @@ def test_shipped_rig_matches_real_astyx_detection_rates(real_data):
     assert np.max(gaps["generic"]) > 0.15, gaps
 
 
-def test_shipped_rig_loses_hidden_boxes_near_the_sensor_as_astyx_does(real_data):
+def test_shipped_rig_loses_hidden_boxes_near_the_sensor_as_astyx_does(astyx_log):
     """Detection per corner range x occluded fraction at the real boxes: the shipped rig's loss per range knot
     follows the real cells (a hidden box lost often within 15 m, hardly beyond 50 m); one loss for every
     range (the rig's own laws with the table replaced by its mean) cannot."""
-    from sensor_envs.radar.astyx import load_astyx
-
-    frames = frames_from_log(load_astyx(real_data / "astyx_hires2019"))
+    frames = frames_from_log(astyx_log)
     real = real_statistics(frames)
     shipped = load_rig(SHIPPED_RIG)[0]
     assert shipped.occlusion_loss_table is not None
@@ -690,13 +686,11 @@ def test_calibrate_cli_azimuth_bias_flag_writes_the_fitted_bias(tmp_path):
     assert "mounting yaw error" in card["procedure"]
 
 
-def test_astyx_detections_carry_a_mounting_yaw_error_that_fit_azimuth_bias_finds(real_data):
+def test_astyx_detections_carry_a_mounting_yaw_error_that_fit_azimuth_bias_finds(astyx_log):
     """The closed loop's finding on Astyx: the real detections are rotated about the sensor (signed cross-range
     offsets, same sign on both sides). ``fit_azimuth_bias`` with the shipped rig's laws finds a small negative
     angle; the rig with it has a far smaller signed-offset discrepancy at the real boxes (every 2nd frame)."""
-    from sensor_envs.radar.astyx import load_astyx
-
-    frames = frames_from_log(load_astyx(real_data / "astyx_hires2019", frames=range(0, 400, 2)))
+    frames = frames_from_log(astyx_log.select(astyx_log["frame"] % 2 == 0))
     real = real_statistics(frames)
     shipped = load_rig(SHIPPED_RIG)[0]
     sim = _sim_setup(frames, 4, np.random.default_rng(0))

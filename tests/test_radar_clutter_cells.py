@@ -147,13 +147,11 @@ def test_calibrate_clutter_only_bad_use_exit_2_one_line(tmp_path, capsys, extra,
 
 
 @pytest.mark.slow
-def test_shipped_rig_clutter_in_the_lane_ahead_near_the_real_astyx_clutter(real_data):
+def test_shipped_rig_clutter_in_the_lane_ahead_near_the_real_astyx_clutter(astyx_log):
     """Real Astyx clutter inside |y| <= 1.75 m nearer than 10 m: ~0.02 per frame; the rig's independent range
     and azimuth shares gave ~1.2 (the KDE's false triggers); the joint cells (5 m x 2.5-5 deg, coarser than
     the lane edge) give ~0.2: a guard against the independent law's level, not a match of the real 0.02."""
-    from sensor_envs.radar.astyx import load_astyx
-
-    log = load_astyx(real_data / "astyx_hires2019")
+    log = astyx_log
     cl = log.is_clutter
     x, y = log["meas_x"][cl], log["meas_y"][cl]
     n_frames = np.unique(log["frame"]).size

@@ -42,8 +42,14 @@ def test_bucket_sampler_with_strong_miss_prior_and_fine_grid(rig_split):
         assert res["p_value"] > P_MIN, (state, res["statistic"], res["dof"])
 
 
-def test_without_previous_output_samples_follow_pdf(rig_split):
-    m = KDERadarModel(use_prev=False, random_state=0).fit(rig_split[0])
+@pytest.fixture(scope="module")
+def no_prev_model(rig_split):
+    """The KDE without ``z_{t-1}`` in its state, on ``rig_split``'s training part (shared, never modified)."""
+    return KDERadarModel(use_prev=False, random_state=0).fit(rig_split[0])
+
+
+def test_without_previous_output_samples_follow_pdf(no_prev_model):
+    m = no_prev_model
     res = chi_square(m, np.array([30.0, 3.0]), np.random.default_rng(5), n=95_000)
     assert res["p_value"] > P_MIN
 
@@ -129,13 +135,12 @@ def test_missing_measurement_tuples_give_misses_at_the_recorded_rate():
     assert np.isnan(m.z_[src[np.isnan(z[:, 0])], 0]).all()
 
 
-def test_autocorrelation_reproduced_with_previous_output(rig_split, model):
-    train, test = rig_split
+def test_autocorrelation_reproduced_with_previous_output(rig_split, model, no_prev_model):
+    _, test = rig_split
     tt = target_tuples(test)
     measured = lag1_autocorr(tt.z, tt.z_prev)
     # mean of 5 rollouts: one rollout's lag-1 autocorrelation varies by ~0.015-0.05 (std) from seed to seed
     with_prev = np.mean([lag1_autocorr(*rollout(model, tt, np.random.default_rng(s))) for s in range(5)], axis=0)
-    no_prev_model = KDERadarModel(use_prev=False, random_state=0).fit(train)
     without = np.mean([lag1_autocorr(*rollout(no_prev_model, tt, np.random.default_rng(s))) for s in range(5)], axis=0)
     assert np.all(np.abs(with_prev - measured) < AUTOCORR_TOL), (with_prev, measured)
     assert np.all(without < with_prev - 0.1), (without, with_prev)
@@ -246,15 +251,15 @@ def test_clutter_follows_the_log(rig_split, model):
     assert abs(np.median(np.hypot(*pts.T)) - np.median(np.hypot(*xy.T))) < 3.0
 
 
-def test_stored_clutter_is_capped_by_a_uniform_subsample(rig_split, monkeypatch):
+def test_stored_clutter_is_capped_by_a_uniform_subsample(rig_split, model, monkeypatch):
     """Beyond ``MAX_CLUTTER_POSITIONS`` the model stores a uniform subsample of the clutter rows (same law)."""
     import sensor_envs.radar.kde_fit as kde  # the fit reads the cap
 
     train, _ = rig_split
-    full = KDERadarModel(random_state=0).fit(train)
+    full = model  # the same fit, under the default cap
     n = full.clutter_xy_.shape[0]
     monkeypatch.setattr(kde, "MAX_CLUTTER_POSITIONS", n // 4)
-    capped = KDERadarModel(random_state=0).fit(train)
+    capped = KDERadarModel(random_state=0).fit(train, cycle_time=1.0)
     assert capped.clutter_xy_.shape[0] == n // 4
     np.testing.assert_array_equal(capped.clutter_counts_, full.clutter_counts_)  # counts per cycle untouched
     rows = {tuple(r) for r in full.clutter_xy_}

@@ -201,13 +201,13 @@ def test_calibrate_cli_scene_only_bad_use_exit_2_one_line(tmp_path, capsys, extr
     assert not (tmp_path / "r.json").exists()
 
 
-def test_scene_law_fitted_on_astyx_spreads_the_recorded_boxes_like_the_real_ones(real_data):
+def test_scene_law_fitted_on_astyx_spreads_the_recorded_boxes_like_the_real_ones(astyx_log):
     """On Astyx the generic lane traffic is far narrower than the real boxes at 30-75 m (|y| 75th percentile
     about 7.3 m vs 11-12 m); the rig with the fitted law records boxes close to the real quartiles."""
-    from sensor_envs.radar.calibrate import calibrate_scene, load_real
+    from sensor_envs.radar.calibrate import calibrate_scene
     from sensor_envs.radar.scene_law import recorded_boxes
 
-    frames = load_real(real_data / "astyx_hires2019")
+    frames = frames_from_log(astyx_log, source="astyx_hires2019")  # as load_real(the folder) reads it
     shipped = load_rig(SHIPPED_RIG)[0]
     real = scene_stats(frames.boxes)
     generic = scene_stats(recorded_boxes(_without_scene(shipped), np.random.default_rng(0)))
