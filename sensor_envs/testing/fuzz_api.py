@@ -308,7 +308,10 @@ def _env_reset(c: Chooser, d: Path) -> Case:
         else:
             options = c.choice([{"config": {"duration": v}}, {"config": v}, {"x": 1}, v])
         must = not (options is None or (isinstance(options, dict) and not options))  # no option
-        if isinstance(options, dict) and isinstance(options.get("config"), dict) and "Merge" not in env_id:
+        config = options.get("config") if isinstance(options, dict) else None
+        if isinstance(config, dict) and not config:
+            must = False  # an empty config changes nothing, like no option
+        elif isinstance(config, dict) and "duration" in config and "Merge" not in env_id:
             must = not (plausible_number(v) and float(v) > 0)  # merge-v0 has no duration
         what = f"options={options!r:.50}"
 
@@ -404,7 +407,7 @@ def mutate_array(c: Chooser, base: np.ndarray) -> tuple[Any, str, bool]:
         return new, f"shape {new.shape}", new.shape != base.shape
     if kind == "dtype":
         dt = c.choice([np.bool_, np.complex128, np.str_, object, np.float16, np.float32, np.int64])
-        good = dt in (np.float16, np.float32, np.int64)
+        good = dt in (np.float16, np.float32, np.int64) or np.dtype(dt) == base.dtype  # its own dtype: no change
         return base.astype(dt), f"dtype {np.dtype(dt)}", not good
     if kind == "empty":
         return base[:0], "no rows", False
