@@ -463,13 +463,17 @@ def params_from_header(
 
 
 def optional_positive(path: str | os.PathLike[str] | None, field: str, value: Any) -> float:
-    """A scalar that is either absent (``None``/NaN, returned as NaN) or a finite number ``> 0``, e.g. a cycle time.
+    """A scalar that is either absent (returned as NaN) or a finite number ``> 0``, e.g. a cycle time.
+
+    Absent is ``None``; in a model file (``path`` given) also NaN, the value a file written without one holds.
+    A NaN given as a function argument is refused: it is what a computation gone wrong yields, never a way
+    to say "none" (``fit(log, cycle_time=nan)`` silently fitted a model without a cycle time).
 
     Raises:
         ModelFileError: naming the file and the field, for a value read from the model file ``path``.
-        ValueError: ``"<field>: ..."`` for a function argument (``path=None``).
+        InputError: ``"<field>: ..."`` for a function argument (``path=None``).
     """
-    if value is None or (isinstance(value, float) and np.isnan(value)):
+    if value is None or (path is not None and isinstance(value, float) and np.isnan(value)):
         return float("nan")
     if path is not None:
         return float(check_positive(path, field, value))

@@ -193,6 +193,28 @@ def test_the_api_generators_judge_a_no_op_as_no_mutation() -> None:
         assert case.mutation.endswith("clutter_cell_weights = None") and not case.must_refuse
 
 
+def test_a_nan_cycle_time_argument_is_refused_none_means_absent() -> None:
+    """``KDERadarModel.fit(log, cycle_time=nan)`` (seed 29) fitted a model without a cycle time: NaN means
+    "absent" in a model file's header only."""
+    from sensor_envs.radar.gaussian import GaussianRadar
+    from sensor_envs.radar.rig import record_rig_log
+
+    log = record_rig_log(2, 6, 2, np.random.default_rng(0))
+    for value in (float("nan"), np.float64("nan")):
+        with pytest.raises(InputError, match="cycle_time"):
+            GaussianRadar().fit(log, cycle_time=value)
+    assert np.isnan(GaussianRadar().fit(log, cycle_time=None).cycle_time_)
+
+
+def test_a_pose_given_as_a_numeric_array_is_plausible_to_the_api_generator() -> None:
+    """Seed 29 counted ``sensor_pose=np.array([1, 1, 1], float16)`` as nonsense; the env rightly takes it."""
+    from sensor_envs.testing.fuzz_api import certainly_bad
+
+    assert not certainly_bad(np.array([1.0, 1.0, 1.0], dtype=np.float16), None, "pose")
+    assert certainly_bad(np.array([True, True, True]), None, "pose")
+    assert certainly_bad(np.array([np.nan, 1.0, 1.0]), None, "pose")
+
+
 # ------------------------------------------------------------------------------------------ options
 def test_every_option_error_names_the_option(tmp_path, capsys) -> None:
     """``train --sensor nan`` blamed ``env_kwargs: lidar``; ``fit lidar --map nan`` said ``nan: input not found``;

@@ -104,8 +104,10 @@ def certainly_bad(value: Any, default: Any, hint: str = "") -> bool:
         return not ((isinstance(value, str) and value == hint.split()[-1]) or plausible_number(value))
     if hint == "seed":
         return not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and 0 <= value < 2**32)
-    if hint == "pose":
-        return not (isinstance(value, (list, tuple)) and len(value) == 3 and all(map(plausible_number, value)))
+    if hint == "pose":  # three real numbers: a list, a tuple or a 1-d numeric array (any width: float16 too)
+        numeric = isinstance(value, np.ndarray) and value.ndim == 1 and value.dtype.kind in "fiu"
+        sequence = isinstance(value, (list, tuple)) or numeric
+        return not (sequence and len(value) == 3 and all(map(plausible_number, value)))
     if hint == "dict":
         return not isinstance(value, dict) or bool(value)  # {} is no override; generated keys are unknown
     if hint in ("path", "map", "lidar", "radar", "str") or isinstance(default, str):
