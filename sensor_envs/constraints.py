@@ -9,6 +9,7 @@ re-exports them.
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 import numpy as np
@@ -22,6 +23,7 @@ __all__ = [
     "IsNaN",
     "Constraint",
     "MAX_MAGNITUDE",
+    "is_subnormal",
     "RANDOM_STATE",
     "CYCLE_TIME",
 ]
@@ -52,7 +54,8 @@ class Interval:
 
     A declared bound may exceed 1e9 (e.g. a seed up to 2**63 - 1).
 
-    ``open_low``/``open_high`` exclude the bound. Booleans are not numbers here.
+    ``open_low``/``open_high`` exclude the bound. Booleans are not numbers here, and neither is a subnormal
+    (``0 < |value| < 2.2e-308``, e.g. ``5e-324``): no value anyone meant, and ``1 / value`` is infinite.
     """
 
     def __init__(
@@ -74,7 +77,7 @@ class Interval:
         if self.integer and not isinstance(value, (int, np.integer)):
             return False
         v = float(value)
-        if not np.isfinite(v):
+        if not np.isfinite(v) or is_subnormal(v):
             return False
         if (self.high is None and v > MAX_MAGNITUDE) or (self.low is None and v < -MAX_MAGNITUDE):
             return False  # an unbounded side still has a sane magnitude (counts too: 10**19 tuples is no count)
@@ -126,6 +129,15 @@ class Numbers:
         n = f"{self.length}" if self.length is not None else f">= {self.min_length}"
         inc = " strictly increasing" if self.increasing else ""
         return f"a sequence of {n}{inc} values, each {self.item}" + (" or NaN" if self.nan else "")
+
+
+def is_subnormal(value: Any) -> bool:
+    """Whether ``value`` is a non-zero real number smaller in size than the smallest normal float (``5e-324``)."""
+    try:
+        v = abs(float(value))
+    except (TypeError, ValueError, OverflowError):
+        return False
+    return 0.0 < v < sys.float_info.min
 
 
 def _is_nan(v: Any) -> bool:

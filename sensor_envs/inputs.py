@@ -42,6 +42,7 @@ __all__ = [
     "Limits",
     "LIMITS",
     "check_path",
+    "real_path",
     "check_regular_file",
     "read_bytes",
     "read_text",
@@ -118,6 +119,15 @@ def check_path(path: Any, field: str = "file") -> Path:
     if not isinstance(path, str) or not path.strip() or "\x00" in path:
         raise InputError(f"{field}: expected a file path (a non-empty str or os.PathLike), got {path!r:.60}")
     return Path(path)
+
+
+def real_path(path: PathLike) -> Path:
+    """``path`` absolute, with every symbolic link followed: ``Path.resolve()`` that never raises.
+
+    ``Path.resolve()`` raises ``RuntimeError`` on a symbolic-link loop (Python < 3.13); a loop is left in the
+    path here, and the read that follows refuses it as an input error naming the file.
+    """
+    return Path(os.path.realpath(os.fspath(path)))
 
 
 def check_regular_file(path: PathLike, field: str = "file", limit: int | None = None) -> int:

@@ -283,9 +283,13 @@ def _read_image(img_path: Path, yaml_path: Path) -> NDArray[np.float64]:
 
     from PIL import Image  # only for non-PGM images
 
+    _check_image_complete(raw, img_path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error", Image.DecompressionBombWarning)
+            with Image.open(io.BytesIO(raw)) as im:  # the container first: every chunk's checksum, nothing cut
+                check_pixels(im.size[0], im.size[1], f"{img_path}: map image")
+                im.verify()
             with Image.open(io.BytesIO(raw)) as im:
                 check_pixels(im.size[0], im.size[1], f"{img_path}: map image")  # from the header, before decoding
                 if im.mode.startswith(("I", "F")):  # convert("L") would clip, not scale: grey would turn white
@@ -295,6 +299,28 @@ def _read_image(img_path: Path, yaml_path: Path) -> NDArray[np.float64]:
         raise
     except Exception as exc:  # PIL: unidentified or damaged image, decompression bomb
         raise InputError(f"{img_path}: cannot decode map image ({' '.join(str(exc).split())})") from None
+
+
+def _check_image_complete(raw: bytes, path: Path) -> None:
+    """Refuse an image file cut short, which a decoder may still turn into pixels.
+
+    PIL decodes a PNG cut inside its last data chunk's checksums, a GIF without its trailer and a BMP
+    without its last row's padding into a whole picture; a cut file is damaged, whatever survived it. PNG:
+    the file must end with its ``IEND`` chunk; GIF: with the trailer byte; BMP: hold the size its header
+    declares. (JPEG, TIFF and WebP cut short are refused by their decoders.)
+
+    Raises:
+        InputError: ``"<file>: the map image is cut short (...)"``.
+    """
+    why = ""
+    if raw.startswith(b"\x89PNG\r\n\x1a\n") and not raw.endswith(b"\x00\x00\x00\x00IEND\xaeB`\x82"):
+        why = "a PNG must end with its IEND chunk"
+    elif raw.startswith((b"GIF87a", b"GIF89a")) and not raw.endswith(b";"):
+        why = "a GIF must end with its trailer byte ';'"
+    elif raw.startswith(b"BM") and len(raw) >= 6 and len(raw) < int.from_bytes(raw[2:6], "little"):
+        why = f"the BMP header declares {int.from_bytes(raw[2:6], 'little')} bytes, the file has {len(raw)}"
+    if why:
+        raise InputError(f"{path}: the map image is cut short or damaged ({why})")
 
 
 def _parse_pgm(raw: bytes, path: Path) -> NDArray[np.float64]:

@@ -13,7 +13,8 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -23,12 +24,12 @@ from numpy.typing import NDArray
 from sensor_envs.constraints import CYCLE_TIME as CYCLE_TIME
 from sensor_envs.constraints import MAX_MAGNITUDE as MAX_MAGNITUDE
 from sensor_envs.constraints import RANDOM_STATE as RANDOM_STATE
-from sensor_envs.constraints import Constraint, Interval, Numbers, _NoneConstraint
+from sensor_envs.constraints import Constraint, Interval, Numbers, _NoneConstraint, is_subnormal
 from sensor_envs.constraints import InstanceOf as InstanceOf
 from sensor_envs.constraints import IsNaN as IsNaN
 from sensor_envs.constraints import Names as Names
 from sensor_envs.constraints import Options as Options
-from sensor_envs.inputs import InputError, check_path, load_npz, parse_json, read_text
+from sensor_envs.inputs import InputError, check_path, load_npz, parse_json, read_text, real_path
 from sensor_envs.outputs import atomic_write, check_suffix
 
 __all__ = [
@@ -284,7 +285,7 @@ def _shown(value: Any, forms: list[Any]) -> str:
     accepts.
     """
     if not isinstance(value, (tuple, list, np.ndarray)) or np.ndim(value) == 0 or len(value) <= SHOWN_ITEMS:
-        return f"{value!r:.200}"
+        return f"{value!r:.200}" + (" (a subnormal number)" if is_subnormal(value) else "")
     items = [c.item for c in forms if isinstance(c, Numbers)]
     bad = next((i for i, v in enumerate(value) if items and not any(it.accepts(v) for it in items)), None)
     return f"{len(value)} values" + (f", first rejected entry [{bad}] = {value[bad]!r}" if bad is not None else "")
@@ -412,11 +413,26 @@ def model_file_key(path: str | os.PathLike[str]) -> tuple[str, int]:
 
     A file rewritten in place gets a new key (and is loaded again); a missing file gets time ``-1``.
     """
-    p = Path(path).expanduser().resolve()
+    p = real_path(Path(path).expanduser())
     try:
         return str(p), p.stat().st_mtime_ns
     except OSError:
         return str(p), -1
+
+
+@contextmanager
+def named_as_given(given: str | os.PathLike[str] | None, resolved: str) -> Iterator[None]:
+    """An :class:`InputError` raised inside that names ``resolved`` names the path the caller gave instead.
+
+    The model caches load a file by its resolved path (:func:`model_file_key`); a link to ``/dev/zero`` or a
+    file reached through a link must be named as the user wrote it.
+    """
+    try:
+        yield
+    except InputError as exc:
+        if given is None or str(given) == resolved or resolved not in str(exc):
+            raise
+        raise type(exc)(str(exc).replace(resolved, f"{given} (-> {resolved})")) from None
 
 
 def params_from_header(
@@ -447,13 +463,17 @@ def params_from_header(
 
 
 def optional_positive(path: str | os.PathLike[str] | None, field: str, value: Any) -> float:
-    """A scalar that is either absent (``None``/NaN, returned as NaN) or a finite number ``> 0``, e.g. a cycle time.
+    """A scalar that is either absent (returned as NaN) or a finite number ``> 0``, e.g. a cycle time.
+
+    Absent is ``None``; in a model file (``path`` given) also NaN, the value a file written without one holds.
+    A NaN given as a function argument is refused: it is what a computation gone wrong yields, never a way
+    to say "none" (``fit(log, cycle_time=nan)`` silently fitted a model without a cycle time).
 
     Raises:
         ModelFileError: naming the file and the field, for a value read from the model file ``path``.
-        ValueError: ``"<field>: ..."`` for a function argument (``path=None``).
+        InputError: ``"<field>: ..."`` for a function argument (``path=None``).
     """
-    if value is None or (isinstance(value, float) and np.isnan(value)):
+    if value is None or (path is not None and isinstance(value, float) and np.isnan(value)):
         return float("nan")
     if path is not None:
         return float(check_positive(path, field, value))

@@ -33,7 +33,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, real_path
 
 __all__ = [
     "OutputError",
@@ -58,7 +58,7 @@ class OutputError(InputError):
 
 def _same(a: Path, b: Path) -> bool:
     """Whether ``a`` and ``b`` name the same file (resolved paths, or ``samefile`` for links)."""
-    if a.resolve() == b.resolve():
+    if real_path(a) == real_path(b):
         return True
     try:
         return a.exists() and b.exists() and a.samefile(b)
@@ -68,7 +68,7 @@ def _same(a: Path, b: Path) -> bool:
 
 def _inside(child: Path, folder: Path) -> bool:
     try:
-        child.resolve().relative_to(folder.resolve())
+        real_path(child).relative_to(real_path(folder))
     except ValueError:
         return False
     return True
@@ -131,6 +131,8 @@ def check_output(
             raise OutputError(f"{option}: {p} is also an input of this command; refusing to write over it")
         if folder and p.exists() and _inside(s, p):
             raise OutputError(f"{option}: {p} holds the input {s}; refusing to replace that folder")
+    if folder and p.exists():
+        _check_replaceable(p, option)
     fresh = _claim(p, folder, option)
     try:
         _check_existing(p, folder, force, option)
@@ -139,6 +141,28 @@ def check_output(
             _release(Path(os.path.abspath(p)))
         raise
     return p
+
+
+def _shipped_models() -> Path | None:
+    """The shipped models folder (package ``sensor_envs.models``), or ``None`` when it cannot be found."""
+    from importlib import resources
+
+    try:
+        return Path(str(resources.files("sensor_envs.models")))
+    except (ModuleNotFoundError, TypeError):
+        return None
+
+
+def _check_replaceable(p: Path, option: str) -> None:
+    """Refuse an output folder (replaced as a whole) that is or holds what no command may replace.
+
+    The current folder (``--out .`` or a parent of it: every command would run to its end and then fail
+    to rename onto it) and the shipped model files (read by default by every env, ``demo``, ``evaluate``,
+    ``train`` and ``rebuild-models``, whatever the command's inputs name).
+    """
+    for held, what in ((Path.cwd(), "the current folder"), (_shipped_models(), "the shipped model files")):
+        if held is not None and _inside(held, p):
+            raise OutputError(f"{option}: {p} is or holds {what} ({held}); refusing to replace that folder")
 
 
 def _check_existing(p: Path, folder: bool, force: bool, option: str) -> None:

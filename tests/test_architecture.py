@@ -303,3 +303,16 @@ def test_every_file_is_parsed_through_the_input_layer():
             if UNBOUNDED_READ.search(line):
                 found.append(f"{rel}:{n}: {line.strip()}")
     assert not found, found
+
+
+def test_no_path_is_resolved_with_path_resolve():
+    """Paths are resolved by ``sensor_envs.inputs.real_path``: ``Path.resolve()`` raises ``RuntimeError`` on a
+    symbolic-link loop (Python < 3.13), which an ``--out`` or a ``--map`` naming a loop turned into a traceback
+    (issue 42)."""
+    found = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE).as_posix()
+        for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+            if ".resolve()" in line and not line.strip().startswith(("#", '"', "``")):
+                found.append(f"{rel}:{n}: {line.strip()}")
+    assert not found, found

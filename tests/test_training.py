@@ -73,9 +73,7 @@ def test_existing_out_is_refused_unless_force(tmp_path, capsys):
     out = tmp_path / "run"
     out.mkdir()
     (out / "keep.txt").write_text("old run")
-    with pytest.raises(SystemExit) as err:
-        main(["train", "--env", "sensor_envs/Neato-v0", "--out", str(out), "--set", "n_timesteps=64"])
-    assert err.value.code == 2
+    assert main(["train", "--env", "sensor_envs/Neato-v0", "--out", str(out), "--set", "n_timesteps=64"]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and "--out" in lines[0] and "--force" in lines[0]
     assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 import sys
 from collections.abc import Callable, Iterator
@@ -167,14 +168,17 @@ def add_force(parser: argparse.ArgumentParser) -> None:
 
 @contextmanager
 def about(path: str | Path) -> Iterator[None]:
-    """Prefix ``path`` to an :class:`InputError` raised inside (e.g. a log too small to fit) unless it names it.
+    """Prefix ``path`` to an :class:`InputError` raised inside (e.g. a log too small to fit) unless it names a file.
 
-    Only input errors: any other exception (a ``ValueError`` from numpy included) is a bug and passes unchanged.
+    A message that names ``path``, or starts with another file's name (``/dev/null: model file: ...``: another
+    input of the command is at fault), is left as it is. Only input errors: any other exception (a
+    ``ValueError`` from numpy included) is a bug and passes unchanged.
     """
     try:
         yield
     except InputError as exc:
-        if str(path) in str(exc):
+        first = str(exc).split(": ", 1)[0]
+        if str(path) in str(exc) or (": " in str(exc) and ("/" in first or os.path.exists(first))):
             raise
         raise type(exc)(f"{path}: {exc}") from exc
 

@@ -42,6 +42,7 @@ from tqdm import tqdm
 os.environ.setdefault("SDL_VIDEODRIVER", "offscreen")
 
 import sensor_envs  # noqa: F401  (registers the ids)
+from sensor_envs.inputs import real_path
 from sensor_envs.lidar.sensors import LIDAR_NAMES
 from sensor_envs.outputs import OutputTransaction, check_output, write_json
 from sensor_envs.radar.sensors import RADAR_NAMES
@@ -298,7 +299,7 @@ def run_demo(out: str | Path, seed: int = 0, episodes: int = 10, force: bool = F
         write_json(tmp / "report.json", report)
         (tmp / "report.md").write_text(report_markdown(report), encoding="utf-8")
     print(json.dumps(report, indent=2))
-    print(f"pictures, report.json and report.md written to {out.resolve()}")
+    print(f"pictures, report.json and report.md written to {real_path(out)}")
     return report
 
 

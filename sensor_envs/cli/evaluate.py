@@ -119,11 +119,17 @@ def _detection(args: argparse.Namespace) -> int:
 
 
 def _boxworld(args: argparse.Namespace) -> int:
+    from sensor_envs.cli.lidar import MAX_RECORD_READINGS
     from sensor_envs.evaluate.lidar_experiments import boxworld_experiment
     from sensor_envs.evaluate.report import write_report
     from sensor_envs.lidar.lwlr import DEFAULT_MODEL_FILE, LidarLWLR
     from sensor_envs.modelio import default_model_path
 
+    if args.poses * args.repeats > MAX_RECORD_READINGS:  # one configuration's scans are drawn at once
+        raise InputError(
+            f"--poses x --repeats: {args.poses} x {args.repeats} scans per configuration, more than "
+            f"{MAX_RECORD_READINGS}"
+        )
     with output_folder(args.out, args.force, (args.model,)) as tmp:
         model = LidarLWLR.load(default_model_path(DEFAULT_MODEL_FILE) if args.model is None else args.model)
         report = boxworld_experiment(

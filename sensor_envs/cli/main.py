@@ -22,7 +22,7 @@ from sensor_envs.cli import rebuild as cli_rebuild
 from sensor_envs.cli import training as cli_training
 from sensor_envs.cli import tune as cli_tune
 from sensor_envs.cli import upgrade as cli_upgrade
-from sensor_envs.cli.args import OneLineParser, add_force, bounded_int, declare_ranges, nonneg_int
+from sensor_envs.cli.args import PATH_OPTIONS, OneLineParser, add_force, bounded_int, declare_ranges, nonneg_int
 from sensor_envs.inputs import InputError
 
 USER_ERRORS: tuple[type[BaseException], ...] = (InputError, OSError)
@@ -108,7 +108,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return int(args.func(args) or 0)
         except USER_ERRORS as exc:
             _close_bars()
-            print(f"sensor-envs {args.command}: error: {one_line(exc, getattr(args, 'out', None))}", file=sys.stderr)
+            line = name_option(one_line(exc, getattr(args, "out", None)), args, parser)
+            print(f"sensor-envs {args.command}: error: {line}", file=sys.stderr)
             return 2
     finally:
         _close_bars()
@@ -183,6 +184,41 @@ def _close_bars() -> None:
     for bar in list(getattr(tqdm_mod.tqdm, "_instances", ())):
         bar.leave = False
         bar.close()
+
+
+def _command_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The (sub-)sub-command parser that parsed ``args`` (``record lidar``'s for ``record lidar ...``)."""
+    current = parser
+    for dest in ("command", "kind"):
+        sub = next((a for a in current._actions if isinstance(a, argparse._SubParsersAction)), None)
+        if sub is None or getattr(args, dest, None) not in sub.choices:
+            break
+        current = sub.choices[getattr(args, dest)]
+    return current
+
+
+def name_option(line: str, args: argparse.Namespace, parser: argparse.ArgumentParser) -> str:
+    """``line`` with the option whose value it is about put first, when it names none of the command's options.
+
+    A reader's error names the file or the value (``nan: input not found``, ``map: 'x' is neither a built-in
+    map ...``), not the option it came from: the option whose value is the line's subject (the line starts
+    with ``value:`` or quotes ``'value'``) is named in front (``--map nan: input not found``). Positional
+    arguments have no option to name: their file is named.
+    """
+    command = _command_parser(parser, args)
+    options = [a for a in command._actions if a.option_strings and a.nargs != 0 and a.dest != "help"]
+    if any(f"{o}" in line for a in options for o in a.option_strings if o.startswith("--")):
+        return line
+    options.sort(key=lambda a: a.dest not in PATH_OPTIONS)  # a file's name first: the lines name files
+    for action in options:
+        values = getattr(args, action.dest, None)
+        for value in values if isinstance(values, list) else [values]:
+            text = str(value) if isinstance(value, (str, os.PathLike)) else None
+            if text and text.strip() and line.startswith((f"{text}:", f"{text} (-> ")):
+                return f"{action.option_strings[-1]} {line}"
+            if text and text.strip() and f"'{text}'" in line:
+                return f"{action.option_strings[-1]} {text}: {line}"
+    return line
 
 
 def one_line(exc: BaseException, out: object = None) -> str:

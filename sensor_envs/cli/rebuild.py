@@ -117,7 +117,6 @@ def rebuild(out: Path, only: list[str] | None, force: bool, recipes: Path | None
     only when every recipe succeeded (an existing ``out`` needs ``force``).
     """
     from sensor_envs.cli.main import main
-    from sensor_envs.modelio import default_model_path
 
     folder = recipes or recipes_folder()
     names = recipe_names(folder)
@@ -127,22 +126,36 @@ def rebuild(out: Path, only: list[str] | None, force: bool, recipes: Path | None
     if unknown:
         raise InputError(f"--only: no recipe named {unknown} in {folder} (have {names})")
     chosen = {n: load_recipe(folder / f"{n}.yaml") for n in names if not only or n in only}
+    rigs = {n: _rig_path(folder, r["rig"]) for n, r in chosen.items()}
     written: list[Path] = []
-    with output_folder(out, force) as tmp, tempfile.TemporaryDirectory(prefix="rebuild_", dir=tmp.parent) as work:
+    inputs = [folder, *[folder / f"{n}.yaml" for n in chosen], *rigs.values()]  # --out may hold none of them
+    with (
+        output_folder(out, force, inputs) as tmp,
+        tempfile.TemporaryDirectory(prefix="rebuild_", dir=tmp.parent) as work,
+    ):
         for name, recipe in chosen.items():
-            rig = folder / recipe["rig"] if (folder / recipe["rig"]).is_file() else default_model_path(recipe["rig"])
-            for argv in recipe_argv(recipe, rig, Path(work), tmp):
+            for argv in recipe_argv(recipe, rigs[name], Path(work), tmp):
                 t0 = time.perf_counter()
                 print(f"[{name}] sensor-envs {' '.join(argv)}", file=sys.stderr, flush=True)
                 try:
                     code = main(argv)
-                except SystemExit:  # argparse refused an option (its message is printed above)
+                except SystemExit as exc:
+                    if exc.code != 2:  # e.g. SIGTERM (143): the command ends, rolled back, with that status
+                        raise
+                    # argparse refused an option (its message is printed above)
                     raise InputError(f"{folder / name}.yaml: the {argv[0]} options are refused") from None
                 if code:
                     raise InputError(f"{name}: `sensor-envs {argv[0]} {argv[1]}` failed (exit {code})")
                 print(f"[{name}] done in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
             written += [out / f for f in recipe["outputs"].values()]
     return written
+
+
+def _rig_path(folder: Path, name: str) -> Path:
+    """A recipe's ``rig``: the file of that name beside the recipes, else the shipped one."""
+    from sensor_envs.modelio import default_model_path
+
+    return folder / name if (folder / name).is_file() else default_model_path(name)
 
 
 def _run(args: argparse.Namespace) -> int:

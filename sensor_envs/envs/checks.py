@@ -151,13 +151,19 @@ def default_constraint(default: Any) -> list[Constraint]:
     return [Options(default)] if default is not None else [None]
 
 
-def check_highway_config(config: Any, defaults: dict[str, Any] | None = None) -> None:
+def check_highway_config(
+    config: Any, defaults: dict[str, Any] | None = None, current: dict[str, Any] | None = None
+) -> None:
     """Check a highway-env ``config`` override against the declared schema, before the env is built.
 
     Args:
         config: the override (``None`` = none).
         defaults: the env's ``default_config()``; given, every key must be one of its keys and is checked
             (declared range, or by the type of its default); ``None`` checks the declared keys only.
+        current: the configuration the override lands on (a running env's, for ``reset``; default
+            ``defaults``), for the relations between keys: ``simulation_frequency >= policy_frequency``
+            (highway-env simulates ``simulation_frequency // policy_frequency`` frames per step: 0 divides
+            by zero).
 
     Raises:
         InputError: ``"config.<key>: ..."`` naming the key (and ``config.action.<key>`` /
@@ -192,6 +198,19 @@ def check_highway_config(config: Any, defaults: dict[str, Any] | None = None) ->
             validate_params({key: value}, table)
         except InputError as exc:
             raise InputError(f"config.{exc}") from None
+    merged = {**(current if current is not None else defaults or {}), **config}
+    sim: Any = merged.get("simulation_frequency")
+    policy: Any = merged.get("policy_frequency")
+    if _real(sim) and _real(policy) and float(sim) < float(policy):
+        key = "simulation_frequency" if "simulation_frequency" in config else "policy_frequency"
+        raise InputError(
+            f"config.{key}: simulation_frequency ({sim:g}) must be >= policy_frequency ({policy:g}): "
+            "highway-env simulates simulation_frequency // policy_frequency frames per step"
+        )
+
+
+def _real(v: Any) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
 
 
 def _check_mapping(value: Any, table: dict[str, list[Constraint]], name: str, required: tuple[str, ...] = ()) -> None:

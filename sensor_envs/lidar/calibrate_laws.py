@@ -284,9 +284,13 @@ def _spur_range(stats: dict[str, Any]) -> dict[str, Any]:
 
 
 def _sigma_knots(real: dict[str, Any]) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """Knots of sigma versus range [m] from the real median cell standard deviation per range bin."""
+    """Knots of sigma versus range [m] from the real median cell standard deviation per range bin.
+
+    A bin without a measured spread (too few cells, or a median spread of 0: readings quantized to millimetres
+    that repeat exactly) is NaN and gives no knot; with no bin left, the rig's defaults.
+    """
     s = np.exp(np.asarray(real["sigma_range"], dtype=np.float64))
-    ok = np.isfinite(s)
+    ok = np.isfinite(s) & (s > 0)
     if not ok.any():
         return NeatoRig.sigma_knots_r, NeatoRig.sigma_knots
     kr = np.r_[0.0, RANGE_CENTRES[ok], max(4.0, RANGE_CENTRES[ok][-1] + 0.25)]

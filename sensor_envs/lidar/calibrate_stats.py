@@ -203,7 +203,8 @@ def log_summary(log: LidarLog, max_range: float = 5.0, spur_above: float = 6.0) 
     sig = []
     for lo, hi in zip(RANGE_BINS[:-1], RANGE_BINS[1:], strict=True):
         s = clean & (r >= lo) & (r < hi)
-        sig.append(float(np.log(np.median(st["std"][s]))) if s.sum() >= MIN_CELLS else float("nan"))
+        med = float(np.median(st["std"][s])) if s.sum() >= MIN_CELLS else float("nan")
+        sig.append(float(np.log(med)) if med > 0 else float("nan"))  # 0: quantized readings, no spread measured
     sv = x[spur]
     cdev = np.abs(np.where(clean, st["mean"] - r, np.nan))
     pose_dev = np.array([np.median(c[np.isfinite(c)]) for c in cdev if np.isfinite(c).any()])

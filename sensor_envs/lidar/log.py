@@ -485,11 +485,10 @@ def resample_bearings(log: LidarLog, n: int) -> LidarLog:
     two_pi = 2.0 * np.pi
     new = two_pi * np.arange(n) / n
     old = np.mod(log.bearings, two_pi)
-    gap = np.abs((new[:, None] - old[None, :] + np.pi) % two_pi - np.pi)
-    nearest = np.argmin(gap, axis=1)
+    nearest, nearest_gap = _nearest_beams(new, old)
     step_old = float(np.median(np.diff(np.sort(np.unique(np.round(old, 9)))))) if old.size > 1 else two_pi
     tol = 0.5 * max(step_old, two_pi / n) + 1e-9
-    far = gap[np.arange(n), nearest] > tol
+    far = nearest_gap > tol
     if far.any():
         k = int(np.flatnonzero(far)[0])
         raise LidarLogError(
@@ -498,6 +497,27 @@ def resample_bearings(log: LidarLog, n: int) -> LidarLog:
             f"{np.rad2deg(np.ptp(log.bearings)):.4g} deg; resampling to {n} bearings needs the full circle)"
         )
     return replace(log, ranges=log.ranges[:, nearest], bearings=new)
+
+
+def _nearest_beams(new: NDArray[np.float64], old: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Index of the beam of ``old`` nearest in angle to each of ``new`` (both in [0, 2 pi)), and that gap [rad].
+
+    Sorted search over the circle: memory in ``len(new) + len(old)`` (a ``new x old`` table of gaps was 1.6 GB
+    for a 2000-beam scan resampled to ``--bearings 100000``). Ties go to the earlier beam in the log's order.
+    """
+    two_pi = 2.0 * np.pi
+    order = np.lexsort((np.arange(old.size), old))  # by angle, then by place in the log
+    keep = np.r_[True, np.diff(old[order]) != 0]  # beams pointing one way: the first in the log stands for all
+    order = order[keep]
+    ring = old[order]
+    right = np.searchsorted(ring, new) % ring.size
+    left = (right - 1) % ring.size
+    gaps = [np.abs((new - ring[k] + np.pi) % two_pi - np.pi) for k in (left, right)]
+    cand = np.stack([order[left], order[right]])
+    gap = np.stack(gaps)
+    pick = np.where((gap[0] < gap[1]) | ((gap[0] == gap[1]) & (cand[0] <= cand[1])), 0, 1)
+    cols = np.arange(new.size)
+    return cand[pick, cols].astype(np.int64), gap[pick, cols]
 
 
 def read_rosbag(

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from sensor_envs.inputs import InputError
 from sensor_envs.lidar.gaussian import GaussianLidar
-from sensor_envs.modelio import default_model_path, model_file_key
+from sensor_envs.modelio import default_model_path, model_file_key, named_as_given
 
 __all__ = ["LidarSensor", "IdealLidar", "GaussianLidar", "make_lidar", "LIDAR_NAMES"]
 
@@ -122,7 +122,9 @@ def make_lidar(name: str | LidarSensor, model: str | PathLike[str] | None = None
 
     if kwargs or not (model is None or isinstance(model, (str, PathLike))):
         return load_learned_lidar(model, **kwargs)  # a fitted model passes through; kwargs are refused there
-    return _load_learned(*model_file_key(default_model_path(DEFAULT_MODEL_FILE) if model is None else model))
+    key = model_file_key(default_model_path(DEFAULT_MODEL_FILE) if model is None else model)
+    with named_as_given(model, key[0]):
+        return _load_learned(*key)
 
 
 @functools.lru_cache(maxsize=16)

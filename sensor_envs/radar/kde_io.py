@@ -25,6 +25,7 @@ from sensor_envs.modelio import (
 from sensor_envs.radar.alignment import MAX_AZIMUTH_BIAS
 from sensor_envs.radar.kde_params import (
     AZIMUTH_CANDIDATES,
+    MAX_CLUTTER_POSITIONS,
     MAX_POSITION,
 )
 from sensor_envs.radar.kde_trees import build_trees
@@ -175,7 +176,26 @@ def _check_arrays(path: str | os.PathLike[str], a: dict[str, NDArray[Any]]) -> N
     check_range(path, "clutter_counts", a["clutter_counts"], 0, 1e6)
     check_shape(path, "clutter_xy", a["clutter_xy"], (a["clutter_xy"].shape[0], 2))
     check_range(path, "clutter_xy", a["clutter_xy"], -MAX_POSITION, MAX_POSITION)
+    _check_clutter_rows(path, a["clutter_counts"], a["clutter_xy"])
     check_finite(path, "cv_candidates", a["cv_candidates"])
+
+
+def _check_clutter_rows(path: Any, counts: NDArray[Any], xy: NDArray[Any]) -> None:
+    """``clutter_xy`` holds the positions ``clutter_counts`` counts: all of them, or a subsample of the cap.
+
+    A fit stores every clutter position of the log, or :data:`MAX_CLUTTER_POSITIONS` of them drawn
+    uniformly when the log has more (files from before the cap hold them all). Positions without counts,
+    or counts without positions (the sampler would then draw no clutter at all), are a damaged file.
+
+    Raises:
+        ModelFileError: naming the file and both fields.
+    """
+    total, rows = int(np.sum(counts, dtype=np.int64)), int(xy.shape[0])
+    if rows != total and not (total > MAX_CLUTTER_POSITIONS and rows == MAX_CLUTTER_POSITIONS):
+        raise ModelFileError(
+            f"{path}: field 'clutter_xy' has {rows} positions, but 'clutter_counts' counts {total} clutter "
+            f"detections (expected all of them, or {MAX_CLUTTER_POSITIONS} when there are more)"
+        )
 
 
 def _load_azimuth_bias(header: dict[str, Any], path: Any, given: float | str) -> float:

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.inputs import InputError
-from sensor_envs.modelio import default_model_path, model_file_key
+from sensor_envs.modelio import default_model_path, model_file_key, named_as_given
 from sensor_envs.sensor_model import has_capability
 
 __all__ = [
@@ -160,7 +160,9 @@ def make_radar(name: str, model: str | os.PathLike[str] | None = None) -> RadarS
         if model is not None:
             raise InputError(f"radar 'ideal' takes no model file (got {model!r})")
         return _load_radar(name, None, 0)
-    return _load_radar(name, *model_file_key(default_model_path(DEFAULT_MODEL_FILES[name]) if model is None else model))
+    key = model_file_key(default_model_path(DEFAULT_MODEL_FILES[name]) if model is None else model)
+    with named_as_given(model, key[0]):
+        return _load_radar(name, *key)
 
 
 @functools.lru_cache(maxsize=32)

@@ -104,8 +104,10 @@ def certainly_bad(value: Any, default: Any, hint: str = "") -> bool:
         return not ((isinstance(value, str) and value == hint.split()[-1]) or plausible_number(value))
     if hint == "seed":
         return not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and 0 <= value < 2**32)
-    if hint == "pose":
-        return not (isinstance(value, (list, tuple)) and len(value) == 3 and all(map(plausible_number, value)))
+    if hint == "pose":  # three real numbers: a list, a tuple or a 1-d numeric array (any width: float16 too)
+        numeric = isinstance(value, np.ndarray) and value.ndim == 1 and value.dtype.kind in "fiu"
+        sequence = isinstance(value, (list, tuple)) or numeric
+        return not (sequence and len(value) == 3 and all(map(plausible_number, value)))
     if hint == "dict":
         return not isinstance(value, dict) or bool(value)  # {} is no override; generated keys are unknown
     if hint in ("path", "map", "lidar", "radar", "str") or isinstance(default, str):
@@ -308,7 +310,10 @@ def _env_reset(c: Chooser, d: Path) -> Case:
         else:
             options = c.choice([{"config": {"duration": v}}, {"config": v}, {"x": 1}, v])
         must = not (options is None or (isinstance(options, dict) and not options))  # no option
-        if isinstance(options, dict) and isinstance(options.get("config"), dict) and "Merge" not in env_id:
+        config = options.get("config") if isinstance(options, dict) else None
+        if isinstance(config, dict) and not config:
+            must = False  # an empty config changes nothing, like no option
+        elif isinstance(config, dict) and "duration" in config and "Merge" not in env_id:
             must = not (plausible_number(v) and float(v) > 0)  # merge-v0 has no duration
         what = f"options={options!r:.50}"
 
@@ -404,7 +409,7 @@ def mutate_array(c: Chooser, base: np.ndarray) -> tuple[Any, str, bool]:
         return new, f"shape {new.shape}", new.shape != base.shape
     if kind == "dtype":
         dt = c.choice([np.bool_, np.complex128, np.str_, object, np.float16, np.float32, np.int64])
-        good = dt in (np.float16, np.float32, np.int64)
+        good = dt in (np.float16, np.float32, np.int64) or np.dtype(dt) == base.dtype  # its own dtype: no change
         return base.astype(dt), f"dtype {np.dtype(dt)}", not good
     if kind == "empty":
         return base[:0], "no rows", False

@@ -241,8 +241,10 @@ LIST_OR_NONE = ("extra_variance",)
 
 
 def _rig(c: Chooser, d: Path) -> Case:
+    from sensor_envs.lidar.rig import RIG_CONSTRAINTS as NEATO_CONSTRAINTS
     from sensor_envs.lidar.rig import NeatoRig
     from sensor_envs.radar.rig import load_rig
+    from sensor_envs.radar.rig_config import RIG_CONSTRAINTS as RADAR_CONSTRAINTS
 
     which = c.choice(["radar_rig.json", "neato_rig.json"])
     blob = json.loads((SHIPPED / which).read_text())
@@ -251,7 +253,9 @@ def _rig(c: Chooser, d: Path) -> Case:
     value = c.choice(NASTY_JSON)
     if "." in where:
         k = where.split(".", 1)[1]
-        must = _changes_meaning(blob["params"][k], value, k)
+        declared = (RADAR_CONSTRAINTS if which == "radar_rig.json" else NEATO_CONSTRAINTS).get(k, [])
+        # a table the rig declares optional (None: the generic closed form) may be dropped; any rule may refuse it
+        must = _changes_meaning(blob["params"][k], value, k) and not (value is None and None in declared)
         blob["params"][k] = value
     else:
         must = blob[where] != value
@@ -574,6 +578,8 @@ def classify(case: Case, d: Path) -> str:
     lines = err.getvalue().strip().splitlines()
     if code != 2 or len(lines) != 1 or "Traceback" in err.getvalue():
         return f"exit {code}, {len(lines)} lines"
+    if case.must_name:  # the option whose value is at fault, never just any file or option of the line
+        return "clean error" if any(n in lines[0] for n in case.must_name) else "vague message"
     names = [str(p) for p in case.inputs] + [p.name for p in case.inputs] + ["/dev/zero", str(d)]
     names += [a.split("=")[0] for a in case.argv if a.startswith("--")]
     return "clean error" if any(n and n in lines[0] for n in names) else "vague message"

@@ -192,5 +192,147 @@ def _training_config(c: Chooser, d: Path) -> Case:
     return Case("training config", f"--set {item}", argv, load, must, [], command_when_loaded=False)
 
 
-OPTION_FAMILIES = {"every option": _every_option, "output target": _output_target, "training config": _training_config}
+# ------------------------------------------------------------------------------------------- option values
+def _base_argv(words: tuple[str, ...], d: Path) -> list[str] | None:
+    """A valid, cheap command line of the sub-command ``words`` (inputs written into ``d``); ``None``: none."""
+    from sensor_envs.testing.fuzz_pieces import lidar_arrays, write_npz
+
+    def shipped(name: str) -> str:
+        p = d / name
+        if not p.exists():
+            shutil.copy(SHIPPED / name, p)
+        return str(p)
+
+    def csv() -> str:
+        return str(write_radar_csv(d))
+
+    def npz() -> str:
+        return str(d / "log.npz") if (d / "log.npz").exists() else str(write_npz(d / "log.npz", lidar_arrays()))
+
+    table: dict[tuple[str, ...], Any] = {
+        ("record", "lidar"): lambda: ["--out", str(d / "r.npz"), "--poses", "2", "--repeats", "2"],
+        ("record", "radar"): lambda: ["--out", str(d / "r.csv"), "--sequences", "1", "--cycles", "2"],
+        ("fit", "lidar"): lambda: [npz(), "--out", str(d / "m.npz"), "--folds", "2", "--variant", "seed"],
+        ("fit", "radar"): lambda: [csv(), "--out", str(d / "k.npz"), "--relevance", "paper"],
+        ("validate", "lidar"): lambda: [shipped("neato_lidar.npz"), npz(), "--out", str(d / "v")],
+        ("validate", "radar"): lambda: [
+            shipped("radar_kde.npz"),
+            csv(),
+            "--out",
+            str(d / "v"),
+            "--baseline",
+            shipped("radar_gaussian.npz"),
+        ],  # fmt: skip
+        ("calibrate", "lidar"): lambda: [npz(), "--out", str(d / "c.json"), "--max-evals", "1"],
+        ("calibrate", "radar"): lambda: [csv(), "--out", str(d / "c.json"), "--max-evals", "1"],
+        ("tune", "radar"): lambda: [shipped("radar_kde.npz"), csv(), "--out", str(d / "t.npz")],
+        ("diagnose", "radar"): lambda: [csv(), "--out", str(d / "d")],
+        ("diagnose", "lidar"): lambda: [npz(), "--out", str(d / "d")],
+        ("evaluate", "detection"): lambda: ["--real", npz(), "--out", str(d / "e")],
+        ("evaluate", "boxworld"): lambda: ["--out", str(d / "e"), "--configs", "1", "--poses", "1", "--repeats", "1"],
+        ("evaluate", "radar-detection"): lambda: ["--real", csv(), "--out", str(d / "e"), "--draws", "1"],
+        ("evaluate", "registration"): lambda: ["--out", str(d / "e"), "--poses", "2"],
+        ("rebuild-models",): lambda: ["--out", str(d / "b")],
+        ("card",): lambda: [shipped("radar_kde.npz"), "--out", str(d / "card.md")],
+        ("upgrade-model",): lambda: [shipped("radar_kde.npz"), "--out", str(d / "u.npz")],
+        ("train",): lambda: ["--env", "sensor_envs/Neato-v0", "--out", str(d / "run"), "--set", "n_timesteps=1"],
+        ("robustness",): lambda: ["--out", str(d / "rob"), "--seeds", "1"],
+    }
+    return [*words, *table[words]()] if words in table else None
+
+
+NOT_AN_INPUT = frozenset({"out", "baseline_out", "json", "note"})
+"""Text and path options any value of which is valid (outputs, a free note): no bad value to give them."""
+INPUT_VALUES = ["nan", "{d}/missing{s}", "{d}/empty_folder", "/dev/null", "{d}/empty{s}", "{d}/nul{s}"]
+INPUT_VALUES += ["{d}/fifo{s}", "{d}/loop{s}", "{d}/zero_link{s}"]
+"""Values no input file or folder option may take here: no such file, an empty folder, a device, an empty file,
+4 KiB of NUL bytes, a FIFO, a symbolic-link loop, a link to ``/dev/zero`` (``{s}``: the suffix of the input the
+value stands for)."""
+
+
+def _bad_inputs(d: Path, suffix: str) -> None:
+    """The files :data:`INPUT_VALUES` names, made in ``d``."""
+    (d / "empty_folder").mkdir(exist_ok=True)
+    (d / f"empty{suffix}").write_bytes(b"")
+    (d / f"nul{suffix}").write_bytes(bytes(4096))
+    if not (d / f"fifo{suffix}").exists():
+        os.mkfifo(d / f"fifo{suffix}")
+    for name, target in ((f"loop{suffix}", d / f"loop{suffix}"), (f"zero_link{suffix}", Path("/dev/zero"))):
+        if not (d / name).is_symlink():
+            os.symlink(target, d / name)
+
+
+WORD_VALUES = ["nan", "x", "nan=1"]
+"""Values no option naming a thing (an env id, a sensor, a device, a column, a recipe, a key) may take."""
+
+
+def value_options() -> list[tuple[tuple[str, ...], argparse.Action, int]]:
+    """``(sub-command words, action, position)`` of every input path and word option of :data:`BASE_COMMANDS`.
+
+    ``position`` is a positional argument's index among the command's positionals (-1 for an option).
+    """
+    from sensor_envs.cli.main import build_parser
+
+    out = []
+    for words, _, action in option_actions():
+        if tuple(words) not in BASE_COMMANDS or _kind(action) != "text" or action.dest in NOT_AN_INPUT:
+            continue
+        position = -1
+        if not action.option_strings:
+            sub = build_parser()
+            for w in words:
+                sub = next(a for a in sub._actions if isinstance(a, argparse._SubParsersAction)).choices[w]
+            positionals = [a.dest for a in sub._actions if not a.option_strings]
+            position = positionals.index(action.dest)
+        out.append((tuple(words), action, position))
+    return out
+
+
+BASE_COMMANDS = frozenset(
+    {
+        ("record", "lidar"), ("record", "radar"), ("fit", "lidar"), ("fit", "radar"), ("validate", "lidar"),
+        ("validate", "radar"), ("calibrate", "lidar"), ("calibrate", "radar"), ("tune", "radar"),
+        ("diagnose", "radar"), ("diagnose", "lidar"), ("evaluate", "detection"), ("evaluate", "boxworld"),
+        ("evaluate", "radar-detection"), ("evaluate", "registration"), ("rebuild-models",), ("card",),
+        ("upgrade-model",), ("train",), ("robustness",),
+    }
+)  # fmt: skip
+"""The sub-commands :func:`_base_argv` has a valid command line for."""
+
+
+def _option_value(c: Chooser, d: Path) -> Case:
+    """A valid command line with one input or word option given a printable value that names nothing valid.
+
+    The value passes the parser (it is plain text), so the command itself must refuse it, before any
+    work and any output, with one line that names the option (``--map nan: input not found``), not only
+    the file or the value. A positional input's line names its value.
+    """
+    from sensor_envs.cli.args import PATH_OPTIONS
+
+    words, action, position = c.choice(value_options())
+    is_path = action.dest in PATH_OPTIONS or position >= 0
+    argv = _base_argv(words, d)
+    assert argv is not None
+    suffix = Path(argv[len(words) + position]).suffix if position >= 0 else ""
+    value = c.choice(INPUT_VALUES if is_path else WORD_VALUES).replace("{d}", str(d)).replace("{s}", suffix)
+    _bad_inputs(d, suffix)
+    if action.option_strings:
+        opt = action.option_strings[-1]
+        argv = [a for i, a in enumerate(argv) if a != opt and (i == 0 or argv[i - 1] != opt)]
+        argv += [opt, value]
+        names = tuple(o for o in action.option_strings if o.startswith("--"))
+    else:  # the base command lines give their positionals first, in order
+        argv[len(words) + position] = value
+        names = (value,)
+    what = f"{' '.join(words)} {action.option_strings[-1] if action.option_strings else action.dest}={value!r}"
+    inputs = [p for p in d.iterdir()]
+    return Case("option value", what, argv, None, True, inputs, must_name=names)
+
+
+OPTION_FAMILIES = {
+    "every option": _every_option,
+    "output target": _output_target,
+    "training config": _training_config,
+    "option value": _option_value,
+}
 """The second-round command-line families (:data:`sensor_envs.testing.fuzz_cases.FAMILIES` includes them)."""

@@ -66,6 +66,7 @@ class Case:
     inputs: list[Path]
     command_when_loaded: bool = True  # False: an input the loader takes is not also run through the command
     kind: str = ""  # Python API cases: "env", "radar", "lidar" or "checked" (how a result is judged); "" for files
+    must_name: tuple[str, ...] = ()  # the error line must hold one of these (the option at fault), else "vague"
 
 
 # ------------------------------------------------------------------------------------------- valid pieces

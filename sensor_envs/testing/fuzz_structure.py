@@ -388,14 +388,17 @@ def _image_bytes(c: Chooser) -> tuple[str, str, bytes, bool]:
         pil, fmt = Image.fromarray(img.astype(np.float32)), "TIFF"
     elif kind == "CMYK":
         pil, fmt = pil.convert("CMYK"), "JPEG"
-    elif kind != "trunc":
+    elif kind == "trunc":  # any format, cut anywhere past its signature (a checksum or trailer byte included)
+        fmt = c.choice(["PNG", "GIF", "BMP", "JPEG", "TIFF", "WEBP"])
+    else:
         pil = pil.convert(kind)
     pil.save(buf, format=fmt)
     raw = buf.getvalue()
-    if kind == "trunc":  # inside the pixel data: the 12-byte IEND chunk and IDAT's 4-byte CRC end the file
-        raw = raw[: c.integers(8, len(raw) - 17)]
-    suffix = {"PNG": ".png", "TIFF": ".tif", "JPEG": ".jpg"}[fmt]
-    return f"{kind} image", suffix, raw, kind in ("trunc", "1x1", "I;16", "F")
+    if kind == "trunc":
+        raw = raw[: c.integers(8, len(raw) - 1)]
+    suffix = {"PNG": ".png", "TIFF": ".tif", "JPEG": ".jpg", "GIF": ".gif", "BMP": ".bmp", "WEBP": ".webp"}[fmt]
+    kind = f"{fmt} cut" if kind == "trunc" else kind
+    return f"{kind} image", suffix, raw, kind.endswith(" cut") or kind in ("1x1", "I;16", "F")
 
 
 def _map_image(c: Chooser, d: Path) -> Case:

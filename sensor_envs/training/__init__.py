@@ -2,7 +2,8 @@
 
 Modules: ``train`` (``sensor-envs train``: a stable-baselines3 agent from a YAML config keyed by env id, the
 shipped one in ``configs/default.yaml``), ``robustness`` (``sensor-envs robustness``: train on one sensor,
-evaluate on every sensor, on a process pool or a Ray cluster), ``matrix_report`` (its reports: ``matrix.json``,
+evaluate on every sensor, on a process pool or a Ray cluster), ``robustness_inputs`` (its options, checked
+before ``--out`` is made), ``matrix_report`` (its reports: ``matrix.json``,
 ``matrix.md``, ``matrix.png``), ``stats`` (rliable-style statistics: IQM,
 bootstrap intervals, probability of improvement), ``collisions`` (a highway run's collision anatomy: what the
 observation showed in the last second before each crash) and ``collision_report`` (its page, JSON and plot).

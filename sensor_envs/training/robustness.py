@@ -43,10 +43,21 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.inputs import InputError, parse_json, read_text
+from sensor_envs.inputs import InputError, parse_json, read_text, real_path
 from sensor_envs.training import stats
 from sensor_envs.training.matrix_report import HIGHER_IS_BETTER, _write_atomic, write_reports
 from sensor_envs.training.matrix_report import headline as headline
+from sensor_envs.training.robustness_inputs import (
+    REAL_COLUMNS,
+    UsageError,
+    check_address,
+    check_jobs,
+    check_out,
+    connect_ray,
+    fit_real_models,
+    real_model_paths,
+    real_source,
+)
 
 __all__ = [
     "DOMAINS",
@@ -70,14 +81,14 @@ DOMAINS: dict[str, dict[str, Any]] = {
     "neato": {
         "env_id": "sensor_envs/Neato-v0",
         "sensors": ["ideal", "gaussian", "learned"],
-        "real": "learned-real",
+        "real": REAL_COLUMNS["neato"],
         "model_files": ["neato_lidar.npz", "neato_rig.json"],
         "metrics": ["success", "collision", "return"],
     },
     "highway": {
         "env_id": "sensor_envs/HighwayFast-v0",
         "sensors": ["ideal", "gaussian", "kde"],
-        "real": "kde-astyx",
+        "real": REAL_COLUMNS["highway"],
         "model_files": ["radar_gaussian.npz", "radar_kde.npz", "radar_object_clutter.json", "radar_rig.json"],
         "metrics": ["return", "collision", "speed"],
     },
@@ -170,10 +181,6 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
 MODEL_KWARGS = ("radar_model", "model")
 """Env keywords that name a sensor model file (hashed with the shipped ones when a config sets them)."""
 EVAL_SEED = 1_000_000  # evaluation episode e of every cell resets with seed EVAL_SEED + e
-
-
-class UsageError(InputError):
-    """A bad argument or an output folder made with other settings (one line naming the key)."""
 
 
 # ---------------------------------------------------------------------------------------------- a job
@@ -418,16 +425,10 @@ def build_matrix(out: Path, domain: str, rows: list[str], columns: list[str], se
 
 
 def sha256(path: Path) -> str | None:
-    """SHA-256 of a file in 1 MiB blocks (``None`` when it is absent)."""
-    import hashlib
+    """SHA-256 of a file (:func:`sensor_envs.modelio.file_sha256`; ``None`` when it is absent)."""
+    from sensor_envs.modelio import file_sha256
 
-    if not path.is_file():
-        return None
-    digest = hashlib.sha256()
-    with path.open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+    return file_sha256(path) if path.is_file() else None
 
 
 def sensor_model_hashes(domain: str, real_models: dict[str, str]) -> dict[str, str | None]:
@@ -465,42 +466,13 @@ def model_hashes(
 
 
 # ---------------------------------------------------------------------------------------------- real data
-def fit_real_models(domain: str, data: Path, out: Path) -> dict[str, str]:
-    """Fit the real-data sensor model once and cache it in ``<out>/real_models/``; returns column -> path."""
-    folder = out / "real_models"
-    folder.mkdir(parents=True, exist_ok=True)
-    column = DOMAINS[domain]["real"]
-    path = folder / ("neato_lidar_real.npz" if domain == "neato" else "radar_kde_astyx.npz")
-    if not path.is_file():
-        tmp = folder / f".tmp_{path.name}"
-        if domain == "neato":
-            from sensor_envs.lidar.log import load_log
-            from sensor_envs.lidar.lwlr import LidarLWLR
-
-            src = data / "neato_mar27_train.npz"
-            if not src.is_file():
-                raise UsageError(f"--real-data: {src} not found")
-            LidarLWLR().fit(load_log(src)).save(tmp)
-        else:
-            from sensor_envs.radar.astyx import load_astyx
-            from sensor_envs.radar.kde import KDERadarModel
-
-            src = data / "astyx_hires2019"
-            if not src.is_dir():
-                raise UsageError(f"--real-data: {src} not found")
-            KDERadarModel(use_prev=False, cv_group="sequence", random_state=0).fit(load_astyx(src)).save(tmp)
-        saved = tmp if tmp.is_file() else tmp.with_suffix(".npz")
-        os.replace(saved, path)
-    return {column: str(path)}
-
-
 # ---------------------------------------------------------------------------------------------- driver
 def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """The job specs of the matrix and the settings that define the output folder."""
     preset = PRESETS[args.preset][args.domain]
     try:
         known = sensor_names(args.domain, args.config)
-    except ValueError as err:  # ConfigError
+    except InputError as err:  # ConfigError
         raise UsageError(f"--config: {err}") from None
     rows = list(args.sensors or preset.get("sensors") or DOMAINS[args.domain]["sensors"])
     for flag, names in (("--sensors", rows), ("--columns", args.columns or [])):
@@ -548,8 +520,9 @@ def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[di
         "max_episode_steps": preset["max_episode_steps"],
         "set": train_set,
         "hyperparams": preset["hyperparams"],
-        "config": str(Path(args.config).resolve()),
+        "config": str(real_path(args.config)),
     }
+    check_jobs(args, settings, real_models, DOMAINS[args.domain]["env_id"])
     specs = [
         {
             **{
@@ -562,7 +535,7 @@ def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[di
             "seed": s,
             "device": args.device,
             "real_models": real_models,
-            "run_dir": str((args.out / "runs" / r / f"seed{s}").resolve()),
+            "run_dir": str(real_path(args.out / "runs" / r / f"seed{s}")),
         }
         for s in seeds  # seed-major: the first seeds' rows finish first (a stopped run leaves whole seeds)
         for r in rows
@@ -586,7 +559,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--address", default=None, help="Ray cluster address (default: start a local instance)")
     parser.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 2)), help="parallel jobs (local)")
-    parser.add_argument("--algo", default=None, help="algorithm block of the config (default: the env's algo)")
+    from sensor_envs.training.train import ALGOS
+
+    parser.add_argument(
+        "--algo", choices=ALGOS, default=None, help="algorithm block of the config (default: the env's algo)"
+    )
     parser.add_argument(
         "--sensors",
         nargs="+",
@@ -657,15 +634,34 @@ def _run(args: argparse.Namespace, argv: list[str]) -> dict[str, Any]:
         raise UsageError(f"--workers: must be >= 1, got {args.workers}")
     if args.backend == "ray":
         try:
-            import ray  # noqa: F401
+            import ray
         except ImportError:
             raise UsageError("--backend ray: ray is not installed (pip install ray, or the ray extra)") from None
+        check_address(args.address)
     real: dict[str, str] = {}
-    if args.real_data:  # the real-data models are cached in --out
-        args.out.mkdir(parents=True, exist_ok=True)
-        real = fit_real_models(args.domain, args.real_data, args.out)
+    if args.real_data:
+        real_source(args.domain, args.real_data)
+        real = real_model_paths(args.domain, args.out)  # fitted once --out is made, cached there
     specs, settings = plan(args, real)  # a bad config or option is refused before --out is made
-    args.out.mkdir(parents=True, exist_ok=True)
+    check_out(args)
+    started = connect_ray(args)
+    try:
+        return _run_matrix(args, argv, specs, settings, real)
+    finally:
+        if started:
+            import ray
+
+            ray.shutdown()
+
+
+def _run_matrix(
+    args: argparse.Namespace,
+    argv: list[str],
+    specs: list[dict[str, Any]],
+    settings: dict[str, Any],
+    real: dict[str, str],
+) -> dict[str, Any]:
+    """Make ``--out``, fit the real-data models, run the jobs not yet done, and write the reports."""
     stamp = args.out / "settings.json"
     if stamp.is_file() and not args.force:
         old = parse_json(read_text(stamp, "settings"), f"{stamp}: settings")
@@ -673,6 +669,9 @@ def _run(args: argparse.Namespace, argv: list[str]) -> dict[str, Any]:
         changed = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k))
         if changed:
             raise UsageError(f"--out {args.out}: made with other settings ({', '.join(changed)}); use --force")
+    args.out.mkdir(parents=True, exist_ok=True)
+    if args.real_data:
+        fit_real_models(args.domain, args.real_data, args.out)
     _write_atomic(stamp, json.dumps(settings, indent=1))
     todo = [s for s in specs if not (Path(s["run_dir"]) / "done").is_file()]
     print(f"{len(specs) - len(todo)} of {len(specs)} jobs already done; running {len(todo)} on {args.backend}")

@@ -23,7 +23,7 @@ import re
 import sys
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import gymnasium as gym
 import numpy as np
@@ -38,6 +38,7 @@ __all__ = [
     "DEFAULT_CONFIG",
     "ConfigError",
     "load_config",
+    "config_inputs",
     "sensor_table",
     "sensor_kwargs",
     "make_env",
@@ -70,6 +71,10 @@ DEFAULT_CONFIG = Path(__file__).with_name("configs") / "default.yaml"
 
 class ConfigError(InputError):
     """A bad config file, config entry or argument (the message names the file and the key)."""
+
+
+class EnvRefused(ConfigError):
+    """The env refused the config's keyword arguments (``env_kwargs``, with the sensor chosen)."""
 
 
 class UsageExit(SystemExit):
@@ -160,14 +165,24 @@ def set_value(item: str, option: str = "--set") -> Any:
 
 
 def load_config(
-    path: Path, env_id: str, overrides: list[str], algo: str | None = None, sensor: str | None = None
+    path: Path,
+    env_id: str,
+    overrides: list[str],
+    algo: str | None = None,
+    sensor: str | None = None,
+    *,
+    algo_option: str = "--algo",
+    sensor_option: str = "--sensor",
+    set_keys: list[str] | None = None,
 ) -> dict[str, Any]:
     """The config block of ``env_id`` in ``path`` with ``key=value`` overrides applied; unknown keys are errors.
 
     ``algo`` merges that algorithm's entry of the block's ``algos`` over the block; ``sensor`` sets the
     env's sensor: a name of the block's ``sensors`` table selects that entry's env keyword arguments,
     any other name sets the ``radar`` / ``lidar`` keyword (:func:`sensor_kwargs`).
-    Raises :class:`ConfigError` naming the file and the key.
+    Raises :class:`ConfigError` naming the file and the key, and the option a refused value came from:
+    ``algo_option`` for ``algo``, ``sensor_option`` for ``sensor``, ``--set KEY`` for the overrides (only
+    ``set_keys`` when given: the keys a user set, the others being a preset's).
     """
     try:  # bounded: a regular file of sane size, no aliases, tags or duplicate keys (sensor_envs.inputs)
         doc = parse_yaml(read_text(path, "config"), str(path)) or {}
@@ -177,12 +192,16 @@ def load_config(
         known = sorted(doc) if isinstance(doc, dict) else []
         raise ConfigError(f"{path}: no config for env id {env_id!r}; known: {known}")
     cfg = dict(doc[env_id])
-    keys = [item.partition("=")[0] for item in overrides]  # named in every message: the value may come from --set
-    where = f"{path} [{env_id}]" + (f" with --set {', '.join(keys)}" if overrides else "")
+    keys = [item.partition("=")[0] for item in overrides] if set_keys is None else list(set_keys)
+    where = f"{path} [{env_id}]" + (f" with --set {', '.join(keys)}" if keys else "")  # the value may be a --set
     if algo is not None and algo != cfg.get("algo"):
         alt = (cfg.get("algos") or {}).get(algo)
         if not isinstance(alt, dict):
-            raise ConfigError(f"{where}: algos.{algo}: no block for algo {algo!r}")
+            blocks = sorted(cfg.get("algos") or {}) if isinstance(cfg.get("algos"), dict) else []
+            raise ConfigError(
+                f"{algo_option} {algo}: {where}: no algos.{algo} block for this env (the config's blocks: "
+                f"{[cfg.get('algo'), *blocks]})"
+            )
         bad = set(alt) - ALGO_KEYS
         if bad:
             expected = sorted(ALGO_KEYS)
@@ -215,12 +234,40 @@ def load_config(
     for key in ("env_kwargs", "hyperparams"):
         if not isinstance(cfg.get(key) or {}, dict):
             raise ConfigError(f"{where}: {key} must be a mapping, got {cfg[key]!r}")
+    table = sensor_table(cfg, where=where)
+    base = dict(cfg.get("env_kwargs") or {})
     if sensor is not None:
         cfg["env_kwargs"] = sensor_kwargs(cfg, env_id, sensor, where=where)
-    else:
-        sensor_table(cfg, where=where)
-    check_arguments(cfg, env_id, where)
+    try:
+        check_arguments(cfg, env_id, where)
+    except EnvRefused as err:
+        # a sensor the env refuses while the config's own keywords build: the option is at fault, not the file
+        if sensor is None or cfg["env_kwargs"] == base or not _builds(env_id, base):
+            raise
+        named = f" (or a name of the config's sensors: {sorted(table)})" if table else ""
+        raise ConfigError(f"{sensor_option} {sensor}: {err}{named}") from None
     return cfg
+
+
+def _builds(env_id: str, kwargs: dict[str, Any]) -> bool:
+    """Whether ``env_id`` builds with ``kwargs`` (refusals of bad input only; any other error propagates)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            gym.make(env_id, **kwargs).close()
+        except (InputError, TypeError):
+            return False
+    return True
+
+
+MODEL_KWARGS = ("radar_model", "model")
+"""Env keywords that name a sensor model file."""
+
+
+def config_inputs(path: Path, cfg: dict[str, Any]) -> list[Path]:
+    """The files a run of ``cfg`` reads: the config file and every sensor model file its env keywords name."""
+    kwargs = cfg.get("env_kwargs") or {}
+    return [Path(path), *[Path(kwargs[k]) for k in MODEL_KWARGS if isinstance(kwargs.get(k), str)]]
 
 
 def _bad_number(x: Any) -> Any:
@@ -274,7 +321,7 @@ def _check_builds(cfg: dict[str, Any], env_id: str, where: str) -> None:
         try:
             env = gym.make(env_id, **dict(cfg.get("env_kwargs") or {}))
         except (InputError, TypeError) as exc:  # an unknown keyword argument is a TypeError of the constructor
-            raise ConfigError(f"{where}: env_kwargs: {' '.join(str(exc).split())}") from None
+            raise EnvRefused(f"{where}: env_kwargs: {' '.join(str(exc).split())}") from None
         try:  # the policy name, the algorithm's action spaces and the hyperparameters' values, as SB3 checks them
             getattr(sb3, cfg["algo"].upper())(cfg["policy"], env, device="cpu", **(cfg.get("hyperparams") or {}))
         except (ValueError, TypeError, AssertionError, KeyError) as exc:
@@ -385,23 +432,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    """Resolve the config, log it, train, and write ``result.json`` (``args`` from :func:`add_arguments`)."""
+    """Resolve the config, log it, train, and write ``result.json`` (``args`` from :func:`add_arguments`).
+
+    Raises:
+        InputError: a bad config or argument (``ConfigError``) or an unsafe ``--out`` (``OutputError``), before
+            anything is written; the command line shows it as one line with exit status 2.
+    """
     from sensor_envs.outputs import OutputTransaction, check_output
 
     if args.env not in gym.registry:
-        _fail(f"--env: {args.env!r} is not a registered env id")
-    try:
-        cfg = load_config(args.config, args.env, args.set, algo=args.algo, sensor=args.sensor)
-        check_output(args.out, force=args.force, folder=True)
-    except ValueError as err:  # ConfigError, OutputError
-        _fail(str(err))
+        raise ConfigError(f"--env: {args.env!r} is not a registered env id")
+    cfg = load_config(args.config, args.env, args.set, algo=args.algo, sensor=args.sensor)
+    # --out is replaced as a whole: it must not be, or hold, a file the run reads
+    check_output(args.out, inputs=config_inputs(args.config, cfg), force=args.force, folder=True)
     if args.seed is not None and not 0 <= args.seed < 2**32:  # numpy and SB3 seed with 32 bits
-        _fail(f"--seed: expected an integer in [0, 2**32 - 1], got {args.seed}")
+        raise ConfigError(f"--seed: expected an integer in [0, 2**32 - 1], got {args.seed}")
     if args.device is not None:
-        try:
-            cfg["device"] = check_device(args.device)
-        except ConfigError as err:
-            _fail(str(err))
+        cfg["device"] = check_device(args.device)
     seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy) % 2**31  # type: ignore[arg-type]
     resolved = {"env_id": args.env, "seed": seed, "config": cfg, "command": [sys.executable, *sys.argv]}
     # Built in the claimed temporary folder, replacing --out as a whole when it ends: with --force an old
@@ -421,10 +468,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         prog="sensor-envs train", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     add_arguments(parser)
-    return run(parser.parse_args(argv))
+    try:
+        return run(parser.parse_args(argv))
+    except InputError as err:
+        _fail(" ".join(str(err).split()))
 
 
-def _fail(message: str) -> None:
+def _fail(message: str) -> NoReturn:
     """Print one line to stderr and exit with status 2."""
     print(f"sensor-envs train: error: {message}", file=sys.stderr)
     raise UsageExit(message)

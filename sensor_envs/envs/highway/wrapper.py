@@ -164,7 +164,7 @@ from sensor_envs.envs.highway.wrapper_schema import (
     default_config,
 )
 from sensor_envs.geometry import from_frame
-from sensor_envs.inputs import InputError
+from sensor_envs.inputs import InputError, real_path
 from sensor_envs.modelio import validate_params
 from sensor_envs.radar.sensors import NEW_TRACK_KEYWORD, RADAR_NAMES, RadarSensor, takes_new_track
 from sensor_envs.rng import sensor_rng
@@ -309,7 +309,7 @@ class RadarObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         )
         if isinstance(radar, str):
             self.radar = load_radar(radar, radar_model)
-            path = None if radar_model is None else str(Path(radar_model).expanduser().resolve())
+            path = None if radar_model is None else str(real_path(Path(radar_model).expanduser()))
             self._radar_key: tuple[str, str | None] | None = (radar, path)
         else:
             if not isinstance(radar, RadarSensor):

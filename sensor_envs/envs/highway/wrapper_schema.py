@@ -102,7 +102,7 @@ def check_reset_config(options: dict[str, Any] | None, base: Any, layout: Kinema
     if not isinstance(options["config"], dict):
         raise InputError(f"options.config: expected a dict, got {type(options['config']).__name__}")
     try:
-        check_highway_config(options["config"], dict(base.default_config()))
+        check_highway_config(options["config"], dict(base.default_config()), dict(getattr(base, "config", {})))
     except InputError as exc:
         raise InputError(f"options.{exc}") from None
     new = options["config"].get("observation")
