@@ -38,21 +38,10 @@ from sensor_envs.geometry import as_segments, quaternion_yaw
 from sensor_envs.inputs import InputError, bad_name, check_regular_file, load_npz, open_gzip_lines
 from sensor_envs.outputs import atomic_write, check_suffix
 
-__all__ = [
-    "LidarLog",
-    "LidarLogError",
-    "load_log",
-    "save_log",
-    "read_carmen",
-    "read_rosbag",
-    "log_from_arrays",
-    "motion_covariates",
-    "resample_bearings",
-    "training_summary",
-]
+__all__ = ["LidarLog", "LidarLogError", "load_log", "save_log", "read_carmen", "read_rosbag", "log_from_arrays"]
+__all__ += ["motion_covariates", "resample_bearings", "training_summary"]
 
 PathLike = str | os.PathLike[str]
-
 
 MAX_RANGE = 1000.0
 """Largest accepted reading [m] (long-range lidars reach ~300 m)."""
