@@ -284,8 +284,7 @@ def run_diagnose(
         tuple(c for c in ev.candidates if c not in feats),
         **opts,  # type: ignore[arg-type]
     )
-    rejected: list[tuple[str, str]] = []  # (candidate, form) refits that did not improve
-    tried: set[tuple[str, ...]] = set()  # their state terms
+    rejected: set[tuple[str, ...]] = set()  # state terms of refits that did not improve
     unrepresented: dict[str, str] = {}
     ranking: Ranking | None = None
     step: dict[str, Any] = {}
@@ -302,13 +301,11 @@ def run_diagnose(
             # still be represented by its main terms
             tries = [e] if e.get("form", "main") == "main" else [e, {**e, "form": "main"}]
             for t in tries:
-                if (t["name"], t.get("form", "main")) in rejected:
-                    continue
                 terms = _terms(adapter, t)
                 if terms is None:
                     unrepresented.setdefault(t["name"], _why_not(adapter, t))
                     continue
-                if tuple(terms) in tried:  # the same refit under another form's name
+                if tuple(terms) in rejected:  # already refitted (in this form or under another's name)
                     continue
                 pick = t
                 break
@@ -337,8 +334,7 @@ def run_diagnose(
                 f"[{low:.4f}, {high:.4f}] nats per reading (95 %, held-out blocks resampled) does not exclude 0"
             )
             step["decision"] = attempt["decision"]
-            rejected.append((pick["name"], pick.get("form", "main")))
-            tried.add(tuple(terms))
+            rejected.add(tuple(terms))
             continue
         attempt["decision"] = step["decision"] = f"added {pick['name']} as {', '.join(terms)}"
         state, model, ev = (*state, *terms), new_model, new_ev
