@@ -22,10 +22,9 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from sensor_envs.diagnose.core import Evaluation
-from sensor_envs.diagnose.regressors import rank_basis
+from sensor_envs.diagnose.projection import candidate_forms, flip_p, state_factors
 from sensor_envs.diagnose.search import n_flip_blocks
 
 __all__ = ["detectable", "oracle_test", "FLIPS"]
@@ -36,40 +35,6 @@ over its few dozen forms and targets, can be reached (the search's own test flip
 corrects by max-T instead)."""
 
 
-def _state_factors(state: dict[str, NDArray]) -> dict[str, NDArray[np.float64]]:
-    """Per state feature, its centred rank in ``[-1, 1]`` and its side of the median (``+-1``)."""
-    out: dict[str, NDArray[np.float64]] = {}
-    for name, s in state.items():
-        b = rank_basis(s, degree=1)
-        out[f"x {name} (trend)"] = b[:, 1]
-        out[f"x {name} (side)"] = np.sign(b[:, 1])
-    return out
-
-
-def _flip_p(r: NDArray, x: NDArray, block: NDArray, flips: NDArray) -> float:
-    """p-value of ``r ~ 1 + x`` (H0: the ``k`` slopes of ``x (n, k)`` are 0) by block sign-flips of ``r``.
-
-    The statistic is the squared norm of ``r``'s projection on the centred ``x`` (its explained sum of
-    squares); the null flips ``r``'s centred values by one sign per block (``flips (B, blocks)``), as the
-    search's test does: within a block the residuals keep their correlation, ``x`` keeps its own.
-    """
-    ok = np.isfinite(r) & np.all(np.isfinite(x), axis=1)
-    if ok.sum() < 10 * (x.shape[1] + 1):
-        return 1.0
-    xc = x[ok] - x[ok].mean(axis=0)
-    q, tri = np.linalg.qr(xc)
-    q = q[:, np.abs(np.diag(tri)) > 1e-9 * max(float(np.abs(tri).max()), 1e-300)]
-    if q.shape[1] == 0:
-        return 1.0
-    rc = r[ok] - r[ok].mean()
-    _, g = np.unique(block[ok], return_inverse=True)
-    per_block = np.zeros((flips.shape[1], q.shape[1]))
-    np.add.at(per_block, g.ravel() % flips.shape[1], q * rc[:, None])
-    observed = float(np.sum(per_block.sum(axis=0) ** 2))
-    null = np.sum((flips @ per_block) ** 2, axis=1)
-    return float((1 + np.sum(null >= observed * (1 - 1e-12))) / (1 + flips.shape[0]))
-
-
 def oracle_test(ev: Evaluation, cause: str, n_flips: int = FLIPS, seed: int = 0) -> dict[str, Any]:
     """The oracle's test of ``cause`` on ``ev``'s residuals (every target, main effect and x each state factor).
 
@@ -77,9 +42,7 @@ def oracle_test(ev: Evaluation, cause: str, n_flips: int = FLIPS, seed: int = 0)
         ``{"p_value": Bonferroni-corrected p, "tests": int, "best": "metric form", "p_raw": best raw p}``.
     """
     c = ev.candidates[cause]
-    main = rank_basis(c, degree=2)[:, 1:3]
-    main[~np.isfinite(c)] = np.nan
-    forms = {"main": main, **{k: main * f[:, None] for k, f in _state_factors(ev.state).items()}}
+    forms = candidate_forms(c, state_factors(ev.state))
     order = np.arange(c.size, dtype=np.float64) if ev.order is None else ev.order
     idx = np.argsort(order, kind="stable")
     rank = np.argsort(idx, kind="stable")
@@ -91,7 +54,7 @@ def oracle_test(ev: Evaluation, cause: str, n_flips: int = FLIPS, seed: int = 0)
     for metric, r in ev.residuals.items():
         for form, x in forms.items():
             tests += 1
-            p = _flip_p(np.asarray(r, dtype=np.float64), x, block, flips)
+            p = flip_p(np.asarray(r, dtype=np.float64), x, block, flips)
             if p < p_best:
                 best, p_best = f"{metric} {form}", p
     return {"p_value": min(1.0, p_best * tests), "tests": tests, "best": best, "p_raw": p_best}

@@ -56,6 +56,8 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
+from sensor_envs.diagnose.projection import FLIPS as PROJECTION_FLIPS
+from sensor_envs.diagnose.projection import PROXY_CORR, combine_tests, inherit, projection_proxies, projection_tests
 from sensor_envs.diagnose.regressors import (
     _RIDGE,
     GAP,
@@ -86,8 +88,6 @@ MIN_BLOCKS = 16
 _SHRINK = 10.0
 _INT_BINS = (6, 8)
 _TOP_COND = 5
-_PROXY_CORR = 0.5
-"""Rank correlation above which a candidate outside the top is checked as the cause of a top candidate."""
 
 
 @dataclass
@@ -448,7 +448,18 @@ def rank_candidates(
             }
         )
     _settle_forms(effects, obs, d, targets, metrics, forms, alpha)
+    proj_targets = {}  # every finite reading (no fold gaps: nothing is fitted on one part and scored on another)
+    for m in metrics:
+        r = np.asarray(ev.residuals[m], dtype=np.float64)[idx]
+        ok = np.isfinite(r)
+        proj_targets[m] = (_free_of_state(r[ok] - r[ok].mean(), d.state_bins, ok), ok)
+    flips = rng.choice([-1.0, 1.0], size=(PROJECTION_FLIPS, n_blocks[0]))
+    preferred = tuple(m for m in metrics if kinds.get(m, "mean") in ("mean", "rate"))
+    proj = projection_tests(proj_targets, cands, state, blocks[0], flips, preferred, alpha / 2)
+    for e in effects:
+        combine_tests(e, proj.get(e["name"]), kinds, alpha, min_score)
     _mark_proxies(effects, d, names, targets, metrics, forms, given_design)
+    projection_proxies(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha)
     # significant effects by how much of the held-out residual they explain (the loop adds the largest
     # first), the others by how far their best cell lies in its null distribution
     effects.sort(
@@ -555,7 +566,7 @@ def _mark_proxies(
         fi = forms.index(ei["form"])
         # the other top candidates, and any candidate correlated with i (a cause may score below its noisy
         # copy by chance, even out of the top: it is still the better explanation given the copy)
-        near = [j for j in np.flatnonzero(corr[i] >= _PROXY_CORR) if j != i and j not in top]
+        near = [j for j in np.flatnonzero(corr[i] >= PROXY_CORR) if j != i and j not in top]
         others: list[tuple[_Design, int, int, str]] = [
             (d, j, forms.index(effects[j]["form"]), names[j]) for j in top if j != i and effects[j]["proxy_of"] is None
         ] + [(d, int(j), fi, names[j]) for j in near]
@@ -566,29 +577,11 @@ def _mark_proxies(
             cj = _cond(dj, j, fj, d, i, fi, r, mask, fold)
             if ci < 0.2 * ei["score"] and cj > ci:
                 if dj is d and ei["significant"] and not effects[j]["significant"]:
-                    _inherit(effects[j], ei, cj)
+                    inherit(effects[j], ei, cj)
                 ei["proxy_of"] = name
                 ei["conditional_score"] = ci
                 ei["significant"] = False
                 break
-
-
-def _inherit(cause: dict[str, Any], proxy: dict[str, Any], gain: float) -> None:
-    """The cause of a significant proxy takes its finding: the effect the test found is the cause's.
-
-    The family-wise test found the proxy's effect; the conditional check attributes it to ``cause``
-    (which explains it given the proxy, not the other way round), so ``cause`` is significant in the
-    proxy's metric and form, at the proxy's p-value, scored by its conditional gain (``via_proxy``).
-    """
-    cause.update(
-        significant=True,
-        p_value=min(cause["p_value"], proxy["p_value"]),
-        metric=proxy["metric"],
-        kind=proxy["kind"],
-        form=proxy["form"],
-        score=max(cause["score"], gain),
-        via_proxy=proxy["name"],
-    )
 
 
 def _best_form(d: _Design, i: int, r: NDArray, mask: NDArray, fold: NDArray) -> int:
