@@ -193,12 +193,15 @@ def test_lidar_state_terms_interact_with_the_bearing():
     log = log_from_arrays(
         np.ones((3, 8, 1)), b, np.tile([2.0, 1.5, 0.0], (3, 1)), box, t=np.arange(3.0), covariates={"v": [1, 2, 3]}
     )
-    f = scan_features(log, ("v", "v@cos_bearing", "v@sin_bearing", "v@sq"), None)
+    f = scan_features(log, ("v", "v@cos_bearing", "v@sin_bearing", "v@sq", "v@sq@cos_bearing"), None)
     np.testing.assert_allclose(f[..., 1], np.array([1, 2, 3])[:, None] * np.cos(b)[None])
     np.testing.assert_allclose(f[..., 3], np.array([1, 4, 9])[:, None] * np.ones(8))
+    np.testing.assert_allclose(f[..., 4], np.array([1, 4, 9])[:, None] * np.cos(b)[None])  # U-shaped x cos
     assert split_term("t@sin_bearing") == ("t", "sin_bearing")
-    with pytest.raises(ValueError, match="extra_state"):
-        check_extra_state(("v@tan",))
+    assert split_term("v@sq@range") == ("v", "sq@range")
+    for bad in ("v@tan", "v@cos_bearing@sq", "v@sq@sq", "v@sq@range@incidence", "@sq"):
+        with pytest.raises(ValueError, match="extra_state"):
+            check_extra_state((bad,))
 
 
 def test_coarse_carmen_times_are_derived_from_the_scan_rate_with_a_warning():

@@ -150,21 +150,23 @@ class LidarAdapter:
     def state_terms(self, candidate: str, form: str = "main") -> tuple[str, ...] | None:
         """State terms representing a finding of ``candidate`` with ``form`` (``main``, ``x bearing``, ...).
 
-        An interaction with the bearing maps to ``<var>@cos_bearing``, ``<var>@sin_bearing``; with the
-        range, incidence or the range's slope along the scan to ``<var>@range``, ``<var>@incidence``,
-        ``<var>@range_slope`` (:mod:`sensor_envs.lidar.extra_state`), each beside the variable itself.
+        A main effect maps to ``<var>``, ``<var>@sq`` (linear and U-shaped); an interaction with the
+        bearing to those and each times ``cos_bearing``, ``sin_bearing`` (``<var>@cos_bearing``,
+        ``<var>@sq@cos_bearing``, ...); with the range, incidence or the range's slope along the scan,
+        times ``range``, ``incidence`` or ``range_slope`` (:mod:`sensor_envs.lidar.extra_state`).
         ``None`` when the model cannot take it (not a state variable).
         """
         var = self.state_name(candidate)
         if var is None:
             return None
+        main = (var, f"{var}@sq") if var != PREV else (var,)
         if form == "main":
-            return (var, f"{var}@sq") if var != PREV else (var,)
-        if form == "x bearing":
-            return (var, f"{var}@cos_bearing", f"{var}@sin_bearing")
-        if form.startswith("x ") and form[2:] in GEOMETRY_MODIFIERS:
-            return (var, f"{var}@{form[2:]}")
-        return None
+            return main
+        mods = ("cos_bearing", "sin_bearing") if form == "x bearing" else (form[2:],)
+        if form != "x bearing" and not (form.startswith("x ") and form[2:] in GEOMETRY_MODIFIERS):
+            return None
+        # linear and U-shaped in the variable, times the state (a U-shaped effect has no linear part)
+        return main + tuple(f"{t}@{m}" for m in mods for t in main)
 
     def state_features(self) -> tuple[str, ...]:
         """The model's own state: nominal range, incidence and bearing (per-bearing tables)."""

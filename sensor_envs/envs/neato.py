@@ -41,7 +41,7 @@ from sensor_envs.envs.neato_render import render_world
 from sensor_envs.geometry import nearest_wall_distance, raycast_pose, sample_free_poses, to_frame, wrap_angle
 from sensor_envs.inputs import InputError, check_array
 from sensor_envs.jit import compiled
-from sensor_envs.lidar.extra_state import GEOMETRY_MODIFIERS, modify, split_term
+from sensor_envs.lidar.extra_state import modify, needs_geometry, split_term
 from sensor_envs.lidar.sensors import GaussianLidar, IdealLidar, LidarSensor, make_lidar
 from sensor_envs.maps import SegmentMap, load_map
 from sensor_envs.modelio import Constraint, Interval, validate_params
@@ -325,7 +325,7 @@ class NeatoEnv(gym.Env[NDArray[np.float32], NDArray[np.float32]]):
         cols = {"v": self._motion[0], "omega": self._motion[1], "t": self._motion[2], "prev_residual": self._prev_res}
         terms = [split_term(n) for n in self._extra_names]  # a term may interact with the bearing or the ray
         nominal = incidence = None
-        if any(m in GEOMETRY_MODIFIERS for _, m in terms):  # the ray's nominal range, incidence, range slope
+        if any(needs_geometry(m) for _, m in terms):  # the ray's nominal range, incidence, range slope
             ray = raycast_pose(self.pose[None], self.bearings, self.world_map.segments, self.max_range)
             nominal, incidence = ray[0][0], ray[1][0]
         vals = [

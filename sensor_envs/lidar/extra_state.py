@@ -53,6 +53,7 @@ __all__ = [
     "MODIFIERS",
     "check_extra_state",
     "split_term",
+    "needs_geometry",
     "modify",
     "range_slope",
     "GEOMETRY_MODIFIERS",
@@ -82,15 +83,30 @@ a few of them would set a linear term's fit."""
 def split_term(name: str) -> tuple[str, str | None]:
     """``(variable, modifier)`` of a state term name (``modifier`` ``None`` for a plain variable).
 
+    A modifier may be a chain of two, ``sq@<modifier>`` (a U-shaped effect whose sign follows the
+    bearing or grows with the ray's range: ``v@sq@cos_bearing`` is ``v**2 cos(bearing)``).
+
     Raises:
         ValueError: an unknown modifier, naming ``extra_state``.
     """
     base, sep, mod = name.partition("@")
     if not sep:
         return name, None
-    if mod not in MODIFIERS or not base:
-        raise InputError(f"extra_state: term {name!r}: expected <name>@<modifier> with a modifier in {MODIFIERS}")
+    chain = mod.split("@")
+    ok = bool(base) and all(m in MODIFIERS for m in chain) and len(chain) <= 2
+    if ok and len(chain) == 2:
+        ok = chain[0] == "sq" and chain[1] != "sq"
+    if not ok:
+        raise InputError(
+            f"extra_state: term {name!r}: expected <name>@<modifier> or <name>@sq@<modifier> with a modifier "
+            f"in {MODIFIERS}"
+        )
     return base, mod
+
+
+def needs_geometry(mod: str | None) -> bool:
+    """Whether a term's modifier (chain) needs the rays' nominal range or incidence (:data:`GEOMETRY_MODIFIERS`)."""
+    return mod is not None and any(m in GEOMETRY_MODIFIERS for m in mod.split("@"))
 
 
 def range_slope(r: NDArray[np.float64], bearings: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -130,6 +146,9 @@ def modify(
     """
     if mod is None:
         return values
+    if "@" in mod:  # a chain: sq, then the second modifier
+        first, second = mod.split("@", 1)
+        return modify(modify(values, first, bearings, nominal, incidence), second, bearings, nominal, incidence)
     if mod == "sq":
         return values**2
     if mod in ("cos_bearing", "sin_bearing"):
