@@ -111,7 +111,7 @@ def test_neato_supplies_the_learned_lidars_extra_state():
     import sensor_envs  # noqa: F401  (registers the envs)
 
     log = make_log("omega", scans=200, bearings=36)
-    state = ("omega", "v", "t", "prev_residual", "omega@range_slope", "v@incidence", "t@range")
+    state = ("omega", "v", "t", "prev_residual", "omega@range_slope", "v@incidence", "t@range", "omega@sq@range_slope")
     m = LidarLWLR(**FAST, extra_state=state).fit(log, max_readings=100)
     assert np.all(m.extra_scale_ > 0) and np.isfinite(m.extra_coef_).all()
     env = gym.make("sensor_envs/Neato-v0", lidar="learned", model=m, n_bearings=36, map="seed_room")
@@ -125,6 +125,7 @@ def test_neato_supplies_the_learned_lidars_extra_state():
     slope = np.clip(range_slope(nominal[0], ex.bearings), -SLOPE_CAP * r, SLOPE_CAP * r)
     np.testing.assert_allclose(values[:, 4], ex._motion[1] * slope)
     np.testing.assert_allclose(values[:, 5], ex._motion[0] * np.where(np.isfinite(nominal[0]), incidence[0], 0.0))
+    np.testing.assert_allclose(values[:, 7], ex._motion[1] ** 2 * slope)  # a chain: squared, then times the slope
     check_env(env.unwrapped, skip_render_check=True)
     obs_a, _ = env.reset(seed=3)
     obs_b, _ = env.reset(seed=3)
