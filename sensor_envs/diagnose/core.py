@@ -367,7 +367,8 @@ def run_diagnose(
         settings={
             "alpha": alpha,
             "multiple_testing": "Westfall-Young max-T over candidates, regressors and residual targets "
-            "(block sign-flips of the residual targets, in time order)",
+            "(block sign-flips of the residual targets, in time order), and min-P over the projection tests "
+            "(two-coefficient forms, in sample); Bonferroni over the two tests",
             "min_score": min_score,
             "n_permutations": n_permutations,
             "max_add": max_add,

@@ -40,6 +40,12 @@ others; the adjusted p-value is Westfall-Young max-T of ``z`` over all of them. 
 by ``z``, except that the significant ones come first, ordered by their held-out ``R^2`` (the largest
 effect first: the loop adds in this order).
 
+**A second test** (:mod:`~sensor_envs.diagnose.projection`): every candidate in a few two-coefficient
+forms, in sample, on every reading, with the same kind of block sign-flips and min-P over all its tests;
+a small effect of a simple form that the held-out scores cannot resolve is found there. A candidate is
+significant when either test finds it at ``alpha / 2`` (``test``: which one; ``p_search``,
+``p_projection``); partial projection tests then tell a cause from its noisy copy.
+
 **Conditional check.** Among the top candidates, and the candidates whose rank scale is correlated
 (>= 0.5) with a top one, ``i`` is a *proxy* of ``j`` when, once ``j``'s fit is removed, ``i`` explains
 less than a fifth of its own score and less than ``j`` does given ``i``; a proxy is not significant and
