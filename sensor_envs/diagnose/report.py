@@ -75,6 +75,7 @@ def describe_effect(ev: Evaluation, effect: dict[str, Any]) -> dict[str, Any]:
         "metric": metric,
         "unit": unit,
         "p_value": effect["p_value"],
+        "test": effect.get("test", "held-out"),
         "slope_per_unit": slope,
         "range_of_cause": [lo, hi],
         "change_across_range": change,
@@ -227,7 +228,8 @@ def _markdown(result: DiagnoseResult, data: dict[str, Any], figs: list[tuple[str
     for f in data["details"]["findings"]:
         added = "added" if f["name"] in result.added else "not added"
         lines.append(
-            f"- **{f['name']}** ({f['kind']} effect, form {f['form']}, p {f['p_value']:.3g}, {added}): {f['text']}"
+            f"- **{f['name']}** ({f['kind']} effect, form {f['form']}, p {f['p_value']:.3g} by the {f['test']} test, "
+            f"{added}): {f['text']}"
         )
     for u in data["details"].get("unrepresented", []):
         lines.append(f"- cannot be represented: {u['why']}")
@@ -238,14 +240,14 @@ def _markdown(result: DiagnoseResult, data: dict[str, Any], figs: list[tuple[str
         lines.append(f"| {m} | {v['rms_before']:.4g} | {v['rms_after']:.4g} |")
     lines += ["", "## Candidate effects (residuals of the base model), best first", ""]
     lines += [
-        "| effect | score (R^2) | p (max-T) | p (raw) | metric | kind | form | significant |",
-        "|---|---|---|---|---|---|---|---|",
+        "| effect | score (R^2) | p (family-wise) | p (raw, held-out) | metric | kind | form | test | significant |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for e in result.effects:
         sig = "yes" if e["significant"] else (f"no (proxy of {e['proxy_of']})" if e.get("proxy_of") else "no")
         lines.append(
             f"| {e['name']} | {e['score']:.4f} | {e['p_value']:.4f} | {e['p_raw']:.4f} | {e['metric']} | "
-            f"{e.get('kind', '')} | {e.get('form', '')} | {sig} |"
+            f"{e.get('kind', '')} | {e.get('form', '')} | {e.get('test', 'held-out')} | {sig} |"
         )
     if result.state_misfit:
         lines += [
