@@ -37,8 +37,8 @@ trend stays a trend), so the null spread of a score is that of a time-correlated
 (candidate, target, regressor) score is studentised by its own null distribution (``z``), so a
 target whose scores vary widely under the null (e.g. a drifting range residual) does not drown the
 others; the adjusted p-value is Westfall-Young max-T of ``z`` over all of them. Candidates are ranked
-by ``z``, except that the significant ones come first, ordered by their held-out ``R^2`` (the largest
-effect first: the loop adds in this order).
+by ``z``, except that the significant ones come first: those with ``p < alpha / 10`` before the others,
+each group ordered by its held-out ``R^2`` (the largest effect first: the loop adds in this order).
 
 **A second test** (:mod:`~sensor_envs.diagnose.projection`): every candidate in a few two-coefficient
 forms, in sample, on every reading, with the same kind of block sign-flips and min-P over all its tests;
@@ -466,12 +466,14 @@ def rank_candidates(
         combine_tests(e, proj.get(e["name"]), kinds, alpha, min_score)
     _mark_proxies(effects, d, names, targets, metrics, forms, given_design)
     projection_proxies(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha)
-    # significant effects by how much of the held-out residual they explain (the loop adds the largest
-    # first), the others by how far their best cell lies in its null distribution
+    # significant effects with strong evidence (p < alpha / 10) first, then the others; within each, by how
+    # much of the held-out residual they explain (the loop adds the largest first): a distractor that
+    # follows slow drift may explain as much as the cause, but at a p-value near the level
     effects.sort(
         key=lambda e: (
             e["proxy_of"] is not None,
             not e["significant"],
+            not (e["significant"] and e["p_value"] < alpha / 10),
             -float(e["score"] if e["significant"] else e["z"]),
         )
     )
