@@ -21,6 +21,7 @@ adding them cannot help. ``effects`` holds the other candidates only.
 **Loop.** Fit the base model on the fit part, evaluate on the held-out part, rank; add the best
 significant candidate the model can take into its state, refit, re-measure on the SAME held-out part;
 keep it only when the held-out NLL improves beyond its block-to-block noise (:func:`improvement_interval`;
+a finding at ``p < alpha / 10``: when it improves at all;
 else it is reported as rejected; an interaction is then tried as a main effect, and after that the
 next significant candidate); re-rank after each addition; repeat while an effect is significant, with at most
 ``max_add`` (default 3) refits in all. An adapter with ``state_terms(name, form)`` turns a finding's form
@@ -224,8 +225,10 @@ def improvement_interval(
 
     The readings' capped NLL differences are summed per held-out block and the blocks resampled with
     replacement (a block bootstrap: readings of one block share their time correlation). An addition
-    is kept only when its lower end is above 0, a one-sided 95 % bound (the claim is directional: the
-    addition lowers the held-out NLL; a candidate reaches this step only after the family-wise test).
+    is kept when its lower end is above 0, a one-sided 95 % bound (the claim is directional: the
+    addition lowers the held-out NLL; a candidate reaches this step only after the family-wise test),
+    or, for a strongly significant finding (family-wise ``p < alpha / 10``), when the held-out NLL is
+    lower at all (:func:`run_diagnose`).
     A lower held-out NLL that the block-to-block noise explains is not an improvement (a random walk
     following slow drift, a proxy added after its cause,
     lower the NLL by a few thousandths by chance).
@@ -330,11 +333,15 @@ def run_diagnose(
         step["attempts"].append(attempt)
         low, high = improvement_interval(ev, new_ev, boot_rng)
         attempt["improvement_interval"] = [low, high]
-        if not low > 0.0:
+        gain = float(np.nanmean(np.minimum(ev.nll, NLL_CAP) - np.minimum(new_ev.nll, NLL_CAP)))
+        strong = float(pick.get("p_value", 1.0)) < alpha / 10
+        # strong evidence (the search's family-wise p < alpha / 10) needs a held-out gain; weaker evidence
+        # needs the gain's one-sided 95 % bound above 0
+        if not (low > 0.0 or (strong and gain > 0.0)):
+            need = "a gain (strongly significant)" if strong else "its one-sided 95 % bound above 0"
             attempt["decision"] = (
                 f"{pick['name']} rejected: held-out NLL {ev.error:.4f} -> {new_ev.error:.4f}, improvement "
-                f"[{low:.4f}, {high:.4f}] nats per reading (90 %, held-out blocks resampled): its one-sided 95 % "
-                "bound is not above 0"
+                f"[{low:.4f}, {high:.4f}] nats per reading (90 %, held-out blocks resampled); needed {need}"
             )
             step["decision"] = attempt["decision"]
             rejected.add(tuple(terms))
