@@ -94,3 +94,58 @@ def test_the_search_adds_the_cause_and_marks_its_copy() -> None:
     assert sig[0]["form"] == "x lateral" and sig[0]["metric"] == "offset"
     copy_effect = next(e for e in ranking.effects if e["name"] == "copy")
     assert copy_effect["proxy_of"] in (None, "cause") and not copy_effect["significant"]
+
+
+class _Adapter:
+    """A fixed held-out part: ``c`` explains the offset residual; taking it into the state removes that
+    effect and lowers the held-out NLL by ``gain`` per reading, with block-level noise ``wobble``."""
+
+    kind = "toy"
+
+    def __init__(self, effect: float, gain: float, wobble: float, seed: int = 0) -> None:
+        rng = np.random.default_rng(seed)
+        n, nb = 4000, 40
+        self.blocks = np.arange(n) * nb // n
+        self.c = _walk(rng, n)
+        self.noise = rng.normal(size=n)
+        self.effect, self.gain = effect, gain
+        self.shared = rng.normal(0.0, wobble, nb)[self.blocks]
+        self.base_nll = 1.0 + rng.normal(0.0, 0.3, n)
+
+    def fit(self, extra_state: tuple[str, ...]) -> tuple[str, ...]:
+        return tuple(extra_state)
+
+    def evaluate(self, model: tuple[str, ...]) -> Evaluation:
+        has = "c" in model
+        r = self.noise + (0.0 if has else self.effect * self.c)
+        nll = self.base_nll - ((self.gain + self.shared) if has else 0.0)
+        return Evaluation(
+            nll=nll,
+            residuals={"offset": r},
+            candidates={"c": self.c},
+            blocks=self.blocks,
+            order=np.arange(r.size, dtype=np.float64),
+            metric_kinds={"offset": "mean"},
+        )
+
+    def state_name(self, candidate: str) -> str | None:
+        return candidate
+
+    def baseline(self, extra_state: tuple[str, ...]) -> float | None:
+        return None
+
+    def state_features(self) -> tuple[str, ...]:
+        return ()
+
+
+def test_a_strongly_significant_finding_needs_only_a_held_out_gain() -> None:
+    """The same small, noisy held-out gain: kept for a finding at p < alpha / 10, not for one near the level."""
+    from sensor_envs.diagnose.core import run_diagnose
+
+    strong = run_diagnose(_Adapter(effect=0.3, gain=0.004, wobble=0.05), max_add=1, n_permutations=199)
+    step = strong.steps[0]["attempts"][0]
+    low, high = step["improvement_interval"]
+    assert strong.effects[0]["p_value"] < 0.005 and low < 0 < high
+    assert strong.added == ["c"]
+    gone = run_diagnose(_Adapter(effect=0.3, gain=-0.004, wobble=0.05), max_add=1, n_permutations=199)
+    assert gone.added == []  # a refit that loses held out is never kept
