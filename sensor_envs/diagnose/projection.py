@@ -248,13 +248,16 @@ def projection_proxies(
     state: dict[str, NDArray],
     flips: tuple[NDArray, NDArray],
     alpha: float,
+    given: dict[str, NDArray] | None = None,
 ) -> None:
     """Tell causes from proxies by partial projection tests, strongest significant candidate first.
 
     A significant candidate ``i`` is a proxy of ``j`` (a candidate kept before it, or one whose rank
     scale is correlated with ``i``'s) when, in ``i``'s metric and form, ``i`` adds nothing significant
     given ``j`` (``p >= alpha``) and ``j`` adds more given ``i`` than ``i`` given ``j``. A cause that
-    was not significant itself takes its proxy's finding (``via_proxy``).
+    was not significant itself takes its proxy's finding (``via_proxy``). ``given``: candidates already
+    in the model (their values); a significant candidate correlated with one of them that adds nothing
+    significant given it is its proxy (a noisy copy of a cause, seen again after the cause was added).
     """
     block, signs = flips
     factors = state_factors(state)
@@ -293,6 +296,17 @@ def projection_proxies(
                 break
         else:
             kept.append(ei["name"])
+        for g, cg in (given or {}).items():
+            if (
+                not ei["significant"]
+                or abs(np.corrcoef(rank_basis(cg, degree=1)[:, 1], u[ei["name"]])[0, 1]) < PROXY_CORR
+            ):
+                continue
+            xg = candidate_forms(cg, factors)[pi.form][mask]
+            p_ig, s_ig = partial_test(r, xi, xg, block[mask], signs)
+            if p_ig >= alpha:
+                kept.remove(ei["name"])
+                ei.update(proxy_of=g, significant=False, conditional_score=s_ig)
 
 
 def inherit(cause: dict[str, Any], proxy: dict[str, Any], gain: float) -> None:

@@ -465,7 +465,8 @@ def rank_candidates(
     for e in effects:
         combine_tests(e, proj.get(e["name"]), kinds, alpha, min_score)
     _mark_proxies(effects, d, names, targets, metrics, forms, given_design)
-    projection_proxies(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha)
+    given_values = {g: np.asarray(ev.candidates[g], dtype=np.float64)[idx] for g in given}
+    projection_proxies(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha, given_values)
     # significant effects with strong evidence (p < alpha / 10) first, then the others; within each, by how
     # much of the held-out residual they explain (the loop adds the largest first): a distractor that
     # follows slow drift may explain as much as the cause, but at a p-value near the level
