@@ -120,6 +120,12 @@ def test_no_import_cycles():
             visit(module, [])
 
 
+def _passes_in_a_fresh_interpreter(code: str) -> None:
+    """Run ``code`` in a new Python process (nothing of this one's imports); it must exit 0."""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr + out.stdout
+
+
 def test_front_door_is_lazy_and_complete():
     code = (
         "import sys, sensor_envs\n"
@@ -130,8 +136,7 @@ def test_front_door_is_lazy_and_complete():
         "    assert getattr(sensor_envs, name) is not None, name\n"
         "assert sorted(dir(sensor_envs)) == sorted(sensor_envs.__all__)\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert out.returncode == 0, out.stderr + out.stdout
+    _passes_in_a_fresh_interpreter(code)
 
 
 def test_unknown_public_name_is_an_attribute_error():
@@ -202,8 +207,7 @@ def test_subpackage_exports_are_lazy(package):
         "else:\n"
         "    raise AssertionError('unknown name resolved')\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert out.returncode == 0, out.stderr + out.stdout
+    _passes_in_a_fresh_interpreter(code)
 
 
 def test_subpackage_exports_resolve():
@@ -219,8 +223,7 @@ def test_subpackage_exports_resolve():
         "        assert name in getattr(mod, '__all__', [name]), (package, name, module)\n"
         "        assert not hasattr(mod, '__path__') or name in mod.__all__, (package, name)\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert out.returncode == 0, out.stderr + out.stdout
+    _passes_in_a_fresh_interpreter(code)
 
 
 @pytest.mark.parametrize("package", [*LAZY_PACKAGES, "sensor_envs.diagnose"])

@@ -49,6 +49,7 @@ __all__ = [
     "block_split",
     "bin_candidate",
     "improvement_interval",
+    "nll_gain",
     "rank_candidates",
     "run_diagnose",
 ]
@@ -218,6 +219,11 @@ def _ranking_rows(r: Ranking) -> list[dict[str, Any]]:
     return [{k: e.get(k) for k in keys} for e in r.effects]
 
 
+def nll_gain(before: Evaluation, after: Evaluation) -> NDArray[np.float64]:
+    """Per held-out reading, the capped NLL before minus after [nats] (positive: the change helped)."""
+    return np.asarray(np.minimum(before.nll, NLL_CAP) - np.minimum(after.nll, NLL_CAP), dtype=np.float64)
+
+
 def improvement_interval(
     before: Evaluation, after: Evaluation, rng: np.random.Generator, n_boot: int = 999
 ) -> tuple[float, float]:
@@ -233,7 +239,7 @@ def improvement_interval(
     following slow drift, a proxy added after its cause,
     lower the NLL by a few thousandths by chance).
     """
-    d = np.minimum(before.nll, NLL_CAP) - np.minimum(after.nll, NLL_CAP)
+    d = nll_gain(before, after)
     ok = np.isfinite(d)
     _, blk = np.unique(before.blocks[ok], return_inverse=True)
     sums, counts = np.bincount(blk, weights=d[ok]), np.bincount(blk).astype(np.float64)
@@ -333,7 +339,7 @@ def run_diagnose(
         step["attempts"].append(attempt)
         low, high = improvement_interval(ev, new_ev, boot_rng)
         attempt["improvement_interval"] = [low, high]
-        gain = float(np.nanmean(np.minimum(ev.nll, NLL_CAP) - np.minimum(new_ev.nll, NLL_CAP)))
+        gain = float(np.nanmean(nll_gain(ev, new_ev)))
         strong = float(pick.get("p_value", 1.0)) < alpha / 10
         # strong evidence (the search's family-wise p < alpha / 10) needs a held-out gain; weaker evidence
         # needs the gain's one-sided 95 % bound above 0

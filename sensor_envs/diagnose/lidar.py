@@ -162,8 +162,11 @@ class LidarAdapter:
         main = (var, f"{var}@sq") if var != PREV else (var,)
         if form == "main":
             return main
-        mods = ("cos_bearing", "sin_bearing") if form == "x bearing" else (form[2:],)
-        if form != "x bearing" and not (form.startswith("x ") and form[2:] in GEOMETRY_MODIFIERS):
+        if form == "x bearing":
+            mods: tuple[str, ...] = ("cos_bearing", "sin_bearing")
+        elif form.startswith("x ") and form[2:] in GEOMETRY_MODIFIERS:
+            mods = (form[2:],)
+        else:
             return None
         # linear and U-shaped in the variable, times the state (a U-shaped effect has no linear part)
         return main + tuple(f"{t}@{m}" for m in mods for t in main)

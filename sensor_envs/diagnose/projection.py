@@ -73,8 +73,19 @@ def candidate_forms(c: NDArray, factors: dict[str, NDArray]) -> dict[str, NDArra
 
     A non-finite reading of the candidate contributes 0 to every regressor.
     """
-    main = rank_basis(c, degree=2)[:, 1:3]
+    main = _main(c)
     return {"main": main, **{k: main * f[:, None] for k, f in factors.items()}}
+
+
+def _main(c: NDArray) -> NDArray[np.float64]:
+    """``(n, 2)``: ``P1(u), P2(u)`` of the candidate's rank scale (0 at a non-finite reading)."""
+    return rank_basis(c, degree=2)[:, 1:3]
+
+
+def _form(c: NDArray, factors: dict[str, NDArray], form: str) -> NDArray[np.float64]:
+    """One form of :func:`candidate_forms` (``main`` or a factor's name), without computing the others."""
+    main = _main(c)
+    return main if form == "main" else main * factors[form][:, None]
 
 
 def _per_block(r: NDArray, x: NDArray, block: NDArray, n_blocks: int) -> NDArray[np.float64] | None:
@@ -104,9 +115,11 @@ def _gamma_tail(per_block: NDArray) -> tuple[float, Any]:
     return mean, lambda t: gammaincc(shape, np.asarray(t, dtype=np.float64) / scale)
 
 
-def _null(per_block: NDArray, flips: NDArray) -> tuple[float, NDArray[np.float64]]:
-    """Observed explained sum of squares and its value under every sign-flip draw ``flips (B, blocks)``."""
-    return float(np.sum(per_block.sum(axis=0) ** 2)), np.sum((flips @ per_block) ** 2, axis=1)
+def _flip_test(per_block: NDArray, flips: NDArray) -> tuple[float, NDArray[np.float64], float]:
+    """Observed explained sum of squares, its value under every sign-flip draw ``flips (B, blocks)``, p-value."""
+    obs = float(np.sum(per_block.sum(axis=0) ** 2))
+    null = np.sum((flips @ per_block) ** 2, axis=1)
+    return obs, null, float((1 + np.sum(null >= obs * (1 - 1e-12))) / (1 + flips.shape[0]))
 
 
 def flip_p(r: NDArray, x: NDArray, block: NDArray, flips: NDArray) -> float:
@@ -121,8 +134,7 @@ def flip_p(r: NDArray, x: NDArray, block: NDArray, flips: NDArray) -> float:
     pb = _per_block(r[ok] - r[ok].mean(), x[ok], block[ok], flips.shape[1])
     if pb is None:
         return 1.0
-    obs, null = _null(pb, flips)
-    return float((1 + np.sum(null >= obs * (1 - 1e-12))) / (1 + flips.shape[0]))
+    return _flip_test(pb, flips)[2]
 
 
 def partial_test(r: NDArray, xi: NDArray, xj: NDArray, block: NDArray, flips: NDArray) -> tuple[float, float]:
@@ -136,8 +148,7 @@ def partial_test(r: NDArray, xi: NDArray, xj: NDArray, block: NDArray, flips: ND
     pb = _per_block(res[:, 0], res[:, 1:], block, flips.shape[1])
     if pb is None:
         return 1.0, 0.0
-    obs, null = _null(pb, flips)
-    p = float((1 + np.sum(null >= obs * (1 - 1e-12))) / (1 + flips.shape[0]))
+    obs, _, p = _flip_test(pb, flips)
     return p, obs / max(float(np.sum((r - r.mean()) ** 2)), 1e-300)
 
 
@@ -198,10 +209,9 @@ def projection_tests(
                 pb = _per_block(r, x[mask], block[mask], flips.shape[1])
                 if pb is None:
                     continue
-                obs, null = _null(pb, flips)
+                obs, null, p = _flip_test(pb, flips)
                 mean, tail = _gamma_tail(pb)
                 np.minimum(min_tail, tail(null), out=min_tail)
-                p = float((1 + np.sum(null >= obs * (1 - 1e-12))) / (1 + n_flips))
                 rows.append((name, metric, form, p, (obs - mean) / ss, float(tail(np.array([obs]))[0])))
     out: dict[str, ProjectionResult] = {}
     for name in cands:
@@ -264,6 +274,8 @@ def projection_proxies(
     names = [e["name"] for e in effects]
     by_name = {e["name"]: e for e in effects}
     u = {n: rank_basis(cands[n], degree=1)[:, 1] for n in names if n in cands}
+    given = given or {}
+    given_u = {g: rank_basis(cg, degree=1)[:, 1] for g, cg in given.items()}
     order = sorted(
         (e for e in effects if e["significant"] and e["name"] in proj),
         key=lambda e: (proj[e["name"]].p_raw, -proj[e["name"]].share),
@@ -274,7 +286,7 @@ def projection_proxies(
             continue
         pi = proj[ei["name"]]
         r, mask = targets[pi.metric]
-        xi = candidate_forms(cands[ei["name"]], factors)[pi.form][mask]
+        xi = _form(cands[ei["name"]], factors, pi.form)[mask]
         near = [
             n
             for n in u
@@ -282,7 +294,7 @@ def projection_proxies(
         ]
         for n in kept + near:
             form = proj[n].form if n in kept else pi.form
-            xj = candidate_forms(cands[n], factors)[form][mask]
+            xj = _form(cands[n], factors, form)[mask]
             p_ij, s_ij = partial_test(r, xi, xj, block[mask], signs)
             p_ji, s_ji = partial_test(r, xj, xi, block[mask], signs)
             if p_ij >= alpha and s_ji > s_ij:
@@ -296,13 +308,10 @@ def projection_proxies(
                 break
         else:
             kept.append(ei["name"])
-        for g, cg in (given or {}).items():
-            if (
-                not ei["significant"]
-                or abs(np.corrcoef(rank_basis(cg, degree=1)[:, 1], u[ei["name"]])[0, 1]) < PROXY_CORR
-            ):
+        for g, ug in given_u.items():
+            if not ei["significant"] or abs(np.corrcoef(ug, u[ei["name"]])[0, 1]) < PROXY_CORR:
                 continue
-            xg = candidate_forms(cg, factors)[pi.form][mask]
+            xg = _form(given[g], factors, pi.form)[mask]
             p_ig, s_ig = partial_test(r, xi, xg, block[mask], signs)
             if p_ig >= alpha:
                 kept.remove(ei["name"])

@@ -383,14 +383,20 @@ def rank_candidates(
     instant = np.floor(order[idx])  # readings of one time instant (a scan, a radar cycle)
     metrics = list(ev.residuals)
     kinds = getattr(ev, "metric_kinds", {}) or {}
+
+    def centred_free(r: NDArray, mask: NDArray) -> NDArray[np.float64]:
+        # centred: a sign flip must not create structure from the mean
+        return _free_of_state(r[mask] - r[mask].mean(), d.state_bins, mask)
+
     freed, within = [], []
+    proj_targets = {}  # every finite reading (no fold gaps: nothing is fitted on one part and scored on another)
     for m in metrics:
         r = np.asarray(ev.residuals[m], dtype=np.float64)[idx]
         mask = np.isfinite(r) & (fold_all >= 0)
-        rc = r[mask] - r[mask].mean()  # centred: a sign flip must not create structure from the mean
-        rc = _free_of_state(rc, d.state_bins, mask)
+        rc = centred_free(r, mask)
         freed.append((rc, mask))
         within.append(_within_instant(rc, instant[mask]))
+        proj_targets[m] = (centred_free(r, np.isfinite(r)), np.isfinite(r))
     # main regressors see drift shared by an instant's readings; interactions see the within-instant part
     n_blocks = (n_flip_blocks([f[0] for f in freed]), n_flip_blocks(within))
     blocks = [(rank * b // max(rank.size, 1)).astype(np.int64) for b in n_blocks]
@@ -454,11 +460,6 @@ def rank_candidates(
             }
         )
     _settle_forms(effects, obs, d, targets, metrics, forms, alpha)
-    proj_targets = {}  # every finite reading (no fold gaps: nothing is fitted on one part and scored on another)
-    for m in metrics:
-        r = np.asarray(ev.residuals[m], dtype=np.float64)[idx]
-        ok = np.isfinite(r)
-        proj_targets[m] = (_free_of_state(r[ok] - r[ok].mean(), d.state_bins, ok), ok)
     flips = rng.choice([-1.0, 1.0], size=(PROJECTION_FLIPS, n_blocks[0]))
     preferred = tuple(m for m in metrics if kinds.get(m, "mean") in ("mean", "rate"))
     proj = projection_tests(proj_targets, cands, state, blocks[0], flips, preferred, alpha / 2)
