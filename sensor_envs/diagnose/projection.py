@@ -23,6 +23,10 @@ This module is that test, for every candidate and every simple form at once:
   holds, and correlated tests (the forms of one candidate) cost less than a Bonferroni correction.
 * **Conditional**: :func:`partial_test` tests one candidate's form given another's (both residualised on
   the other), so a noisy copy of a cause is told from the cause.
+* **Slow drift**: :func:`drift_confounded` tests a significant candidate within its time blocks only
+  (both the residual and the candidate freed of each block's mean). A random walk that follows a log's
+  own slow drift explains the residual across blocks, not within them: on one log it cannot be told
+  from the drift, and is not offered as a cause.
 
 :mod:`~sensor_envs.diagnose.power`'s oracle makes the same test of the planted cause alone.
 """
@@ -40,10 +44,12 @@ from sensor_envs.diagnose.regressors import rank_basis
 
 __all__ = [
     "FLIPS",
+    "DRIFT",
     "PROXY_CORR",
     "ProjectionResult",
     "candidate_forms",
     "combine_tests",
+    "drift_confounded",
     "flip_p",
     "inherit",
     "partial_test",
@@ -52,6 +58,8 @@ __all__ = [
     "state_factors",
 ]
 
+DRIFT = "the slow drift over time"
+"""``proxy_of`` of a candidate that explains the residual only across time blocks (:func:`drift_confounded`)."""
 PROXY_CORR = 0.5
 """Rank correlation above which a candidate is checked as the cause of another (its noisy copy may rank above it)."""
 FLIPS = 20_000
@@ -290,7 +298,10 @@ def projection_proxies(
         near = [
             n
             for n in u
-            if n != ei["name"] and n not in kept and abs(np.corrcoef(u[n], u[ei["name"]])[0, 1]) >= PROXY_CORR
+            if n != ei["name"]
+            and n not in kept
+            and by_name[n].get("proxy_of") != DRIFT  # a shadow of the drift is no one's cause
+            and abs(np.corrcoef(u[n], u[ei["name"]])[0, 1]) >= PROXY_CORR
         ]
         for n in kept + near:
             form = proj[n].form if n in kept else pi.form
@@ -334,3 +345,58 @@ def inherit(cause: dict[str, Any], proxy: dict[str, Any], gain: float) -> None:
         score=max(cause["score"], gain),
         via_proxy=proxy["name"],
     )
+
+
+def _within_blocks(x: NDArray, block: NDArray, factor: NDArray | None = None) -> NDArray[np.float64]:
+    """``x`` (``(n,)`` or ``(n, k)``) freed, in each time block, of its mean (and of its slope on ``factor``).
+
+    With a state factor, a drift of the residual's dependence on the state (a range-dependent misfit
+    that wanders over time) is removed as well as a drift of its level.
+    """
+    x2 = np.asarray(x, dtype=np.float64).reshape(x.shape[0], -1).copy()
+    for b in np.unique(block):
+        sel = block == b
+        base = (
+            np.ones((int(sel.sum()), 1)) if factor is None else np.column_stack([np.ones(int(sel.sum())), factor[sel]])
+        )
+        x2[sel] -= base @ np.linalg.lstsq(base, x2[sel], rcond=None)[0]
+    return x2.reshape(x.shape)
+
+
+def drift_confounded(
+    effects: list[dict[str, Any]],
+    proj: dict[str, ProjectionResult],
+    cands: dict[str, NDArray],
+    targets: dict[str, tuple[NDArray, NDArray]],
+    state: dict[str, NDArray],
+    flips: tuple[NDArray, NDArray],
+    alpha: float,
+) -> None:
+    """Mark a significant candidate that explains the residual only across time blocks (``proxy_of`` :data:`DRIFT`).
+
+    In the candidate's projection metric and form, the residual and the candidate's regressors are freed
+    of each time block's mean (and, for a form times a state factor, of each block's slope on that factor)
+    and tested by the same block sign-flips (``p_within_blocks``). A slow drift the
+    model does not carry (a temperature, a warming sensor) makes every covariate that wanders slowly,
+    a random walk above all, explain the residual between blocks; a cause also explains it within them.
+    Without within-block evidence (``p_within >= alpha``) a candidate cannot be told from the drift on
+    this log and is not significant. Time itself is checked alike: a trend (a sensor warming over the
+    whole log) also shows within the blocks, an AR(1) drift of the noise does not (the model's correlation
+    terms, e.g. ``prev_residual``, are its representation).
+    """
+    block, signs = flips
+    factors = state_factors(state)
+    for e in effects:
+        name = e["name"]
+        if not e["significant"] or e.get("proxy_of") is not None or name not in proj:
+            continue
+        pi = proj[name]
+        r, mask = targets[pi.metric]
+        b = block[mask]
+        f = None if pi.form == "main" else factors[pi.form][mask]
+        x = _within_blocks(_form(cands[name], factors, pi.form)[mask], b, f)
+        pb = _per_block(_within_blocks(r, b, f), x, b, signs.shape[1])
+        p = 1.0 if pb is None else _flip_test(pb, signs)[2]
+        e["p_within_blocks"] = p
+        if p >= alpha:
+            e.update(proxy_of=DRIFT, significant=False)

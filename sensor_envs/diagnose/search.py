@@ -62,8 +62,16 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
+from sensor_envs.diagnose.projection import (
+    DRIFT,
+    PROXY_CORR,
+    combine_tests,
+    drift_confounded,
+    inherit,
+    projection_proxies,
+    projection_tests,
+)
 from sensor_envs.diagnose.projection import FLIPS as PROJECTION_FLIPS
-from sensor_envs.diagnose.projection import PROXY_CORR, combine_tests, inherit, projection_proxies, projection_tests
 from sensor_envs.diagnose.regressors import (
     _RIDGE,
     GAP,
@@ -465,6 +473,7 @@ def rank_candidates(
     proj = projection_tests(proj_targets, cands, state, blocks[0], flips, preferred, alpha / 2)
     for e in effects:
         combine_tests(e, proj.get(e["name"]), kinds, alpha, min_score)
+    drift_confounded(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha)
     _mark_proxies(effects, d, names, targets, metrics, forms, given_design)
     given_values = {g: np.asarray(ev.candidates[g], dtype=np.float64)[idx] for g in given}
     projection_proxies(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha, given_values)
@@ -569,6 +578,7 @@ def _mark_proxies(
     top = [i for i in top if effects[i]["p_raw"] < 0.05]
     u = d.main_basis[:, :, 1]  # rank scales: a proxy's is correlated with its cause's, whatever their units
     corr = np.abs(np.nan_to_num(np.corrcoef(u))) if len(names) > 1 else np.zeros((1, 1))
+    top = [i for i in top if effects[i]["proxy_of"] != DRIFT]  # the drift's shadows explain no one
     for i in top:
         ei = effects[i]
         jm = metrics.index(ei["metric"])
@@ -576,7 +586,11 @@ def _mark_proxies(
         fi = forms.index(ei["form"])
         # the other top candidates, and any candidate correlated with i (a cause may score below its noisy
         # copy by chance, even out of the top: it is still the better explanation given the copy)
-        near = [j for j in np.flatnonzero(corr[i] >= PROXY_CORR) if j != i and j not in top]
+        near = [
+            j
+            for j in np.flatnonzero(corr[i] >= PROXY_CORR)
+            if j != i and j not in top and effects[j]["proxy_of"] != DRIFT
+        ]
         others: list[tuple[_Design, int, int, str]] = [
             (d, j, forms.index(effects[j]["form"]), names[j]) for j in top if j != i and effects[j]["proxy_of"] is None
         ] + [(d, int(j), fi, names[j]) for j in near]
