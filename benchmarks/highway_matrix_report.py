@@ -125,7 +125,11 @@ def render(run: Path, baseline: str = "ideal") -> str:
         f"Command: `{meta['command']}` (backend {meta['backend']}, wall time {meta['wall_seconds'] / 60:.0f} min "
         f"for the {meta.get('jobs_run', '?')} jobs this invocation ran; jobs already done are not timed again). "
         f"Evaluated policy of each job: `{meta.get('policy', 'final')}_model.zip`"
-        + (" (EvalCallback's best on held-out seeds)" if meta.get("policy") == "best" else "")
+        + {
+            "best": " (EvalCallback's best on held-out seeds)",
+            "selected": " (each job's checkpoint with the fewest "
+            "collisions on validation episodes of its own sensor: selection.json)",
+        }.get(meta.get("policy"), "")
         + ". Page: `python benchmarks/highway_matrix_report.py --run <out> --md ... --force`.",
         "",
         *targets(matrix, baseline),

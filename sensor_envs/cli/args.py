@@ -219,6 +219,7 @@ INT_RANGES: dict[str, tuple[int, int]] = {
     "chains": (1, 10_000),
     "n_boot": (1, 100_000),
     "eval_episodes": (1, 10_000),
+    "select_episodes": (1, 10_000),
 }
 """Declared range of every integer option (by ``dest``): counts have upper bounds (``--repeats 1e9`` is refused)."""
 FLOAT_RANGES: dict[str, tuple[float, float]] = {

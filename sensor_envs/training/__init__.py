@@ -3,7 +3,8 @@
 Modules: ``train`` (``sensor-envs train``: a stable-baselines3 agent from a YAML config keyed by env id, the
 shipped one in ``configs/default.yaml``), ``robustness`` (``sensor-envs robustness``: train on one sensor,
 evaluate on every sensor, on a process pool or a Ray cluster), ``robustness_inputs`` (its options, checked
-before ``--out`` is made), ``matrix_report`` (its reports: ``matrix.json``,
+before ``--out`` is made), ``selection`` (its ``--policy selected``: each job's checkpoint with the fewest
+collisions on validation episodes; ``--reevaluate``), ``matrix_report`` (its reports: ``matrix.json``,
 ``matrix.md``, ``matrix.png``), ``stats`` (rliable-style statistics: IQM,
 bootstrap intervals, probability of improvement), ``collisions`` (a highway run's collision anatomy: what the
 observation showed in the last second before each crash) and ``collision_report`` (its page, JSON and plot).

@@ -13,18 +13,17 @@ with a single seed, the episodes are resampled, and the report says so); rates' 
 show the IQM of returns and the mean of rates (a rate's IQM drops its rare events). Between the rows, per
 column and metric: the probability of improvement P(row a better than row b) with its interval.
 
-Jobs: one per (training sensor, seed); a job trains (:func:`sensor_envs.training.train.train`), then evaluates
-its final policy (``--policy final``) or EvalCallback's best checkpoint (``--policy best``: chosen on episodes
-with other seeds than the matrix's; the highway ``full`` preset's default) on every column with the same
-evaluation seeds (common random numbers). Each job is the command
-``python -m sensor_envs.training.robustness job ...`` so the local process pool (default) and a Ray
-cluster (``--backend ray``) run the same code; outputs land in ``--out`` whichever backend ran them (on a
-cluster ``--out`` must sit on a shared filesystem at the same path, and sensor_envs be installed). A job writes its
-``eval.json`` and then, atomically, its ``done`` marker; a rerun skips jobs that have one. ``--real-data``
-adds a column with a model fitted on real data (KDE radar on Astyx; learned lidar on
-``neato_mar27_train.npz``), fitted once and cached in ``<out>/real_models/`` (never in the repository).
-
-Writes ``matrix.md``, ``matrix.json`` and ``matrix.png`` (heat maps) into ``--out``.
+Jobs: one per (training sensor, seed); a job trains (:func:`sensor_envs.training.train.train`), then evaluates its
+final policy (``--policy final``), EvalCallback's best checkpoint (``--policy best``: chosen on episodes with other
+seeds than the matrix's; the highway ``full`` preset's default) or the checkpoint chosen on validation episodes
+(``--policy selected``: :mod:`sensor_envs.training.selection`, ``--reevaluate`` redoes a done job's choice and
+evaluation, without training) on every column with the same evaluation seeds (common random numbers). Each job is the
+command ``python -m sensor_envs.training.robustness job ...`` so the local process pool (default) and a Ray cluster
+(``--backend ray``) run the same code; outputs land in ``--out`` whichever backend ran them (on a cluster ``--out``
+must sit on a shared filesystem at the same path, and sensor_envs be installed). A job writes its ``eval.json`` and
+then, atomically, its ``done`` marker; a rerun skips jobs that have one. ``--real-data`` adds a column with a model
+fitted on real data (KDE radar on Astyx; learned lidar on ``neato_mar27_train.npz``), fitted once and cached in
+``<out>/real_models/`` (never in the repository). Writes ``matrix.md``, ``.json`` and ``.png`` (heat maps) in ``--out``.
 """
 
 from __future__ import annotations
@@ -44,7 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensor_envs.inputs import InputError, parse_json, read_text, real_path
-from sensor_envs.training import stats
+from sensor_envs.training import selection, stats
 from sensor_envs.training.matrix_report import HIGHER_IS_BETTER, _write_atomic, write_reports
 from sensor_envs.training.matrix_report import headline as headline
 from sensor_envs.training.robustness_inputs import (
@@ -211,11 +210,13 @@ def sensor_names(domain: str, config: str | Path) -> list[str]:
     return names + [n for n in train_mod.sensor_table(cfg) if n not in names]
 
 
-def evaluate(model: Any, env_id: str, kwargs: dict[str, Any], episodes: int, max_steps: int | None) -> dict[str, list]:
+def evaluate(
+    model: Any, env_id: str, kwargs: dict[str, Any], episodes: int, max_steps: int | None, seed0: int = EVAL_SEED
+) -> dict[str, list]:
     """Per-episode return, collision and success of ``model`` (deterministic actions) on ``env_id(**kwargs)``.
 
-    When the env's ``info`` reports the ego's ``speed`` (highway-env, m/s), also each episode's mean speed
-    over its steps (``"speed"``), so that a policy that avoids collisions by crawling shows.
+    Episode ``e`` resets with seed ``seed0 + e``. When ``info`` reports the ego's ``speed`` (highway-env, m/s), also
+    each episode's mean speed (``"speed"``): a policy avoiding collisions by crawling shows.
     """
     import gymnasium as gym
 
@@ -224,7 +225,7 @@ def evaluate(model: Any, env_id: str, kwargs: dict[str, Any], episodes: int, max
     out: dict[str, list] = {"return": [], "collision": [], "success": []}
     speeds: list[float] = []
     for e in range(episodes):
-        obs, info = env.reset(seed=EVAL_SEED + e)
+        obs, info = env.reset(seed=seed0 + e)
         total, done, episode_speeds = 0.0, False, []
         while not done:
             action, _ = model.predict(obs, deterministic=True)
@@ -254,19 +255,24 @@ def run_job(spec: dict[str, Any]) -> dict[str, Any]:
     run_dir = Path(spec["run_dir"])
     run_dir.mkdir(parents=True, exist_ok=True)
     domain, env_id = spec["domain"], DOMAINS[spec["domain"]]["env_id"]
-    overrides = [f"{k}={json.dumps(v)}" for k, v in spec["set"].items()]
-    if spec["hyperparams"]:
-        overrides.append(f"hyperparams={json.dumps(spec['hyperparams'])}")
-    cfg = train_mod.load_config(Path(spec["config"]), env_id, overrides, algo=spec["algo"], sensor=spec["sensor"])
-    cfg["device"] = spec["device"]
-    resolved = {"env_id": env_id, "seed": spec["seed"], "sensor": spec["sensor"], "config": cfg}
-    _write_atomic(run_dir / "config.json", json.dumps(resolved, indent=1))
-    t0 = time.perf_counter()
-    train_mod.train(env_id, cfg, run_dir, spec["seed"], progress_bar=False)
-    train_s = time.perf_counter() - t0
+    if spec.get("reevaluate"):  # --reevaluate: a done job, trained with the config it recorded
+        cfg, train_s = selection.trained(run_dir)
+        t0 = time.perf_counter() - train_s
+    else:
+        overrides = [f"{k}={json.dumps(v)}" for k, v in spec["set"].items()]
+        if spec["hyperparams"]:
+            overrides.append(f"hyperparams={json.dumps(spec['hyperparams'])}")
+        cfg = train_mod.load_config(Path(spec["config"]), env_id, overrides, algo=spec["algo"], sensor=spec["sensor"])
+        cfg["device"] = spec["device"]
+        resolved = {"env_id": env_id, "seed": spec["seed"], "sensor": spec["sensor"], "config": cfg}
+        _write_atomic(run_dir / "config.json", json.dumps(resolved, indent=1))
+        t0 = time.perf_counter()
+        train_mod.train(env_id, cfg, run_dir, spec["seed"], progress_bar=False)
+        train_s = time.perf_counter() - t0
     import stable_baselines3 as sb3
 
     policy = spec.get("policy", "final")  # "best": EvalCallback's pick on held-out seeds (seed + 10000)
+    chosen = selection.choose(spec, evaluate)  # "selected": writes selected_model.zip
     model = getattr(sb3, cfg["algo"].upper()).load(run_dir / f"{policy}_model", device=spec["device"])
     cells = {
         col: evaluate(
@@ -285,7 +291,7 @@ def run_job(spec: dict[str, Any]) -> dict[str, Any]:
     given = {str(k[key]) for k in kwargs for key in MODEL_KWARGS if isinstance(k.get(key), str)}
     result["sensor_models_sha256"] = sensor_model_hashes(domain, {**spec["real_models"], **{p: p for p in given}})
     result["cells"] = cells
-    _write_atomic(run_dir / "eval.json", json.dumps(result, indent=1))
+    selection.write_eval(run_dir, {**result, "policy": policy, "selection": chosen}, bool(spec.get("reevaluate")))
     _write_atomic(run_dir / "done", "done\n")
     return result
 
@@ -465,7 +471,6 @@ def model_hashes(
     return result
 
 
-# ---------------------------------------------------------------------------------------------- real data
 # ---------------------------------------------------------------------------------------------- driver
 def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """The job specs of the matrix and the settings that define the output folder."""
@@ -506,13 +511,12 @@ def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[di
         raise UsageError(f"--eval-episodes: must be >= 1, got {eval_episodes}")
     algo = args.algo or preset.get("algo")  # the preset's algorithm unless --algo names one
     policy = args.policy or preset.get("policy", "final")
-    if policy == "best" and int(train_set.get("eval_freq", 10**9)) > int(train_set["n_timesteps"]):
-        raise UsageError("--policy best: EvalCallback never runs (eval_freq > n_timesteps); set eval_freq")
     settings = {
         "domain": args.domain,
         "preset": args.preset,
         "algo": algo,
         "policy": policy,
+        **selection.settings(args, policy, train_set),
         "seeds": seeds,
         "rows": rows,
         "columns": columns,
@@ -531,6 +535,7 @@ def plan(args: argparse.Namespace, real_models: dict[str, str]) -> tuple[list[di
             },
             "hyperparams": preset["hyperparams"] if algo in (None, "ppo") else None,
             "config": settings["config"],
+            "select_episodes": settings.get("select_episodes"),
             "sensor": r,
             "seed": s,
             "device": args.device,
@@ -583,12 +588,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="override a training config entry of the preset"
     )
-    parser.add_argument(
-        "--policy",
-        choices=("final", "best"),
-        default=None,
-        help="the model each job evaluates: final, or best (EvalCallback's pick on held-out seeds); default: preset's",
-    )
+    selection.add_arguments(parser)  # --policy, --select-episodes, --reevaluate
     parser.add_argument("--seeds", type=int, default=None, help="number of seeds (default: the preset's)")
     parser.add_argument("--seed0", type=int, default=0, help="first training seed (default 0)")
     parser.add_argument("--device", default="auto", help="torch device: auto (default), cpu, cuda, ...")
@@ -669,6 +669,7 @@ def _run_matrix(
         changed = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k))
         if changed:
             raise UsageError(f"--out {args.out}: made with other settings ({', '.join(changed)}); use --force")
+    redo = selection.reevaluations(specs) if getattr(args, "reevaluate", False) else []  # before writing
     args.out.mkdir(parents=True, exist_ok=True)
     if args.real_data:
         fit_real_models(args.domain, args.real_data, args.out)
@@ -676,14 +677,14 @@ def _run_matrix(
     todo = [s for s in specs if not (Path(s["run_dir"]) / "done").is_file()]
     print(f"{len(specs) - len(todo)} of {len(specs)} jobs already done; running {len(todo)} on {args.backend}")
     t0 = time.perf_counter()
-    run_jobs(todo, args.backend, args.workers, args.address)
+    run_jobs(todo + redo, args.backend, args.workers, args.address)
     matrix = build_matrix(args.out, args.domain, settings["rows"], settings["columns"], settings["seeds"])
     meta = {
         "preset": args.preset,
         "algo": settings["algo"] or "config default",
         "eval_episodes": settings["eval_episodes"],
         "backend": args.backend,
-        "jobs_run": len(todo),
+        "jobs_run": len(todo) + len(redo),
         "wall_seconds": time.perf_counter() - t0,
         "command": " ".join(["sensor-envs", "robustness", *argv]),
         "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
