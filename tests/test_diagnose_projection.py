@@ -96,7 +96,7 @@ def test_a_walk_that_follows_slow_drift_is_told_from_a_cause() -> None:
         proj = projection_tests(targets, cands, {}, block, flips)
         assert proj["shadow"].p_value < 0.05  # the plain test takes the shadow for a cause
         effects = [{"name": k, "significant": True, "proxy_of": None} for k in cands]
-        drift_confounded(effects, proj, cands, targets, {}, (block, flips), 0.05)
+        drift_confounded(effects, proj, cands, targets, {}, (block, flips), 0.05, np.arange(n, dtype=float))
         marked += effects[0]["proxy_of"] == DRIFT
         kept += effects[1]["proxy_of"] is None and effects[1]["significant"]
     assert marked >= 7 and kept >= 9  # measured 8 and 10; a check that marks nothing or everything fails

@@ -46,6 +46,7 @@ __all__ = [
     "FLIPS",
     "DRIFT",
     "PROXY_CORR",
+    "TIME_CORR",
     "ProjectionResult",
     "candidate_forms",
     "combine_tests",
@@ -60,6 +61,8 @@ __all__ = [
 
 DRIFT = "the slow drift over time"
 """``proxy_of`` of a candidate that explains the residual only across time blocks (:func:`drift_confounded`)."""
+TIME_CORR = 0.99
+"""Rank correlation with the readings' time order from which a candidate is time itself (not checked for drift)."""
 PROXY_CORR = 0.5
 """Rank correlation above which a candidate is checked as the cause of another (its noisy copy may rank above it)."""
 FLIPS = 20_000
@@ -371,6 +374,7 @@ def drift_confounded(
     state: dict[str, NDArray],
     flips: tuple[NDArray, NDArray],
     alpha: float,
+    order: NDArray,
 ) -> None:
     """Mark a significant candidate that explains the residual only across time blocks (``proxy_of`` :data:`DRIFT`).
 
@@ -380,15 +384,20 @@ def drift_confounded(
     model does not carry (a temperature, a warming sensor) makes every covariate that wanders slowly,
     a random walk above all, explain the residual between blocks; a cause also explains it within them.
     Without within-block evidence (``p_within >= alpha``) a candidate cannot be told from the drift on
-    this log and is not significant. Time itself is checked alike: a trend (a sensor warming over the
-    whole log) also shows within the blocks, an AR(1) drift of the noise does not (the model's correlation
-    terms, e.g. ``prev_residual``, are its representation).
+    this log and is not significant. Time itself (rank correlation with ``order`` >= :data:`TIME_CORR`) is
+    not checked: it is the drift's own name, a trend over the log shows mostly across the blocks, and the
+    block sign-flip test is the one that weighs a trend against a drifting noise.
     """
     block, signs = flips
     factors = state_factors(state)
+    t_rank = rank_basis(np.asarray(order, dtype=np.float64), degree=1)[:, 1]
     for e in effects:
         name = e["name"]
         if not e["significant"] or e.get("proxy_of") is not None or name not in proj:
+            continue
+        ok = np.isfinite(cands[name])
+        u = rank_basis(cands[name], degree=1)[:, 1]
+        if ok.sum() > 2 and abs(np.corrcoef(u[ok], t_rank[ok])[0, 1]) >= TIME_CORR:
             continue
         pi = proj[name]
         r, mask = targets[pi.metric]

@@ -473,7 +473,7 @@ def rank_candidates(
     proj = projection_tests(proj_targets, cands, state, blocks[0], flips, preferred, alpha / 2)
     for e in effects:
         combine_tests(e, proj.get(e["name"]), kinds, alpha, min_score)
-    drift_confounded(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha)
+    drift_confounded(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha, order[idx])
     _mark_proxies(effects, d, names, targets, metrics, forms, given_design)
     given_values = {g: np.asarray(ev.candidates[g], dtype=np.float64)[idx] for g in given}
     projection_proxies(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha, given_values)

@@ -155,9 +155,9 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     # "full" is sized for the shared 2-core machine without a GPU (README: budgets, wall time, how much the
     # policies learned): Neato 8 seeds (~25 min with 2 workers). Highway-fast: issue 41's recipe, 5 seeds, DQN with
     # highway-env's documented settings (the config's `algos: dqn` block) and highway-env's documented 20,000 steps,
-    # EvalCallback every 2,000 steps on 20 episodes of other seeds, and the matrix evaluates that best checkpoint on
-    # 30 episodes per cell: the final model regresses (docs/results/highway_matrix.md); highway-env's own
-    # simulation sets the pace.
+    # a checkpoint every 2,000 steps, and the matrix evaluates the one with the fewest collisions on 50 validation
+    # episodes (`--policy selected`; the final model regresses, EvalCallback's 20-episode pick is noisy:
+    # docs/results/highway_matrix_surround_selected.md) on 30 episodes per cell; highway-env sets the pace.
     "full": {
         "neato": {
             "seeds": 8,
@@ -171,7 +171,7 @@ PRESETS: dict[str, dict[str, dict[str, Any]]] = {
             "seeds": 5,
             "eval_episodes": 30,
             "max_episode_steps": None,
-            "policy": "best",
+            "policy": "selected",
             "set": {"n_timesteps": 20000, "n_envs": 1, "eval_freq": 2000, "eval_episodes": 20},
             "hyperparams": None,
         },

@@ -4,8 +4,8 @@
     sensor-envs robustness ... --policy selected --reevaluate [--force]     # a finished run, no training
 
 ``--policy best`` evaluates EvalCallback's pick, chosen on the config's ``eval_episodes`` episodes (20 in the
-highway ``full`` preset): a noisy choice (5 highway seeds trained on the ideal 360° radar collided on it at
-0.03, 0.03, 0.13, 0.37 and 0.53 with that pick). :func:`select` plays every checkpoint a job saved
+highway ``full`` preset): a noisy choice among ten checkpoints
+(docs/results/highway_matrix_surround_selected.md). :func:`select` plays every checkpoint a job saved
 (``checkpoints/model_<N>_steps.zip``, and ``final_model.zip`` unless a checkpoint has its step count) on
 ``--select-episodes`` validation episodes of the job's own training sensor (the ``env_kwargs`` of its
 ``config.json``), episode ``e`` reset with seed ``SELECT_SEED + e`` (2,000,000 + e: apart from the matrix's
