@@ -366,6 +366,19 @@ def _within_blocks(x: NDArray, block: NDArray, factor: NDArray | None = None) ->
     return x2.reshape(x.shape)
 
 
+def _finding_forms(e: dict[str, Any], pi: ProjectionResult, factors: dict[str, NDArray]) -> tuple[str, list[str]]:
+    """The metric and projection forms of a finding: the projection test's own, or the held-out test's.
+
+    A held-out finding keeps its metric; its form ``main``, or ``x <state>`` as that state's trend and side.
+    """
+    if e.get("test") != "held-out" or "metric" not in e:
+        return pi.metric, [pi.form]
+    if e.get("form", "main") == "main":
+        return e["metric"], ["main"]
+    forms = [k for k in (f"{e['form']} (trend)", f"{e['form']} (side)") if k in factors]
+    return e["metric"], forms or ["main"]
+
+
 def drift_confounded(
     effects: list[dict[str, Any]],
     proj: dict[str, ProjectionResult],
@@ -378,9 +391,10 @@ def drift_confounded(
 ) -> None:
     """Mark a significant candidate that explains the residual only across time blocks (``proxy_of`` :data:`DRIFT`).
 
-    In the candidate's projection metric and form, the residual and the candidate's regressors are freed
-    of each time block's mean (and, for a form times a state factor, of each block's slope on that factor)
-    and tested by the same block sign-flips (``p_within_blocks``). A slow drift the
+    In the finding's metric and form (the held-out test's, or the projection test's), the residual and the
+    candidate's regressors are freed of each time block's mean (and, for a form times a state factor, of
+    each block's slope on that factor) and tested by the same block sign-flips (``p_within_blocks``). A slow
+    drift the
     model does not carry (a temperature, a warming sensor) makes every covariate that wanders slowly,
     a random walk above all, explain the residual between blocks; a cause also explains it within them.
     Without within-block evidence (``p_within >= alpha``) a candidate cannot be told from the drift on
@@ -399,13 +413,17 @@ def drift_confounded(
         u = rank_basis(cands[name], degree=1)[:, 1]
         if ok.sum() > 2 and abs(np.corrcoef(u[ok], t_rank[ok])[0, 1]) >= TIME_CORR:
             continue
-        pi = proj[name]
-        r, mask = targets[pi.metric]
+        metric, forms = _finding_forms(e, proj[name], factors)
+        if metric not in targets:
+            metric, forms = proj[name].metric, [proj[name].form]
+        r, mask = targets[metric]
         b = block[mask]
-        f = None if pi.form == "main" else factors[pi.form][mask]
-        x = _within_blocks(_form(cands[name], factors, pi.form)[mask], b, f)
-        pb = _per_block(_within_blocks(r, b, f), x, b, signs.shape[1])
-        p = 1.0 if pb is None else _flip_test(pb, signs)[2]
+        p = 1.0
+        for form in forms:
+            f = None if form == "main" else factors[form][mask]
+            x = _within_blocks(_form(cands[name], factors, form)[mask], b, f)
+            pb = _per_block(_within_blocks(r, b, f), x, b, signs.shape[1])
+            p = min(p, 1.0 if pb is None else _flip_test(pb, signs)[2])
         e["p_within_blocks"] = p
         if p >= alpha:
             e.update(proxy_of=DRIFT, significant=False)
