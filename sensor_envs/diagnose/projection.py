@@ -369,10 +369,11 @@ def _within_blocks(x: NDArray, block: NDArray, factor: NDArray | None = None) ->
 def _finding_forms(e: dict[str, Any], pi: ProjectionResult, factors: dict[str, NDArray]) -> tuple[str, list[str]]:
     """The metric and projection forms of a finding: the projection test's own, or the held-out test's.
 
-    A held-out finding keeps its metric; its form ``main``, or ``x <state>`` as that state's trend and side.
+    A held-out finding keeps its metric (unless the metric is a score, the per-reading NLL: then the
+    projection test's); its form ``main``, or ``x <state>`` as that state's trend and side.
     """
-    if e.get("test") != "held-out" or "metric" not in e:
-        return pi.metric, [pi.form]
+    if e.get("test") != "held-out" or "metric" not in e or e.get("kind") == "score":
+        return pi.metric, [pi.form]  # the per-reading NLL (a score) has too little power within blocks
     if e.get("form", "main") == "main":
         return e["metric"], ["main"]
     forms = [k for k in (f"{e['form']} (trend)", f"{e['form']} (side)") if k in factors]
