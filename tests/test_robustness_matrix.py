@@ -80,9 +80,10 @@ def _args(tmp_path, **kw):
     return argparse.Namespace(**{**base, **kw})
 
 
-def test_full_highway_preset_evaluates_the_best_checkpoint_with_enough_episodes(tmp_path):
+def test_full_highway_preset_evaluates_the_selected_checkpoint_with_enough_episodes(tmp_path):
     specs, settings = robustness.plan(_args(tmp_path), {})
-    assert settings["policy"] == "best" and all(s["policy"] == "best" for s in specs)
+    assert settings["policy"] == "selected" and all(s["policy"] == "selected" for s in specs)
+    assert settings["select_episodes"] >= 50
     assert settings["eval_episodes"] >= 30
     assert robustness.PRESETS["full"]["highway"]["seeds"] >= 5
     _, final = robustness.plan(_args(tmp_path, policy="final"), {})
@@ -103,9 +104,10 @@ def test_quick_preset_trains_ideal_and_realistic_rows_once_each(tmp_path, domain
     assert narrowed["rows"] == ["ideal"] and narrowed["columns"] == ["ideal"]
 
 
-def test_best_policy_without_evaluations_is_a_usage_error(tmp_path):
-    with pytest.raises(robustness.UsageError, match="--policy best"):
-        robustness.plan(_args(tmp_path, set=["eval_freq=1000000000"]), {})
+@pytest.mark.parametrize("policy", ["best", "selected"])
+def test_a_checkpoint_policy_without_checkpoints_is_a_usage_error(tmp_path, policy):
+    with pytest.raises(robustness.UsageError, match=f"--policy {policy}"):
+        robustness.plan(_args(tmp_path, policy=policy, set=["eval_freq=1000000000"]), {})
 
 
 def test_jobs_print_a_line_each_when_stderr_is_not_a_terminal(monkeypatch, capsys):
