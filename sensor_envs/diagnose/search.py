@@ -179,6 +179,21 @@ def n_flip_blocks(series: list[NDArray], chunks: int = 96) -> int:
     correlation length of ``(1 + rho) / (1 - rho)`` chunks. At least :data:`MIN_BLOCKS`: with fewer,
     no sign pattern is rare enough for p < 0.01.
     """
+    return int(np.clip(round(chunks / (2 * _correlation_length(series, chunks))), MIN_BLOCKS, N_BLOCKS))
+
+
+def drift_outlasts_blocks(series: list[NDArray], chunks: int = 96) -> bool:
+    """Whether the residuals stay correlated over more than :data:`MIN_BLOCKS` blocks can absorb.
+
+    The blocks are then shorter than twice the correlation length, the sign flips' null is too narrow for a
+    covariate that wanders with the drift, and a finding needs evidence within the blocks
+    (:func:`~sensor_envs.diagnose.projection.drift_confounded`).
+    """
+    return chunks / (2 * _correlation_length(series, chunks)) < MIN_BLOCKS
+
+
+def _correlation_length(series: list[NDArray], chunks: int) -> float:
+    """The largest correlation length over ``series``, in chunks (see :func:`n_flip_blocks`)."""
     length = 1.0
     for r in series:
         if r.size < 4 * chunks:
@@ -189,7 +204,7 @@ def n_flip_blocks(series: list[NDArray], chunks: int = 96) -> int:
         if m.std() > 0:
             rho = float(np.clip(np.corrcoef(m[1:], m[:-1])[0, 1], 0.0, 0.98))
             length = max(length, (1 + rho) / (1 - rho))
-    return int(np.clip(round(chunks / (2 * length)), MIN_BLOCKS, N_BLOCKS))
+    return length
 
 
 def _free_of_state(r: NDArray, state_bins: list[NDArray], mask: NDArray, passes: int = 2) -> NDArray[np.float64]:
@@ -473,7 +488,8 @@ def rank_candidates(
     proj = projection_tests(proj_targets, cands, state, blocks[0], flips, preferred, alpha / 2)
     for e in effects:
         combine_tests(e, proj.get(e["name"]), kinds, alpha, min_score)
-    drift_confounded(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha, order[idx])
+    if drift_outlasts_blocks([f[0] for f in freed]):
+        drift_confounded(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha, order[idx])
     _mark_proxies(effects, d, names, targets, metrics, forms, given_design)
     given_values = {g: np.asarray(ev.candidates[g], dtype=np.float64)[idx] for g in given}
     projection_proxies(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha, given_values)
