@@ -6,7 +6,7 @@ import numpy as np
 
 from sensor_envs.diagnose.core import Evaluation
 from sensor_envs.diagnose.projection import DRIFT, drift_confounded, partial_test, projection_tests
-from sensor_envs.diagnose.search import rank_candidates
+from sensor_envs.diagnose.search import drift_outlasts_blocks, rank_candidates
 
 
 def _ar1(rng: np.random.Generator, n: int, rho: float, sd: float) -> np.ndarray:
@@ -100,6 +100,14 @@ def test_a_walk_that_follows_slow_drift_is_told_from_a_cause() -> None:
         marked += effects[0]["proxy_of"] == DRIFT
         kept += effects[1]["proxy_of"] is None and effects[1]["significant"]
     assert marked >= 7 and kept >= 9  # measured 8 and 10; a check that marks nothing or everything fails
+
+
+def test_the_drift_check_applies_when_the_drift_outlasts_the_blocks() -> None:
+    rng = np.random.default_rng(15)
+    n = 6000
+    assert not drift_outlasts_blocks([rng.normal(size=n)])
+    assert not drift_outlasts_blocks([rng.normal(size=n) + _ar1(rng, n, 0.9, 0.5)])  # short memory
+    assert drift_outlasts_blocks([rng.normal(size=n) + _ar1(rng, n, 0.999, 0.2)])  # wanders over the log
 
 
 def test_the_search_adds_the_cause_and_marks_its_copy() -> None:
