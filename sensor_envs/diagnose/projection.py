@@ -366,13 +366,17 @@ def _within_blocks(x: NDArray, block: NDArray, factor: NDArray | None = None) ->
     return x2.reshape(x.shape)
 
 
-def _finding_forms(e: dict[str, Any], pi: ProjectionResult, factors: dict[str, NDArray]) -> tuple[str, list[str]]:
+def _finding_forms(
+    e: dict[str, Any], pi: ProjectionResult, factors: dict[str, NDArray], targets: dict[str, Any]
+) -> tuple[str, list[str]]:
     """The metric and projection forms of a finding: the projection test's own, or the held-out test's.
 
-    A held-out finding keeps its metric (unless the metric is a score, the per-reading NLL: then the
-    projection test's); its form ``main``, or ``x <state>`` as that state's trend and side.
+    A held-out finding keeps its metric (unless the metric is a score, the per-reading NLL, or not one of
+    ``targets``: then the projection test's); its form ``main``, or ``x <state>`` as that state's trend and
+    side.
     """
-    if e.get("test") != "held-out" or "metric" not in e or e.get("kind") == "score":
+    held_out = e.get("test") == "held-out" and e.get("metric") in targets
+    if not held_out or e.get("kind") == "score":
         return pi.metric, [pi.form]  # the per-reading NLL (a score) has too little power within blocks
     if e.get("form", "main") == "main":
         return e["metric"], ["main"]
@@ -395,9 +399,9 @@ def drift_confounded(
     In the finding's metric and form (the held-out test's, or the projection test's), the residual and the
     candidate's regressors are freed of each time block's mean (and, for a form times a state factor, of
     each block's slope on that factor) and tested by the same block sign-flips (``p_within_blocks``). A slow
-    drift the
-    model does not carry (a temperature, a warming sensor) makes every covariate that wanders slowly,
-    a random walk above all, explain the residual between blocks; a cause also explains it within them.
+    drift the model does not carry (a temperature, a warming sensor) makes every covariate that wanders
+    slowly, a random walk above all, explain the residual between blocks; a cause also explains it within
+    them.
     Without within-block evidence (``p_within >= alpha``) a candidate cannot be told from the drift on
     this log and is not significant. Time itself (rank correlation with ``order`` >= :data:`TIME_CORR`) is
     not checked: it is the drift's own name, a trend over the log shows mostly across the blocks, and the
@@ -414,9 +418,7 @@ def drift_confounded(
         u = rank_basis(cands[name], degree=1)[:, 1]
         if ok.sum() > 2 and abs(np.corrcoef(u[ok], t_rank[ok])[0, 1]) >= TIME_CORR:
             continue
-        metric, forms = _finding_forms(e, proj[name], factors)
-        if metric not in targets:
-            metric, forms = proj[name].metric, [proj[name].form]
+        metric, forms = _finding_forms(e, proj[name], factors, targets)
         r, mask = targets[metric]
         b = block[mask]
         p = 1.0

@@ -98,6 +98,14 @@ def checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
     return sorted((int(m.group(1)), p) for m, p in found)
 
 
+def _require_checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
+    """:func:`checkpoints` of a job that ``--policy selected`` chooses among (none: an input error naming it)."""
+    found = checkpoints(run_dir)
+    if not found:
+        raise UsageError(f"--policy selected: {run_dir} has no checkpoints (checkpoints/model_<N>_steps.zip)")
+    return found
+
+
 def _load(algo: str, path: Path, device: str) -> Any:
     """The SB3 model saved at ``path`` (a seam for the tests)."""
     import stable_baselines3 as sb3
@@ -125,9 +133,7 @@ def select(
         UsageError: the job saved no checkpoints (one line naming ``run_dir``).
     """
     run_dir = Path(run_dir)
-    found = checkpoints(run_dir)
-    if not found:
-        raise UsageError(f"--policy selected: {run_dir} has no checkpoints (checkpoints/model_<N>_steps.zip)")
+    found = _require_checkpoints(run_dir)
     job = _read(run_dir / "config.json", "job config")
     env_id, cfg = job["env_id"], job["config"]
     kwargs = dict(cfg.get("env_kwargs") or {})
@@ -241,8 +247,8 @@ def reevaluations(specs: list[dict[str, Any]], log: Callable[[str], None] = prin
         other = [k for k in TRAINING_KEYS if old.get(k) != spec.get(k)]
         if other:
             raise UsageError(f"--reevaluate: {run_dir} was trained with other settings ({', '.join(other)})")
-        if spec["policy"] == "selected" and not checkpoints(run_dir):
-            raise UsageError(f"--policy selected: {run_dir} has no checkpoints (checkpoints/model_<N>_steps.zip)")
+        if spec["policy"] == "selected":
+            _require_checkpoints(run_dir)
         if spec["policy"] != "selected" and not (run_dir / f"{spec['policy']}_model.zip").is_file():
             raise UsageError(f"--policy {spec['policy']}: {run_dir} has no {spec['policy']}_model.zip")
         if any(old.get(k) != spec.get(k) for k in EVALUATION_KEYS):
