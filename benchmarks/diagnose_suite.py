@@ -4,7 +4,8 @@ Draws cases from the seeded families of :mod:`sensor_envs.diagnose.families` (li
 interaction with bearing, spread, null rate, AR(1) correlation, null; radar: mean, interaction with
 azimuth side, spread, detection rate, null; ``lidar-static``: the lidar families at one pose recorded
 over time; ``real``: causes planted into the shared real logs by :func:`~sensor_envs.diagnose.families.plant_lidar`,
-skipped when ``--real`` is absent), runs the diagnosis loop on each as the CLI does
+skipped when ``--real`` is absent; planted at the smallest multiple of the drawn strength the log
+resolves unless ``--real-strength drawn``), runs the diagnosis loop on each as the CLI does
 (:func:`sensor_envs.diagnose.core.run_diagnose` with the sensor's adapter, a block split and the
 package's search defaults, :data:`sensor_envs.diagnose.search.DEFAULTS`; the lidar tables with the
 fast seed variant unless ``--full-fit``), and prints, per sensor and kind:
@@ -71,10 +72,14 @@ REAL_LOGS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     "intel": ("carmen/intel-corrected.log.gz", {"max_range": 30.0}, CARMEN_FIT),
     "aces": ("carmen/aces-corrected.log.gz", {"max_range": 30.0}, CARMEN_FIT),
     "neato-middle": ("neato_ros1_bags/middle.bag", {"map": "neato_ros1_bags/mymap.yaml", "align": True}, {}),
+    "neato-left": ("neato_ros1_bags/left_side.bag", {"map": "neato_ros1_bags/mymap.yaml", "align": True}, {}),
+    "neato-right": ("neato_ros1_bags/right_side.bag", {"map": "neato_ros1_bags/mymap.yaml", "align": True}, {}),
     "neato-static": ("neato_mar27_train.npz", {"static_pose": 0}, {}),
+    "neato-static-14": ("neato_mar27_train.npz", {"static_pose": 14}, {}),
 }
 """Real logs of the shared folder (name: relative path, how the CLI would prepare it, table options).
-``neato-static``: the repeated Neato log's first pose as one static pose recorded over time."""
+``neato-static``, ``neato-static-14``: the repeated Neato log's first and fifteenth pose, each one static pose
+recorded over time."""
 
 
 def load_real(root: Path, name: str) -> Any:
@@ -90,6 +95,51 @@ def load_real(root: Path, name: str) -> Any:
     return prepare_log(log, **opts)[0]
 
 
+def _adapter(case: Case, sensor: str, full_fit: bool, fit: dict[str, Any] | None) -> Any:
+    """The sensor's adapter on the case's log with the CLI's block split (see :func:`diagnose_case`)."""
+    if sensor == "lidar":
+        from sensor_envs.diagnose.lidar import DIAGNOSE_LIDAR_PARAMS, DIAGNOSE_MAX_READINGS, LidarAdapter, lidar_blocks
+
+        blocks = lidar_blocks(case.log.n_poses, 5)
+        params, rows = (DIAGNOSE_LIDAR_PARAMS, DIAGNOSE_MAX_READINGS) if full_fit else (LIDAR_FIT, 150)
+        params = {**params, **(fit or {})}
+        return LidarAdapter(case.log, block_split(blocks), blocks, params=params, max_readings=rows)
+    from sensor_envs.diagnose.radar import RadarAdapter, radar_blocks
+
+    return RadarAdapter(case.log, block_split(radar_blocks(case.log)))
+
+
+STRENGTH_FACTORS = (1.0, 2.0, 4.0, 8.0)
+"""Multiples of a real case's drawn strength tried, in order, until the oracle resolves the cause."""
+
+
+def resolvable_plant(log: Any, kind: str, seed: int, fit: dict[str, Any], full_fit: bool) -> tuple[Case, Any]:
+    """A cause planted into a real log at the smallest strength the log resolves.
+
+    The case of :func:`~sensor_envs.diagnose.families.plant_lidar` (same seed: the same cause, form and
+    distractors) at its drawn strength times 1, 2, 4, 8 until an oracle that knows the cause finds it in
+    the base model's held-out residuals at ``alpha / candidates``
+    (:func:`~sensor_envs.diagnose.power.detectable`): the issue's "strengths those logs can resolve".
+    ``info["strength_factor"]`` records the multiple (8 and ``resolvable: False`` when none sufficed);
+    a null case is planted as drawn. Returns the case and the adapter of the last strength tried (its
+    base fit is the diagnosis's).
+    """
+    case = plant_lidar(log, kind, seed)
+    if kind == "null":
+        return case, None
+    drawn, adapter = case.info["strength"], None
+    for factor in STRENGTH_FACTORS:
+        case = plant_lidar(log, kind, seed, strength=drawn * factor)
+        adapter = _adapter(case, "lidar", full_fit, fit)
+        ev = adapter.evaluate(adapter.fit(case.base_state))
+        n_cand = len(set(ev.candidates) - set(adapter.state_features()))
+        ok, _ = detectable(ev, str(case.cause), n_cand)
+        case.info.update(strength_factor=factor, drawn_strength=drawn, resolvable=ok)
+        if ok:
+            break
+    return case, adapter
+
+
 def diagnose_case(
     case: Case,
     sensor: str,
@@ -98,24 +148,16 @@ def diagnose_case(
     alpha: float = DEFAULTS["alpha"],
     full_fit: bool = False,
     fit: dict[str, Any] | None = None,
+    adapter: Any = None,
 ) -> Any:
     """Run the loop on one case as the CLI would (block split, adapter, run_diagnose with its defaults).
 
     ``full_fit``: the lidar tables are fitted as ``sensor-envs diagnose lidar`` fits them (its
     ``DIAGNOSE_LIDAR_PARAMS`` and ``--max-readings`` default) instead of the fast seed variant;
-    ``fit``: table options of the log (e.g. a CARMEN log's ``max_range``).
+    ``fit``: table options of the log (e.g. a CARMEN log's ``max_range``); ``adapter``: one already built
+    on the case (its base fit is reused)
     """
-    if sensor == "lidar":
-        from sensor_envs.diagnose.lidar import DIAGNOSE_LIDAR_PARAMS, DIAGNOSE_MAX_READINGS, LidarAdapter, lidar_blocks
-
-        blocks = lidar_blocks(case.log.n_poses, 5)
-        params, rows = (DIAGNOSE_LIDAR_PARAMS, DIAGNOSE_MAX_READINGS) if full_fit else (LIDAR_FIT, 150)
-        params = {**params, **(fit or {})}
-        adapter: Any = LidarAdapter(case.log, block_split(blocks), blocks, params=params, max_readings=rows)
-    else:
-        from sensor_envs.diagnose.radar import RadarAdapter, radar_blocks
-
-        adapter = RadarAdapter(case.log, block_split(radar_blocks(case.log)))
+    adapter = _adapter(case, sensor, full_fit, fit) if adapter is None else adapter
     res = run_diagnose(adapter, base_state=case.base_state, n_permutations=permutations, alpha=alpha, seed=seed)
     if sensor == "radar":  # what was added, in words, and the held-out NLL per part (detection, position)
         from sensor_envs.diagnose.radar_add import describe_terms, nll_parts
@@ -215,6 +257,7 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]], command: str) 
             f"- {r['sensor']} {r['kind']} seed {r['seed']}: cause {r['cause']}, top {r['top3']}, added {r['added']}, "
             f"NLL {r['error_before']:.4f} -> {r['error_after']:.4f}, strength {r['info'].get('strength', 0):.2f} "
             f"({r['info'].get('form')}), "
+            + (f"x{r['info']['strength_factor']:g} of the drawn, " if "strength_factor" in r["info"] else "")
             + (f"oracle p {r['oracle']['p_value']:.2g} ({r['oracle']['best']}), " if "oracle" in r else "")
             + f"{r['seconds']:.0f} s"
         )
@@ -235,6 +278,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--real", type=Path, default=None, help="the shared real-data folder (skipped when absent)")
     ap.add_argument("--real-cases", type=int, default=2, help="planted cases per kind and real log (default 2)")
+    ap.add_argument(
+        "--real-strength",
+        choices=("resolvable", "drawn"),
+        default="resolvable",
+        help="real cases: the drawn strength times the smallest of 1, 2, 4, 8 the log resolves (default), or as drawn",
+    )
     ap.add_argument("--kinds", nargs="*", default=None, help="only these kinds")
     ap.add_argument("--scans", type=int, default=500)
     ap.add_argument("--bearings", type=int, default=60)
@@ -248,9 +297,10 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict[str, Any]] = []
     for label, kind, seed, make, fit in _jobs(a):
         t0 = time.perf_counter()
-        case = make()
+        made = make()
+        case, adapter = made if isinstance(made, tuple) else (made, None)
         sensor = "radar" if label == "radar" else "lidar"
-        res = diagnose_case(case, sensor, a.permutations, seed, a.alpha, a.full_fit, fit)
+        res = diagnose_case(case, sensor, a.permutations, seed, a.alpha, a.full_fit, fit, adapter)
         row = {"sensor": label, "seed": seed, **score_case(case, res)}
         row["seconds"] = time.perf_counter() - t0
         rows.append(row)
@@ -297,7 +347,12 @@ def _jobs(a: argparse.Namespace) -> list[tuple[str, str, int, Any, dict[str, Any
             for kind in [k for k in PLANT_KINDS if a.kinds is None or k in a.kinds]:
                 for j in range(a.real_cases):
                     seed = a.seed + 1000 * j + 17 * PLANT_KINDS.index(kind)
-                    jobs.append((f"real:{name}", kind, seed, partial(plant_lidar, log, kind, seed), fit))
+                    plant = (
+                        partial(plant_lidar, log, kind, seed)
+                        if a.real_strength == "drawn"
+                        else partial(resolvable_plant, log, kind, seed, fit, a.full_fit)
+                    )
+                    jobs.append((f"real:{name}", kind, seed, plant, fit))
     return jobs
 
 

@@ -16,6 +16,8 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sensor_envs.diagnose.core import block_split, run_diagnose
 from sensor_envs.diagnose.lidar import LidarAdapter, lidar_blocks
@@ -181,3 +183,18 @@ def test_rotation_smear_is_found_through_the_range_slope():
     main_only = adapter.evaluate(adapter.fit(("omega", "omega@sq"))).error
     with_slope = adapter.evaluate(adapter.fit(("omega", "omega@range_slope"))).error
     assert with_slope < main_only - 0.005 and res.error_after < res.error_before
+
+
+@given(st.lists(st.tuples(st.integers(0, 12), st.one_of(st.none(), st.floats(-0.5, 0.5))), min_size=1, max_size=80))
+@settings(max_examples=60, deadline=None)
+def test_pit_spread_is_the_distance_from_the_scans_median(rows):
+    """``pit_spread``: each finite PIT's distance from its scan's median PIT; NaN stays NaN."""
+    from sensor_envs.diagnose.lidar import _pit_spread
+
+    scan = np.array([r[0] for r in rows], dtype=np.int64)  # in any order
+    pit = np.array([np.nan if r[1] is None else r[1] for r in rows])
+    out = _pit_spread(pit, scan)
+    for j in np.unique(scan):
+        m = (scan == j) & np.isfinite(pit)
+        np.testing.assert_allclose(out[m], np.abs(pit[m] - np.median(pit[m])) if m.any() else [], atol=1e-12)
+    assert np.array_equal(np.isnan(out), np.isnan(pit))

@@ -168,12 +168,30 @@ def test_planted_effects_move_the_readings_as_stated(kind):
     if kind == "rate":
         assert np.mean(x1 == 0) > np.mean(x0 == 0)
         assert np.all((x1 == x0) | (x1 == 0))
-    elif kind == "spread":
-        d = np.abs(x1 - x0)
-        assert d.max() > 0 and np.all(x1[x0 == 0] == 0)
+    elif kind == "spread":  # noise added: the mean stays, the spread grows with the cause
+        d = np.where(x0 > 0.1, x1 - x0, np.nan)
+        sd, s = case.info["sd_m"], case.info["strength"]
+        per_scan = np.nanstd(d, axis=1)  # the added noise's sd, from 0 to sd sqrt((1 + s)^2 - 1)
+        assert abs(np.nanmean(d)) < 0.05 * sd and np.all(x1[x0 == 0] == 0)
+        assert per_scan.min() < 0.2 * per_scan.max()
+        assert per_scan.max() == pytest.approx(sd * np.sqrt((1 + s) ** 2 - 1), rel=0.3)
     else:
         assert np.any(x1 != x0) and np.all(x1[x0 == 0] == 0)
         assert not np.allclose(np.mean((x1 - x0)[hi]), np.mean((x1 - x0)[lo]), atol=1e-6) or kind == "interaction"
+
+
+@pytest.mark.parametrize("kind", [k for k in PLANT_KINDS if k != "null"])
+def test_a_planted_case_at_another_strength_is_the_same_case(kind):
+    """A given strength changes only the effect's size: the cause, its form and the distractors stay."""
+    log = lidar_case("null", 12, scans=200, bearings=16).log
+    base = replace(log, covariates={k: v for k, v in log.covariates.items() if k in ("v", "omega")})
+    drawn = plant_lidar(base, kind, 7)
+    double = plant_lidar(base, kind, 7, strength=2 * drawn.info["strength"])
+    assert (drawn.cause, drawn.proxy, drawn.info["form"]) == (double.cause, double.proxy, double.info["form"])
+    for k, v in drawn.log.covariates.items():
+        np.testing.assert_array_equal(v, double.log.covariates[k])
+    moved = [np.abs(c.log.ranges - base.ranges).sum() for c in (drawn, double)]
+    assert moved[1] > moved[0] > 0
 
 
 @pytest.mark.slow

@@ -353,8 +353,10 @@ def plant_lidar(log: Any, kind: str, seed: int, strength: float | None = None) -
     two random walks and a white-noise column are added under random names. The effect is sized by the
     log's own spread: ``sd`` = 1.4826 x the median absolute deviation of ``x - r`` (reading minus the
     nominal range from the map) over the hit, non-null readings. ``mean``: ``x + s sd f(c)``;
-    ``interaction``: ``x + s sd sqrt(2) f(c) cos(bearing - phase)``; ``spread``: the deviation
-    ``x - r`` scaled by ``1 + s`` across the cause's range; ``rate``: extra nulls with probability
+    ``interaction``: ``x + s sd sqrt(2) f(c) cos(bearing - phase)``; ``spread``: independent noise of
+    sd ``sd sqrt(g^2 - 1)`` added, ``g`` rising from 1 to ``1 + s`` across the cause's range (a
+    spread of ``sd`` grows to ``g sd``, the mean stays; scaling the deviation from the map instead would
+    also scale the map's own errors, a mean effect per bearing); ``rate``: extra nulls with probability
     rising by ``s sqrt(p (1 - p))`` (``p`` the log's null rate, at least 0.05) across it. Real effects
     already in the log (of time, speed, turn rate) stay: the truth is only what was planted. The base
     model is given ``prev_residual`` (a real log's readings are correlated in time).
@@ -381,9 +383,9 @@ def plant_lidar(log: Any, kind: str, seed: int, strength: float | None = None) -
     taken = set(log.covariates)
     cov, cname, pname, prho = _covariates(rng, n, cause, taken, with_proxy=kind != "null")
     form, f = _form(rng, cause)
-    if strength is None:
-        lo, hi = (0.3, 0.6) if kind == "spread" else (0.5, 1.0)
-        strength = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+    lo, hi = (0.3, 0.6) if kind == "spread" else (0.5, 1.0)
+    drawn = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))  # drawn always: the same case at any strength
+    strength = drawn if strength is None else float(strength)
     info: dict[str, Any] = {"source": log.source, "scans": n, "bearings": k, "strength": strength, "form": form}
     info.update(sd_m=sd, proxy_corr=prho, planted=list(cov))
     if kind == "mean":
@@ -392,10 +394,9 @@ def plant_lidar(log: Any, kind: str, seed: int, strength: float | None = None) -
         phase = float(rng.uniform(0, 2 * np.pi))
         x = np.where(hit, x + strength * sd * np.sqrt(2) * f[:, None] * np.cos(log.bearings - phase)[None], x)
         info["interaction"] = f"cos(bearing - {phase:.2f})"
-    elif kind == "spread":
-        scale = np.exp(np.log1p(strength) * (f - f.min()) / max(np.ptp(f), 1e-12))
-        scale = scale / np.sqrt(np.mean(scale**2))
-        x = np.where(hit, np.maximum(np.nan_to_num(r) + dev * scale[:, None], 0.02), x)
+    elif kind == "spread":  # extra noise: the spread grows from the log's own to (1 + s) x, the mean stays
+        g = 1.0 + strength * (f - f.min()) / max(np.ptp(f), 1e-12)
+        x = np.where(hit, np.maximum(x + sd * np.sqrt(g**2 - 1.0)[:, None] * rng.normal(size=x.shape), 0.02), x)
     elif kind == "rate":
         p = max(float(np.mean(x[np.isfinite(r) & np.isfinite(x)] == 0)), 0.05)
         p_add = np.clip(strength * np.sqrt(p * (1 - p)) * (f - f.min()), 0.0, 0.9)

@@ -11,7 +11,10 @@ Residuals of a fitted model on the held-out part:
 * ``pit``: the reading's PIT under the model minus 0.5 (non-null readings);
 * ``range_spread``: ``sqrt(|z - c|)`` with ``z = (x - mu) / sigma`` of the same readings as ``range``
   and ``c`` the scan's mean of ``z`` clipped to +-3 (kind ``spread``: an effect on the noise's scale or
-  tails moves it while the mean residual stays 0; an offset shared by a scan, e.g. slow drift, does not).
+  tails moves it while the mean residual stays 0; an offset shared by a scan, e.g. slow drift, does not);
+* ``pit_spread``: ``|u - c|``, ``u`` the reading's PIT and ``c`` its scan's median PIT (non-null
+  readings; kind ``spread``): the same on a bounded scale, for real logs whose residuals are
+  heavy-tailed (map errors, moving people), where a few far readings dominate ``range_spread``.
 
 Interaction features (the model's own state, see :mod:`sensor_envs.diagnose.search`): bearing,
 nominal range, incidence and ``range_slope``, the nominal range's slope along the scan [m/rad] (an
@@ -79,6 +82,24 @@ def _within_scan_spread(z: NDArray[np.float64], scan: NDArray[np.int64]) -> NDAr
     n = np.bincount(scan, weights=ok.astype(np.float64))
     centre = np.bincount(scan, weights=zc) / np.maximum(n, 1.0)
     return np.sqrt(np.minimum(np.abs(z - centre[scan]), 25.0))
+
+
+def _pit_spread(pit: NDArray[np.float64], scan: NDArray[np.int64]) -> NDArray[np.float64]:
+    """``|pit - c_scan|``: each reading's PIT distance from its scan's median PIT (NaN readings stay NaN).
+
+    An offset shared by a scan's readings (slow drift, a pose error) moves the scan's PITs together and
+    is not spread, so a change of the noise's scale is not buried under the drift.
+    """
+    ok = np.isfinite(pit)
+    order = np.lexsort((np.where(ok, pit, np.inf), scan))  # by scan, then PIT, NaN last within a scan
+    s_sorted = scan[order]
+    start = np.flatnonzero(np.r_[True, s_sorted[1:] != s_sorted[:-1]])
+    n_ok = np.add.reduceat(ok[order].astype(np.int64), start)
+    p_sorted = np.where(ok, pit, 0.0)[order]
+    med = 0.5 * (p_sorted[start + np.maximum(n_ok - 1, 0) // 2] + p_sorted[start + n_ok // 2])  # the finite ones'
+    centre = np.zeros(int(scan.max(initial=0)) + 1)
+    centre[s_sorted[start]] = med
+    return np.where(ok, np.abs(pit - centre[scan]), np.nan)
 
 
 class LidarAdapter:
@@ -210,6 +231,7 @@ class LidarAdapter:
             "range": rng_res,
             "pit": pit,
             "range_spread": _within_scan_spread(rng_res / ps["sigma"], s),
+            "pit_spread": _pit_spread(pit, s),
         }
         cand = dict(self._candidates)
         cand[PREV] = feats[s, k, -1 if PREV not in names else names.index(PREV)]
@@ -226,7 +248,13 @@ class LidarAdapter:
                 "incidence": np.nan_to_num(self.a[s, k]),
                 "range_slope": self.slope[s, k],
             },
-            metric_kinds={"null": "rate", "range": "mean", "pit": "mean", "range_spread": "spread"},
+            metric_kinds={
+                "null": "rate",
+                "range": "mean",
+                "pit": "mean",
+                "range_spread": "spread",
+                "pit_spread": "spread",
+            },
         )
 
     def baseline(self, extra_state: tuple[str, ...]) -> float | None:

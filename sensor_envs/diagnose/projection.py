@@ -33,6 +33,7 @@ This module is that test, for every candidate and every simple form at once:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -366,6 +367,17 @@ def _within_blocks(x: NDArray, block: NDArray, factor: NDArray | None = None) ->
     return x2.reshape(x.shape)
 
 
+def _explains_drift(r: NDArray, xs: list[NDArray], outlasts: Callable[[list[NDArray]], bool]) -> bool:
+    """Whether ``r`` (in time order) does not drift beyond the blocks, or no longer does once fitted on an ``x``."""
+    if not outlasts([r]):
+        return True
+    for x in xs:
+        base = np.column_stack([np.ones(r.size), x])
+        if not outlasts([r - base @ np.linalg.lstsq(base, r, rcond=None)[0]]):
+            return True
+    return False
+
+
 def _finding_forms(
     e: dict[str, Any], pi: ProjectionResult, factors: dict[str, NDArray], targets: dict[str, Any]
 ) -> tuple[str, list[str]]:
@@ -393,6 +405,7 @@ def drift_confounded(
     flips: tuple[NDArray, NDArray],
     alpha: float,
     order: NDArray,
+    outlasts: Callable[[list[NDArray]], bool],
 ) -> None:
     """Mark a significant candidate that explains the residual only across time blocks (``proxy_of`` :data:`DRIFT`).
 
@@ -403,9 +416,13 @@ def drift_confounded(
     slowly, a random walk above all, explain the residual between blocks; a cause also explains it within
     them.
     Without within-block evidence (``p_within >= alpha``) a candidate cannot be told from the drift on
-    this log and is not significant. Time itself (rank correlation with ``order`` >= :data:`TIME_CORR`) is
-    not checked: it is the drift's own name, a trend over the log shows mostly across the blocks, and the
-    block sign-flip test is the one that weighs a trend against a drifting noise.
+    this log and is not significant, unless it accounts for the drift: a finding whose metric does not
+    drift, or whose fit (in its form) leaves a remainder that no longer outlasts the blocks (``outlasts``,
+    the search's test of the residuals), is kept (``explains_drift``). A strong slow cause is then the
+    drift; a covariate that follows the drift by chance (a spurious regression) leaves most of it. Time
+    itself (rank correlation with ``order`` >= :data:`TIME_CORR`) is not checked: it is the drift's own
+    name, a trend over the log shows mostly across the blocks, and the block sign-flip test is the one
+    that weighs a trend against a drifting noise.
     """
     block, signs = flips
     factors = state_factors(state)
@@ -420,6 +437,9 @@ def drift_confounded(
             continue
         metric, forms = _finding_forms(e, proj[name], factors, targets)
         r, mask = targets[metric]
+        if _explains_drift(r, [_form(cands[name], factors, form)[mask] for form in forms], outlasts):
+            e["explains_drift"] = True
+            continue
         b = block[mask]
         p = 1.0
         for form in forms:

@@ -22,6 +22,7 @@ UNITS = {
     "pit": "PIT",
     "nll": "nats",
     "range_spread": "sqrt(|residual| / sigma)",
+    "pit_spread": "PIT distance from the scan median",
     "offset_spread": "sqrt(offset / RMS)",
 }
 """Unit of each residual metric (the size of a finding is stated in it)."""

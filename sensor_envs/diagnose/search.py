@@ -489,7 +489,9 @@ def rank_candidates(
     for e in effects:
         combine_tests(e, proj.get(e["name"]), kinds, alpha, min_score)
     if drift_outlasts_blocks([f[0] for f in freed]):
-        drift_confounded(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha, order[idx])
+        drift_confounded(
+            effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha, order[idx], drift_outlasts_blocks
+        )
     _mark_proxies(effects, d, names, targets, metrics, forms, given_design)
     given_values = {g: np.asarray(ev.candidates[g], dtype=np.float64)[idx] for g in given}
     projection_proxies(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha, given_values)
