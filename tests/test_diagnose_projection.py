@@ -101,18 +101,22 @@ def test_a_walk_that_follows_slow_drift_is_told_from_a_cause() -> None:
         )
         marked += effects[0]["proxy_of"] == DRIFT
         kept += effects[1]["proxy_of"] is None and effects[1]["significant"]
-    assert marked >= 7 and kept >= 9  # measured 8 and 10; a check that marks nothing or everything fails
+    # measured 6 and 10 (8 marked before a candidate that leaves no drift behind was kept: a shadow that
+    # follows the drift that closely is, on one log, a cause); a check that marks nothing or everything fails
+    assert marked >= 5 and kept >= 9
 
 
 def test_a_slow_cause_that_is_the_drift_is_kept() -> None:
-    """A strong effect of a slowly wandering cause is the residual's drift: kept, though it varies little
-    within the blocks; a walk that follows it only coarsely (a shadow) still leaves drift and is marked."""
+    """A strong effect of a smooth, slowly wandering cause is the residual's drift: kept, though it varies
+    too little within the blocks to show there; a walk that follows it only coarsely (a shadow) still
+    leaves drift and is marked."""
     kept = marked = 0
     for seed in range(10):
         rng = np.random.default_rng(300 + seed)
         n, nb = 3200, 16
         block = np.arange(n) * nb // n
-        cause = _walk(rng, n)
+        cause = np.convolve(_walk(rng, n + 599), np.ones(600) / 600, mode="valid")  # smooth over 3 blocks
+        cause = (cause - cause.mean()) / cause.std()
         centres = (np.arange(nb) + 0.5) * n / nb
         coarse = np.interp(np.arange(n), centres, [cause[block == b].mean() for b in range(nb)])
         shadow = coarse + 0.5 * _walk(rng, n)
@@ -126,9 +130,9 @@ def test_a_slow_cause_that_is_the_drift_is_kept() -> None:
         drift_confounded(
             effects, proj, cands, targets, {}, (block, flips), 0.05, np.arange(n, dtype=float), drift_outlasts_blocks
         )
-        kept += effects[0]["significant"] and effects[0].get("explains_drift", False)
+        kept += effects[0]["significant"] and effects[0]["p_within_blocks"] >= 0.05  # kept for explaining
         marked += effects[1]["proxy_of"] == DRIFT
-    assert kept >= 8 and marked >= 6, (kept, marked)  # measured 9 and 7; without the check 0 kept
+    assert kept >= 5 and marked >= 6, (kept, marked)  # measured 6 (of 6 without evidence within) and 7; 0 kept without
 
 
 def test_the_drift_check_applies_when_the_drift_outlasts_the_blocks() -> None:

@@ -367,6 +367,29 @@ def _within_blocks(x: NDArray, block: NDArray, factor: NDArray | None = None) ->
     return x2.reshape(x.shape)
 
 
+def _binned_form(c: NDArray, factors: dict[str, NDArray], form: str, n_bins: int = 8) -> NDArray[np.float64]:
+    """``(n, n_bins)`` (or ``2 n_bins`` times a factor): the candidate's quantile-bin indicators in a form.
+
+    Any shape of effect (a step, a saturation), for the fit whose remainder :func:`_explains_drift` tests;
+    a non-finite reading is in no bin.
+    """
+    u = rank_basis(c, degree=1)[:, 1]
+    ok = np.isfinite(np.asarray(c, dtype=np.float64))
+    b = np.minimum(((u + 1) / 2 * n_bins).astype(np.int64), n_bins - 1)
+    onehot = (b[:, None] == np.arange(n_bins)[None]) & ok[:, None]
+    x = onehot.astype(np.float64)[:, 1:]  # the intercept stands for the first bin
+    return x if form == "main" else np.column_stack([x, onehot * factors[form][:, None]])
+
+
+def _rank_corr(a: NDArray, b: NDArray) -> float:
+    """``|corr|`` of the rank scales of two candidates over the readings where both are finite."""
+    ok = np.isfinite(a) & np.isfinite(b)
+    if ok.sum() < 3:
+        return 0.0
+    ua, ub = rank_basis(a[ok], degree=1)[:, 1], rank_basis(b[ok], degree=1)[:, 1]
+    return float(abs(np.corrcoef(ua, ub)[0, 1])) if ua.std() > 0 and ub.std() > 0 else 0.0
+
+
 def _explains_drift(r: NDArray, xs: list[NDArray], outlasts: Callable[[list[NDArray]], bool]) -> bool:
     """Whether ``r`` (in time order) does not drift beyond the blocks, or no longer does once fitted on an ``x``."""
     if not outlasts([r]):
@@ -418,8 +441,10 @@ def drift_confounded(
     Without within-block evidence (``p_within >= alpha``) a candidate cannot be told from the drift on
     this log and is not significant, unless it accounts for the drift: a finding whose metric does not
     drift, or whose fit (in its form) leaves a remainder that no longer outlasts the blocks (``outlasts``,
-    the search's test of the residuals), is kept (``explains_drift``). A strong slow cause is then the
-    drift; a covariate that follows the drift by chance (a spurious regression) leaves most of it. Time
+    the search's test of the residuals), is kept (``explains_drift``), unless a candidate correlated with
+    it (rank correlation >= :data:`PROXY_CORR`) shows within the blocks (then the evident one is the cause,
+    this its smoother copy). A strong slow cause is then the drift; a covariate that follows the drift by
+    chance (a spurious regression) leaves most of it. Time
     itself (rank correlation with ``order`` >= :data:`TIME_CORR`) is not checked: it is the drift's own
     name, a trend over the log shows mostly across the blocks, and the block sign-flip test is the one
     that weighs a trend against a drifting noise.
@@ -427,6 +452,7 @@ def drift_confounded(
     block, signs = flips
     factors = state_factors(state)
     t_rank = rank_basis(np.asarray(order, dtype=np.float64), degree=1)[:, 1]
+    checked, explains = [], {}
     for e in effects:
         name = e["name"]
         if not e["significant"] or e.get("proxy_of") is not None or name not in proj:
@@ -437,9 +463,6 @@ def drift_confounded(
             continue
         metric, forms = _finding_forms(e, proj[name], factors, targets)
         r, mask = targets[metric]
-        if _explains_drift(r, [_form(cands[name], factors, form)[mask] for form in forms], outlasts):
-            e["explains_drift"] = True
-            continue
         b = block[mask]
         p = 1.0
         for form in forms:
@@ -448,5 +471,17 @@ def drift_confounded(
             pb = _per_block(_within_blocks(r, b, f), x, b, signs.shape[1])
             p = min(p, 1.0 if pb is None else _flip_test(pb, signs)[2])
         e["p_within_blocks"] = p
+        checked.append(e)
         if p >= alpha:
+            explains[name] = _explains_drift(
+                r, [_binned_form(cands[name], factors, form)[mask] for form in forms], outlasts
+            )
+    evident = [e["name"] for e in checked if e["p_within_blocks"] < alpha]
+    for e in checked:
+        if e["p_within_blocks"] < alpha:
+            continue
+        # a candidate that accounts for the drift is kept, unless a candidate like it shows within the blocks
+        if explains[e["name"]] and not any(_rank_corr(cands[e["name"]], cands[o]) >= PROXY_CORR for o in evident):
+            e["explains_drift"] = True
+        else:
             e.update(proxy_of=DRIFT, significant=False)
