@@ -368,8 +368,9 @@ def _within_blocks(x: NDArray, block: NDArray, factor: NDArray | None = None) ->
 
 
 def _binned_form(c: NDArray, factors: dict[str, NDArray], form: str, n_bins: int = 8) -> NDArray[np.float64]:
-    """``(n, n_bins)`` (or ``2 n_bins`` times a factor): the candidate's quantile-bin indicators in a form.
+    """The candidate's quantile-bin indicators in a form (``n_bins - 1``; with a factor, ``n_bins`` more).
 
+    The intercept stands for the first bin; a form times a state factor adds each bin times the factor.
     Any shape of effect (a step, a saturation), for the fit whose remainder :func:`_explains_drift` tests;
     a non-finite reading is in no bin.
     """
@@ -444,10 +445,9 @@ def drift_confounded(
     the search's test of the residuals), is kept (``explains_drift``), unless a candidate correlated with
     it (rank correlation >= :data:`PROXY_CORR`) shows within the blocks (then the evident one is the cause,
     this its smoother copy). A strong slow cause is then the drift; a covariate that follows the drift by
-    chance (a spurious regression) leaves most of it. Time
-    itself (rank correlation with ``order`` >= :data:`TIME_CORR`) is not checked: it is the drift's own
-    name, a trend over the log shows mostly across the blocks, and the block sign-flip test is the one
-    that weighs a trend against a drifting noise.
+    chance (a spurious regression) leaves most of it. Time itself (rank correlation with ``order`` >=
+    :data:`TIME_CORR`) is not checked: it is the drift's own name, a trend over the log shows mostly
+    across the blocks, and the block sign-flip test is the one that weighs a trend against a drifting noise.
     """
     block, signs = flips
     factors = state_factors(state)
