@@ -119,7 +119,7 @@ def resolvable_plant(log: Any, kind: str, seed: int, fit: dict[str, Any], full_f
     The case of :func:`~sensor_envs.diagnose.families.plant_lidar` (same seed: the same cause, form and
     distractors) at its drawn strength times 1, 2, 4, 8 until an oracle that knows the cause finds it in
     the base model's held-out residuals at ``alpha / candidates``
-    (:func:`~sensor_envs.diagnose.power.detectable`): the issue's "strengths those logs can resolve".
+    (:func:`~sensor_envs.diagnose.power.detectable`): a strength the log can resolve.
     ``info["strength_factor"]`` records the multiple (8 and ``resolvable: False`` when none sufficed);
     a null case is planted as drawn. Returns the case and the adapter of the last strength tried (its
     base fit is the diagnosis's).
@@ -155,7 +155,7 @@ def diagnose_case(
     ``full_fit``: the lidar tables are fitted as ``sensor-envs diagnose lidar`` fits them (its
     ``DIAGNOSE_LIDAR_PARAMS`` and ``--max-readings`` default) instead of the fast seed variant;
     ``fit``: table options of the log (e.g. a CARMEN log's ``max_range``); ``adapter``: one already built
-    on the case (its base fit is reused)
+    on the case (its base fit is reused).
     """
     adapter = _adapter(case, sensor, full_fit, fit) if adapter is None else adapter
     res = run_diagnose(adapter, base_state=case.base_state, n_permutations=permutations, alpha=alpha, seed=seed)
