@@ -278,6 +278,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--real", type=Path, default=None, help="the shared real-data folder (skipped when absent)")
     ap.add_argument("--real-cases", type=int, default=2, help="planted cases per kind and real log (default 2)")
+    ap.add_argument("--real-logs", nargs="*", choices=list(REAL_LOGS), default=None, help="only these real logs")
     ap.add_argument(
         "--real-strength",
         choices=("resolvable", "drawn"),
@@ -340,6 +341,8 @@ def _jobs(a: argparse.Namespace) -> list[tuple[str, str, int, Any, dict[str, Any
             print(f"real logs skipped: --real {a.real} is not a folder", file=sys.stderr)
             return jobs
         for name, (rel, _, fit) in REAL_LOGS.items():
+            if a.real_logs is not None and name not in a.real_logs:
+                continue
             if not (a.real / rel).is_file():
                 print(f"real log {name} skipped: {a.real / rel} is absent", file=sys.stderr)
                 continue
