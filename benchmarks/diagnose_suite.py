@@ -278,7 +278,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--real", type=Path, default=None, help="the shared real-data folder (skipped when absent)")
     ap.add_argument("--real-cases", type=int, default=2, help="planted cases per kind and real log (default 2)")
-    ap.add_argument("--real-logs", nargs="*", choices=list(REAL_LOGS), default=None, help="only these real logs")
+    ap.add_argument(
+        "--real-logs", nargs="*", choices=list(REAL_LOGS), default=None, help="only these real logs, in this order"
+    )
     ap.add_argument(
         "--real-strength",
         choices=("resolvable", "drawn"),
@@ -305,6 +307,8 @@ def main(argv: list[str] | None = None) -> int:
         row = {"sensor": label, "seed": seed, **score_case(case, res)}
         row["seconds"] = time.perf_counter() - t0
         rows.append(row)
+        partial_rows = {"command": "(partial: the cases done so far)", "summary": summarise(rows), "cases": rows}
+        (a.out / "suite.partial.json").write_text(json.dumps(partial_rows, indent=1))  # a long run survives a stop
         ok = row.get("recall", not row.get("false_positive", False))
         print(
             f"{label} {kind} seed {seed}: {'ok' if ok else 'MISS'} top {row['top3'][:2]} "
@@ -316,6 +320,7 @@ def main(argv: list[str] | None = None) -> int:
     summary = summarise(rows)
     command = "python benchmarks/diagnose_suite.py " + " ".join(sys.argv[1:] if argv is None else argv)
     (a.out / "suite.json").write_text(json.dumps({"command": command, "summary": summary, "cases": rows}, indent=1))
+    (a.out / "suite.partial.json").unlink(missing_ok=True)
     (a.out / "suite.md").write_text(markdown(summary, rows, command))
     for k, d in summary.items():
         print(k, json.dumps(d))
@@ -340,9 +345,8 @@ def _jobs(a: argparse.Namespace) -> list[tuple[str, str, int, Any, dict[str, Any
         if a.real is None or not a.real.is_dir():
             print(f"real logs skipped: --real {a.real} is not a folder", file=sys.stderr)
             return jobs
-        for name, (rel, _, fit) in REAL_LOGS.items():
-            if a.real_logs is not None and name not in a.real_logs:
-                continue
+        for name in REAL_LOGS if a.real_logs is None else a.real_logs:
+            rel, _, fit = REAL_LOGS[name]
             if not (a.real / rel).is_file():
                 print(f"real log {name} skipped: {a.real / rel} is absent", file=sys.stderr)
                 continue
