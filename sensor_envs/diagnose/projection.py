@@ -382,15 +382,6 @@ def _binned_form(c: NDArray, factors: dict[str, NDArray], form: str, n_bins: int
     return x if form == "main" else np.column_stack([x, onehot * factors[form][:, None]])
 
 
-def _rank_corr(a: NDArray, b: NDArray) -> float:
-    """``|corr|`` of the rank scales of two candidates over the readings where both are finite."""
-    ok = np.isfinite(a) & np.isfinite(b)
-    if ok.sum() < 3:
-        return 0.0
-    ua, ub = rank_basis(a[ok], degree=1)[:, 1], rank_basis(b[ok], degree=1)[:, 1]
-    return float(abs(np.corrcoef(ua, ub)[0, 1])) if ua.std() > 0 and ub.std() > 0 else 0.0
-
-
 def _explains_drift(r: NDArray, xs: list[NDArray], outlasts: Callable[[list[NDArray]], bool]) -> bool:
     """Whether ``r`` (in time order) does not drift beyond the blocks, or no longer does once fitted on an ``x``."""
     if not outlasts([r]):
@@ -442,9 +433,8 @@ def drift_confounded(
     Without within-block evidence (``p_within >= alpha``) a candidate cannot be told from the drift on
     this log and is not significant, unless it accounts for the drift: a finding whose metric does not
     drift, or whose fit (in its form) leaves a remainder that no longer outlasts the blocks (``outlasts``,
-    the search's test of the residuals), is kept (``explains_drift``), unless a candidate correlated with
-    it (rank correlation >= :data:`PROXY_CORR`) shows within the blocks (then the evident one is the cause,
-    this its smoother copy). A strong slow cause is then the drift; a covariate that follows the drift by
+    the search's test of the residuals), is kept (``explains_drift``; the conditional check that follows
+    tells a cause from its copy). A strong slow cause is then the drift; a covariate that follows the drift by
     chance (a spurious regression) leaves most of it. Time itself (rank correlation with ``order`` >=
     :data:`TIME_CORR`) is not checked: it is the drift's own name, a trend over the log shows mostly
     across the blocks, and the block sign-flip test is the one that weighs a trend against a drifting noise.
@@ -476,12 +466,9 @@ def drift_confounded(
             explains[name] = _explains_drift(
                 r, [_binned_form(cands[name], factors, form)[mask] for form in forms], outlasts
             )
-    evident = [e["name"] for e in checked if e["p_within_blocks"] < alpha]
     for e in checked:
-        if e["p_within_blocks"] < alpha:
-            continue
-        # a candidate that accounts for the drift is kept, unless a candidate like it shows within the blocks
-        if explains[e["name"]] and not any(_rank_corr(cands[e["name"]], cands[o]) >= PROXY_CORR for o in evident):
-            e["explains_drift"] = True
-        else:
-            e.update(proxy_of=DRIFT, significant=False)
+        if e["p_within_blocks"] >= alpha:
+            if explains[e["name"]]:  # it accounts for the drift: a cause (or its copy, for the proxy check)
+                e["explains_drift"] = True
+            else:
+                e.update(proxy_of=DRIFT, significant=False)

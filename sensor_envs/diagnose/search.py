@@ -48,8 +48,7 @@ significant when either test finds it at ``alpha / 2`` (``test``: which one; ``p
 
 **Conditional check.** Among the top candidates, and the candidates whose rank scale is correlated
 (>= 0.5) with a top one, ``i`` is a *proxy* of ``j`` when, once ``j``'s fit is removed, ``i`` explains
-less than a fifth of its own score and less than ``j`` does given ``i`` (both weighed on the one of their
-two metrics where either explains more); a proxy is not significant and
+less than a fifth of its own score and less than ``j`` does given ``i``; a proxy is not significant and
 is ranked below its cause, and a cause that the test had not found itself takes its significant proxy's
 finding (``via_proxy``): the effect was found, the conditional check says whose it is.
 """
@@ -616,9 +615,8 @@ def _mark_proxies(
         if given is not None:
             others += [(given, g, _best_form(given, g, r, mask, fold), n) for g, n in enumerate(given.names)]
         for dj, j, fj, name in others:
-            rm, mm, fm = (r, mask, fold) if dj is not d else _pair_target(ei, effects[j], targets, metrics)
-            ci = _cond(d, i, fi, dj, j, fj, rm, mm, fm)
-            cj = _cond(dj, j, fj, d, i, fi, rm, mm, fm)
+            ci = _cond(d, i, fi, dj, j, fj, r, mask, fold)
+            cj = _cond(dj, j, fj, d, i, fi, r, mask, fold)
             if ci < 0.2 * ei["score"] and cj > ci:
                 if dj is d and ei["significant"] and not effects[j]["significant"]:
                     inherit(effects[j], ei, cj)
@@ -626,18 +624,6 @@ def _mark_proxies(
                 ei["conditional_score"] = ci
                 ei["significant"] = False
                 break
-
-
-def _pair_target(ei: dict[str, Any], ej: dict[str, Any], targets: list, metrics: list) -> tuple[NDArray, ...]:
-    """The target on which two candidates are weighed against each other.
-
-    Of their two metrics, the one where either explains more: the same for ``(i, j)`` and ``(j, i)``, so
-    the verdict does not hang on which of them was ranked first.
-    """
-    ms = [m for m in dict.fromkeys((ei["metric"], ej["metric"])) if m in metrics]
-    best = max(ms, key=lambda m: max(ei["metric_scores"].get(m, -np.inf), ej["metric_scores"].get(m, -np.inf)))
-    r, mask, _, fold, _b, _bi = targets[metrics.index(best)]
-    return r, mask, fold
 
 
 def _best_form(d: _Design, i: int, r: NDArray, mask: NDArray, fold: NDArray) -> int:
