@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import gammaincc
 
-from sensor_envs.diagnose.regressors import rank_basis
+from sensor_envs.diagnose.regressors import bin_candidate, rank_basis
 
 __all__ = [
     "FLIPS",
@@ -374,10 +374,7 @@ def _binned_form(c: NDArray, factors: dict[str, NDArray], form: str, n_bins: int
     Any shape of effect (a step, a saturation), for the fit whose remainder :func:`_explains_drift` tests;
     a non-finite reading is in no bin.
     """
-    u = rank_basis(c, degree=1)[:, 1]
-    ok = np.isfinite(np.asarray(c, dtype=np.float64))
-    b = np.minimum(((u + 1) / 2 * n_bins).astype(np.int64), n_bins - 1)
-    onehot = (b[:, None] == np.arange(n_bins)[None]) & ok[:, None]
+    onehot = bin_candidate(c, n_bins)[:, None] == np.arange(n_bins)[None]  # a NaN's bin is n_bins: none here
     x = onehot.astype(np.float64)[:, 1:]  # the intercept stands for the first bin
     return x if form == "main" else np.column_stack([x, onehot * factors[form][:, None]])
 
