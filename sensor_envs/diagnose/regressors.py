@@ -85,6 +85,29 @@ def interaction_basis(main: NDArray, state: NDArray) -> NDArray[np.float64]:
     return np.concatenate([main[..., :-1], *prod, main[..., -1:]], axis=-1)
 
 
+def _within_instant(r: NDArray, instant: NDArray) -> NDArray[np.float64]:
+    """``r`` minus the mean of its time instant (where an instant has more than one reading)."""
+    _, inv, cnt = np.unique(instant, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    mean = np.bincount(inv, weights=r) / cnt
+    return np.where(cnt[inv] > 1, r - mean[inv], r)
+
+
+def _free_of_state(r: NDArray, state_bins: list[NDArray], mask: NDArray, passes: int = 2) -> NDArray[np.float64]:
+    """``r`` freed of the state features' additive binned pattern (backfitting).
+
+    Misfit along the model's own state is then not credited to a candidate that correlates with the state.
+    """
+    out = np.asarray(r, dtype=np.float64).copy()
+    for _ in range(passes if state_bins else 0):
+        for sb in state_bins:
+            b = sb[mask]
+            s = np.bincount(b, weights=out, minlength=b.max() + 1)
+            c = np.bincount(b, minlength=b.max() + 1)
+            out -= (s / np.maximum(c, 1))[b]
+    return out
+
+
 def _main_stats(basis: NDArray, r: NDArray, fold: NDArray, block: NDArray, n_blocks: int) -> tuple[NDArray, ...]:
     """Sufficient statistics of the main regressors (``basis (C, n, p)``) against ``r`` and for the null draws.
 
@@ -185,9 +208,9 @@ def _main_r2(gram: NDArray, xr_b: NDArray, rr: NDArray, flips: NDArray) -> NDArr
             return np.full(out.shape, -np.inf)
         beta = np.einsum("cij,...cj->...ci", np.linalg.inv(g[:, a] + ridge), x[..., a, :])
         quad = np.einsum("...ci,cij,...cj->...c", beta, g[:, b], beta)
-        sse = rr[:, b] - 2 * np.sum(beta * x[..., b, :], -1) + quad
+        sse = rr[..., b] - 2 * np.sum(beta * x[..., b, :], -1) + quad
         mean_a = x[..., a, 0] / na
-        sst = rr[:, b] - 2 * mean_a * x[..., b, 0] + nb * mean_a**2
+        sst = rr[..., b] - 2 * mean_a * x[..., b, 0] + nb * mean_a**2
         out += 0.5 * (1.0 - sse / np.maximum(sst, 1e-300))
     return out
 
@@ -214,7 +237,7 @@ def _r2_from_stats(
         alpha = (mean_a - slope * xm)[..., None] + rem / (cnt[:, a] + shrink[:, None])
         beta = slope[..., None]
         srb, sxrb = sr[..., b, :], sxr[..., b, :]
-        sse = rr[b] + np.sum(
+        sse = rr[..., b] + np.sum(
             -2 * alpha * srb
             - 2 * beta * sxrb
             + alpha**2 * cnt[:, b]
@@ -222,7 +245,7 @@ def _r2_from_stats(
             + beta**2 * sxx[:, b],
             axis=-1,
         )
-        sst = rr[b] - 2 * mean_a * srb.sum(-1) + cnt[:, b].sum(-1) * mean_a**2
+        sst = rr[..., b] - 2 * mean_a * srb.sum(-1) + cnt[:, b].sum(-1) * mean_a**2
         out += 0.5 * (1.0 - sse / np.maximum(sst, 1e-300))
     return out
 

@@ -36,15 +36,18 @@ is broken, and the candidates keep their own time structure (a random walk stays
 trend stays a trend), so the null spread of a score is that of a time-correlated residual. Each
 (candidate, target, regressor) score is studentised by its own null distribution (``z``), so a
 target whose scores vary widely under the null (e.g. a drifting range residual) does not drown the
-others; the adjusted p-value is Westfall-Young max-T of ``z`` over all of them. Candidates are ranked
-by ``z``, except that the significant ones come first: those with ``p < alpha / 10`` before the others,
-each group ordered by its held-out ``R^2`` (the largest effect first: the loop adds in this order).
+others; the adjusted p-value is Westfall-Young max-T of ``z`` over all of them. Where a drift outlasts
+the blocks the flips' null is too narrow, so what they find is confirmed by circular shifts of the
+residuals relative to the candidates (:mod:`~sensor_envs.diagnose.shifts`: every series keeps its whole
+time structure); the p-value is the larger of the two. Candidates are ranked by ``z``, except that the
+significant ones come first: those with ``p < alpha / 10`` before the others, each group ordered by its
+held-out ``R^2`` (the largest effect first: the loop adds in this order).
 
 **A second test** (:mod:`~sensor_envs.diagnose.projection`): every candidate in a few two-coefficient
-forms, in sample, on every reading, with the same kind of block sign-flips and min-P over all its tests;
-a small effect of a simple form that the held-out scores cannot resolve is found there. A candidate is
-significant when either test finds it at ``alpha / 2`` (``test``: which one; ``p_search``,
-``p_projection``); partial projection tests then tell a cause from its noisy copy.
+forms, in sample, on every reading, with the same kind of block sign-flips and min-P over all its tests,
+confirmed by shifts in the same way; a small effect of a simple form that the held-out scores cannot
+resolve is found there. A candidate is significant when either test finds it at ``alpha / 2`` (``test``:
+which one; ``p_search``, ``p_projection``); partial projection tests then tell a cause from its noisy copy.
 
 **Conditional check.** Among the top candidates, and the candidates whose rank scale is correlated
 (>= 0.5) with a top one, ``i`` is a *proxy* of ``j`` when, once ``j``'s fit is removed, ``i`` explains
@@ -77,15 +80,18 @@ from sensor_envs.diagnose.regressors import (
     GAP,
     N_SEGMENTS,
     _block_stats,
+    _free_of_state,
     _main_r2,
     _main_stats,
     _r2_from_stats,
+    _within_instant,
     bin_candidate,
     interaction_basis,
     rank_basis,
     time_folds,
 )
 from sensor_envs.diagnose.regressors import POLY_DEGREE as POLY_DEGREE
+from sensor_envs.diagnose.shifts import N_SHIFTS, projection_shift_p, shift_p_values
 
 __all__ = ["Ranking", "DEFAULTS", "bin_candidate", "rank_basis", "rank_candidates", "time_folds", "N_SEGMENTS", "GAP"]
 
@@ -163,14 +169,6 @@ def _design_effect(x: NDArray) -> float:
     return x.size / (1 + change.size) * infl
 
 
-def _within_instant(r: NDArray, instant: NDArray) -> NDArray[np.float64]:
-    """``r`` minus the mean of its time instant (where an instant has more than one reading)."""
-    _, inv, cnt = np.unique(instant, return_inverse=True, return_counts=True)
-    inv = inv.ravel()
-    mean = np.bincount(inv, weights=r) / cnt
-    return np.where(cnt[inv] > 1, r - mean[inv], r)
-
-
 def n_flip_blocks(series: list[NDArray], chunks: int = 96) -> int:
     """Blocks for the sign-flip test: each block at least twice the residuals' correlation length.
 
@@ -205,21 +203,6 @@ def _correlation_length(series: list[NDArray], chunks: int) -> float:
             rho = float(np.clip(np.corrcoef(m[1:], m[:-1])[0, 1], 0.0, 0.98))
             length = max(length, (1 + rho) / (1 - rho))
     return length
-
-
-def _free_of_state(r: NDArray, state_bins: list[NDArray], mask: NDArray, passes: int = 2) -> NDArray[np.float64]:
-    """``r`` freed of the state features' additive binned pattern (backfitting).
-
-    Misfit along the model's own state is then not credited to a candidate that correlates with the state.
-    """
-    out = np.asarray(r, dtype=np.float64).copy()
-    for _ in range(passes if state_bins else 0):
-        for sb in state_bins:
-            b = sb[mask]
-            s = np.bincount(b, weights=out, minlength=b.max() + 1)
-            c = np.bincount(b, minlength=b.max() + 1)
-            out -= (s / np.maximum(c, 1))[b]
-    return out
 
 
 def _all_stats(d: _Design, targets: list, n_blocks: tuple[int, int]) -> list[list[tuple[NDArray, ...]]]:
@@ -355,6 +338,7 @@ def rank_candidates(
     rng: np.random.Generator | None = None,
     progress: bool = False,
     given: tuple[str, ...] = (),
+    n_shifts: int = N_SHIFTS,
 ) -> Ranking:
     """Score every candidate of ``ev`` (except ``exclude``) on every residual target; block sign-flip test.
 
@@ -369,6 +353,8 @@ def rank_candidates(
         progress: tqdm bar over the flips.
         given: candidates already added to the model (not ranked): an effect they explain is marked a
             proxy of them (``proxy_of``) and is not significant.
+        n_shifts: most circular shifts that confirm a held-out finding (:mod:`~sensor_envs.diagnose.shifts`;
+            0: the flips alone).
 
     Returns:
         The :class:`Ranking`; each effect dict holds ``name``, ``score``, ``p_value``, ``p_raw``,
@@ -411,15 +397,18 @@ def rank_candidates(
         # centred: a sign flip must not create structure from the mean
         return _free_of_state(r[mask] - r[mask].mean(), d.state_bins, mask)
 
-    freed, within = [], []
-    proj_targets = {}  # every finite reading (no fold gaps: nothing is fitted on one part and scored on another)
+    freed, within, raw = [], [], []
+    # every finite reading (no fold gaps: nothing is fitted on one part and scored on another)
+    proj_targets, proj_raw = {}, {}
     for m in metrics:
         r = np.asarray(ev.residuals[m], dtype=np.float64)[idx]
         mask = np.isfinite(r) & (fold_all >= 0)
         rc = centred_free(r, mask)
         freed.append((rc, mask))
+        raw.append({"raw": r[mask], "mask": mask, "fold": fold_all[mask], "instant": instant[mask]})
         within.append(_within_instant(rc, instant[mask]))
         proj_targets[m] = (centred_free(r, np.isfinite(r)), np.isfinite(r))
+        proj_raw[m] = (r[np.isfinite(r)], np.isfinite(r))
     # main regressors see drift shared by an instant's readings; interactions see the within-instant part
     n_blocks = (n_flip_blocks([f[0] for f in freed]), n_flip_blocks(within))
     blocks = [(rank * b // max(rank.size, 1)).astype(np.int64) for b in n_blocks]
@@ -460,6 +449,9 @@ def rank_candidates(
     perm_best = z_perm.max(axis=2)  # (P, C)
     p_raw = (1 + np.sum(perm_best >= best_z[None], axis=0)) / (1 + n_permutations)
     p_adj = (1 + np.sum(perm_best.max(axis=1)[:, None] >= best_z[None], axis=0)) / (1 + n_permutations)
+    confirm = p_adj < alpha / 2
+    if n_shifts and confirm.any():  # the flips' null is too narrow under drift that outlasts blocks: shifts confirm
+        p_adj = np.maximum(p_adj, shift_p_values(d, raw, stats, obs, finite, rng, _INT_BINS[1], n_shifts))
     forms = ["main", *(f"x {s}" for s in d.state_names), *(f"x {s}" for s in d.state_names)]
     effects: list[dict[str, Any]] = []
     crit = float(np.quantile(z_perm.max(axis=(1, 2)), 1 - alpha))  # family-wise critical z of one cell
@@ -486,6 +478,10 @@ def rank_candidates(
     flips = rng.choice([-1.0, 1.0], size=(PROJECTION_FLIPS, n_blocks[0]))
     preferred = tuple(m for m in metrics if kinds.get(m, "mean") in ("mean", "rate"))
     proj = projection_tests(proj_targets, cands, state, blocks[0], flips, preferred, alpha / 2)
+    confirm = [c for c, pr in proj.items() if pr.p_value < alpha / 2]
+    if n_shifts and confirm:  # as the held-out test: shifts confirm what the flips find
+        for c, p in projection_shift_p(proj_raw, cands, state, d.state_bins, confirm, rng, n_shifts).items():
+            proj[c].p_value = max(proj[c].p_value, p)
     for e in effects:
         combine_tests(e, proj.get(e["name"]), kinds, alpha, min_score)
     if drift_outlasts_blocks([f[0] for f in freed]):

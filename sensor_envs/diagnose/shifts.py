@@ -1,0 +1,237 @@
+"""Circular-shift null of the search's tests: the alignment broken, every series' time structure kept.
+
+The block sign-flips of :mod:`~sensor_envs.diagnose.search` keep a residual's correlation within a block
+and break it across blocks. A residual that drifts over longer than a block (a slow drift shared by
+neighbouring time segments, hence by both cross-fitting folds) has a wider null than the flips give: a
+candidate that wanders slowly (a random walk, time itself, lane changes clustered in time) aligns with
+that drift by chance more often than the flips say, and looks significant.
+
+A circular shift of each residual target along time, relative to the candidates and the folds, keeps the
+residual's whole time structure (its drift, its correlation, its distribution) and the candidates', and
+breaks only their alignment. Each shift's statistics are computed exactly as the observed ones (the same
+folds, regressors, forms and state freeing; :func:`shift_p_values` for the held-out scores,
+:func:`projection_shift_p` for the projection tests), every cell is put on its own scale by its shifted
+values (a random walk whose chance alignments are large does not set the bar for a cause), and the
+family-wise p-value is Westfall-Young max-T over the shifts. Shifts are drawn in :data:`SHIFT_RANGE` of a
+target's length (near 0 or the length they would keep the observed alignment). A p-value is the share of
+shifts whose maximum reaches the candidate's; where none does, the Gumbel law of the maxima (moments
+matched) gives its tail below ``1 / (shifts + 1)``, so strong findings keep their order.
+
+The search confirms with shifts what the flips find: a finding is significant when both nulls agree.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import sparse
+from scipy.special import gammaincc
+
+from sensor_envs.diagnose.projection import candidate_forms, state_factors
+from sensor_envs.diagnose.regressors import _clip_curvature, _main_r2, _r2_from_stats
+
+__all__ = ["N_SHIFTS", "SHIFT_RANGE", "projection_shift_p", "shift_p_values", "tail_p"]
+
+N_SHIFTS = 99
+"""Most circular shifts of the residuals (p-values resolve down to ``1 / (N_SHIFTS + 1)``)."""
+SHIFT_RANGE = (0.2, 0.8)
+"""Shifts drawn uniformly in this share of a target's length (a linear trend shifted by a fifth keeps a
+correlation of about 0.2 with itself; by less, more)."""
+
+
+def tail_p(null_max: NDArray, obs: NDArray) -> NDArray[np.float64]:
+    """p-values of ``obs`` against the null maxima ``null_max (S,)``: empirical; a Gumbel tail where none reach it."""
+    exceed = np.sum(null_max[:, None] >= obs[None], axis=0)
+    emp = (1 + exceed) / (1 + null_max.size)
+    sd = float(np.std(null_max))
+    if not np.isfinite(sd) or sd <= 0:
+        return np.asarray(emp, dtype=np.float64)
+    beta = sd * np.sqrt(6.0) / np.pi
+    loc = float(np.mean(null_max)) - 0.5772156649 * beta
+    gumbel = -np.expm1(-np.exp(-(obs - loc) / beta))
+    return np.where(exceed > 0, emp, np.clip(gumbel, 1e-12, emp))
+
+
+def _one_hot(bins: NDArray, n_bins: int) -> sparse.csr_matrix:
+    """``(n_bins, n)`` indicator matrix of ``bins (n,)``."""
+    n = bins.size
+    return sparse.csr_matrix((np.ones(n), (bins, np.arange(n))), shape=(n_bins, n))
+
+
+def _free(r: NDArray, bins: list[NDArray], passes: int = 2) -> NDArray[np.float64]:
+    """Columns of ``r (n, S)`` centred and freed of the state bins' additive pattern (as the observed targets)."""
+    out = r - r.mean(axis=0)
+    mats = [(_one_hot(b, int(b.max()) + 1), np.bincount(b).astype(np.float64)) for b in bins]
+    for _ in range(passes if bins else 0):
+        for (m, c), b in zip(mats, bins, strict=True):
+            out -= (m @ out / np.maximum(c, 1)[:, None])[b]
+    return out
+
+
+def _within(r: NDArray, instant: NDArray) -> NDArray[np.float64]:
+    """Columns of ``r (n, S)`` minus their instant's mean where an instant has more than one reading."""
+    _, inv, cnt = np.unique(instant, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    mean = (_one_hot(inv, cnt.size) @ r) / cnt[:, None]
+    return np.where((cnt[inv] > 1)[:, None], r - mean[inv], r)
+
+
+def _ls_scores(basis: NDArray, gram: NDArray, r: NDArray, fold: NDArray) -> NDArray[np.float64]:
+    """``(S, C)`` cross-fitted ``R^2`` of least-squares regressors ``basis (C, n, p)`` on each column of ``r``."""
+    c, _, p = basis.shape
+    s = r.shape[1]
+    xr = np.empty((s, 2, c, 2, p))
+    x0, x1 = (_clip_curvature(basis, fold == v) for v in (0, 1))  # the variants differ in the curvature column
+    for f in (0, 1):
+        sel = fold == f
+        rs = r[sel].T
+        flat = np.ascontiguousarray(x0.transpose(1, 0, 2)[sel]).reshape(int(sel.sum()), c * p)
+        xr[:, 0, :, f] = (rs @ flat).reshape(s, c, p)  # one product for every shift
+        xr[:, 1, :, f] = xr[:, 0, :, f]
+        if p >= 4:
+            xr[:, 1, :, f, 2] = rs @ np.ascontiguousarray(x1[:, sel, 2].T)
+    rr = np.stack([np.sum(r[fold == f] ** 2, axis=0) for f in (0, 1)], axis=-1)[:, None, :]  # (S, 1, 2)
+    return _main_r2(gram, xr, rr, np.eye(s))
+
+
+def _grid_scores(stat: tuple[NDArray, ...], joint: NDArray, w: NDArray, fold: NDArray) -> NDArray[np.float64]:
+    """``(S, C)`` cross-fitted ``R^2`` of the candidate x state grids ``joint (C, n)`` on each column of ``w``."""
+    cnt, sx, sxx, _, _, _, shrink = stat
+    c, nb = cnt.shape[0], cnt.shape[2]
+    ids = (joint + nb * fold[None] + (np.arange(c) * 2 * nb)[:, None]).ravel()
+    m = sparse.csr_matrix((np.ones(ids.size), (ids, np.tile(np.arange(w.shape[0]), c))), shape=(c * 2 * nb, w.shape[0]))
+    sr = np.asarray(m @ w).T.reshape(w.shape[1], c, 2, nb)
+    rr = np.stack([np.sum(w[fold == f] ** 2, axis=0) for f in (0, 1)], axis=-1)[:, None, :]
+    return _r2_from_stats(cnt, sx, sxx, sr, np.zeros_like(sr), rr, shrink)
+
+
+def _shifted_scores(
+    d: Any, targets: list[dict[str, Any]], stats: list, fracs: NDArray, grid_joint: list[NDArray]
+) -> NDArray[np.float64]:
+    """``(S, C, m, 1 + 2 S_state)`` held-out scores of every candidate on each shift of every target."""
+    n_state = len(d.state_bins)
+    out = np.full((fracs.size, len(d.names), len(targets), 1 + 2 * n_state), -np.inf)
+    for j, t in enumerate(targets):
+        raw, mask, fold = t["raw"], t["mask"], t["fold"]
+        n = raw.size
+        shifted = np.stack([np.roll(raw, int(round(f * n))) for f in fracs], axis=1)  # (n, S)
+        rc = _free(shifted, [sb[mask] for sb in d.state_bins])
+        w = _within(rc, t["instant"])
+        row = stats[j]
+        out[:, :, j, 0] = _ls_scores(d.main_basis[:, mask], row[0][0], rc, fold)
+        for s in range(n_state):
+            out[:, :, j, 1 + s] = _grid_scores(row[1 + s], grid_joint[s][:, mask], w, fold)
+            smooth = d.smooth_basis(s)[:, mask]
+            out[:, :, j, 1 + n_state + s] = _ls_scores(smooth, row[1 + n_state + s][0], rc, fold)
+    return out
+
+
+def shift_p_values(
+    d: Any,
+    targets: list[dict[str, Any]],
+    stats: list,
+    observed: NDArray,
+    finite: NDArray,
+    rng: np.random.Generator,
+    state_levels: int,
+    n_shifts: int = N_SHIFTS,
+) -> NDArray[np.float64]:
+    """Family-wise p-values ``(C,)`` of the candidates' held-out scores under circular shifts of the targets.
+
+    Each (candidate, target, regressor) cell is studentised by its own shifts (median, 95th percentile;
+    the spread floored at half the median spread of the same target and regressor over the candidates),
+    so a random walk whose chance alignments with a drift are large is measured on its own scale and does
+    not set the bar for the others; the p-value is Westfall-Young max-T of those ``z`` over the shifts.
+
+    Args:
+        d: the search's design (candidates' bases and bins, state features).
+        targets: per residual target, ``raw`` (the residual on its scored readings, in time order, before
+            centring and state freeing), ``mask`` (those readings among the search's), ``fold``, ``instant``.
+        stats: the observed sufficient statistics (their Gram matrices and grid counts are reused).
+        observed: the observed scores ``(C, m, F)``.
+        finite: the cells ``(C, m, F)`` that have a score.
+        rng: generator of the shifts.
+        state_levels: coarse bins of a state feature in the grids (their cells are ``bin x (levels + 1) + state bin``).
+        n_shifts: shifts drawn.
+    """
+    grid_joint = [d.int_cbins * (state_levels + 1) + sb[None] for sb in d.state_bins]
+    fracs = rng.uniform(*SHIFT_RANGE, size=n_shifts)
+    shifted = _shifted_scores(d, targets, stats, fracs, grid_joint)  # every shift at once: one product per basis
+    ok = finite & np.isfinite(shifted).all(axis=0)
+    q50, q95 = np.percentile(np.where(ok[None], shifted, 0.0), [50, 95], axis=0)
+    sd = q95 - q50
+    floor = np.array(
+        [
+            [np.median(sd[:, j, f][ok[:, j, f]]) if ok[:, j, f].any() else 0.0 for f in range(sd.shape[2])]
+            for j in range(sd.shape[1])
+        ]
+    )
+    sd = np.maximum(sd, np.maximum(0.5 * floor[None], 1e-9)) / 1.645
+    z_obs = np.where(ok, (observed - q50) / sd, -np.inf).reshape(observed.shape[0], -1).max(axis=1)
+    null = np.where(ok[None], (shifted - q50[None]) / sd[None], -np.inf).reshape(n_shifts, -1).max(axis=1)
+    return tail_p(null, z_obs)
+
+
+def _shifted(raw: NDArray, fracs: NDArray, bins: list[NDArray]) -> NDArray[np.float64]:
+    """``(n, S)``: ``raw`` circularly shifted by each share in ``fracs``, centred and freed of the state bins."""
+    n = raw.size
+    return _free(np.stack([np.roll(raw, int(round(f * n))) for f in fracs], axis=1), bins)
+
+
+def _gamma_fit_tail(null: NDArray, x: NDArray) -> NDArray[np.float64]:
+    """Upper tail at ``x`` of the Gamma law with the mean and variance of ``null (S, T)`` (per column ``T``)."""
+    mean, var = null.mean(axis=0), null.var(axis=0)
+    ok = (mean > 0) & (var > 0)
+    m, v = np.where(ok, mean, 1.0), np.where(ok, var, 1.0)
+    return np.where(ok, gammaincc(m**2 / v, np.maximum(x, 0.0) / (v / m)), 1.0)
+
+
+def projection_shift_p(
+    raw: dict[str, tuple[NDArray, NDArray]],
+    cands: dict[str, NDArray],
+    state: dict[str, NDArray],
+    state_bins: list[NDArray],
+    confirm: list[str],
+    rng: np.random.Generator,
+    n_shifts: int = N_SHIFTS,
+) -> dict[str, float]:
+    """Family-wise p-values of the ``confirm`` candidates' projection tests under circular shifts.
+
+    Every (candidate, target, form) test's explained sum of squares is computed on each shift of the
+    target; a Gamma law with the moments of its shifted values gives each test's tail (its own scale, so a
+    random walk whose chance alignments with a drift are large does not set the bar for the others); the
+    p-value is Westfall-Young min-P of those tails over the shifts.
+
+    Args:
+        raw: ``{metric: (r, mask)}``: each residual on its finite readings ``mask``, in time order, before
+            centring and state freeing.
+        cands: candidate values on the search's readings.
+        state: state features on the search's readings (the forms' factors).
+        state_bins: the state features' bins (the targets are freed of their pattern, as the observed ones).
+        confirm: candidates whose p-values are returned.
+        rng: generator of the shifts.
+        n_shifts: shifts drawn.
+    """
+    factors = state_factors(state)
+    fracs = np.r_[0.0, rng.uniform(*SHIFT_RANGE, size=n_shifts)]  # column 0: the observed alignment
+    low = np.ones(n_shifts + 1)
+    best = {c: 1.0 for c in confirm}
+    for r, mask in raw.values():
+        rs = _shifted(r, fracs, [sb[mask] for sb in state_bins])
+        for name, c in cands.items():
+            for x in candidate_forms(c, factors).values():
+                xc = x[mask] - x[mask].mean(axis=0)
+                q, tri = np.linalg.qr(xc)
+                q = q[:, np.abs(np.diag(tri)) > 1e-9 * max(float(np.abs(tri).max(initial=0.0)), 1e-300)]
+                if q.shape[1] == 0:
+                    continue
+                ess = np.sum((q.T @ rs) ** 2, axis=0)  # explained sum of squares, observed and per shift
+                tail = _gamma_fit_tail(ess[1:, None], ess[:, None])[:, 0]
+                np.minimum(low[1:], tail[1:], out=low[1:])
+                if name in best:
+                    best[name] = min(best[name], float(tail[0]))
+    null = -np.log(np.maximum(low[1:], 1e-300))
+    p = tail_p(null, -np.log(np.maximum([best[c] for c in confirm], 1e-300)))
+    return {c: float(v) for c, v in zip(confirm, p, strict=True)}
