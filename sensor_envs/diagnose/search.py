@@ -405,10 +405,11 @@ def rank_candidates(
         mask = np.isfinite(r) & (fold_all >= 0)
         rc = centred_free(r, mask)
         freed.append((rc, mask))
-        raw.append({"raw": r[mask], "mask": mask, "fold": fold_all[mask], "instant": instant[mask]})
+        # shifts move the freed residual: a raw one would carry its state pattern to other readings
+        raw.append({"raw": rc, "mask": mask, "fold": fold_all[mask], "instant": instant[mask]})
         within.append(_within_instant(rc, instant[mask]))
         proj_targets[m] = (centred_free(r, np.isfinite(r)), np.isfinite(r))
-        proj_raw[m] = (r[np.isfinite(r)], np.isfinite(r))
+        proj_raw[m] = proj_targets[m]
     # main regressors see drift shared by an instant's readings; interactions see the within-instant part
     n_blocks = (n_flip_blocks([f[0] for f in freed]), n_flip_blocks(within))
     blocks = [(rank * b // max(rank.size, 1)).astype(np.int64) for b in n_blocks]
