@@ -37,19 +37,20 @@ __all__ = ["N_SHIFTS", "SHIFT_RANGE", "projection_shift_p", "shift_p_values", "t
 N_SHIFTS = 99
 """Most circular shifts of the residuals (p-values resolve down to ``1 / (N_SHIFTS + 1)``)."""
 SHIFT_RANGE = (0.2, 0.8)
-"""Shifts drawn uniformly in this share of a target's length (a linear trend shifted by a fifth keeps a
-correlation of about 0.2 with itself; by less, more)."""
+"""Shifts drawn uniformly in this share of a target's length (a linear trend shifted by a fifth of its
+length is uncorrelated with itself, by a tenth it keeps a correlation of 0.46)."""
 
 
 def tail_p(null_max: NDArray, obs: NDArray) -> NDArray[np.float64]:
     """p-values of ``obs`` against the null maxima ``null_max (S,)``: empirical; a Gumbel tail where none reach it."""
     exceed = np.sum(null_max[:, None] >= obs[None], axis=0)
     emp = (1 + exceed) / (1 + null_max.size)
-    sd = float(np.std(null_max))
-    if not np.isfinite(sd) or sd <= 0:
+    finite = null_max[np.isfinite(null_max)]
+    sd = float(np.std(finite)) if finite.size > 1 else 0.0
+    if sd <= 0:
         return np.asarray(emp, dtype=np.float64)
     beta = sd * np.sqrt(6.0) / np.pi
-    loc = float(np.mean(null_max)) - 0.5772156649 * beta
+    loc = float(np.mean(finite)) - 0.5772156649 * beta
     gumbel = -np.expm1(-np.exp(-(obs - loc) / beta))
     return np.where(exceed > 0, emp, np.clip(gumbel, 1e-12, emp))
 
