@@ -84,15 +84,18 @@ def _ls_scores(basis: NDArray, gram: NDArray, r: NDArray, fold: NDArray) -> NDAr
     c, _, p = basis.shape
     s = r.shape[1]
     xr = np.empty((s, 2, c, 2, p))
-    x0, x1 = (_clip_curvature(basis, fold == v) for v in (0, 1))  # the variants differ in the curvature column
+    x0 = _clip_curvature(basis, fold == 0)
+    # variant 1 differs from variant 0 in the curvature column only (intercept, P1, P2 and the NaN indicator)
+    lead = np.concatenate([basis[:, :, :3], basis[:, :, -1:]], axis=2) if p >= 4 else None
+    curv1 = _clip_curvature(lead, fold == 1)[:, :, 2] if lead is not None else None
     for f in (0, 1):
         sel = fold == f
-        rs = r[sel].T
+        rs = np.ascontiguousarray(r[sel])
         flat = np.ascontiguousarray(x0.transpose(1, 0, 2)[sel]).reshape(int(sel.sum()), c * p)
-        xr[:, 0, :, f] = (rs @ flat).reshape(s, c, p)  # one product for every shift
+        xr[:, 0, :, f] = (flat.T @ rs).T.reshape(s, c, p)  # one product for every shift
         xr[:, 1, :, f] = xr[:, 0, :, f]
-        if p >= 4:
-            xr[:, 1, :, f, 2] = rs @ np.ascontiguousarray(x1[:, sel, 2].T)
+        if curv1 is not None:
+            xr[:, 1, :, f, 2] = (curv1[:, sel] @ rs).T
     rr = np.stack([np.sum(r[fold == f] ** 2, axis=0) for f in (0, 1)], axis=-1)[:, None, :]  # (S, 1, 2)
     return _main_r2(gram, xr, rr, np.eye(s))
 
@@ -222,17 +225,22 @@ def projection_shift_p(
     for r, mask in raw.values():
         rs = _shifted(r, fracs, [sb[mask] for sb in state_bins])
         for name, c in cands.items():
+            qs = []
             for x in candidate_forms(c, factors).values():
-                xc = x[mask] - x[mask].mean(axis=0)
-                q, tri = np.linalg.qr(xc)
-                q = q[:, np.abs(np.diag(tri)) > 1e-9 * max(float(np.abs(tri).max(initial=0.0)), 1e-300)]
-                if q.shape[1] == 0:
-                    continue
-                ess = np.sum((q.T @ rs) ** 2, axis=0)  # explained sum of squares, observed and per shift
-                tail = _gamma_fit_tail(ess[1:, None], ess[:, None])[:, 0]
-                np.minimum(low[1:], tail[1:], out=low[1:])
-                if name in best:
-                    best[name] = min(best[name], float(tail[0]))
+                q, tri = np.linalg.qr(x[mask] - x[mask].mean(axis=0))
+                qs.append(q[:, np.abs(np.diag(tri)) > 1e-9 * max(float(np.abs(tri).max(initial=0.0)), 1e-300)])
+            if not any(q.shape[1] for q in qs):
+                continue
+            proj = rs.T @ np.concatenate(qs, axis=1)  # (1 + S, columns of every form): one product
+            ends = np.cumsum([q.shape[1] for q in qs])
+            ess = np.stack(
+                [np.sum(proj[:, e - q.shape[1] : e] ** 2, axis=1) for q, e in zip(qs, ends, strict=True) if q.shape[1]],
+                axis=1,
+            )  # explained sum of squares of each form, observed (row 0) and per shift
+            tail = _gamma_fit_tail(ess[1:], ess)
+            np.minimum(low[1:], tail[1:].min(axis=1), out=low[1:])
+            if name in best:
+                best[name] = min(best[name], float(tail[0].min()))
     null = -np.log(np.maximum(low[1:], 1e-300))
     p = tail_p(null, -np.log(np.maximum([best[c] for c in confirm], 1e-300)))
     return {c: float(v) for c, v in zip(confirm, p, strict=True)}
