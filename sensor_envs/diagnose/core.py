@@ -39,6 +39,7 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from sensor_envs.diagnose.search import DEFAULTS, Ranking, bin_candidate, rank_candidates
+from sensor_envs.diagnose.shifts import N_SHIFTS
 from sensor_envs.inputs import InputError
 
 __all__ = [
@@ -381,7 +382,9 @@ def run_diagnose(
             "alpha": alpha,
             "multiple_testing": "Westfall-Young max-T over candidates, regressors and residual targets "
             "(block sign-flips of the residual targets, in time order), and min-P over the projection tests "
-            "(two-coefficient forms, in sample); Bonferroni over the two tests",
+            "(two-coefficient forms, in sample); Bonferroni over the two tests; what the flips find is "
+            "confirmed by circular shifts of the residuals along time (the larger p-value is reported)",
+            "n_shifts": N_SHIFTS,
             "min_score": min_score,
             "n_permutations": n_permutations,
             "max_add": max_add,

@@ -203,7 +203,8 @@ def _markdown(result: DiagnoseResult, data: dict[str, Any], figs: list[tuple[str
         f"Log: `{source}`. Held-out readings: {data['details']['readings_held_out']}.",
         "",
         f"Significance: max-T adjusted p < {s['alpha']} (Westfall-Young, {s['n_permutations']} block sign-flips "
-        f"of the residuals, family-wise over all candidates, regressors and residual metrics) and held-out "
+        f"of the residuals, family-wise over all candidates, regressors and residual metrics; a finding "
+        f"confirmed by {s.get('n_shifts', 0)} circular shifts of the residuals along time) and held-out "
         f"R^2 >= {s['min_score']}.",
         "",
     ]

@@ -409,7 +409,7 @@ def rank_candidates(
         raw.append({"raw": rc, "mask": mask, "fold": fold_all[mask], "instant": instant[mask]})
         within.append(_within_instant(rc, instant[mask]))
         proj_targets[m] = (centred_free(r, np.isfinite(r)), np.isfinite(r))
-        proj_raw[m] = proj_targets[m]
+        proj_raw[m] = (proj_targets[m][0], proj_targets[m][0], np.isfinite(r))
     # main regressors see drift shared by an instant's readings; interactions see the within-instant part
     n_blocks = (n_flip_blocks([f[0] for f in freed]), n_flip_blocks(within))
     blocks = [(rank * b // max(rank.size, 1)).astype(np.int64) for b in n_blocks]

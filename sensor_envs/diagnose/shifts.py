@@ -151,8 +151,8 @@ def shift_p_values(
 
     Args:
         d: the search's design (candidates' bases and bins, state features).
-        targets: per residual target, ``raw`` (the residual on its scored readings, in time order, before
-            centring and state freeing), ``mask`` (those readings among the search's), ``fold``, ``instant``.
+        targets: per residual target, ``raw`` (what is shifted: the residual on its scored readings, in time
+            order, less its trend in time), ``mask`` (those readings among the search's), ``fold``, ``instant``.
         stats: the observed sufficient statistics (their Gram matrices and grid counts are reused).
         observed: the observed scores ``(C, m, F)``.
         finite: the cells ``(C, m, F)`` that have a score.
@@ -193,7 +193,7 @@ def _gamma_fit_tail(null: NDArray, x: NDArray) -> NDArray[np.float64]:
 
 
 def projection_shift_p(
-    raw: dict[str, tuple[NDArray, NDArray]],
+    raw: dict[str, tuple[NDArray, NDArray, NDArray]],
     cands: dict[str, NDArray],
     state: dict[str, NDArray],
     state_bins: list[NDArray],
@@ -209,8 +209,8 @@ def projection_shift_p(
     p-value is Westfall-Young min-P of those tails over the shifts.
 
     Args:
-        raw: ``{metric: (r, mask)}``: each residual on its finite readings ``mask``, in time order, before
-            centring and state freeing.
+        raw: ``{metric: (r, shift_r, mask)}``: each residual target on its finite readings ``mask``, in time
+            order (``r``: as tested; ``shift_r``: what is shifted, ``r`` less its trend in time).
         cands: candidate values on the search's readings.
         state: state features on the search's readings (the forms' factors).
         state_bins: the state features' bins (the targets are freed of their pattern, as the observed ones).
@@ -219,11 +219,11 @@ def projection_shift_p(
         n_shifts: shifts drawn.
     """
     factors = state_factors(state)
-    fracs = np.r_[0.0, rng.uniform(*SHIFT_RANGE, size=n_shifts)]  # column 0: the observed alignment
+    fracs = rng.uniform(*SHIFT_RANGE, size=n_shifts)
     low = np.ones(n_shifts + 1)
     best = {c: 1.0 for c in confirm}
-    for r, mask in raw.values():
-        rs = _shifted(r, fracs, [sb[mask] for sb in state_bins])
+    for r, shift_r, mask in raw.values():
+        rs = np.column_stack([r, _shifted(shift_r, fracs, [sb[mask] for sb in state_bins])])  # column 0: observed
         for name, c in cands.items():
             qs = []
             for x in candidate_forms(c, factors).values():
