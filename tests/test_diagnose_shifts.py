@@ -115,3 +115,17 @@ def test_shifts_keep_the_power_to_find_a_planted_cause():
     shifts = sum(_found(s, 0.3, 99)[:1] == ["cause"] for s in range(20))
     assert flips >= 10, flips
     assert shifts >= flips - 1, (shifts, flips)
+
+
+@pytest.mark.parametrize("value", ["5", "-1", "20000"])
+def test_cli_refuses_a_shift_count_that_cannot_confirm(value, tmp_path, capsys):
+    """``--shifts``: 0 (none) or 19 to 10 000; anything else exits 2 with one line naming the option."""
+    from sensor_envs.cli.main import main
+
+    try:
+        code = main(["diagnose", "radar", str(tmp_path / "log.csv"), "--out", str(tmp_path / "out"), "--shifts", value])
+    except SystemExit as exc:  # argparse's range check
+        code = exc.code
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--shifts" in err[0], err

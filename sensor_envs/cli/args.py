@@ -197,6 +197,7 @@ INT_RANGES: dict[str, tuple[int, int]] = {
     "sequences": (1, 100_000),
     "cycles": (1, 100_000),
     "permutations": (1, 100_000),
+    "shifts": (0, 10_000),
     "max_add": (1, 50),
     "block_frames": (1, 1_000_000),
     "block_scans": (1, 1_000_000),

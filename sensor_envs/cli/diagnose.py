@@ -84,6 +84,12 @@ def _search_options(p: argparse.ArgumentParser) -> None:
         default=D["n_permutations"],
         help=f"block sign-flips of the test (default {D['n_permutations']})",
     )
+    p.add_argument(
+        "--shifts",
+        type=int,
+        default=D["n_shifts"],
+        help=f"circular shifts of the residuals that confirm a finding (0: none; default {D['n_shifts']})",
+    )
     p.add_argument("--alpha", type=float, default=D["alpha"], help=f"family-wise level (default {D['alpha']})")
     p.add_argument(
         "--min-score", type=float, default=D["min_score"], help=f"minimum cross-fitted R^2 (default {D['min_score']})"
@@ -125,6 +131,8 @@ def _check_args(args: argparse.Namespace) -> None:
             f"--permutations: {args.permutations} cannot give p < --alpha {args.alpha}; use at least "
             f"{int(np.ceil(1.0 / args.alpha))}"
         )
+    if 0 < args.shifts < 19:
+        raise InputError(f"--shifts: expected 0 (none) or >= 19, got {args.shifts}")
     if args.block_frames < 1:
         raise InputError(f"--block-frames: expected >= 1, got {args.block_frames}")
 
@@ -171,6 +179,7 @@ def _diagnose_radar(args: argparse.Namespace) -> int:
         base_state=base_state,
         max_add=args.max_add,
         n_permutations=args.permutations,
+        n_shifts=args.shifts,
         alpha=args.alpha,
         min_score=args.min_score,
         seed=args.seed,
@@ -262,6 +271,7 @@ def _diagnose_lidar(args: argparse.Namespace) -> int:
         base_state=base_state,
         max_add=args.max_add,
         n_permutations=args.permutations,
+        n_shifts=args.shifts,
         alpha=args.alpha,
         min_score=args.min_score,
         seed=args.seed,

@@ -39,7 +39,6 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from sensor_envs.diagnose.search import DEFAULTS, Ranking, bin_candidate, rank_candidates
-from sensor_envs.diagnose.shifts import N_SHIFTS
 from sensor_envs.inputs import InputError
 
 __all__ = [
@@ -261,6 +260,7 @@ def run_diagnose(
     min_score: float = DEFAULTS["min_score"],
     seed: int = 0,
     progress: bool = False,
+    n_shifts: int = DEFAULTS["n_shifts"],
 ) -> DiagnoseResult:
     """The loop: fit (or take ``base_model``), evaluate, rank, add the best significant effect, refit, repeat.
 
@@ -274,6 +274,7 @@ def run_diagnose(
         min_score: minimum held-out ``R^2`` of a significant effect.
         seed: seed of the sign-flips.
         progress: show progress bars.
+        n_shifts: circular shifts that confirm a finding of the flips (0: the flips alone).
 
     Returns:
         The :class:`DiagnoseResult`; ``effects`` is the first ranking (of the base model's residuals).
@@ -290,7 +291,14 @@ def run_diagnose(
     feats = tuple(adapter.state_features())
     exclude = tuple(c for c in ev.candidates if adapter.state_name(c) in state) + feats
     first: Ranking | None = None
-    opts = {"n_permutations": n_permutations, "alpha": alpha, "min_score": min_score, "rng": rng, "progress": progress}
+    opts = {
+        "n_permutations": n_permutations,
+        "n_shifts": n_shifts,
+        "alpha": alpha,
+        "min_score": min_score,
+        "rng": rng,
+        "progress": progress,
+    }
     misfit = rank_candidates(
         replace(ev, state={}),
         tuple(c for c in ev.candidates if c not in feats),
@@ -384,7 +392,7 @@ def run_diagnose(
             "(block sign-flips of the residual targets, in time order), and min-P over the projection tests "
             "(two-coefficient forms, in sample); Bonferroni over the two tests; what the flips find is "
             "confirmed by circular shifts of the residuals along time (the larger p-value is reported)",
-            "n_shifts": N_SHIFTS,
+            "n_shifts": n_shifts,
             "min_score": min_score,
             "n_permutations": n_permutations,
             "max_add": max_add,

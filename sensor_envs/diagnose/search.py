@@ -95,7 +95,13 @@ from sensor_envs.diagnose.shifts import N_SHIFTS, projection_shift_p, shift_p_va
 
 __all__ = ["Ranking", "DEFAULTS", "bin_candidate", "rank_basis", "rank_candidates", "time_folds", "N_SEGMENTS", "GAP"]
 
-DEFAULTS: dict[str, Any] = {"n_permutations": 499, "alpha": 0.05, "min_score": 0.001, "max_add": 3}
+DEFAULTS: dict[str, Any] = {
+    "n_permutations": 499,
+    "n_shifts": N_SHIFTS,
+    "alpha": 0.05,
+    "min_score": 0.001,
+    "max_add": 3,
+}
 """The one source of the search's defaults: :func:`rank_candidates`, :func:`~sensor_envs.diagnose.core.run_diagnose`,
 ``sensor-envs diagnose`` and ``benchmarks/diagnose_suite.py`` all take theirs from here (the suite measures
 what a user's command does). ``min_score`` is a held-out ``R^2`` per reading: an effect of 0.3 residual sd
@@ -338,7 +344,7 @@ def rank_candidates(
     rng: np.random.Generator | None = None,
     progress: bool = False,
     given: tuple[str, ...] = (),
-    n_shifts: int = N_SHIFTS,
+    n_shifts: int = DEFAULTS["n_shifts"],
 ) -> Ranking:
     """Score every candidate of ``ev`` (except ``exclude``) on every residual target; block sign-flip test.
 
