@@ -45,10 +45,8 @@ def test_shifted_scores_are_the_observed_scores_of_the_shifted_residual(seed, fr
     direct = observed(np.roll(raw, int(round(frac * raw.size))))
     ones = (np.ones((1, nb[0])), np.ones((1, nb[1])))
     want = search._scores(direct, ones, 2, null=False)[0]
-    ns = search._INT_BINS[1]
-    joint = [d.int_cbins * (ns + 1) + sb[None] for sb in d.state_bins]
-    target = {"raw": raw, "mask": mask, "fold": fold[mask], "instant": instant[mask]}
-    got = _shifted_scores(d, [target], stats, np.array([frac]), joint)[0]
+    target = {"r": raw, "mask": mask, "fold": fold[mask], "instant": instant[mask]}
+    got = _shifted_scores(d, [target], stats, np.array([frac]))[0]
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12)
 
 

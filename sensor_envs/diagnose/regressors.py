@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import sparse
 
 __all__ = ["GAP", "N_SEGMENTS", "POLY_DEGREE", "bin_candidate", "interaction_basis", "rank_basis", "time_folds"]
 
@@ -85,16 +86,25 @@ def interaction_basis(main: NDArray, state: NDArray) -> NDArray[np.float64]:
     return np.concatenate([main[..., :-1], *prod, main[..., -1:]], axis=-1)
 
 
+def _group_sums(groups: NDArray, r: NDArray, n_groups: int) -> NDArray[np.float64]:
+    """Sums of ``r`` (``(n,)``, or each column of ``(n, S)``) per group index ``groups (n,)``."""
+    if r.ndim == 1:
+        return np.asarray(np.bincount(groups, weights=r, minlength=n_groups), dtype=np.float64)
+    onehot = sparse.csr_matrix((np.ones(groups.size), (groups, np.arange(groups.size))), shape=(n_groups, groups.size))
+    return np.asarray(onehot @ r, dtype=np.float64)
+
+
 def _within_instant(r: NDArray, instant: NDArray) -> NDArray[np.float64]:
-    """``r`` minus the mean of its time instant (where an instant has more than one reading)."""
+    """``r`` (or each column of ``r (n, S)``) minus its time instant's mean (where it has more than one reading)."""
     _, inv, cnt = np.unique(instant, return_inverse=True, return_counts=True)
     inv = inv.ravel()
-    mean = np.bincount(inv, weights=r) / cnt
-    return np.where(cnt[inv] > 1, r - mean[inv], r)
+    mean = _group_sums(inv, r, cnt.size) / (cnt if r.ndim == 1 else cnt[:, None])
+    many = cnt[inv] > 1
+    return np.where(many if r.ndim == 1 else many[:, None], r - mean[inv], r)
 
 
 def _free_of_state(r: NDArray, state_bins: list[NDArray], mask: NDArray, passes: int = 2) -> NDArray[np.float64]:
-    """``r`` freed of the state features' additive binned pattern (backfitting).
+    """``r`` (or each column of ``r (n, S)``) freed of the state features' additive binned pattern (backfitting).
 
     Misfit along the model's own state is then not credited to a candidate that correlates with the state.
     """
@@ -102,9 +112,9 @@ def _free_of_state(r: NDArray, state_bins: list[NDArray], mask: NDArray, passes:
     for _ in range(passes if state_bins else 0):
         for sb in state_bins:
             b = sb[mask]
-            s = np.bincount(b, weights=out, minlength=b.max() + 1)
+            s = _group_sums(b, out, int(b.max()) + 1)
             c = np.bincount(b, minlength=b.max() + 1)
-            out -= (s / np.maximum(c, 1))[b]
+            out -= (s / (np.maximum(c, 1) if out.ndim == 1 else np.maximum(c, 1)[:, None]))[b]
     return out
 
 

@@ -128,6 +128,10 @@ class _Design:
     state_basis: list[NDArray[np.float64]]  # per state feature (n, 4): cos, sin of pi u, P1(u), P2(u) of its ranks
     state_names: list[str]
 
+    def grid_cells(self, s: int) -> NDArray[np.int64]:
+        """``(C, n)``: every candidate's cell of its coarse-bin x state-feature ``s`` grid."""
+        return self.int_cbins * (_INT_BINS[1] + 1) + self.state_bins[s][None]
+
     def smooth_basis(self, s: int) -> NDArray[np.float64]:
         """``(C, n, p + 4)``: every candidate's smooth interaction basis with state feature ``s``."""
         return interaction_basis(self.main_basis, self.state_basis[s][None])
@@ -225,8 +229,8 @@ def _all_stats(d: _Design, targets: list, n_blocks: tuple[int, int]) -> list[lis
     smooth = [d.smooth_basis(s) for s in range(len(d.state_bins))]  # (C, n, p) each, shared by the targets
     for r, mask, variants, fold, block, block_int in targets:
         row: list[tuple[NDArray, ...]] = [_main_stats(d.main_basis[:, mask], r, fold, block, n_blocks[0])]
-        for sb, rv in zip(d.state_bins, variants, strict=True):
-            joint = d.int_cbins[:, mask] * (ns + 1) + sb[mask][None]
+        for s, rv in enumerate(variants):
+            joint = d.grid_cells(s)[:, mask]
             row.append(
                 (
                     *_block_stats(joint, None, rv, fold, block_int, nbi, n_blocks[1]),
@@ -403,19 +407,17 @@ def rank_candidates(
         # centred: a sign flip must not create structure from the mean
         return _free_of_state(r[mask] - r[mask].mean(), d.state_bins, mask)
 
-    freed, within, raw = [], [], []
-    # every finite reading (no fold gaps: nothing is fitted on one part and scored on another)
-    proj_targets, proj_raw = {}, {}
+    freed, within, shift_targets = [], [], []
+    proj_targets = {}  # every finite reading (no fold gaps: nothing is fitted on one part and scored on another)
     for m in metrics:
         r = np.asarray(ev.residuals[m], dtype=np.float64)[idx]
         mask = np.isfinite(r) & (fold_all >= 0)
         rc = centred_free(r, mask)
         freed.append((rc, mask))
         # shifts move the freed residual: a raw one would carry its state pattern to other readings
-        raw.append({"raw": rc, "mask": mask, "fold": fold_all[mask], "instant": instant[mask]})
+        shift_targets.append({"r": rc, "mask": mask, "fold": fold_all[mask], "instant": instant[mask]})
         within.append(_within_instant(rc, instant[mask]))
         proj_targets[m] = (centred_free(r, np.isfinite(r)), np.isfinite(r))
-        proj_raw[m] = (proj_targets[m][0], proj_targets[m][0], np.isfinite(r))
     # main regressors see drift shared by an instant's readings; interactions see the within-instant part
     n_blocks = (n_flip_blocks([f[0] for f in freed]), n_flip_blocks(within))
     blocks = [(rank * b // max(rank.size, 1)).astype(np.int64) for b in n_blocks]
@@ -458,7 +460,7 @@ def rank_candidates(
     p_adj = (1 + np.sum(perm_best.max(axis=1)[:, None] >= best_z[None], axis=0)) / (1 + n_permutations)
     confirm = p_adj < alpha / 2
     if n_shifts and confirm.any():  # the flips' null is too narrow under drift that outlasts blocks: shifts confirm
-        p_adj = np.maximum(p_adj, shift_p_values(d, raw, stats, obs, finite, rng, _INT_BINS[1], n_shifts))
+        p_adj = np.maximum(p_adj, shift_p_values(d, shift_targets, stats, obs, finite, rng, n_shifts))
     forms = ["main", *(f"x {s}" for s in d.state_names), *(f"x {s}" for s in d.state_names)]
     effects: list[dict[str, Any]] = []
     crit = float(np.quantile(z_perm.max(axis=(1, 2)), 1 - alpha))  # family-wise critical z of one cell
@@ -485,9 +487,9 @@ def rank_candidates(
     flips = rng.choice([-1.0, 1.0], size=(PROJECTION_FLIPS, n_blocks[0]))
     preferred = tuple(m for m in metrics if kinds.get(m, "mean") in ("mean", "rate"))
     proj = projection_tests(proj_targets, cands, state, blocks[0], flips, preferred, alpha / 2)
-    confirm = [c for c, pr in proj.items() if pr.p_value < alpha / 2]
-    if n_shifts and confirm:  # as the held-out test: shifts confirm what the flips find
-        for c, p in projection_shift_p(proj_raw, cands, state, d.state_bins, confirm, rng, n_shifts).items():
+    found = [c for c, pr in proj.items() if pr.p_value < alpha / 2]
+    if n_shifts and found:  # as the held-out test: shifts confirm what the flips find
+        for c, p in projection_shift_p(proj_targets, cands, state, d.state_bins, found, rng, n_shifts).items():
             proj[c].p_value = max(proj[c].p_value, p)
     for e in effects:
         combine_tests(e, proj.get(e["name"]), kinds, alpha, min_score)

@@ -30,7 +30,7 @@ from scipy import sparse
 from scipy.special import gammaincc
 
 from sensor_envs.diagnose.projection import candidate_forms, state_factors
-from sensor_envs.diagnose.regressors import _clip_curvature, _main_r2, _r2_from_stats
+from sensor_envs.diagnose.regressors import _clip_curvature, _free_of_state, _main_r2, _r2_from_stats, _within_instant
 
 __all__ = ["N_SHIFTS", "SHIFT_RANGE", "projection_shift_p", "shift_p_values", "tail_p"]
 
@@ -53,30 +53,6 @@ def tail_p(null_max: NDArray, obs: NDArray) -> NDArray[np.float64]:
     loc = float(np.mean(finite)) - 0.5772156649 * beta
     gumbel = -np.expm1(-np.exp(-(obs - loc) / beta))
     return np.where(exceed > 0, emp, np.clip(gumbel, 1e-12, emp))
-
-
-def _one_hot(bins: NDArray, n_bins: int) -> sparse.csr_matrix:
-    """``(n_bins, n)`` indicator matrix of ``bins (n,)``."""
-    n = bins.size
-    return sparse.csr_matrix((np.ones(n), (bins, np.arange(n))), shape=(n_bins, n))
-
-
-def _free(r: NDArray, bins: list[NDArray], passes: int = 2) -> NDArray[np.float64]:
-    """Columns of ``r (n, S)`` centred and freed of the state bins' additive pattern (as the observed targets)."""
-    out = r - r.mean(axis=0)
-    mats = [(_one_hot(b, int(b.max()) + 1), np.bincount(b).astype(np.float64)) for b in bins]
-    for _ in range(passes if bins else 0):
-        for (m, c), b in zip(mats, bins, strict=True):
-            out -= (m @ out / np.maximum(c, 1)[:, None])[b]
-    return out
-
-
-def _within(r: NDArray, instant: NDArray) -> NDArray[np.float64]:
-    """Columns of ``r (n, S)`` minus their instant's mean where an instant has more than one reading."""
-    _, inv, cnt = np.unique(instant, return_inverse=True, return_counts=True)
-    inv = inv.ravel()
-    mean = (_one_hot(inv, cnt.size) @ r) / cnt[:, None]
-    return np.where((cnt[inv] > 1)[:, None], r - mean[inv], r)
 
 
 def _ls_scores(basis: NDArray, gram: NDArray, r: NDArray, fold: NDArray) -> NDArray[np.float64]:
@@ -111,24 +87,20 @@ def _grid_scores(stat: tuple[NDArray, ...], joint: NDArray, w: NDArray, fold: ND
     return _r2_from_stats(cnt, sx, sxx, sr, np.zeros_like(sr), rr, shrink)
 
 
-def _shifted_scores(
-    d: Any, targets: list[dict[str, Any]], stats: list, fracs: NDArray, grid_joint: list[NDArray]
-) -> NDArray[np.float64]:
+def _shifted_scores(d: Any, targets: list[dict[str, Any]], stats: list, fracs: NDArray) -> NDArray[np.float64]:
     """``(S, C, m, 1 + 2 S_state)`` held-out scores of every candidate on each shift of every target."""
     n_state = len(d.state_bins)
     out = np.full((fracs.size, len(d.names), len(targets), 1 + 2 * n_state), -np.inf)
+    smooth = [d.smooth_basis(s) for s in range(n_state)]  # (C, n, p) each, shared by the targets
+    grid = [d.grid_cells(s) for s in range(n_state)]
     for j, t in enumerate(targets):
-        raw, mask, fold = t["raw"], t["mask"], t["fold"]
-        n = raw.size
-        shifted = np.stack([np.roll(raw, int(round(f * n))) for f in fracs], axis=1)  # (n, S)
-        rc = _free(shifted, [sb[mask] for sb in d.state_bins])
-        w = _within(rc, t["instant"])
+        rc, mask, fold = _shifted(t["r"], fracs, d.state_bins, t["mask"]), t["mask"], t["fold"]
+        w = _within_instant(rc, t["instant"])
         row = stats[j]
         out[:, :, j, 0] = _ls_scores(d.main_basis[:, mask], row[0][0], rc, fold)
         for s in range(n_state):
-            out[:, :, j, 1 + s] = _grid_scores(row[1 + s], grid_joint[s][:, mask], w, fold)
-            smooth = d.smooth_basis(s)[:, mask]
-            out[:, :, j, 1 + n_state + s] = _ls_scores(smooth, row[1 + n_state + s][0], rc, fold)
+            out[:, :, j, 1 + s] = _grid_scores(row[1 + s], grid[s][:, mask], w, fold)
+            out[:, :, j, 1 + n_state + s] = _ls_scores(smooth[s][:, mask], row[1 + n_state + s][0], rc, fold)
     return out
 
 
@@ -139,7 +111,6 @@ def shift_p_values(
     observed: NDArray,
     finite: NDArray,
     rng: np.random.Generator,
-    state_levels: int,
     n_shifts: int = N_SHIFTS,
 ) -> NDArray[np.float64]:
     """Family-wise p-values ``(C,)`` of the candidates' held-out scores under circular shifts of the targets.
@@ -151,18 +122,17 @@ def shift_p_values(
 
     Args:
         d: the search's design (candidates' bases and bins, state features).
-        targets: per residual target, ``raw`` (what is shifted: the residual on its scored readings, in time
-            order, less its trend in time), ``mask`` (those readings among the search's), ``fold``, ``instant``.
+        targets: per residual target, ``r`` (the centred residual freed of its state pattern, on its scored
+            readings in time order: what is shifted), ``mask`` (those readings among the search's), ``fold``,
+            ``instant``.
         stats: the observed sufficient statistics (their Gram matrices and grid counts are reused).
         observed: the observed scores ``(C, m, F)``.
         finite: the cells ``(C, m, F)`` that have a score.
         rng: generator of the shifts.
-        state_levels: coarse bins of a state feature in the grids (their cells are ``bin x (levels + 1) + state bin``).
         n_shifts: shifts drawn.
     """
-    grid_joint = [d.int_cbins * (state_levels + 1) + sb[None] for sb in d.state_bins]
     fracs = rng.uniform(*SHIFT_RANGE, size=n_shifts)
-    shifted = _shifted_scores(d, targets, stats, fracs, grid_joint)  # every shift at once: one product per basis
+    shifted = _shifted_scores(d, targets, stats, fracs)  # every shift at once: one product per basis
     ok = finite & np.isfinite(shifted).all(axis=0)
     q50, q95 = np.percentile(np.where(ok[None], shifted, 0.0), [50, 95], axis=0)
     sd = q95 - q50
@@ -178,10 +148,13 @@ def shift_p_values(
     return tail_p(null, z_obs)
 
 
-def _shifted(raw: NDArray, fracs: NDArray, bins: list[NDArray]) -> NDArray[np.float64]:
-    """``(n, S)``: ``raw`` circularly shifted by each share in ``fracs``, centred and freed of the state bins."""
-    n = raw.size
-    return _free(np.stack([np.roll(raw, int(round(f * n))) for f in fracs], axis=1), bins)
+def _shifted(r: NDArray, fracs: NDArray, state_bins: list[NDArray], mask: NDArray) -> NDArray[np.float64]:
+    """``(n, S)``: ``r`` (on ``mask``'s readings) circularly shifted by each share in ``fracs``.
+
+    Each shift is centred and freed of the state bins' pattern, as the observed targets are.
+    """
+    shifted = np.stack([np.roll(r, int(round(f * r.size))) for f in fracs], axis=1)
+    return _free_of_state(shifted - shifted.mean(axis=0), state_bins, mask)
 
 
 def _gamma_fit_tail(null: NDArray, x: NDArray) -> NDArray[np.float64]:
@@ -193,7 +166,7 @@ def _gamma_fit_tail(null: NDArray, x: NDArray) -> NDArray[np.float64]:
 
 
 def projection_shift_p(
-    raw: dict[str, tuple[NDArray, NDArray, NDArray]],
+    targets: dict[str, tuple[NDArray, NDArray]],
     cands: dict[str, NDArray],
     state: dict[str, NDArray],
     state_bins: list[NDArray],
@@ -209,8 +182,8 @@ def projection_shift_p(
     p-value is Westfall-Young min-P of those tails over the shifts.
 
     Args:
-        raw: ``{metric: (r, shift_r, mask)}``: each residual target on its finite readings ``mask``, in time
-            order (``r``: as tested; ``shift_r``: what is shifted, ``r`` less its trend in time).
+        targets: ``{metric: (r, mask)}``: each residual target as the projection tests take it (centred,
+            freed of its state pattern, on its finite readings ``mask``, in time order).
         cands: candidate values on the search's readings.
         state: state features on the search's readings (the forms' factors).
         state_bins: the state features' bins (the targets are freed of their pattern, as the observed ones).
@@ -222,8 +195,8 @@ def projection_shift_p(
     fracs = rng.uniform(*SHIFT_RANGE, size=n_shifts)
     low = np.ones(n_shifts + 1)
     best = {c: 1.0 for c in confirm}
-    for r, shift_r, mask in raw.values():
-        rs = np.column_stack([r, _shifted(shift_r, fracs, [sb[mask] for sb in state_bins])])  # column 0: observed
+    for r, mask in targets.values():
+        rs = np.column_stack([r, _shifted(r, fracs, state_bins, mask)])  # column 0: the observed alignment
         for name, c in cands.items():
             qs = []
             for x in candidate_forms(c, factors).values():
