@@ -198,3 +198,44 @@ def test_pit_spread_is_the_distance_from_the_scans_median(rows):
         m = (scan == j) & np.isfinite(pit)
         np.testing.assert_allclose(out[m], np.abs(pit[m] - np.median(pit[m])) if m.any() else [], atol=1e-12)
     assert np.array_equal(np.isnan(out), np.isnan(pit))
+
+
+def test_part_terms_act_on_their_part_only(tmp_path):
+    from sensor_envs.diagnose.lidar import METRIC_PARTS
+    from sensor_envs.lidar.extra_state import check_extra_state, split_term, term_part
+
+    assert split_term("sigma:v@sq@cos_bearing") == ("v", "sq@cos_bearing") and term_part("null:t") == "null"
+    assert term_part("v") is None and term_part("other:v") is None
+    with pytest.raises(ValueError, match="part prefix"):
+        check_extra_state(("null:",))
+    log = make_log("omega", scans=200, bearings=36)
+    state = ("bias:omega", "null:t", "sigma:omega", "v")
+    m = LidarLWLR(**FAST, extra_state=state).fit(log, max_readings=100)
+    c = m.extra_coef_
+    assert c[1, 1] > 0.5 * BIAS_PER_OMEGA * log.covariates["omega"].std()  # the bias term still finds the blur
+    assert c[0, 1] == 0 and c[2, 1] == 0 and c[1, 2] == 0 and c[2, 2] == 0 and c[0, 3] == 0 and c[1, 3] == 0
+    assert np.all(c[:, 4] != 0)  # a term without a part acts on all three
+    path = m.save(tmp_path / "m.npz")
+    back = LidarLWLR.load(path)
+    assert back.extra_state_ == state
+    np.testing.assert_array_equal(back.extra_coef_, c)
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["extra_coef"][0, 1] = 0.3  # the bias-only term acting on the null rate: refused at load
+    np.savez(tmp_path / "bad.npz", **arrays)
+    with pytest.raises(ModelFileError, match="field 'extra_coef'"):
+        LidarLWLR.load(tmp_path / "bad.npz")
+    blocks = lidar_blocks(log.n_poses, 5)
+    adapter = LidarAdapter(log, block_split(blocks), blocks, params=FAST, max_readings=100)
+    for metric, part in METRIC_PARTS.items():
+        terms = adapter.effect_terms({"name": "omega", "metric": metric, "form": "x bearing"})
+        assert terms is not None and all(t.startswith(f"{part}:") for t in terms) and len(terms) == 6
+    assert adapter.term_variable("sigma:omega@sq@range") == "omega"
+
+
+def test_one_cause_on_two_parts_is_added_on_both():
+    res = diagnose(make_log("omega_both", seed=3))
+    after = res.settings["state_after"]
+    assert res.added[0] == "omega", res.steps[0]["ranking"][:3]
+    assert any(t.startswith("bias:omega") for t in after) and any(t.startswith("null:omega") for t in after), after
+    assert res.error_after < res.error_before - MARGIN

@@ -24,9 +24,11 @@ keep it only when the held-out NLL improves beyond its block-to-block noise (:fu
 a finding at ``p < alpha / 10``: when it improves at all;
 else it is reported as rejected; an interaction is then tried as a main effect, and after that the
 next significant candidate); re-rank after each addition; repeat while an effect is significant, with at most
-``max_add`` (default 3) refits in all. An adapter with ``state_terms(name, form)`` turns a finding's form
-(e.g. an interaction with bearing) into the state terms that represent it; a significant effect the
-model cannot take is reported in words (``unrepresented``) with its kind and form.
+``max_add`` (default 3) refits in all. An adapter with ``effect_terms(effect)`` (or ``state_terms(name,
+form)``) turns a finding's kind and form (e.g. a null-rate effect interacting with bearing) into the state
+terms that represent it, on the part of the model the finding measures; an added candidate stays in the
+ranking, so its effect on another part (or in another form) can be added later, never its terms twice.
+A significant effect the model cannot take is reported in words (``unrepresented``) with its kind and form.
 """
 
 from __future__ import annotations
@@ -205,6 +207,12 @@ def _terms(adapter: DiagnoseAdapter, effect: dict[str, Any]) -> tuple[str, ...] 
     return None if var is None else (var,)
 
 
+def _state_variables(adapter: DiagnoseAdapter, state: tuple[str, ...]) -> set[str]:
+    """The variables the state terms ``state`` use (an adapter's ``term_variable``, else the names themselves)."""
+    var = getattr(adapter, "term_variable", None)
+    return {var(t) for t in state} if var is not None else set(state)
+
+
 def _why_not(adapter: DiagnoseAdapter, effect: dict[str, Any]) -> str:
     """Words for a significant effect the model cannot take: its kind and form, and why."""
     form = "" if effect.get("form", "main") == "main" else f", interacting with {effect['form'][2:]}"
@@ -289,7 +297,8 @@ def run_diagnose(
     added: list[str] = []
     steps: list[dict[str, Any]] = []
     feats = tuple(adapter.state_features())
-    exclude = tuple(c for c in ev.candidates if adapter.state_name(c) in state) + feats
+    in_state = _state_variables(adapter, state)
+    exclude = tuple(c for c in ev.candidates if adapter.state_name(c) in in_state) + feats
     first: Ranking | None = None
     opts = {
         "n_permutations": n_permutations,
@@ -325,7 +334,8 @@ def run_diagnose(
                 if terms is None:
                     unrepresented.setdefault(t["name"], _why_not(adapter, t))
                     continue
-                if tuple(terms) in rejected:  # already refitted (in this form or under another's name)
+                terms = tuple(x for x in terms if x not in state)  # an added candidate on another part or form
+                if not terms or terms in rejected:  # already in, or refitted (in this form or another's name)
                     continue
                 pick = t
                 break
@@ -363,8 +373,8 @@ def run_diagnose(
             continue
         attempt["decision"] = step["decision"] = f"added {pick['name']} as {', '.join(terms)}"
         state, model, ev = (*state, *terms), new_model, new_ev
-        added.append(pick["name"])
-        exclude = (*exclude, pick["name"])
+        if pick["name"] not in added:  # still ranked: its effect on the model's other parts may be added later
+            added.append(pick["name"])
         ranking = None
     if ranking is None:  # the refit budget ended on an addition: rank the final model's residuals too
         final = rank_candidates(ev, exclude, given=tuple(added), **opts)  # type: ignore[arg-type]

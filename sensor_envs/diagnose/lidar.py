@@ -23,7 +23,8 @@ turn, follows the wall's slope: found as turn rate x ``range_slope``). A finding
 terms (:meth:`LidarAdapter.state_terms`): a main effect to the variable itself (``<name>``, and
 ``<name>@sq`` for a U-shaped one), an interaction with bearing to ``<name>``, ``<name>@cos_bearing``,
 ``<name>@sin_bearing``, with range, incidence or range slope to ``<name>`` and ``<name>@range`` (...)
-(:mod:`sensor_envs.lidar.extra_state`), each acting on the null, bias and log-sigma parts.
+(:mod:`sensor_envs.lidar.extra_state`), each on the part the finding's metric measures
+(:data:`METRIC_PARTS`: ``null`` on the null rate, ``range``/``pit`` on the bias, the spreads on log sigma).
 
 Candidates: every per-scan covariate of the log by its name (``cov_omega`` as ``omega``), ``time``
 (time since the first scan), ``scan`` (index, only when the log has no time), ``bearing`` (index),
@@ -47,12 +48,20 @@ from numpy.typing import NDArray
 
 from sensor_envs.diagnose.core import Evaluation
 from sensor_envs.inputs import InputError
-from sensor_envs.lidar.extra_state import GEOMETRY_MODIFIERS, PREV, TIME, fit_extra_terms, range_slope, scan_features
+from sensor_envs.lidar.extra_state import (
+    GEOMETRY_MODIFIERS,
+    PREV,
+    TIME,
+    fit_extra_terms,
+    range_slope,
+    scan_features,
+    split_term,
+)
 from sensor_envs.lidar.log import LidarLog
 from sensor_envs.lidar.lwlr import LidarLWLR, lidar_features, mixture_log_prob
 from sensor_envs.lidar.validate_readings import _pit
 
-__all__ = ["LidarAdapter", "lidar_blocks", "DIAGNOSE_LIDAR_PARAMS", "DIAGNOSE_MAX_READINGS"]
+__all__ = ["LidarAdapter", "lidar_blocks", "DIAGNOSE_LIDAR_PARAMS", "DIAGNOSE_MAX_READINGS", "METRIC_PARTS"]
 
 DIAGNOSE_LIDAR_PARAMS: dict[str, Any] = {"variant": "extended", "n_folds": 3, "random_state": 0, "verbose": False}
 """Hyperparameters of the diagnosis fits unless ``--model`` gives others (3 folds of time blocks: the
@@ -61,6 +70,8 @@ square of :data:`DIAGNOSE_MAX_READINGS`)."""
 DIAGNOSE_MAX_READINGS = 240
 """Scans the table fit of ``diagnose lidar`` uses by default (evenly spaced; the held-out evaluation
 and the search use every held-out reading)."""
+METRIC_PARTS = {"null": "null", "range": "bias", "pit": "bias", "range_spread": "sigma", "pit_spread": "sigma"}
+"""The model part (:data:`~sensor_envs.lidar.extra_state.PARTS`) a finding on each residual metric is added to."""
 _RENAME = {TIME: "time"}
 _RANGE_CLIP = 1.0
 
@@ -191,6 +202,23 @@ class LidarAdapter:
             return None
         # linear and U-shaped in the variable, times the state (a U-shaped effect has no linear part)
         return main + tuple(f"{t}@{m}" for m in mods for t in main)
+
+    def term_variable(self, term: str) -> str:
+        """The state variable of a term (``bias:v@sq@cos_bearing`` -> ``v``)."""
+        return split_term(term)[0]
+
+    def effect_terms(self, effect: dict[str, Any]) -> tuple[str, ...] | None:
+        """State terms of a finding on the part its metric measures (:data:`METRIC_PARTS`), or ``None``.
+
+        The terms of :meth:`state_terms` (its form), each restricted to one part (``null:``, ``bias:``,
+        ``sigma:``; :func:`~sensor_envs.lidar.extra_state.term_part`): a null-rate finding changes
+        p_null only, a mean finding the bias, a spread finding sigma.
+        """
+        terms = self.state_terms(effect["name"], str(effect.get("form", "main")))
+        part = METRIC_PARTS.get(str(effect.get("metric")))
+        if terms is None or part is None:
+            return terms
+        return tuple(f"{part}:{t}" for t in terms)
 
     def state_features(self) -> tuple[str, ...]:
         """The model's own state: nominal range, incidence and bearing (per-bearing tables)."""

@@ -323,8 +323,8 @@ def projection_proxies(
                 break
         else:
             kept.append(ei["name"])
-        for g, ug in given_u.items():
-            if not ei["significant"] or abs(np.corrcoef(ug, u[ei["name"]])[0, 1]) < PROXY_CORR:
+        for g, ug in given_u.items():  # itself, already added on another part, is not its own cause
+            if g == ei["name"] or not ei["significant"] or abs(np.corrcoef(ug, u[ei["name"]])[0, 1]) < PROXY_CORR:
                 continue
             xg = _form(given[g], factors, pi.form)[mask]
             p_ig, s_ig = partial_test(r, xi, xg, block[mask], signs)

@@ -361,8 +361,9 @@ def rank_candidates(
         max_readings: readings used (an even subsample in time order beyond this).
         rng: generator of the flips (default seed 0).
         progress: tqdm bar over the flips.
-        given: candidates already added to the model (not ranked): an effect they explain is marked a
-            proxy of them (``proxy_of``) and is not significant.
+        given: candidates already added to the model: an effect they explain is marked a proxy of them
+            (``proxy_of``) and is not significant (a candidate is not its own proxy: one added on one part
+            of the model is ranked again for the others).
         n_shifts: most circular shifts that confirm a held-out finding (:mod:`~sensor_envs.diagnose.shifts`;
             0: the flips alone).
 
@@ -618,7 +619,11 @@ def _mark_proxies(
             (d, j, forms.index(effects[j]["form"]), names[j]) for j in top if j != i and effects[j]["proxy_of"] is None
         ] + [(d, int(j), fi, names[j]) for j in near]
         if given is not None:
-            others += [(given, g, _best_form(given, g, r, mask, fold), n) for g, n in enumerate(given.names)]
+            others += [
+                (given, g, _best_form(given, g, r, mask, fold), n)
+                for g, n in enumerate(given.names)
+                if n != names[i]  # itself, already added on another part, is not its own cause
+            ]
         for dj, j, fj, name in others:
             ci = _cond(d, i, fi, dj, j, fj, r, mask, fold)
             cj = _cond(dj, j, fj, d, i, fi, r, mask, fold)

@@ -21,6 +21,9 @@ State variables (names):
   the cosine / sine of the reading's bearing (an effect whose sign follows the bearing, e.g. a range
   bias from translating during the scan: its mean over the scan is zero); ``<name>@sq``: its square
   (a U-shaped effect, standardised like every term);
+* ``<part>:<term>`` (``null:``, ``bias:`` or ``sigma:``, :data:`PARTS`): the term acts on that part only
+  (a term without a part acts on all three): an effect found on the null rate, the mean or the spread
+  is added where it acts, and the other parts keep their fit (fewer coefficients to carry over);
 * ``<name>@range`` / ``<name>@incidence`` / ``<name>@range_slope``: the variable times the ray's nominal
   range [m], incidence [rad] or the nominal range's slope along the scan [m/rad] (:func:`range_slope`,
   clipped to :data:`SLOPE_CAP` times the range;
@@ -53,6 +56,9 @@ __all__ = [
     "MODIFIERS",
     "check_extra_state",
     "split_term",
+    "term_part",
+    "part_columns",
+    "PARTS",
     "needs_geometry",
     "modify",
     "range_slope",
@@ -72,6 +78,8 @@ MAX_COEF = 50.0
 _RIDGE = 1.0
 MODIFIERS = ("cos_bearing", "sin_bearing", "sq", "range", "incidence", "range_slope")
 """Interaction / shape modifiers of a state term ``<name>@<modifier>``."""
+PARTS = ("null", "bias", "sigma")
+"""Parts a term may be restricted to (``<part>:<term>``): logit p_null, bias [m], log sigma (``extra_coef_`` rows)."""
 GEOMETRY_MODIFIERS = ("range", "incidence", "range_slope")
 """Modifiers that need the ray's nominal range and incidence (the map's raycast)."""
 SLOPE_CAP = 5.7
@@ -80,8 +88,17 @@ r tan(incidence)``: 5.7 is an incidence of 80 deg). Near-grazing rays' slopes gr
 a few of them would set a linear term's fit."""
 
 
+def term_part(name: str) -> str | None:
+    """The part (:data:`PARTS`) a term ``<part>:<term>`` acts on, ``None`` for a term on all three."""
+    head, sep, _ = name.partition(":")
+    return head if sep and head in PARTS else None
+
+
 def split_term(name: str) -> tuple[str, str | None]:
     """``(variable, modifier)`` of a state term name (``modifier`` ``None`` for a plain variable).
+
+    A part prefix (``null:``, ``bias:``, ``sigma:``, :func:`term_part`) is dropped: it says where the
+    term acts, not what it is.
 
     A modifier may be a chain of two, ``sq@<modifier>`` (a U-shaped effect whose sign follows the
     bearing or grows with the ray's range: ``v@sq@cos_bearing`` is ``v**2 cos(bearing)``).
@@ -89,6 +106,10 @@ def split_term(name: str) -> tuple[str, str | None]:
     Raises:
         ValueError: an unknown modifier, naming ``extra_state``.
     """
+    if term_part(name) is not None:
+        name = name.partition(":")[2]
+        if not name:
+            raise InputError("extra_state: a part prefix (null:, bias:, sigma:) needs a term after it")
     base, sep, mod = name.partition("@")
     if not sep:
         return name, None
@@ -263,27 +284,27 @@ def _newton_logit(xd: NDArray[np.float64], y: NDArray[np.float64], offset: NDArr
 
 
 def _fit_bias_sigma(
-    xd: NDArray[np.float64], e: NDArray[np.float64], log_sigma: NDArray[np.float64]
+    xb: NDArray[np.float64], xs: NDArray[np.float64], e: NDArray[np.float64], log_sigma: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Bias coefficients (bisquare IRLS) and log-sigma coefficients (Gaussian likelihood) of residuals ``e``."""
+    """Bias coefficients on ``xb`` (bisquare IRLS) and log-sigma ones on ``xs`` (Gaussian likelihood) of ``e``."""
     w = np.ones(e.size)
-    cb = np.zeros(xd.shape[1])
-    eye = np.eye(xd.shape[1])
+    cb = np.zeros(xb.shape[1])
+    eye_b, eye = np.eye(xb.shape[1]), np.eye(xs.shape[1])
     for _ in range(4):
-        a = (xd * w[:, None]).T @ xd + 1e-9 * _RIDGE * eye * max(w.sum(), 1.0)
-        cb = np.linalg.solve(a, (xd * w[:, None]).T @ e)
-        res = np.abs(e - xd @ cb)
+        a = (xb * w[:, None]).T @ xb + 1e-9 * _RIDGE * eye_b * max(w.sum(), 1.0)
+        cb = np.linalg.solve(a, (xb * w[:, None]).T @ e)
+        res = np.abs(e - xb @ cb)
         cut = 6.0 * max(float(np.average(res, weights=np.maximum(w, 1e-12))), 1e-4)
         u = res / cut
         w = np.where(u < 1, (1 - u * u) ** 2, 0.0)
     m = w > 0
-    r2 = (e - xd @ cb)[m] ** 2
-    xs, ls = xd[m], log_sigma[m]
-    cs = np.zeros(xd.shape[1])
+    r2 = (e - xb @ cb)[m] ** 2
+    xm, ls = xs[m], log_sigma[m]
+    cs = np.zeros(xs.shape[1])
     for _ in range(30):
-        q = r2 * np.exp(-2 * np.clip(ls + xs @ cs, -20, 20))
-        g = xs.T @ (1 - q) + _RIDGE * cs
-        h = 2 * (xs * q[:, None]).T @ xs + _RIDGE * eye
+        q = r2 * np.exp(-2 * np.clip(ls + xm @ cs, -20, 20))
+        g = xm.T @ (1 - q) + _RIDGE * cs
+        h = 2 * (xm * q[:, None]).T @ xm + _RIDGE * eye
         step = np.linalg.solve(h, g)
         step *= min(1.0, 1.0 / max(np.max(np.abs(step)), 1e-12))  # damped: at most 1 (log m) per step
         cs -= step
@@ -292,11 +313,20 @@ def _fit_bias_sigma(
     return cb, cs
 
 
+def part_columns(names: tuple[str, ...]) -> list[NDArray[np.int64]]:
+    """Per part (:data:`PARTS`), the design columns it uses: the intercept and the terms that act on it."""
+    return [
+        np.array([0] + [i + 1 for i, n in enumerate(names) if term_part(n) in (None, part)], dtype=np.int64)
+        for part in PARTS
+    ]
+
+
 def fit_extra_terms(model: LidarLWLR, log: LidarLog) -> None:
     """Fit the linear extra-state terms of a fitted ``model`` (tables set) on a scan log; sets the attributes.
 
     Sets ``extra_state_`` (names), ``extra_mean_``/``extra_scale_`` ``(d,)`` (standardisation) and
-    ``extra_coef_`` ``(3, d + 1)`` (rows: logit p_null, bias [m], log sigma; columns: intercept, variables).
+    ``extra_coef_`` ``(3, d + 1)`` (rows: logit p_null, bias [m], log sigma; columns: intercept, variables;
+    0 where a term is restricted to another part, :func:`term_part`).
     """
     names = check_extra_state(model.extra_state)
     model.extra_state_ = names
@@ -317,16 +347,19 @@ def fit_extra_terms(model: LidarLWLR, log: LidarLog) -> None:
     scale = raw[valid].std(0) if valid.any() else np.ones(d)
     scale = np.where(scale > 1e-12, scale, 1.0)
     xd = _design((raw - mean) / scale)
+    cols = part_columns(names)
+    coef = np.zeros((3, d + 1))
     q = np.clip(p["p_null"][valid], P_EPS, 1 - P_EPS)
-    c_null = _newton_logit(xd[valid], (x[valid] == 0).astype(float), np.log(q / (1 - q)))
+    coef[0, cols[0]] = _newton_logit(xd[valid][:, cols[0]], (x[valid] == 0).astype(float), np.log(q / (1 - q)))
     ok = valid & (x > 0) & (x <= (model.spur_above if model.variant == "extended" else np.inf))
     ok &= np.abs(np.where(ok, x, 0.0) - np.where(ok, p["mu"], 0.0)) < PREV_CLIP
     if ok.sum() > 2 * (d + 1):
-        c_bias, c_sig = _fit_bias_sigma(xd[ok], x[ok] - p["mu"][ok], np.log(p["sigma"][ok]))
-    else:
-        c_bias, c_sig = np.zeros(d + 1), np.zeros(d + 1)
+        xo = xd[ok]
+        coef[1, cols[1]], coef[2, cols[2]] = _fit_bias_sigma(
+            xo[:, cols[1]], xo[:, cols[2]], x[ok] - p["mu"][ok], np.log(p["sigma"][ok])
+        )
     model.extra_mean_, model.extra_scale_ = mean, scale
-    model.extra_coef_ = np.clip(np.stack([c_null, c_bias, c_sig]), -MAX_COEF, MAX_COEF)
+    model.extra_coef_ = np.clip(coef, -MAX_COEF, MAX_COEF)
 
 
 def apply_extra(

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.lidar.extra_state import MAX_COEF, check_extra_state
+from sensor_envs.lidar.extra_state import MAX_COEF, PARTS, check_extra_state, part_columns
 from sensor_envs.modelio import (
     Constraint,
     InstanceOf,
@@ -172,6 +172,10 @@ def _check_extra_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dic
     check_finite(path, "extra_mean", arr["extra_mean"])
     check_positive(path, "extra_scale", arr["extra_scale"])
     check_range(path, "extra_coef", arr["extra_coef"], -MAX_COEF, MAX_COEF)
+    for row, cols in enumerate(part_columns(tuple(model.extra_state))):  # a part's term acts on it alone
+        off = np.setdiff1d(np.arange(d + 1), cols)
+        if off.size and np.any(arr["extra_coef"][row, off] != 0):
+            raise ModelFileError(f"{path}: field 'extra_coef': a term restricted to another part acts on {PARTS[row]}")
     model.extra_state_ = tuple(model.extra_state)
     model.extra_mean_, model.extra_scale_ = arr["extra_mean"].astype(np.float64), arr["extra_scale"].astype(np.float64)
     model.extra_coef_ = arr["extra_coef"].astype(np.float64)

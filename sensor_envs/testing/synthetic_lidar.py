@@ -23,7 +23,11 @@ def _ar1(rng: np.random.Generator, n: int, rho: float, sd: float) -> np.ndarray:
 
 
 def make_log(kind: str, scans: int = 400, bearings: int = 48, seed: int = 0) -> LidarLog:
-    """A synthetic scan log with the hidden effect ``kind`` (``none``, ``time``, ``omega``, ``corr``)."""
+    """A synthetic scan log with the hidden effect ``kind`` (``none``, ``time``, ``omega``, ``corr``).
+
+    ``omega_both``: the turn rate biases the range (as ``omega``) and raises the null rate (one cause
+    acting on two parts of the model).
+    """
     rng = np.random.default_rng(seed)
     i = np.arange(scans)
     t = 0.2 * i
@@ -37,8 +41,10 @@ def make_log(kind: str, scans: int = 400, bearings: int = 48, seed: int = 0) -> 
             noise[s] = 0.8 * noise[s - 1] + 0.6 * noise[s]
     x = r + (0.01 + 0.005 * r) * noise
     p_null = np.full(r.shape, 0.05)
-    if kind == "omega":
+    if kind in ("omega", "omega_both"):
         x = x + BIAS_PER_OMEGA * omega[:, None]
+    if kind == "omega_both":
+        p_null = np.clip(0.02 + 0.12 * np.abs(omega) / omega.std(), 0.0, 0.5)[:, None] * np.ones_like(r)
     if kind == "time":
         p_null = 0.02 + 0.25 * (t / t[-1])[:, None] * np.ones_like(r)
     x = np.where(rng.random(r.shape) < p_null, 0.0, x)
