@@ -24,7 +24,8 @@ terms (:meth:`LidarAdapter.state_terms`): a main effect to the variable itself (
 ``<name>@sq`` for a U-shaped one), an interaction with bearing to ``<name>``, ``<name>@cos_bearing``,
 ``<name>@sin_bearing``, with range, incidence or range slope to ``<name>`` and ``<name>@range`` (...)
 (:mod:`sensor_envs.lidar.extra_state`), each on the part the finding's metric measures
-(:data:`METRIC_PARTS`: ``null`` on the null rate, ``range``/``pit`` on the bias, the spreads on log sigma).
+(:data:`METRIC_PARTS`: ``null`` on the null rate, ``range``/``pit`` on the bias and log sigma, the spreads on
+log sigma).
 
 Candidates: every per-scan covariate of the log by its name (``cov_omega`` as ``omega``), ``time``
 (time since the first scan), ``scan`` (index, only when the log has no time), ``bearing`` (index),
@@ -70,8 +71,16 @@ square of :data:`DIAGNOSE_MAX_READINGS`)."""
 DIAGNOSE_MAX_READINGS = 240
 """Scans the table fit of ``diagnose lidar`` uses by default (evenly spaced; the held-out evaluation
 and the search use every held-out reading)."""
-METRIC_PARTS = {"null": "null", "range": "bias", "pit": "bias", "range_spread": "sigma", "pit_spread": "sigma"}
-"""The model part (:data:`~sensor_envs.lidar.extra_state.PARTS`) a finding on each residual metric is added to."""
+METRIC_PARTS: dict[str, tuple[str, ...]] = {
+    "null": ("null",),
+    "range": ("bias", "sigma"),
+    "pit": ("bias", "sigma"),
+    "range_spread": ("sigma",),
+    "pit_spread": ("sigma",),
+}
+"""The model parts (:data:`~sensor_envs.lidar.extra_state.PARTS`) a finding on each residual metric is added
+to: a mean effect to the bias and to sigma (what its linear terms miss of it, e.g. a step, widens the spread
+where it acts), a spread effect to sigma, a null-rate effect to p_null."""
 _RENAME = {TIME: "time"}
 _RANGE_CLIP = 1.0
 
@@ -208,17 +217,17 @@ class LidarAdapter:
         return split_term(term)[0]
 
     def effect_terms(self, effect: dict[str, Any]) -> tuple[str, ...] | None:
-        """State terms of a finding on the part its metric measures (:data:`METRIC_PARTS`), or ``None``.
+        """State terms of a finding on the parts its metric measures (:data:`METRIC_PARTS`), or ``None``.
 
-        The terms of :meth:`state_terms` (its form), each restricted to one part (``null:``, ``bias:``,
+        The terms of :meth:`state_terms` (its form), each restricted to a part (``null:``, ``bias:``,
         ``sigma:``; :func:`~sensor_envs.lidar.extra_state.term_part`): a null-rate finding changes
-        p_null only, a mean finding the bias, a spread finding sigma.
+        p_null only, a mean finding the bias and sigma, a spread finding sigma.
         """
         terms = self.state_terms(effect["name"], str(effect.get("form", "main")))
-        part = METRIC_PARTS.get(str(effect.get("metric")))
-        if terms is None or part is None:
+        parts = METRIC_PARTS.get(str(effect.get("metric")))
+        if terms is None or parts is None:
             return terms
-        return tuple(f"{part}:{t}" for t in terms)
+        return tuple(f"{p}:{t}" for t in terms for p in parts)
 
     def state_features(self) -> tuple[str, ...]:
         """The model's own state: nominal range, incidence and bearing (per-bearing tables)."""
