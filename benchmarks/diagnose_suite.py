@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from sensor_envs.diagnose.core import DEFAULTS, block_split, run_diagnose
+from sensor_envs.diagnose.core import DEFAULTS, NLL_CAP, block_split, run_diagnose
 from sensor_envs.diagnose.families import (
     LIDAR_KINDS,
     PLANT_KINDS,
@@ -187,6 +187,9 @@ def score_case(case: Case, res: Any) -> dict[str, Any]:
         "added": list(res.added),
         "error_before": res.error_before,
         "error_after": res.error_after,
+        # median held-out NLL per reading (capped as the mean): a change a few readings carry shows here
+        "median_before": float(np.median(np.minimum(res.before.nll, NLL_CAP))) if res.before is not None else None,
+        "median_after": float(np.median(np.minimum(res.after.nll, NLL_CAP))) if res.after is not None else None,
         "info": case.info,
         "radar": {
             k: res.extra[k]
@@ -224,6 +227,11 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
                 det = [r for r in sel if r.get("detectable")]
                 d["detectable"] = len(det)
                 d["recall_detectable"] = float(np.mean([r["recall"] for r in det])) if det else float("nan")
+            # held-out NLL change per reading (after minus before; negative: better), mean and median over cases
+            dm = [r["error_after"] - r["error_before"] for r in sel]
+            dmed = [r["median_after"] - r["median_before"] for r in sel if r.get("median_before") is not None]
+            d["nll_change_mean"] = float(np.mean(dm))
+            d["nll_change_median"] = float(np.median(dmed)) if dmed else float("nan")
             out[f"{sensor}/{kind}"] = d
     return out
 
@@ -238,9 +246,10 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]], command: str) 
     ]
     lines += [
         "| sensor/kind | cases | recall | cause first | proxy added | any non-cause added | false pos. (significant) "
-        "| false pos. (added) | detectable (oracle) | recall on detectable |"
+        "| false pos. (added) | detectable (oracle) | recall on detectable | held-out NLL change, mean "
+        "(median) [nats] |"
     ]
-    lines += ["|---|---|---|---|---|---|---|---|---|---|"]
+    lines += ["|---|---|---|---|---|---|---|---|---|---|---|"]
     for k, d in summary.items():
 
         def f(key: str, d: dict[str, Any] = d) -> str:
@@ -249,13 +258,19 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]], command: str) 
         lines.append(
             f"| {k} | {d['cases']} | {f('recall')} | {f('cause_first')} | {f('proxy_added')} | {f('other_added')} | "
             f"{f('false_positive_rate')} | {f('false_addition_rate')} | {d.get('detectable', '')} | "
-            f"{f('recall_detectable')} |"
+            f"{f('recall_detectable')} | {d['nll_change_mean']:+.4f} ({d['nll_change_median']:+.4f}) |"
         )
     lines += ["", "## Cases", ""]
     for r in rows:
         lines.append(
             f"- {r['sensor']} {r['kind']} seed {r['seed']}: cause {r['cause']}, top {r['top3']}, added {r['added']}, "
-            f"NLL {r['error_before']:.4f} -> {r['error_after']:.4f}, strength {r['info'].get('strength', 0):.2f} "
+            f"NLL {r['error_before']:.4f} -> {r['error_after']:.4f}"
+            + (
+                f" (median {r['median_before']:.4f} -> {r['median_after']:.4f})"
+                if r.get("median_before") is not None
+                else ""
+            )
+            + f", strength {r['info'].get('strength', 0):.2f} "
             f"({r['info'].get('form')}), "
             + (f"x{r['info']['strength_factor']:g} of the drawn, " if "strength_factor" in r["info"] else "")
             + (f"oracle p {r['oracle']['p_value']:.2g} ({r['oracle']['best']}), " if "oracle" in r else "")

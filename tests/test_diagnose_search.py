@@ -173,7 +173,7 @@ def test_candidates_with_too_few_values_are_refused_not_tested():
     flag = np.zeros(S)
     flag[0] = 1.0
     ev = _evaluation(rng, _noise(rng), {"const": np.full(S, 3.0), "flag": flag, "walk": _walk(rng, S)})
-    rk = rank_candidates(ev, n_permutations=19)
+    rk = rank_candidates(ev, n_permutations=39)
     assert {r["name"] for r in rk.refused} == {"const", "flag"}
     assert [e["name"] for e in rk.effects] == ["walk"]
     assert "single distinct value" in next(r["reason"] for r in rk.refused if r["name"] == "const")
@@ -236,3 +236,27 @@ def test_improvement_interval_excludes_zero_only_for_a_real_gain():
         lo, hi = improvement_interval(ev, after, np.random.default_rng(1))
         assert lo < gain < hi
         assert (lo > 0) == real, (gain, lo, hi)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"n_permutations": 5}, "n_permutations"),
+        ({"n_permutations": 19}, "n_permutations"),  # 1 / 20 cannot be below alpha 0.05
+        ({"n_permutations": 99.5}, "n_permutations"),
+        ({"n_shifts": -1}, "n_shifts"),
+        ({"n_shifts": 5}, "n_shifts"),
+        ({"n_shifts": 20_000}, "n_shifts"),
+        ({"alpha": 0.0}, "alpha"),
+        ({"alpha": float("nan")}, "alpha"),
+        ({"min_score": float("nan")}, "min_score"),
+        ({"min_score": 1.0}, "min_score"),
+    ],
+)
+def test_search_options_are_checked_in_the_python_api(kwargs, field):
+    from sensor_envs.inputs import InputError
+
+    rng = np.random.default_rng(2)
+    ev = _evaluation(rng, _noise(rng), {"walk": _walk(rng, S)})
+    with pytest.raises(InputError, match=f"^{field}:"):
+        rank_candidates(ev, **kwargs)

@@ -92,6 +92,7 @@ from sensor_envs.diagnose.regressors import (
 )
 from sensor_envs.diagnose.regressors import POLY_DEGREE as POLY_DEGREE
 from sensor_envs.diagnose.shifts import N_SHIFTS, projection_shift_p, shift_p_values
+from sensor_envs.inputs import InputError
 
 __all__ = ["Ranking", "DEFAULTS", "bin_candidate", "rank_basis", "rank_candidates", "time_folds", "N_SEGMENTS", "GAP"]
 
@@ -337,6 +338,28 @@ def _fit_predict(basis: NDArray, r: NDArray, fa: NDArray) -> NDArray[np.float64]
     return np.asarray(basis @ beta, dtype=np.float64)
 
 
+def check_search_options(n_permutations: Any, n_shifts: Any, alpha: Any, min_score: Any) -> None:
+    """Reject search options that cannot give a test (an :class:`~sensor_envs.inputs.InputError` naming one).
+
+    ``n_permutations`` an integer >= 19 with ``1 / (n_permutations + 1) < alpha``; ``n_shifts`` 0 (none)
+    or an integer in 19 to 10,000; ``alpha`` in (0, 1); ``min_score`` finite and < 1.
+    """
+
+    def whole(v: Any) -> bool:
+        return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+    if not whole(n_permutations) or n_permutations < 19:
+        raise InputError(f"n_permutations: expected an integer >= 19, got {n_permutations!r}")
+    if not whole(n_shifts) or not (n_shifts == 0 or 19 <= n_shifts <= 10_000):
+        raise InputError(f"n_shifts: expected 0 (none) or an integer in [19, 10000], got {n_shifts!r}")
+    if not isinstance(alpha, (int, float)) or not 0.0 < float(alpha) < 1.0:
+        raise InputError(f"alpha: expected a level in (0, 1), got {alpha!r}")
+    if 1.0 / (n_permutations + 1) >= alpha:
+        raise InputError(f"n_permutations: {n_permutations} cannot give p < alpha {alpha}")
+    if not isinstance(min_score, (int, float)) or not np.isfinite(min_score) or min_score >= 1.0:
+        raise InputError(f"min_score: expected a finite held-out R^2 below 1, got {min_score!r}")
+
+
 def rank_candidates(
     ev: Any,
     exclude: tuple[str, ...] = (),
@@ -372,6 +395,7 @@ def rank_candidates(
         ``metric``, ``kind`` (the metric's kind), ``form`` (``main`` or ``x <state feature>``),
         ``metric_scores``, ``significant``, ``proxy_of``.
     """
+    check_search_options(n_permutations, n_shifts, alpha, min_score)
     rng = rng if rng is not None else np.random.default_rng(0)
     order = np.asarray(ev.order if getattr(ev, "order", None) is not None else ev.blocks, dtype=np.float64)
     idx = np.argsort(order, kind="stable")
