@@ -231,6 +231,14 @@ def test_part_terms_act_on_their_part_only(tmp_path):
         terms = adapter.effect_terms({"name": "omega", "metric": metric, "form": "x bearing"})
         assert terms is not None and {t.split(":")[0] for t in terms} == set(parts) and len(terms) == 6 * len(parts)
     assert adapter.term_variable("sigma:omega@sq@range") == "omega"
+    import gymnasium as gym
+
+    import sensor_envs  # noqa: F401  (registers the envs)
+
+    env = gym.make("sensor_envs/Neato-v0", lidar="learned", model=back, n_bearings=36, map="seed_room")
+    env.reset(seed=1)
+    obs = env.step(np.array([0.5, 1.0], dtype=np.float32))[0]  # the world supplies the part terms' variables
+    assert obs.shape == (39,) and np.isfinite(obs).all()
 
 
 def test_one_cause_on_two_parts_is_added_on_both():
