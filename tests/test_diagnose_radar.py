@@ -286,3 +286,10 @@ def test_state_variances_chosen_by_cv_once_then_reused(latency_log):
     assert adapter.params["relevance"] == "paper"
     assert tuple(adapter.params["rel_variance"]) == first.rel_variance_
     assert adapter.fit(()).rel_variance_ == first.rel_variance_
+
+
+def test_correction_labels_name_their_column():
+    from sensor_envs.diagnose.radar import RadarAdapter
+
+    assert RadarAdapter.term_variable("mean_x(rel_vx x azimuth)") == "rel_vx"
+    assert RadarAdapter.term_variable("rate(v)") == "v" and RadarAdapter.term_variable("ego_speed") == "ego_speed"

@@ -212,7 +212,8 @@ class LidarAdapter:
         # linear and U-shaped in the variable, times the state (a U-shaped effect has no linear part)
         return main + tuple(f"{t}@{m}" for m in mods for t in main)
 
-    def term_variable(self, term: str) -> str:
+    @staticmethod
+    def term_variable(term: str) -> str:
         """The state variable of a term (``bias:v@sq@cos_bearing`` -> ``v``)."""
         return split_term(term)[0]
 

@@ -181,7 +181,8 @@ class RadarAdapter:
             self.params.update(relevance="paper", rel_variance=tuple(model.rel_variance_))
         return model
 
-    def term_variable(self, term: str) -> str:
+    @staticmethod
+    def term_variable(term: str) -> str:
         """The log column of a correction label (``mean_x(v x azimuth)`` -> ``v``); a bare name as is."""
         inner = term[term.find("(") + 1 : term.rfind(")")] if term.endswith(")") and "(" in term else term
         return inner.split(" x ")[0]
