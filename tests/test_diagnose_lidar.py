@@ -169,14 +169,14 @@ def smeared_log(scans: int = 600, bearings: int = 90, seed: int = 1) -> LidarLog
 def test_rotation_smear_is_found_through_the_range_slope():
     """Issue 39's smeared scan: its error follows the wall's slope along the scan, not the bearing.
 
-    Found as turn rate x range slope and added in that form (``omega@range_slope``), which lowers the held-out
+    Found as turn rate x range slope and added in that form (``bias:omega@range_slope``), which lowers the held-out
     NLL more than the turn rate's main terms do.
     """
     log = smeared_log()
     res = diagnose(log)
     top = res.effects[0]
     assert top["name"] == "omega" and top["significant"] and top["form"] == "x range_slope", res.effects[:3]
-    assert res.added[:1] == ["omega"] and "omega@range_slope" in res.settings["state_after"]
+    assert res.added[:1] == ["omega"] and "bias:omega@range_slope" in res.settings["state_after"]  # a mean effect
     assert not res.to_json()["details"]["unrepresented"]
     held = block_split(lidar_blocks(log.n_poses, 5))
     adapter = LidarAdapter(log, held, lidar_blocks(log.n_poses, 5), params=FAST, max_readings=150)
