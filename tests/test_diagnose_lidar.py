@@ -102,6 +102,8 @@ def test_cli_diagnose_lidar(tmp_path):
     assert rep["effects"][0]["name"] == "omega" and rep["added"][0] == "omega"
     assert rep["error_after"] < rep["error_before"]
     assert (out / "report.md").exists()
+    final = LidarLWLR.load(out / "model.npz")  # the tables with the added terms, as the report names them
+    assert final.extra_state_ == tuple(rep["details"]["settings"]["state_after"]) and "bias:omega" in final.extra_state_
     again = subprocess.run(cmd, capture_output=True, text=True, check=False)  # existing output: refused
     assert again.returncode == 2 and again.stderr.count("\n") == 1, again.stderr
 

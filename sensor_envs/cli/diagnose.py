@@ -288,9 +288,15 @@ def _diagnose_lidar(args: argparse.Namespace) -> int:
             "the given model's tables are used as they are (they may have been fitted on the held-out scans); "
             "the extra-state terms are refitted on the fit part"
         )
-    data = write_folder_atomically(
-        out, args.force, lambda tmp: write_report(result, tmp, source=str(args.log)), (args.log, args.model, args.map)
-    )
+    final = adapter.fit(tuple(result.settings["state_after"])) if result.added else None
+
+    def write(tmp: Path) -> dict[str, Any]:
+        data = write_report(result, tmp, source=str(args.log))
+        if final is not None:  # the tables with the added terms (fitted on the fit part): Neato-v0 runs it
+            final.save(tmp / "model.npz", card={"source": str(args.log), "diagnose": result.settings})
+        return data
+
+    data = write_folder_atomically(out, args.force, write, (args.log, args.model, args.map))
     summary = {k: data[k] for k in ("added", "error_before", "error_after")}
     summary["effects"] = data["effects"][:5]
     print(json.dumps(summary, indent=1))
