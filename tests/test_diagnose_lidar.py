@@ -243,9 +243,15 @@ def test_part_terms_act_on_their_part_only(tmp_path):
     assert obs.shape == (39,) and np.isfinite(obs).all()
 
 
-def test_one_cause_on_two_parts_is_added_on_both():
+def test_one_cause_on_two_parts_is_added_on_both(tmp_path):
+    from sensor_envs.diagnose.report import write_report
+
     res = diagnose(make_log("omega_both", seed=3))
     after = res.settings["state_after"]
     assert res.added[0] == "omega", res.steps[0]["ranking"][:3]
     assert any(t.startswith("bias:omega") for t in after) and any(t.startswith("null:omega") for t in after), after
     assert res.error_after < res.error_before - MARGIN
+    data = write_report(res, tmp_path)  # the report names both findings, the later one with its step and terms
+    later = [f for f in data["details"]["findings"] if "step" in f]
+    assert [(f["name"], f["kind"], f["metric"]) for f in later] == [("omega", "rate", "null")]
+    assert "found at step 2, added as null:omega" in (tmp_path / "report.md").read_text()

@@ -223,7 +223,7 @@ def _why_not(adapter: DiagnoseAdapter, effect: dict[str, Any]) -> str:
 
 
 def _ranking_rows(r: Ranking) -> list[dict[str, Any]]:
-    keys = ("name", "score", "p_value", "p_raw", "metric", "kind", "form", "proxy_of")
+    keys = ("name", "score", "p_value", "p_raw", "metric", "kind", "form", "proxy_of", "test")
     return [{k: e.get(k) for k in keys} for e in r.effects]
 
 

@@ -181,7 +181,7 @@ def write_report(result: DiagnoseResult, out: Path, source: str = "") -> dict[st
         figs.append((name, metric, fname))
     data["details"]["figures"] = [f for _, _, f in figs]
     findings = [e for e in result.effects if e["significant"]] or result.effects[:1]
-    data["details"]["findings"] = [describe_effect(result.before, e) for e in findings]
+    data["details"]["findings"] = [describe_effect(result.before, e) for e in findings] + _later_findings(result)
     data["details"]["metrics_before_after"] = {
         m: {
             "rms_before": data["details"]["metrics_before"][m]["rms"],
@@ -193,6 +193,27 @@ def write_report(result: DiagnoseResult, out: Path, source: str = "") -> dict[st
     write_json(out / "report.json", data)
     (out / "report.md").write_text(_markdown(result, data, figs, source), encoding="utf-8")
     return data
+
+
+def _later_findings(result: DiagnoseResult) -> list[dict[str, Any]]:
+    """Findings added after the first step (found once earlier additions were in the model).
+
+    Each is described on the base model's residuals (``step``: the ranking that found it; ``terms``: what
+    was added).
+    """
+    assert result.before is not None
+    out = []
+    for i, st in enumerate(result.steps[1:], start=2):
+        for at in st.get("attempts", []):
+            if not str(at.get("decision", "")).startswith("added"):
+                continue
+            row = next((r for r in st["ranking"] if r["name"] == at["candidate"]), None)
+            if row is None or row["metric"] not in result.before.residuals:
+                continue
+            f = describe_effect(result.before, {**row, "form": at.get("form") or row["form"]})
+            f.update(step=i, terms=list(at["terms"]))
+            out.append(f)
+    return out
 
 
 def _markdown(result: DiagnoseResult, data: dict[str, Any], figs: list[tuple[str, str, str]], source: str) -> str:
@@ -214,7 +235,12 @@ def _markdown(result: DiagnoseResult, data: dict[str, Any], figs: list[tuple[str
             "",
         ]
     lines += [
-        f"Added to the state: {', '.join(result.added) if result.added else 'nothing'}.",
+        f"Added to the state: {', '.join(result.added) if result.added else 'nothing'}"
+        + (
+            f" (terms: {', '.join(f'`{t}`' for t in s['state_after'] if t not in s['state_before'])})."
+            if result.added
+            else "."
+        ),
         "",
         "| | held-out NLL per reading [nats] |",
         "|---|---|",
@@ -229,6 +255,8 @@ def _markdown(result: DiagnoseResult, data: dict[str, Any], figs: list[tuple[str
     lines += ["", "## Findings", ""]
     for f in data["details"]["findings"]:
         added = "added" if f["name"] in result.added else "not added"
+        if "step" in f:  # found after earlier additions: say when, and what it added
+            added = f"found at step {f['step']}, added as {', '.join(f['terms'])}; size on the base model's residuals"
         lines.append(
             f"- **{f['name']}** ({f['kind']} effect, form {f['form']}, p {f['p_value']:.3g} by the {f['test']} test, "
             f"{added}): {f['text']}"
