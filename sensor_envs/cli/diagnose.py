@@ -1,6 +1,7 @@
 """``sensor-envs diagnose radar|lidar LOG --out DIR [--model MODEL]``: find, add and report the effect a model lacks.
 
-Output: ``DIR/report.json``, ``DIR/report.md`` and figures, written to a temporary folder beside
+Output: ``DIR/report.json``, ``DIR/report.md``, figures and, when something was added, ``DIR/model.npz``
+(the model with the added state, fitted on the fit part), written to a temporary folder beside
 ``DIR`` and renamed into place; an existing ``DIR`` is refused unless ``--force``. With ``--model``,
 the loop refits that model's kind, hyperparameters and state on the fit part (like with like); the
 given model's own held-out NLL is reported beside it.
@@ -31,7 +32,11 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     kinds = diag.add_subparsers(dest="kind", required=True)
     p = kinds.add_parser("radar", help="diagnose the KDE radar (or its Gaussian baseline) on a radar log")
     p.add_argument("log", help="radar log CSV")
-    p.add_argument("--out", required=True, help="output folder (report.json, report.md, figures)")
+    p.add_argument(
+        "--out",
+        required=True,
+        help="output folder (report.json, report.md, figures, model.npz when an effect is added)",
+    )
     p.add_argument("--model", default=None, help="a fitted model file (.npz) to diagnose instead of fitting one")
     p.add_argument("--model-kind", default="kde", choices=("kde", "gaussian"), help="model fitted when no --model")
     add_force(p)
@@ -46,7 +51,11 @@ def register(sub: "argparse._SubParsersAction[OneLineParser]") -> None:
     p.set_defaults(func=_naming_the_log(_diagnose_radar))
     q = kinds.add_parser("lidar", help="diagnose the learned lidar on a scan log (.npz, CARMEN log, ROS bag)")
     q.add_argument("log", help="lidar scan log (.npz, CARMEN log or ROS bag)")
-    q.add_argument("--out", required=True, help="output folder (report.json, report.md, figures)")
+    q.add_argument(
+        "--out",
+        required=True,
+        help="output folder (report.json, report.md, figures, model.npz when an effect is added)",
+    )
     q.add_argument("--model", default=None, help="a fitted lidar model file (.npz) whose tables are diagnosed")
     q.add_argument("--map", default=None, help="map file for the log (segments, JSON/YAML, ROS map_server YAML)")
     q.add_argument("--align", action="store_true", help="scan-match the odometry poses onto the --map grid")
