@@ -160,13 +160,10 @@ def diagnose_case(
     adapter = _adapter(case, sensor, full_fit, fit) if adapter is None else adapter
     res = run_diagnose(adapter, base_state=case.base_state, n_permutations=permutations, alpha=alpha, seed=seed)
     if sensor == "radar":  # what was added, in words, and the held-out NLL per part (detection, position)
-        from sensor_envs.diagnose.radar_add import describe_terms, nll_parts
+        from sensor_envs.diagnose.radar_add import loop_extras
 
-        final = adapter.fit(tuple(res.settings["state_after"]))
-        res.extra["corrections"] = [t["text"] for t in describe_terms(final)]
-        res.extra["nll_parts_before"] = nll_parts(adapter, adapter.fit(tuple(res.settings["state_before"])))
-        res.extra["nll_parts_after"] = nll_parts(adapter, final)
-        res.extra["state_tuning"] = adapter.tuning
+        res.extra.update(loop_extras(adapter, res))
+        res.extra["corrections"] = [t["text"] for t in res.extra["corrections"]]
         res.extra["gaussian_before_after"] = (res.baseline_before, res.baseline_after)
     return res
 

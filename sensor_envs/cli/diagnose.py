@@ -165,6 +165,7 @@ def load_radar_model(path: str) -> tuple[str, Any]:
 def _diagnose_radar(args: argparse.Namespace) -> int:
     from sensor_envs.diagnose.core import block_split, run_diagnose
     from sensor_envs.diagnose.radar import RadarAdapter, radar_blocks
+    from sensor_envs.diagnose.radar_add import loop_extras
     from sensor_envs.diagnose.report import write_report
     from sensor_envs.radar.log import read_log
 
@@ -201,7 +202,8 @@ def _diagnose_radar(args: argparse.Namespace) -> int:
             "the given model itself on the held-out part; it may have been fitted on these readings, so the "
             "loop compares refits on the fit part (error_before = the given model's configuration refitted)"
         )
-    final = _radar_extras(adapter, result, base_model)
+    result.extra.update(loop_extras(adapter, result, before=base_model))
+    final = result.model_after
 
     def write(tmp: Path) -> dict[str, Any]:
         data = write_report(result, tmp, source=str(args.log))
@@ -229,19 +231,6 @@ def _corrections_markdown(extra: dict[str, Any]) -> str:
     if extra.get("state_tuning"):
         lines += ["", f"State kernel re-tuned on the fit part: rel_variance {extra['state_tuning']['rel_variance']}"]
     return "\n".join(lines) + "\n"
-
-
-def _radar_extras(adapter: Any, result: Any, base_model: Any) -> Any:
-    """The final model of the loop; its corrections and the NLL per part before/after go into ``result.extra``."""
-    from sensor_envs.diagnose.radar_add import describe_terms, nll_parts
-
-    final = adapter.fit(tuple(result.settings["state_after"]))
-    before = base_model if base_model is not None else adapter.fit(tuple(result.settings["state_before"]))
-    result.extra["corrections"] = describe_terms(final)
-    result.extra["nll_parts_before"] = nll_parts(adapter, before)
-    result.extra["nll_parts_after"] = nll_parts(adapter, final)
-    result.extra["state_tuning"] = adapter.tuning
-    return final
 
 
 def _diagnose_lidar(args: argparse.Namespace) -> int:
@@ -297,7 +286,7 @@ def _diagnose_lidar(args: argparse.Namespace) -> int:
             "the given model's tables are used as they are (they may have been fitted on the held-out scans); "
             "the extra-state terms are refitted on the fit part"
         )
-    final = adapter.fit(tuple(result.settings["state_after"])) if result.added else None
+    final = result.model_after if result.added else None
 
     def write(tmp: Path) -> dict[str, Any]:
         data = write_report(result, tmp, source=str(args.log))

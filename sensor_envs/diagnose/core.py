@@ -140,7 +140,7 @@ def block_split(blocks: NDArray, held_ranks: tuple[int, ...] = (2, 5, 8), period
 
 @dataclass
 class DiagnoseResult:
-    """Outcome of :func:`run_diagnose`."""
+    """Outcome of :func:`run_diagnose` (``model_before`` / ``model_after``: the fitted models the loop measured)."""
 
     kind: str
     effects: list[dict[str, Any]]
@@ -155,6 +155,8 @@ class DiagnoseResult:
     settings: dict[str, Any] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
     state_misfit: list[dict[str, Any]] = field(default_factory=list)
+    model_before: Any = field(default=None, repr=False)
+    model_after: Any = field(default=None, repr=False)
 
     def to_json(self) -> dict[str, Any]:
         """The ``report.json`` content (floats, lists and dicts only)."""
@@ -294,6 +296,7 @@ def run_diagnose(
     boot_rng = np.random.default_rng([seed, 1])  # the improvement intervals' own stream
     bar = tqdm(total=max_add + 1, disable=not progress, desc=f"diagnose {adapter.kind}")
     model = base_model if base_model is not None else adapter.fit(base_state)
+    model_before = model
     ev = adapter.evaluate(model)
     before = ev
     state = tuple(base_state)
@@ -397,6 +400,8 @@ def run_diagnose(
         steps=steps,
         before=before,
         after=ev,
+        model_before=model_before,
+        model_after=model,
         baseline_before=adapter.baseline(tuple(base_state)),
         baseline_after=adapter.baseline(state) if added else adapter.baseline(tuple(base_state)),
         settings={

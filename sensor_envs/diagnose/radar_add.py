@@ -28,7 +28,16 @@ from sensor_envs.radar.features import state_matrix
 from sensor_envs.radar.log import RadarLog, target_tuples
 from sensor_envs.sensor_model import extra_state_names
 
-__all__ = ["fit_corrected", "parse_label", "is_label", "radar_blocks", "tune_relevance", "describe_terms", "nll_parts"]
+__all__ = [
+    "fit_corrected",
+    "parse_label",
+    "is_label",
+    "radar_blocks",
+    "tune_relevance",
+    "describe_terms",
+    "nll_parts",
+    "loop_extras",
+]
 
 _LABEL = re.compile(r"^(mean_x|mean_y|spread|rate)\((.+?)(?: x (azimuth|range))?\)$")
 
@@ -268,4 +277,19 @@ def nll_parts(adapter: Any, model: Any) -> dict[str, float]:
         "rate": float(rate.mean()),
         "position": float(pos.mean()) if pos.size else float("nan"),
         "total": float(np.mean(np.minimum(-lp, 50.0))),
+    }
+
+
+def loop_extras(adapter: Any, result: Any, before: Any = None) -> dict[str, Any]:
+    """What a radar diagnosis adds to its report, from the models the loop measured.
+
+    The final model's corrections in words (:func:`describe_terms`), the held-out NLL per part
+    (:func:`nll_parts`) of ``before`` (default ``result.model_before``; the CLI passes a ``--model`` file's
+    own model) and of ``result.model_after``, and the state kernel's tuning.
+    """
+    return {
+        "corrections": describe_terms(result.model_after),
+        "nll_parts_before": nll_parts(adapter, result.model_before if before is None else before),
+        "nll_parts_after": nll_parts(adapter, result.model_after),
+        "state_tuning": adapter.tuning,
     }
