@@ -15,8 +15,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from sensor_envs.cli.args import OneLineParser, about, add_force, nonneg_int, positive_int
 from sensor_envs.inputs import InputError
 from sensor_envs.outputs import check_inputs, check_output, output_folder
@@ -128,22 +126,21 @@ def write_folder_atomically(
 
 
 def _check_args(args: argparse.Namespace) -> None:
-    """Reject bad numeric options naming the option."""
-    if args.max_add < 1:
-        raise InputError(f"--max-add: expected >= 1, got {args.max_add}")
-    if args.permutations < 19:
-        raise InputError(f"--permutations: expected >= 19, got {args.permutations}")
-    if not 0.0 < args.alpha < 1.0:
-        raise InputError(f"--alpha: expected a level in (0, 1), got {args.alpha}")
-    if 1.0 / (args.permutations + 1) >= args.alpha:
-        raise InputError(
-            f"--permutations: {args.permutations} cannot give p < --alpha {args.alpha}; use at least "
-            f"{int(np.ceil(1.0 / args.alpha))}"
-        )
-    if 0 < args.shifts < 19:
-        raise InputError(f"--shifts: expected 0 (none) or >= 19, got {args.shifts}")
+    """Reject bad numeric options naming the option (the search's own check, with the CLI's names)."""
+    from sensor_envs.diagnose.search import check_search_options
+
+    check_search_options(args.permutations, args.shifts, args.alpha, args.min_score, args.max_add, names=_OPTION_NAMES)
     if args.block_frames < 1:
         raise InputError(f"--block-frames: expected >= 1, got {args.block_frames}")
+
+
+_OPTION_NAMES = {
+    "n_permutations": "--permutations",
+    "n_shifts": "--shifts",
+    "alpha": "--alpha",
+    "min_score": "--min-score",
+    "max_add": "--max-add",
+}
 
 
 def load_radar_model(path: str) -> tuple[str, Any]:

@@ -289,9 +289,7 @@ def run_diagnose(
     Returns:
         The :class:`DiagnoseResult`; ``effects`` is the first ranking (of the base model's residuals).
     """
-    check_search_options(n_permutations, n_shifts, alpha, min_score)
-    if isinstance(max_add, bool) or not isinstance(max_add, (int, np.integer)) or max_add < 1:
-        raise InputError(f"max_add: expected an integer >= 1, got {max_add!r}")
+    check_search_options(n_permutations, n_shifts, alpha, min_score, max_add)
     rng = np.random.default_rng(seed)
     boot_rng = np.random.default_rng([seed, 1])  # the improvement intervals' own stream
     bar = tqdm(total=max_add + 1, disable=not progress, desc=f"diagnose {adapter.kind}")

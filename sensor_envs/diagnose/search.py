@@ -338,26 +338,41 @@ def _fit_predict(basis: NDArray, r: NDArray, fa: NDArray) -> NDArray[np.float64]
     return np.asarray(basis @ beta, dtype=np.float64)
 
 
-def check_search_options(n_permutations: Any, n_shifts: Any, alpha: Any, min_score: Any) -> None:
+def check_search_options(
+    n_permutations: Any,
+    n_shifts: Any,
+    alpha: Any,
+    min_score: Any,
+    max_add: Any = None,
+    names: dict[str, str] | None = None,
+) -> None:
     """Reject search options that cannot give a test (an :class:`~sensor_envs.inputs.InputError` naming one).
 
     ``n_permutations`` an integer >= 19 with ``1 / (n_permutations + 1) < alpha``; ``n_shifts`` 0 (none)
-    or an integer in 19 to 10,000; ``alpha`` in (0, 1); ``min_score`` finite and < 1.
+    or an integer in 19 to 10,000; ``alpha`` in (0, 1); ``min_score`` finite and < 1; ``max_add`` (unless
+    ``None``) an integer >= 1. ``names``: how the message names each argument (e.g. the CLI's
+    ``--permutations``; default the argument's own name).
     """
+    name = {k: (names or {}).get(k, k) for k in ("n_permutations", "n_shifts", "alpha", "min_score", "max_add")}
 
     def whole(v: Any) -> bool:
         return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
 
+    if max_add is not None and (not whole(max_add) or max_add < 1):
+        raise InputError(f"{name['max_add']}: expected an integer >= 1, got {max_add!r}")
     if not whole(n_permutations) or n_permutations < 19:
-        raise InputError(f"n_permutations: expected an integer >= 19, got {n_permutations!r}")
-    if not whole(n_shifts) or not (n_shifts == 0 or 19 <= n_shifts <= 10_000):
-        raise InputError(f"n_shifts: expected 0 (none) or an integer in [19, 10000], got {n_shifts!r}")
+        raise InputError(f"{name['n_permutations']}: expected an integer >= 19, got {n_permutations!r}")
     if not isinstance(alpha, (int, float)) or not 0.0 < float(alpha) < 1.0:
-        raise InputError(f"alpha: expected a level in (0, 1), got {alpha!r}")
+        raise InputError(f"{name['alpha']}: expected a level in (0, 1), got {alpha!r}")
     if 1.0 / (n_permutations + 1) >= alpha:
-        raise InputError(f"n_permutations: {n_permutations} cannot give p < alpha {alpha}")
+        raise InputError(
+            f"{name['n_permutations']}: {n_permutations} cannot give p < {name['alpha']} {alpha}; use at least "
+            f"{int(np.ceil(1.0 / alpha))}"
+        )
+    if not whole(n_shifts) or not (n_shifts == 0 or 19 <= n_shifts <= 10_000):
+        raise InputError(f"{name['n_shifts']}: expected 0 (none) or an integer in [19, 10000], got {n_shifts!r}")
     if not isinstance(min_score, (int, float)) or not np.isfinite(min_score) or min_score >= 1.0:
-        raise InputError(f"min_score: expected a finite held-out R^2 below 1, got {min_score!r}")
+        raise InputError(f"{name['min_score']}: expected a finite held-out R^2 below 1, got {min_score!r}")
 
 
 def rank_candidates(
