@@ -255,3 +255,32 @@ def test_one_cause_on_two_parts_is_added_on_both(tmp_path):
     later = [f for f in data["details"]["findings"] if "step" in f]
     assert [(f["name"], f["kind"], f["metric"]) for f in later] == [("omega", "rate", "null")]
     assert "found at step 2, added as null:omega" in (tmp_path / "report.md").read_text()
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from([None, "null", "bias", "sigma"]),
+            st.from_regex(r"[a-z][a-z0-9_]{0,8}", fullmatch=True),
+            st.sampled_from([None, "sq", "cos_bearing", "sq@range", "range_slope"]),
+        ),
+        min_size=1,
+        max_size=8,
+        unique_by=lambda t: t,
+    )
+)
+def test_part_prefixes_parse_and_select_their_columns(terms):
+    """Any term list with or without part prefixes: the variable and modifier survive the prefix, and each
+    part's design columns are the intercept plus exactly the terms that act on it."""
+    from sensor_envs.lidar.extra_state import PARTS, check_extra_state, part_columns, split_term, term_part
+
+    names = [f"{p + ':' if p else ''}{v}{'@' + m if m else ''}" for p, v, m in terms]
+    assert check_extra_state(names) == tuple(names)
+    for (p, v, m), n in zip(terms, names, strict=True):
+        assert split_term(n) == (v, m) and term_part(n) == p
+    for part, cols in zip(PARTS, part_columns(tuple(names)), strict=True):
+        assert cols[0] == 0
+        assert [names[c - 1] for c in cols[1:]] == [
+            n for (p, _, _), n in zip(terms, names, strict=True) if p in (None, part)
+        ]
