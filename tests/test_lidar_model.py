@@ -298,7 +298,14 @@ def test_format_version_1_files_load_with_independent_nulls(rig_fit, tmp_path):
     with np.load(path) as z:
         arrays = {k: z[k] for k in z.files}
     header = json.loads(arrays["__header__"].tobytes().decode("utf-8"))
-    assert header["format_version"] == 6
+    assert header["format_version"] == 7
+    assert arrays["extra_low"].shape == arrays["extra_high"].shape == arrays["extra_mean"].shape
+    del arrays["extra_low"], arrays["extra_high"]  # format 7 added the extra terms' clamp
+    header["format_version"] = 6
+    arrays["__header__"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
+    np.savez(tmp_path / "v6.npz", **arrays)
+    v6 = LidarLWLR.load(tmp_path / "v6.npz")
+    assert v6.extra_low_.shape == v6.extra_mean_.shape and np.all(v6.extra_low_ <= -1e5)
     assert header["params"]["bias_model"] == ext.bias_model and "pose_sd" in header
     del header["params"]["bias_model"], header["pose_sd"]  # format 6 added the pooled bias and the pose error
     header["format_version"] = 5
@@ -340,11 +347,11 @@ def test_format_version_1_files_load_with_independent_nulls(rig_fit, tmp_path):
     old = LidarLWLR.load(tmp_path / "v1.npz")
     assert old.null_rho_ == 0.0
     np.testing.assert_array_equal(old.tables_, ext.tables_)
-    header["format_version"] = 7
+    header["format_version"] = 8
     arrays["__header__"] = np.frombuffer(json.dumps(header).encode("utf-8"), dtype=np.uint8)
-    np.savez(tmp_path / "v7.npz", **arrays)
-    with pytest.raises(ModelFileError, match=re.escape("field 'format_version' is 7")):
-        LidarLWLR.load(tmp_path / "v7.npz")
+    np.savez(tmp_path / "v8.npz", **arrays)
+    with pytest.raises(ModelFileError, match=re.escape("field 'format_version' is 8")):
+        LidarLWLR.load(tmp_path / "v8.npz")
 
 
 def test_bad_model_files_name_the_field(rig_fit, tmp_path):

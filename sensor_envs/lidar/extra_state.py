@@ -324,7 +324,9 @@ def part_columns(names: tuple[str, ...]) -> list[NDArray[np.int64]]:
 def fit_extra_terms(model: LidarLWLR, log: LidarLog) -> None:
     """Fit the linear extra-state terms of a fitted ``model`` (tables set) on a scan log; sets the attributes.
 
-    Sets ``extra_state_`` (names), ``extra_mean_``/``extra_scale_`` ``(d,)`` (standardisation) and
+    Sets ``extra_state_`` (names), ``extra_mean_``/``extra_scale_`` ``(d,)`` (standardisation),
+    ``extra_low_``/``extra_high_`` ``(d,)`` (the standardised terms' range on the fit readings: a query is
+    clamped to it, so a U-shaped or steep term is not extrapolated beyond the data it was fitted on) and
     ``extra_coef_`` ``(3, d + 1)`` (rows: logit p_null, bias [m], log sigma; columns: intercept, variables;
     0 where a term is restricted to another part, :func:`term_part`).
     """
@@ -332,6 +334,7 @@ def fit_extra_terms(model: LidarLWLR, log: LidarLog) -> None:
     model.extra_state_ = names
     d = len(names)
     model.extra_mean_, model.extra_scale_ = np.zeros(d), np.ones(d)
+    model.extra_low_, model.extra_high_ = np.zeros(d), np.zeros(d)
     model.extra_coef_ = np.zeros((3, d + 1))
     if not names:
         return
@@ -346,7 +349,10 @@ def fit_extra_terms(model: LidarLWLR, log: LidarLog) -> None:
     mean = raw[valid].mean(0) if valid.any() else np.zeros(d)
     scale = raw[valid].std(0) if valid.any() else np.ones(d)
     scale = np.where(scale > 1e-12, scale, 1.0)
-    xd = _design((raw - mean) / scale)
+    z = (raw - mean) / scale
+    if valid.any():
+        model.extra_low_, model.extra_high_ = np.minimum(z[valid].min(0), 0.0), np.maximum(z[valid].max(0), 0.0)
+    xd = _design(z)
     cols = part_columns(names)
     coef = np.zeros((3, d + 1))
     q = np.clip(p["p_null"][valid], P_EPS, 1 - P_EPS)
@@ -383,7 +389,8 @@ def apply_extra(
     ex = np.asarray(extra, dtype=np.float64)
     if ex.ndim == 0 or ex.shape[-1] != len(names):
         raise InputError(f"extra: expected a last axis of {len(names)} values ({list(names)}), got shape {ex.shape}")
-    xd = _design((np.broadcast_to(ex, hit.shape + (len(names),)) - model.extra_mean_) / model.extra_scale_)
+    z = (np.broadcast_to(ex, hit.shape + (len(names),)) - model.extra_mean_) / model.extra_scale_
+    xd = _design(np.clip(z, model.extra_low_, model.extra_high_))  # no extrapolation beyond the fit's range
     lin = xd @ model.extra_coef_.T  # (..., K, 3)
     q = np.clip(out["p_null"], 1e-12, 1 - 1e-12)
     res = dict(out)

@@ -131,14 +131,15 @@ __all__ = [
 """Cell-mean residuals [m] are clipped to this before their variance ``tau^2`` is regressed."""
 VARIANTS = ("seed", "extended")
 MODEL_KIND = "sensor_envs.lidar_lwlr"  # the file format's kind string (kept: shipped files carry it)
-FORMAT_VERSION = 6
+FORMAT_VERSION = 7
 """2 adds ``null_rho`` to the header (version 1 files load with ``null_rho = 0``, independent nulls); 3 adds the
 extra state (``params.extra_state``, arrays ``extra_mean``, ``extra_scale``, ``extra_coef``; older files load
 with no extra state); 4 adds the bias shrinkage (header ``bias_shrinkage``, ``params.bias_shrinkage``,
 ``params.pose_correction``; older files load with shrinkage 0 and no pose correction, their old behaviour);
 5 adds ``spur_rho`` (persistent spurious returns; older files load with ``spur_rho = 0``, independent ones);
 6 adds ``params.bias_model`` (older files load with ``"per_bearing"``, the bias they were fitted with) and the header's
-``pose_sd`` (older files load with ``None``: see :meth:`LidarLWLR.sample`)."""
+``pose_sd`` (older files load with ``None``: see :meth:`LidarLWLR.sample`); 7 adds ``extra_low``, ``extra_high``
+(the extra terms' fitted range, queries clamped to it; older files load unclamped)."""
 DEFAULT_MODEL_FILE = "neato_lidar.npz"
 """File name of the shipped rig-fitted model in ``models/``."""
 
@@ -194,6 +195,8 @@ class LidarLWLR(SensorModel):
         pose_sd_: ``(3,)`` rigid pose error sd ``(dx [m], dy [m], dtheta [rad])`` of :meth:`sample`, or ``None``.
         extra_state_, extra_mean_, extra_scale_, extra_coef_: the extra state's names, standardisation and
             linear terms (:mod:`sensor_envs.lidar.extra_state`).
+        extra_low_, extra_high_: ``(d,)`` range of the standardised extra terms on the fit readings; queries
+            are clamped to it.
         training_: a summary of the training log (no readings).
         card_: the model card entries (:class:`~sensor_envs.sensor_model.SensorModel`), e.g. ``gaussian_baseline``.
 

@@ -40,6 +40,8 @@ PARAMS = {"seed": ("p_null", "bias", "sigma"), "extended": ("p_null", "p_spur", 
 """The regressed parameters of each variant."""
 TABLES = {"seed": PARAMS["seed"], "extended": PARAMS["extended"] + ("tau2",)}
 """The tables a model file of each variant holds, in order."""
+UNCLAMPED = 1e6
+"""Clamp bound [standard deviations] of an extra term in a file older than format 7 (no clamp in effect)."""
 MAX_SIGMA = 1e3
 """Largest standard deviation [m] (and bias magnitude) a model file may give: beyond it the file is corrupt."""
 _RHO: list[Constraint] = [Interval(0.0, 0.999)]
@@ -81,6 +83,8 @@ def to_file(m: LidarLWLR) -> tuple[Header, Arrays]:
         "extra_mean": np.asarray(m.extra_mean_, dtype=np.float64),
         "extra_scale": np.asarray(m.extra_scale_, dtype=np.float64),
         "extra_coef": np.asarray(m.extra_coef_, dtype=np.float64),
+        "extra_low": np.asarray(m.extra_low_, dtype=np.float64),
+        "extra_high": np.asarray(m.extra_high_, dtype=np.float64),
     }
     return header, arrays
 
@@ -114,7 +118,15 @@ def from_file(cls: type[LidarLWLR], path: Path, header: Header, arrays: Arrays) 
     if t.shape != want:
         raise ModelFileError(f"{path}: field 'tables' has shape {t.shape}, expected {want}")
     check_model_arrays(
-        path, arr, {"extra_mean": ("f", 1, True), "extra_scale": ("f", 1, True), "extra_coef": ("f", 2, True)}
+        path,
+        arr,
+        {
+            "extra_mean": ("f", 1, True),
+            "extra_scale": ("f", 1, True),
+            "extra_coef": ("f", 2, True),
+            "extra_low": ("f", 1, True),
+            "extra_high": ("f", 1, True),
+        },
     )
     _check_extra_values(path, model, arr)
     _check_values(path, model, arr)
@@ -154,17 +166,25 @@ def _upgrade_5(path: Path, header: Header, arrays: Arrays) -> None:
     header["pose_sd"] = None
 
 
+def _upgrade_6(path: Path, header: Header, arrays: Arrays) -> None:
+    """Format 6 extrapolates the extra terms (no clamp: the widest finite range)."""
+    d = int(np.asarray(arrays.get("extra_mean", np.zeros(0))).size)
+    arrays.setdefault("extra_low", np.full(d, -UNCLAMPED))
+    arrays.setdefault("extra_high", np.full(d, UNCLAMPED))
+
+
 def _check_extra_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dict[str, NDArray[Any]]) -> None:
     """Extra-state arrays: shapes matching ``extra_state``, finite, positive scales, bounded coefficients.
 
-    Sets ``extra_state_``, ``extra_mean_``, ``extra_scale_``, ``extra_coef_`` (none for format < 3).
+    Sets ``extra_state_``, ``extra_mean_``, ``extra_scale_``, ``extra_coef_``, ``extra_low_``, ``extra_high_``
+    (none for format < 3).
     """
     d = len(model.extra_state)
     if "extra_coef" not in arr:
         if d:
             raise ModelFileError(f"{path}: field 'extra_coef' is missing for extra_state {list(model.extra_state)}")
         model.extra_state_, model.extra_mean_, model.extra_scale_ = (), np.zeros(0), np.ones(0)
-        model.extra_coef_ = np.zeros((3, 1))
+        model.extra_coef_, model.extra_low_, model.extra_high_ = np.zeros((3, 1)), np.zeros(0), np.zeros(0)
         return
     check_shape(path, "extra_mean", arr["extra_mean"], (d,))
     check_shape(path, "extra_scale", arr["extra_scale"], (d,))
@@ -172,6 +192,9 @@ def _check_extra_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dic
     check_finite(path, "extra_mean", arr["extra_mean"])
     check_positive(path, "extra_scale", arr["extra_scale"])
     check_range(path, "extra_coef", arr["extra_coef"], -MAX_COEF, MAX_COEF)
+    for name, lo, hi in (("extra_low", -UNCLAMPED, 0.0), ("extra_high", 0.0, UNCLAMPED)):  # the fit's mean lies inside
+        check_shape(path, name, arr[name], (d,))
+        check_range(path, name, arr[name], lo, hi)
     for row, cols in enumerate(part_columns(tuple(model.extra_state))):  # a part's term acts on it alone
         off = np.setdiff1d(np.arange(d + 1), cols)
         if off.size and np.any(arr["extra_coef"][row, off] != 0):
@@ -179,6 +202,7 @@ def _check_extra_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dic
     model.extra_state_ = tuple(model.extra_state)
     model.extra_mean_, model.extra_scale_ = arr["extra_mean"].astype(np.float64), arr["extra_scale"].astype(np.float64)
     model.extra_coef_ = arr["extra_coef"].astype(np.float64)
+    model.extra_low_, model.extra_high_ = arr["extra_low"].astype(np.float64), arr["extra_high"].astype(np.float64)
 
 
 def _check_values(path: str | os.PathLike[str], model: LidarLWLR, arr: dict[str, NDArray[Any]]) -> None:
@@ -240,5 +264,12 @@ def _load_pose_sd(path: str | os.PathLike[str], value: Any) -> NDArray[np.float6
     return sd
 
 
-UPGRADES: dict[int, Upgrade] = {1: _upgrade_1, 2: _upgrade_2, 3: _upgrade_3, 4: _upgrade_4, 5: _upgrade_5}
+UPGRADES: dict[int, Upgrade] = {
+    1: _upgrade_1,
+    2: _upgrade_2,
+    3: _upgrade_3,
+    4: _upgrade_4,
+    5: _upgrade_5,
+    6: _upgrade_6,
+}
 """``{v: step}``: ``step(path, header, arrays)`` turns a format-``v`` file into format ``v + 1`` in place."""
