@@ -86,6 +86,19 @@ def test_extra_state_model_round_trips_and_checks_values(tmp_path):
     np.savez(tmp_path / "bad2.npz", **arrays)
     with pytest.raises(ModelFileError, match="field 'extra_coef'"):
         LidarLWLR.load(tmp_path / "bad2.npz")
+    arrays["extra_coef"] = np.load(path)["extra_coef"]
+    arrays["extra_low"] = np.abs(arrays["extra_low"]) + 1.0  # a clamp range that excludes the fit's mean
+    np.savez(tmp_path / "bad3.npz", **arrays)
+    with pytest.raises(ModelFileError, match="field 'extra_low'"):
+        LidarLWLR.load(tmp_path / "bad3.npz")
+    top = float(log.covariates["omega"].max())  # a query beyond the fitted range is clamped to it
+    far, edge = extra.copy(), extra.copy()
+    far[:, 0, 0], edge[:, 0, 0] = 50.0 * top, top
+    np.testing.assert_allclose(
+        back.params_full(log.poses[:2], BOX, extra=far)["mu"],
+        back.params_full(log.poses[:2], BOX, extra=edge)["mu"],
+        atol=1e-6,
+    )
     with pytest.raises(ValueError, match="cov_speed"):
         LidarLWLR(**FAST, extra_state=("speed",)).fit(log, max_readings=100)
 
@@ -284,3 +297,24 @@ def test_part_prefixes_parse_and_select_their_columns(terms):
         assert [names[c - 1] for c in cols[1:]] == [
             n for (p, _, _), n in zip(terms, names, strict=True) if p in (None, part)
         ]
+
+
+def test_a_short_logs_gain_is_measured_on_every_fold():
+    """A log with few held-out blocks: the gain gate refits on the two other folds, so every block is held
+    out once (the folds partition the scans); a longer log keeps its one held-out part."""
+    log = make_log("omega", scans=150, seed=5)
+    blocks = lidar_blocks(log.n_poses, 5)
+    adapter = LidarAdapter(log, block_split(blocks), blocks, params=FAST, max_readings=150)
+    folds = adapter.other_folds()
+    held = np.stack([adapter.held, *(f.held for f in folds)])
+    assert held.shape == (3, 150) and (held.sum(axis=0) == 1).all()
+    res = run_diagnose(adapter, n_permutations=199)
+    assert res.added[:1] == ["omega"], res.steps[0]["ranking"][:3]
+    assert {a["gate_folds"] for s in res.steps for a in s["attempts"]} == {3}
+    assert res.error_after < res.error_before - MARGIN
+    long_log = make_log("omega", scans=600, seed=5)
+    blocks = lidar_blocks(long_log.n_poses, 5)
+    res = run_diagnose(LidarAdapter(long_log, block_split(blocks), blocks, params=FAST, max_readings=150), max_add=1)
+    assert [a["gate_folds"] for s in res.steps for a in s.get("attempts", [])] == [1]
+    custom = block_split(blocks, held_ranks=(0, 5))  # a split of the caller's own: no other folds
+    assert LidarAdapter(long_log, custom, blocks, params=FAST, max_readings=150).other_folds() == []

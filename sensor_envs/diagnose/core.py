@@ -21,7 +21,9 @@ adding them cannot help. ``effects`` holds the other candidates only.
 **Loop.** Fit the base model on the fit part, evaluate on the held-out part, rank; add the best
 significant candidate the model can take into its state, refit, re-measure on the SAME held-out part;
 keep it only when the held-out NLL improves beyond its block-to-block noise (:func:`improvement_interval`;
-a finding at ``p < alpha / 10``: when it improves at all;
+a finding at ``p < alpha / 10``: when it improves at all; on a short log, whose held-out part has fewer
+than :data:`GATE_MIN_BLOCKS` blocks, the gain is cross-fitted: an adapter with ``other_folds()`` refits
+on the other two folds of :data:`FOLD_RANKS`, so every block of the log is held out once;
 else it is reported as rejected; an interaction is then tried as a main effect, and after that the
 next significant candidate); re-rank after each addition; repeat while an effect is significant, with at most
 ``max_add`` (default 3) refits in all. An adapter with ``effect_terms(effect)`` (or ``state_terms(name,
@@ -50,11 +52,20 @@ __all__ = [
     "DiagnoseResult",
     "block_split",
     "bin_candidate",
+    "FOLD_RANKS",
+    "GATE_MIN_BLOCKS",
     "improvement_interval",
     "nll_gain",
     "rank_candidates",
     "run_diagnose",
 ]
+
+FOLD_RANKS: tuple[tuple[int, ...], ...] = ((2, 5, 8), (1, 4, 7), (0, 3, 6, 9))
+"""Block ranks (modulo 10) of the three folds; the first is the held-out part of :func:`block_split`."""
+
+GATE_MIN_BLOCKS = 30
+"""Held-out blocks below which the gain of an addition is measured on every fold (a 200-scan log of
+5-scan blocks has 12 held-out blocks: too few for a block bootstrap to tell a real gain from noise)."""
 
 NLL_CAP = 50.0
 """Per-reading NLL [nats] above which a reading is capped (an impossible outcome under a model would
@@ -120,7 +131,7 @@ class DiagnoseAdapter(Protocol):
         """
 
 
-def block_split(blocks: NDArray, held_ranks: tuple[int, ...] = (2, 5, 8), period: int = 10) -> NDArray[np.bool_]:
+def block_split(blocks: NDArray, held_ranks: tuple[int, ...] = FOLD_RANKS[0], period: int = 10) -> NDArray[np.bool_]:
     """Held-out mask ``(n,)``: readings whose block's rank modulo ``period`` is in ``held_ranks``.
 
     Args:
@@ -259,6 +270,41 @@ def improvement_interval(
     return float(lo), float(hi)
 
 
+def stack_nll(evs: list[Evaluation]) -> Evaluation:
+    """The NLL and blocks of several folds' evaluations as one (block ids kept apart per fold)."""
+    shift = [0, *np.cumsum([int(e.blocks.max(initial=-1)) + 1 for e in evs])[:-1]]
+    return Evaluation(
+        nll=np.concatenate([e.nll for e in evs]),
+        residuals={},
+        candidates={},
+        blocks=np.concatenate([e.blocks + k for e, k in zip(evs, shift, strict=True)]).astype(np.int64),
+    )
+
+
+class _GateFolds:
+    """The other folds of a short log and their evaluations per state (the gain gate's cross-fitting)."""
+
+    def __init__(self, adapter: DiagnoseAdapter, ev: Evaluation) -> None:
+        other = getattr(adapter, "other_folds", None)
+        short = np.unique(ev.blocks).size < GATE_MIN_BLOCKS
+        self.adapters: list[Any] = list(other()) if short and other is not None else []
+        self._evs: dict[tuple[str, ...], list[Evaluation]] = {}
+
+    def evaluations(self, state: tuple[str, ...]) -> list[Evaluation]:
+        """Each other fold's held-out evaluation of the model with ``state`` fitted on that fold."""
+        if state not in self._evs:
+            self._evs[state] = [a.evaluate(a.fit(state)) for a in self.adapters]
+        return self._evs[state]
+
+    def pair(
+        self, ev: Evaluation, new_ev: Evaluation, state: tuple[str, ...], new_state: tuple[str, ...]
+    ) -> tuple[Evaluation, Evaluation]:
+        """Before / after over every fold (just ``ev``, ``new_ev`` when the log is not short)."""
+        if not self.adapters:
+            return ev, new_ev
+        return stack_nll([ev, *self.evaluations(state)]), stack_nll([new_ev, *self.evaluations(new_state)])
+
+
 def run_diagnose(
     adapter: DiagnoseAdapter,
     *,
@@ -297,6 +343,7 @@ def run_diagnose(
     model_before = model
     ev = adapter.evaluate(model)
     before = ev
+    gate = _GateFolds(adapter, ev)
     state = tuple(base_state)
     added: list[str] = []
     steps: list[dict[str, Any]] = []
@@ -360,17 +407,20 @@ def run_diagnose(
             "baseline_with": adapter.baseline((*state, *terms)),
         }
         step["attempts"].append(attempt)
-        low, high = improvement_interval(ev, new_ev, boot_rng)
+        gate_before, gate_after = gate.pair(ev, new_ev, state, (*state, *terms))
+        low, high = improvement_interval(gate_before, gate_after, boot_rng)
         attempt["improvement_interval"] = [low, high]
-        gain = float(np.nanmean(nll_gain(ev, new_ev)))
+        attempt["gate_folds"] = 1 + len(gate.adapters)
+        gain = float(np.nanmean(nll_gain(gate_before, gate_after)))
         strong = float(pick.get("p_value", 1.0)) < alpha / 10
         # strong evidence (the search's family-wise p < alpha / 10) needs a held-out gain; weaker evidence
         # needs the gain's one-sided 95 % bound above 0
         if not (low > 0.0 or (strong and gain > 0.0)):
             need = "a gain (strongly significant)" if strong else "its one-sided 95 % bound above 0"
+            folds = f", over {attempt['gate_folds']} folds" if gate.adapters else ""
             attempt["decision"] = (
                 f"{pick['name']} rejected: held-out NLL {ev.error:.4f} -> {new_ev.error:.4f}, improvement "
-                f"[{low:.4f}, {high:.4f}] nats per reading (90 %, held-out blocks resampled); needed {need}"
+                f"[{low:.4f}, {high:.4f}] nats per reading (90 %, held-out blocks resampled{folds}); needed {need}"
             )
             step["decision"] = attempt["decision"]
             rejected.add(tuple(terms))

@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.diagnose.core import Evaluation
+from sensor_envs.diagnose.core import FOLD_RANKS, Evaluation, block_split
 from sensor_envs.inputs import InputError
 from sensor_envs.lidar.extra_state import (
     GEOMETRY_MODIFIERS,
@@ -148,24 +148,47 @@ class LidarAdapter:
         if log.ranges.shape[2] != 1:
             raise InputError(f"{log.source}: field 'ranges': diagnose lidar needs a scan log (one reading per scan)")
         self.log = log
-        self.held = np.asarray(held_out, dtype=bool)
-        self.fit_log = log.subset(~self.held)
         self.params = {k: v for k, v in {**DIAGNOSE_LIDAR_PARAMS, **(params or {})}.items() if k != "extra_state"}
         self.max_readings = max_readings
-        self._base = base_model
+        self._given = base_model
         segs = log.require_map()
         max_range = float(base_model.max_range if base_model is not None else self.params.get("max_range", 5.0))
         self.r, self.a = lidar_features(log.poses, log.bearings, segs, max_range)
         self.slope = range_slope(self.r, log.bearings)
-        x = log.ranges[:, :, 0]
-        self.x = x
-        sel = self.held[:, None] & np.isfinite(self.r) & ~np.isnan(x)  # (S, K) held-out readings on hit rays
+        self.x = log.ranges[:, :, 0]
+        self.scan_blocks = np.asarray(blocks)
+        self._hold(np.asarray(held_out, dtype=bool))
+
+    def _hold(self, held: NDArray[np.bool_]) -> None:
+        """Set the held-out part (scans) and what depends on it; the tables are refitted on demand."""
+        self.held = held
+        self.fit_log = self.log.subset(~held)
+        self._base = self._given
+        sel = held[:, None] & np.isfinite(self.r) & ~np.isnan(self.x)  # (S, K) held-out readings on hit rays
         self.sel = sel
         self.scan_idx, self.bearing_idx = np.nonzero(sel)
-        self.blocks = np.asarray(blocks)[self.scan_idx].astype(np.int64)
+        self.blocks = self.scan_blocks[self.scan_idx].astype(np.int64)
         if self.scan_idx.size == 0:
-            raise InputError(f"{log.source}: no held-out reading lies on a ray that hits the map")
+            raise InputError(f"{self.log.source}: no held-out reading lies on a ray that hits the map")
         self._candidates = self._static_candidates()
+
+    def other_folds(self) -> list[LidarAdapter]:
+        """The same log held out on each other fold of :data:`~sensor_envs.diagnose.core.FOLD_RANKS`.
+
+        Used by the loop's gain gate on a short log. Empty when the held-out part is not the first fold
+        (a split of the caller's own) or a fold would hold no reading on a hit ray.
+        """
+        if not np.array_equal(self.held, block_split(self.scan_blocks)):
+            return []
+        out = []
+        for ranks in FOLD_RANKS[1:]:
+            fold = copy.copy(self)
+            try:
+                fold._hold(block_split(self.scan_blocks, held_ranks=ranks))
+            except InputError:
+                return []
+            out.append(fold)
+        return out
 
     # -- candidates -------------------------------------------------------------------------------
     def _static_candidates(self) -> dict[str, NDArray[np.float64]]:
