@@ -10,8 +10,10 @@ resolves unless ``--real-strength drawn``), runs the diagnosis loop on each as t
 package's search defaults, :data:`sensor_envs.diagnose.search.DEFAULTS`; the lidar tables with the
 fast seed variant unless ``--full-fit``), and prints, per sensor and kind:
 
-* recall: the cause ranked first AND added AND the held-out NLL down; the share of cases where a
-  proxy, and where any column other than the cause (proxy or distractor), was added;
+* recall: the cause ranked first (in the base model's ranking) AND added AND the held-out NLL down; recall
+  step by step: the cause first at the step it was added (after the effects added before it) and no other
+  planted column added; the share of cases where a proxy, and where any column other than the cause
+  (proxy or distractor), was added;
 * for null logs, the false-positive rate: any effect significant (and, separately, any added);
 * detectability: whether an oracle that knows the cause finds it in the base model's held-out
   residuals at ``alpha / candidates`` (:func:`sensor_envs.diagnose.power.detectable`), and the recall
@@ -203,7 +205,23 @@ def score_case(case: Case, res: Any) -> dict[str, Any]:
     else:
         out["recall"] = bool(top == case.cause and case.cause in res.added and res.error_after < res.error_before)
         out["proxy_added"] = bool(case.proxy is not None and case.proxy in res.added)
+        out["recall_stepwise"] = _found_stepwise(case, res, planted)
     return out
+
+
+def _found_stepwise(case: Case, res: Any, planted: Any) -> bool:
+    """The cause ranked first among the planted columns at the step it was added (after the log's own
+    effects were taken), no other planted column added, and the held-out NLL down: the loop's outcome
+    judged step by step (``recall`` asks the cause to lead the FIRST ranking)."""
+    if case.cause not in res.added or not res.error_after < res.error_before:
+        return False
+    if any(a != case.cause and (planted is None or a in planted) for a in res.added):
+        return False
+    for step in res.steps:
+        if any(a["candidate"] == case.cause and a["decision"].startswith("added") for a in step.get("attempts", [])):
+            names = [e["name"] for e in step["ranking"] if planted is None or e["name"] in planted]
+            return bool(names) and names[0] == case.cause
+    return False
 
 
 def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -218,6 +236,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
                 d["false_addition_rate"] = float(np.mean([r["false_addition"] for r in sel]))
             else:
                 d["recall"] = float(np.mean([r["recall"] for r in sel]))
+                d["recall_stepwise"] = float(np.mean([r.get("recall_stepwise", False) for r in sel]))
                 d["cause_first"] = float(np.mean([r["top"] == r["cause"] for r in sel]))
                 d["proxy_added"] = float(np.mean([r["proxy_added"] for r in sel]))
                 d["other_added"] = float(np.mean([any(a != r["cause"] for a in r["added"]) for r in sel]))
@@ -242,18 +261,20 @@ def markdown(summary: dict[str, Any], rows: list[dict[str, Any]], command: str) 
         "",
     ]
     lines += [
-        "| sensor/kind | cases | recall | cause first | proxy added | any non-cause added | false pos. (significant) "
+        "| sensor/kind | cases | recall | recall step by step | cause first | proxy added | any non-cause added "
+        "| false pos. (significant) "
         "| false pos. (added) | detectable (oracle) | recall on detectable | held-out NLL change, mean "
         "(median) [nats] |"
     ]
-    lines += ["|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines += ["|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for k, d in summary.items():
 
         def f(key: str, d: dict[str, Any] = d) -> str:
             return f"{d[key]:.2f}" if key in d else ""
 
         lines.append(
-            f"| {k} | {d['cases']} | {f('recall')} | {f('cause_first')} | {f('proxy_added')} | {f('other_added')} | "
+            f"| {k} | {d['cases']} | {f('recall')} | {f('recall_stepwise')} | {f('cause_first')} | "
+            f"{f('proxy_added')} | {f('other_added')} | "
             f"{f('false_positive_rate')} | {f('false_addition_rate')} | {d.get('detectable', '')} | "
             f"{f('recall_detectable')} | {d['nll_change_mean']:+.4f} ({d['nll_change_median']:+.4f}) |"
         )

@@ -239,3 +239,39 @@ def test_a_strong_slow_cause_in_a_short_real_log_is_not_taken_for_drift(real_dat
     first = planted[0]
     assert first["name"] == case.cause, [(e["name"], e["p_value"], e.get("proxy_of")) for e in planted]
     assert first["significant"] and first.get("proxy_of") is None and first.get("explains_drift")
+
+
+def test_the_suite_judges_a_cause_at_the_step_it_was_added():
+    """``recall_stepwise`` of ``benchmarks/diagnose_suite.py``: the cause first among the planted columns at
+    the step it was added, after the log's own effect; a planted non-cause added, or the cause behind
+    another planted column at its step, or no NLL gain, is not a find."""
+    import importlib.util
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "diagnose_suite.py"
+    spec = importlib.util.spec_from_file_location("diagnose_suite_under_test", path)
+    assert spec is not None and spec.loader is not None
+    suite = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(suite)
+    case = SimpleNamespace(cause="c", proxy="p", kind="mean", info={"planted": ["c", "p", "d"]})
+
+    def res(added, second_ranking, after=-1.0):
+        steps = [
+            {
+                "ranking": [{"name": "omega"}, {"name": "p"}, {"name": "c"}],
+                "attempts": [{"candidate": "omega", "decision": "added omega as bias:omega"}],
+            },
+            {
+                "ranking": [{"name": n} for n in second_ranking],
+                "attempts": [{"candidate": a, "decision": f"added {a} as bias:{a}"} for a in added if a != "omega"],
+            },
+        ]
+        return SimpleNamespace(added=added, error_before=0.0, error_after=after, steps=steps)
+
+    found = suite._found_stepwise
+    assert found(case, res(["omega", "c"], ["omega", "c", "p"]), case.info["planted"])
+    assert not found(case, res(["omega", "c", "p"], ["c", "p"]), case.info["planted"])  # the proxy added too
+    assert not found(case, res(["omega", "c"], ["p", "c"]), case.info["planted"])  # the proxy led that step
+    assert not found(case, res(["omega", "c"], ["c"], after=0.5), case.info["planted"])  # no held-out gain
+    assert not found(case, res(["omega"], ["c"]), case.info["planted"])  # never added
