@@ -52,6 +52,7 @@ from sensor_envs.diagnose.families import (
     PLANT_KINDS,
     RADAR_KINDS,
     Case,
+    found_stepwise,
     lidar_case,
     plant_lidar,
     radar_case,
@@ -205,23 +206,8 @@ def score_case(case: Case, res: Any) -> dict[str, Any]:
     else:
         out["recall"] = bool(top == case.cause and case.cause in res.added and res.error_after < res.error_before)
         out["proxy_added"] = bool(case.proxy is not None and case.proxy in res.added)
-        out["recall_stepwise"] = _found_stepwise(case, res, planted)
+        out["recall_stepwise"] = found_stepwise(case, res)
     return out
-
-
-def _found_stepwise(case: Case, res: Any, planted: Any) -> bool:
-    """The cause ranked first among the planted columns at the step it was added (after the log's own
-    effects were taken), no other planted column added, and the held-out NLL down: the loop's outcome
-    judged step by step (``recall`` asks the cause to lead the FIRST ranking)."""
-    if case.cause not in res.added or not res.error_after < res.error_before:
-        return False
-    if any(a != case.cause and (planted is None or a in planted) for a in res.added):
-        return False
-    for step in res.steps:
-        if any(a["candidate"] == case.cause and a["decision"].startswith("added") for a in step.get("attempts", [])):
-            names = [e["name"] for e in step["ranking"] if planted is None or e["name"] in planted]
-            return bool(names) and names[0] == case.cause
-    return False
 
 
 def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:

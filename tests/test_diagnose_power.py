@@ -242,18 +242,13 @@ def test_a_strong_slow_cause_in_a_short_real_log_is_not_taken_for_drift(real_dat
 
 
 def test_the_suite_judges_a_cause_at_the_step_it_was_added():
-    """``recall_stepwise`` of ``benchmarks/diagnose_suite.py``: the cause first among the planted columns at
+    """``found_stepwise`` (the suite's ``recall_stepwise``): the cause first among the planted columns at
     the step it was added, after the log's own effect; a planted non-cause added, or the cause behind
     another planted column at its step, or no NLL gain, is not a find."""
-    import importlib.util
-    from pathlib import Path
     from types import SimpleNamespace
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "diagnose_suite.py"
-    spec = importlib.util.spec_from_file_location("diagnose_suite_under_test", path)
-    assert spec is not None and spec.loader is not None
-    suite = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(suite)
+    from sensor_envs.diagnose.families import found_stepwise
+
     case = SimpleNamespace(cause="c", proxy="p", kind="mean", info={"planted": ["c", "p", "d"]})
 
     def res(added, second_ranking, after=-1.0):
@@ -269,7 +264,9 @@ def test_the_suite_judges_a_cause_at_the_step_it_was_added():
         ]
         return SimpleNamespace(added=added, error_before=0.0, error_after=after, steps=steps)
 
-    found = suite._found_stepwise
+    def found(case, res, planted):
+        return found_stepwise(case, res)
+
     assert found(case, res(["omega", "c"], ["omega", "c", "p"]), case.info["planted"])
     assert not found(case, res(["omega", "c", "p"], ["c", "p"]), case.info["planted"])  # the proxy added too
     assert not found(case, res(["omega", "c"], ["p", "c"]), case.info["planted"])  # the proxy led that step

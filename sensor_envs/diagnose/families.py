@@ -34,6 +34,7 @@ __all__ = [
     "LIDAR_KINDS",
     "PLANT_KINDS",
     "RADAR_KINDS",
+    "found_stepwise",
     "lidar_case",
     "plant_lidar",
     "radar_case",
@@ -418,3 +419,24 @@ def static_scan_log(log: Any, pose: int = 0, period: float = 0.2) -> Any:
     m = rep.shape[0]
     poses = np.repeat(log.poses[pose : pose + 1], m, axis=0)
     return LidarLog(rep, log.bearings, poses, log.map_segments, period * np.arange(m), {}, f"{log.source} pose {pose}")
+
+
+def found_stepwise(case: Case, res: Any) -> bool:
+    """Whether the loop found ``case``'s cause judged step by step (the suite's ``recall_stepwise``).
+
+    The cause ranked first among the planted columns at the step it was added (after the log's own
+    effects were taken), no other planted column added, and the held-out NLL down (the suite's
+    ``recall`` asks the cause to lead the FIRST ranking). On a real log
+    only the planted columns (``case.info["planted"]``) count; on a synthetic one every column does.
+    ``res``: the case's :class:`~sensor_envs.diagnose.core.DiagnoseResult`.
+    """
+    planted = case.info.get("planted")
+    if case.cause not in res.added or not res.error_after < res.error_before:
+        return False
+    if any(a != case.cause and (planted is None or a in planted) for a in res.added):
+        return False
+    for step in res.steps:
+        if any(a["candidate"] == case.cause and a["decision"].startswith("added") for a in step.get("attempts", [])):
+            names = [e["name"] for e in step["ranking"] if planted is None or e["name"] in planted]
+            return bool(names) and names[0] == case.cause
+    return False
