@@ -264,11 +264,8 @@ def test_the_suite_judges_a_cause_at_the_step_it_was_added():
         ]
         return SimpleNamespace(added=added, error_before=0.0, error_after=after, steps=steps)
 
-    def found(case, res, planted):
-        return found_stepwise(case, res)
-
-    assert found(case, res(["omega", "c"], ["omega", "c", "p"]), case.info["planted"])
-    assert not found(case, res(["omega", "c", "p"], ["c", "p"]), case.info["planted"])  # the proxy added too
-    assert not found(case, res(["omega", "c"], ["p", "c"]), case.info["planted"])  # the proxy led that step
-    assert not found(case, res(["omega", "c"], ["c"], after=0.5), case.info["planted"])  # no held-out gain
-    assert not found(case, res(["omega"], ["c"]), case.info["planted"])  # never added
+    assert found_stepwise(case, res(["omega", "c"], ["omega", "c", "p"]))
+    assert not found_stepwise(case, res(["omega", "c", "p"], ["c", "p"]))  # the proxy added too
+    assert not found_stepwise(case, res(["omega", "c"], ["p", "c"]))  # the proxy led that step
+    assert not found_stepwise(case, res(["omega", "c"], ["c"], after=0.5))  # no held-out gain
+    assert not found_stepwise(case, res(["omega"], ["c"]))  # never added

@@ -270,7 +270,7 @@ def improvement_interval(
     return float(lo), float(hi)
 
 
-def stack_nll(evs: list[Evaluation]) -> Evaluation:
+def _stack_nll(evs: list[Evaluation]) -> Evaluation:
     """The NLL and blocks of several folds' evaluations as one (block ids kept apart per fold)."""
     shift = [0, *np.cumsum([int(e.blocks.max(initial=-1)) + 1 for e in evs])[:-1]]
     return Evaluation(
@@ -302,7 +302,7 @@ class _GateFolds:
         """Before / after over every fold (just ``ev``, ``new_ev`` when the log is not short)."""
         if not self.adapters:
             return ev, new_ev
-        return stack_nll([ev, *self.evaluations(state)]), stack_nll([new_ev, *self.evaluations(new_state)])
+        return _stack_nll([ev, *self.evaluations(state)]), _stack_nll([new_ev, *self.evaluations(new_state)])
 
 
 def run_diagnose(

@@ -426,8 +426,8 @@ def found_stepwise(case: Case, res: Any) -> bool:
 
     The cause ranked first among the planted columns at the step it was added (after the log's own
     effects were taken), no other planted column added, and the held-out NLL down (the suite's
-    ``recall`` asks the cause to lead the FIRST ranking). On a real log
-    only the planted columns (``case.info["planted"]``) count; on a synthetic one every column does.
+    ``recall`` asks the cause to lead the FIRST ranking). On a real log only the planted columns
+    (``case.info["planted"]``) count; on a synthetic one every column does.
     ``res``: the case's :class:`~sensor_envs.diagnose.core.DiagnoseResult`.
     """
     planted = case.info.get("planted")
