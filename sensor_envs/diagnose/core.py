@@ -237,7 +237,8 @@ def _why_not(adapter: DiagnoseAdapter, effect: dict[str, Any]) -> str:
 
 def _ranking_rows(r: Ranking) -> list[dict[str, Any]]:
     keys = ("name", "score", "p_value", "p_raw", "metric", "kind", "form", "proxy_of", "test")
-    return [{k: e.get(k) for k in keys} for e in r.effects]
+    drift = ("p_within_blocks", "explains_drift", "p_surrogate")  # the drift checks, where they ran
+    return [{**{k: e.get(k) for k in keys}, **{k: e[k] for k in drift if k in e}} for e in r.effects]
 
 
 def nll_gain(before: Evaluation, after: Evaluation) -> NDArray[np.float64]:

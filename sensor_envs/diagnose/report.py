@@ -275,6 +275,8 @@ def _markdown(result: DiagnoseResult, data: dict[str, Any], figs: list[tuple[str
     ]
     for e in result.effects:
         sig = "yes" if e["significant"] else (f"no (proxy of {e['proxy_of']})" if e.get("proxy_of") else "no")
+        if "p_surrogate" in e:  # how unrelated series like the candidate do on the same residuals
+            sig += f"; p {e['p_surrogate']:.3f} against series like it"
         lines.append(
             f"| {e['name']} | {e['score']:.4f} | {e['p_value']:.4f} | {e['p_raw']:.4f} | {e['metric']} | "
             f"{e.get('kind', '')} | {e.get('form', '')} | {e.get('test', 'held-out')} | {sig} |"

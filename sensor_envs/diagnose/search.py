@@ -49,6 +49,10 @@ confirmed by shifts in the same way; a small effect of a simple form that the he
 resolve is found there. A candidate is significant when either test finds it at ``alpha / 2`` (``test``:
 which one; ``p_search``, ``p_projection``); partial projection tests then tell a cause from its noisy copy.
 
+**Surrogate check** (:mod:`~sensor_envs.diagnose.surrogates`): a significant candidate that is one value
+per instant is tested against independent series drawn from an AR(1) law fitted to it, on the residuals
+as they are; one no better than such series is a shadow of the drift, not significant.
+
 **Conditional check.** Among the top candidates, and the candidates whose rank scale is correlated
 (>= 0.5) with a top one, ``i`` is a *proxy* of ``j`` when, once ``j``'s fit is removed, ``i`` explains
 less than a fifth of its own score and less than ``j`` does given ``i``; a proxy is not significant and
@@ -92,6 +96,7 @@ from sensor_envs.diagnose.regressors import (
 )
 from sensor_envs.diagnose.regressors import POLY_DEGREE as POLY_DEGREE
 from sensor_envs.diagnose.shifts import N_SHIFTS, projection_shift_p, shift_p_values
+from sensor_envs.diagnose.surrogates import surrogate_check
 from sensor_envs.inputs import InputError
 
 __all__ = ["Ranking", "DEFAULTS", "bin_candidate", "rank_basis", "rank_candidates", "time_folds", "N_SEGMENTS", "GAP"]
@@ -537,6 +542,8 @@ def rank_candidates(
         drift_confounded(
             effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha, order[idx], drift_outlasts_blocks
         )
+    if n_shifts:  # with the shifts: could an unrelated series like the candidate explain as much?
+        surrogate_check(effects, cands, proj_targets, state, order[idx], alpha, rng.spawn(1)[0])
     _mark_proxies(effects, d, names, targets, metrics, forms, given_design)
     given_values = {g: np.asarray(ev.candidates[g], dtype=np.float64)[idx] for g in given}
     projection_proxies(effects, proj, cands, proj_targets, state, (blocks[0], flips), alpha, given_values)
