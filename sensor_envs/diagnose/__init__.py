@@ -8,7 +8,8 @@ Tool level: imports :mod:`sensor_envs.radar` and :mod:`sensor_envs.lidar`, never
 tests candidate causes (:mod:`~sensor_envs.diagnose.regressors` its regressors and their sufficient
 statistics, :mod:`~sensor_envs.diagnose.projection` its second, in-sample test of few-coefficient forms
 and the partial tests that tell a cause from its proxy, :mod:`~sensor_envs.diagnose.shifts` the
-circular-shift null that confirms both tests' findings); :mod:`~sensor_envs.diagnose.report` writes the
+circular-shift null that confirms both tests' findings, :mod:`~sensor_envs.diagnose.surrogates` the
+check of a slow candidate against independent series drawn like it); :mod:`~sensor_envs.diagnose.report` writes the
 before/after report;
 :mod:`~sensor_envs.diagnose.families` draws seeded synthetic logs with planted causes (the suite's);
 :mod:`~sensor_envs.diagnose.power` tests a known cause as an oracle would (how detectable it is).

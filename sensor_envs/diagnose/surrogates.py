@@ -16,8 +16,9 @@ targets stay as they are (their drift, their correlation, their distribution): o
 replaced. The statistic is that of the projection test (:mod:`~sensor_envs.diagnose.projection`): the
 explained sum of squares of each residual target by the candidate's two-coefficient forms (``P1, P2`` of
 its rank scale, alone and times each state factor), each (target, form) cell put on its own scale by a
-Gamma law with the moments of its surrogate values, min-P over the cells, and Westfall-Young min-P over
-the checked candidates (each with its own surrogates), so the family-wise level holds for all of them.
+Gamma law with the moments of its surrogate values, and min-P over the cells against the surrogates'
+min-P. Each finding is checked on its own, at ``alpha``, as the within-block check is: a confirmation of
+what the family-wise tests found.
 A significant finding whose ``p_surrogate`` is not below ``alpha`` is no better than a chance alignment
 of a series like it: it is marked a shadow of the drift
 (``proxy_of`` :data:`~sensor_envs.diagnose.projection.DRIFT`)
@@ -120,6 +121,7 @@ def _cells(u: NDArray, cells: list[tuple[NDArray, NDArray]], step: NDArray) -> N
             (w[1:] > 0) & (w[:-1] > 0), 1.0 / (1.0 / np.maximum(w[1:], 1e-300) + 1.0 / np.maximum(w[:-1], 1e-300)), 0.0
         )
         out.append(_partial_ess(dp, (y[1:] - y[:-1])[step], wd[step], one_d))
+        out.append(_partial_ess(dp, y[1:][step], np.where(w[:-1] > 0, w[1:], 0.0)[step], one_d))
     return np.stack(out, axis=1)
 
 
@@ -173,7 +175,7 @@ def surrogate_check(
             checked[name] = series
     if not checked:
         return
-    obs_p, null_min = {}, np.ones(n_surrogates)
+    p_of = {}
     for name, (t, v) in checked.items():
         ok = np.isfinite(cands[name])
         pos = np.searchsorted(t, instant)
@@ -190,15 +192,11 @@ def surrogate_check(
         draws = np.vstack([np.nan_to_num(v)[None], ar1_surrogates(t, v, n_surrogates, rng)])
         step = np.rint(np.diff(t) / max(float(np.diff(t).min(initial=1.0)), 1e-300)) == 1
         ess = _cells(_ranks(draws, w), cells, step)  # (1 + S, cells): row 0 observed
-        tails = _gamma_fit_tail(ess[1:], ess).min(axis=1)  # min-P over the cells, observed and per surrogate
-        obs_p[name] = float(tails[0])
-        np.minimum(null_min, tails[1:], out=null_min)
-    names = list(obs_p)
-    stat = -np.log(np.maximum([obs_p[n] for n in names], 1e-300))
-    p = tail_p(-np.log(np.maximum(null_min, 1e-300)), stat)
+        tails = -np.log(np.maximum(_gamma_fit_tail(ess[1:], ess).min(axis=1), 1e-300))  # min-P over the cells
+        p_of[name] = float(tail_p(tails[1:], tails[:1])[0])
     for e in effects:
-        if e["name"] not in obs_p:
+        if e["name"] not in p_of:
             continue
-        e["p_surrogate"] = float(p[names.index(e["name"])])
+        e["p_surrogate"] = p_of[e["name"]]
         if e["significant"] and e.get("proxy_of") is None and e["p_surrogate"] >= alpha:
             e.update(proxy_of=DRIFT, significant=False)
