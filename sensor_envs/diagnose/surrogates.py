@@ -92,9 +92,10 @@ def ar1_surrogates(t: NDArray, v: NDArray, m: int, rng: np.random.Generator) -> 
 def _partial_ess(z: NDArray, y: NDArray, w: NDArray, base: NDArray) -> NDArray[np.float64]:
     """``(S,)`` weighted explained sum of squares of ``y (N,)`` by ``z (S, N, 2)``, both freed of ``base (N, q)``."""
     inv = np.linalg.pinv((base * w[:, None]).T @ base)
-    zb = np.einsum("snj,nq->sjq", z, w[:, None] * base)
-    g = np.einsum("snj,snk,n->sjk", z, z, w) - zb @ inv @ zb.transpose(0, 2, 1)
-    b = np.einsum("snj,n->sj", z, w * y) - zb @ (inv @ (base.T @ (w * y)))
+    zw = (z * w[None, :, None]).transpose(0, 2, 1)  # (S, 2, N)
+    zb = zw @ base
+    g = zw @ z - zb @ inv @ zb.transpose(0, 2, 1)
+    b = zw @ y - zb @ (inv @ (base.T @ (w * y)))
     det = g[:, 0, 0] * g[:, 1, 1] - g[:, 0, 1] ** 2
     ok = det > 1e-9 * np.maximum(g[:, 0, 0] * g[:, 1, 1], 1e-300)
     num = g[:, 1, 1] * b[:, 0] ** 2 - 2 * g[:, 0, 1] * b[:, 0] * b[:, 1] + g[:, 0, 0] * b[:, 1] ** 2
