@@ -48,9 +48,9 @@ def test_an_ar1_series_is_fitted_and_drawn_on_its_instants_with_gaps():
 
 
 def test_only_candidates_constant_within_an_instant_are_series():
-    instant = np.repeat(np.arange(20.0), 3)
-    assert instant_series(np.repeat(np.arange(20.0), 3), instant) is not None
-    assert instant_series(np.arange(60.0), instant) is None  # a per-reading value: not a series over instants
+    pos = np.repeat(np.arange(20), 3)
+    assert instant_series(np.repeat(np.arange(20.0), 3), pos, 20) is not None
+    assert instant_series(np.arange(60.0), pos, 20) is None  # a per-reading value: not a series over instants
 
 
 def test_a_random_walk_aligned_with_drift_is_a_shadow_and_a_real_cause_is_not():

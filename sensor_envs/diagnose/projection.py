@@ -48,6 +48,7 @@ __all__ = [
     "DRIFT",
     "PROXY_CORR",
     "TIME_CORR",
+    "time_like",
     "ProjectionResult",
     "candidate_forms",
     "combine_tests",
@@ -408,6 +409,16 @@ def _finding_forms(
     return e["metric"], forms or ["main"]
 
 
+def time_like(c: NDArray, t_rank: NDArray) -> bool:
+    """Whether candidate ``c`` is time itself (the drift's own name, not checked for drift).
+
+    Its rank scale correlates with ``t_rank`` (the readings' time-order rank scale) at :data:`TIME_CORR` or more.
+    """
+    ok = np.isfinite(c)
+    u = rank_basis(c, degree=1)[:, 1]
+    return bool(ok.sum() > 2 and abs(np.corrcoef(u[ok], t_rank[ok])[0, 1]) >= TIME_CORR)
+
+
 def drift_confounded(
     effects: list[dict[str, Any]],
     proj: dict[str, ProjectionResult],
@@ -444,9 +455,7 @@ def drift_confounded(
         name = e["name"]
         if not e["significant"] or e.get("proxy_of") is not None or name not in proj:
             continue
-        ok = np.isfinite(cands[name])
-        u = rank_basis(cands[name], degree=1)[:, 1]
-        if ok.sum() > 2 and abs(np.corrcoef(u[ok], t_rank[ok])[0, 1]) >= TIME_CORR:
+        if time_like(cands[name], t_rank):
             continue
         metric, forms = _finding_forms(e, proj[name], factors, targets)
         r, mask = targets[metric]

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.diagnose.projection import DRIFT, TIME_CORR, state_factors
+from sensor_envs.diagnose.projection import DRIFT, state_factors, time_like
 from sensor_envs.diagnose.regressors import rank_basis
 from sensor_envs.diagnose.shifts import _gamma_fit_tail, tail_p
 
@@ -44,21 +44,20 @@ N_SURROGATES = 199
 _MIN_INSTANTS = 10
 
 
-def instant_series(c: NDArray, instant: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
-    """``(instants, values)`` of a candidate constant within each instant, else ``None``.
+def instant_series(c: NDArray, pos: NDArray, n_instants: int) -> NDArray[np.float64] | None:
+    """Values per instant of a candidate constant within each instant, else ``None``.
 
-    ``instants``: every instant of the readings, in order; ``values``: NaN at an instant without a finite
-    reading of the candidate.
+    ``pos``: each reading's instant in ``[0, n_instants)`` (instants in time order); a value is NaN at an
+    instant without a finite reading of the candidate.
     """
     ok = np.isfinite(c)
-    t, inv = np.unique(instant, return_inverse=True)
-    lo, hi = np.full(t.size, np.inf), np.full(t.size, -np.inf)
-    np.minimum.at(lo, inv[ok], c[ok])
-    np.maximum.at(hi, inv[ok], c[ok])
+    lo, hi = np.full(n_instants, np.inf), np.full(n_instants, -np.inf)
+    np.minimum.at(lo, pos[ok], c[ok])
+    np.maximum.at(hi, pos[ok], c[ok])
     seen = np.isfinite(lo)
     if seen.sum() < _MIN_INSTANTS or np.any(hi[seen] - lo[seen] > 1e-9 * np.maximum(1.0, np.abs(lo[seen]))):
         return None  # a per-reading candidate (e.g. a radar target's speed): the shifts and flips judge it
-    return t, np.where(seen, lo, np.nan)
+    return np.where(seen, lo, np.nan)
 
 
 def ar1_surrogates(t: NDArray, v: NDArray, m: int, rng: np.random.Generator) -> NDArray[np.float64]:
@@ -162,28 +161,26 @@ def surrogate_check(
         rng: generator of the surrogates.
         n_surrogates: surrogate series per candidate.
     """
-    instant = np.floor(order)
+    t, pos = np.unique(np.floor(order), return_inverse=True)  # the instants in time order; each reading's
+    step = np.rint(np.diff(t) / max(float(np.diff(t).min(initial=1.0)), 1e-300)) == 1
     t_rank = rank_basis(np.asarray(order, dtype=np.float64), degree=1)[:, 1]
-    factors = {"main": np.ones(instant.size), **state_factors(state)}
-    checked: dict[str, tuple[NDArray, NDArray]] = {}
+    factors = {"main": np.ones(pos.size), **state_factors(state)}
+    checked: dict[str, NDArray] = {}
     for name, c in cands.items():
-        ok = np.isfinite(c)
-        u = rank_basis(c, degree=1)[:, 1]
-        if ok.sum() > 2 and abs(np.corrcoef(u[ok], t_rank[ok])[0, 1]) >= TIME_CORR:
+        if time_like(c, t_rank):
             continue  # time itself: the drift's own name
-        series = instant_series(c, instant)
+        series = instant_series(c, pos, t.size)
         if series is not None:
             checked[name] = series
     if not checked:
         return
     p_of = {}
-    for name, (t, v) in checked.items():
+    for name, v in checked.items():
         ok = np.isfinite(cands[name])
-        pos = np.searchsorted(t, instant)
         cells = []
         for r, mask in targets.values():
             sel = mask & ok  # the candidate's NaN readings are 0 in its forms
-            rr = np.zeros(instant.size)
+            rr = np.zeros(pos.size)
             rr[mask] = r
             for f in factors.values():
                 fr = np.bincount(pos[sel], weights=f[sel] * rr[sel], minlength=t.size)
@@ -191,7 +188,6 @@ def surrogate_check(
                 cells.append((np.where(f2 > 0, fr / np.maximum(f2, 1e-300), 0.0), f2))
         w = np.bincount(pos[ok], minlength=t.size).astype(np.float64)
         draws = np.vstack([np.nan_to_num(v)[None], ar1_surrogates(t, v, n_surrogates, rng)])
-        step = np.rint(np.diff(t) / max(float(np.diff(t).min(initial=1.0)), 1e-300)) == 1
         ess = _cells(_ranks(draws, w), cells, step)  # (1 + S, cells): row 0 observed
         tails = -np.log(np.maximum(_gamma_fit_tail(ess[1:], ess).min(axis=1), 1e-300))  # min-P over the cells
         p_of[name] = float(tail_p(tails[1:], tails[:1])[0])
