@@ -103,6 +103,23 @@ def test_extra_state_model_round_trips_and_checks_values(tmp_path):
         LidarLWLR(**FAST, extra_state=("speed",)).fit(log, max_readings=100)
 
 
+@pytest.mark.parametrize("end", ["max", "min"])
+def test_a_query_beyond_the_fit_is_taken_on_the_fitted_curve(end):
+    """Modified terms of a variable follow its clamp: ``omega@sq`` at the edge's square, not at the larger one."""
+    log = make_log("omega", scans=200, bearings=36)
+    names = ("omega", "omega@sq", "omega@cos_bearing", "omega@sq@sin_bearing")
+    m = LidarLWLR(**FAST, extra_state=names).fit(log, max_readings=100)
+    edge_value, b = float(getattr(log.covariates["omega"], end)()), log.bearings
+
+    def terms(v: float) -> np.ndarray:  # the raw terms the world would pass, (1 scan, K bearings, 4)
+        return np.stack([np.full(b.size, v), np.full(b.size, v**2), v * np.cos(b), v**2 * np.sin(b)], axis=-1)[None]
+
+    edge, far = terms(edge_value), terms(40.0 * edge_value)
+    got = {k: m.params_full(log.poses[:1], BOX, extra=x) for k, x in (("edge", edge), ("far", far))}
+    for key in ("mu", "sigma", "p_null"):
+        np.testing.assert_allclose(got["far"][key], got["edge"][key], atol=1e-9, rtol=1e-9)
+
+
 @pytest.mark.slow  # end to end, several seconds: CI runs it with the slow tests
 def test_cli_diagnose_lidar(tmp_path):
     log_path = save_log(make_log("omega", scans=400, bearings=36), tmp_path / "log.npz")

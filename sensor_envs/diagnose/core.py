@@ -24,8 +24,9 @@ keep it only when the held-out NLL improves beyond its block-to-block noise (:fu
 a finding at ``p < alpha / 10``: when it improves at all; on a short log, whose held-out part has fewer
 than :data:`GATE_MIN_BLOCKS` blocks, the gain is cross-fitted: an adapter with ``other_folds()`` refits
 on the other two folds of :data:`FOLD_RANKS`, so every block of the log is held out once;
-else it is reported as rejected; an interaction is then tried as a main effect, and after that the
-next significant candidate); re-rank after each addition; repeat while an effect is significant, with at most
+else it is reported as rejected; an interaction is then tried as a main effect, then (where the adapter
+has one) as a linear main effect (:data:`LINEAR_FORM`), and after that the next significant candidate);
+re-rank after each addition; repeat while an effect is significant, with at most
 ``max_add`` (default 3) refits in all. An adapter with ``effect_terms(effect)`` (or ``state_terms(name,
 form)``) turns a finding's kind and form (e.g. a null-rate effect interacting with bearing) into the state
 terms that represent it, on the part of the model the finding measures; an added candidate stays in the
@@ -210,6 +211,10 @@ def _metric_summary(ev: Evaluation) -> dict[str, dict[str, float]]:
     return out
 
 
+LINEAR_FORM = "main (linear)"
+"""Form of a finding taken as a linear main effect (tried after its own form and its main form)."""
+
+
 def _terms(adapter: DiagnoseAdapter, effect: dict[str, Any]) -> tuple[str, ...] | None:
     """State terms that add ``effect`` (its form included, e.g. an interaction with bearing), or ``None``."""
     if hasattr(adapter, "effect_terms"):  # the adapter reads the effect's kind, metric and form itself
@@ -237,7 +242,8 @@ def _why_not(adapter: DiagnoseAdapter, effect: dict[str, Any]) -> str:
 
 def _ranking_rows(r: Ranking) -> list[dict[str, Any]]:
     keys = ("name", "score", "p_value", "p_raw", "metric", "kind", "form", "proxy_of", "test")
-    drift = ("p_within_blocks", "explains_drift", "p_surrogate")  # the drift checks, where they ran
+    # the two tests' own p-values and the drift checks, where they ran
+    drift = ("p_search", "p_projection", "p_within_blocks", "explains_drift", "p_surrogate")
     return [{**{k: e.get(k) for k in keys}, **{k: e[k] for k in drift if k in e}} for e in r.effects]
 
 
@@ -381,10 +387,14 @@ def run_diagnose(
             # what did not carry over to the held-out part in it (e.g. a steep interaction term), may
             # still be represented by its main terms
             tries = [e] if e.get("form", "main") == "main" else [e, {**e, "form": "main"}]
+            # last, its simplest form (linear in the candidate) where the adapter has one: a U-shaped
+            # fit's ends may not carry over to held-out values near or beyond the fit's range
+            tries.append({**e, "form": LINEAR_FORM})
             for t in tries:
                 terms = _terms(adapter, t)
                 if terms is None:
-                    unrepresented.setdefault(t["name"], _why_not(adapter, t))
+                    if t["form"] != LINEAR_FORM:
+                        unrepresented.setdefault(t["name"], _why_not(adapter, t))
                     continue
                 terms = tuple(x for x in terms if x not in state)  # an added candidate on another part or form
                 if not terms or terms in rejected:  # already in, or refitted (in this form or another's name)

@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sensor_envs.diagnose.core import FOLD_RANKS, Evaluation, block_split
+from sensor_envs.diagnose.core import FOLD_RANKS, LINEAR_FORM, Evaluation, block_split
 from sensor_envs.inputs import InputError
 from sensor_envs.lidar.extra_state import (
     GEOMETRY_MODIFIERS,
@@ -214,7 +214,8 @@ class LidarAdapter:
     def state_terms(self, candidate: str, form: str = "main") -> tuple[str, ...] | None:
         """State terms representing a finding of ``candidate`` with ``form`` (``main``, ``x bearing``, ...).
 
-        A main effect maps to ``<var>``, ``<var>@sq`` (linear and U-shaped); an interaction with the
+        A main effect maps to ``<var>``, ``<var>@sq`` (linear and U-shaped), its linear form
+        (:data:`~sensor_envs.diagnose.core.LINEAR_FORM`) to ``<var>``; an interaction with the
         bearing to those and each times ``cos_bearing``, ``sin_bearing`` (``<var>@cos_bearing``,
         ``<var>@sq@cos_bearing``, ...); with the range, incidence or the range's slope along the scan,
         times ``range``, ``incidence`` or ``range_slope`` (:mod:`sensor_envs.lidar.extra_state`).
@@ -226,6 +227,8 @@ class LidarAdapter:
         main = (var, f"{var}@sq") if var != PREV else (var,)
         if form == "main":
             return main
+        if form == LINEAR_FORM:
+            return (var,)
         if form == "x bearing":
             mods: tuple[str, ...] = ("cos_bearing", "sin_bearing")
         elif form.startswith("x ") and form[2:] in GEOMETRY_MODIFIERS:

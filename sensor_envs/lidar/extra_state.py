@@ -326,7 +326,8 @@ def fit_extra_terms(model: LidarLWLR, log: LidarLog) -> None:
 
     Sets ``extra_state_`` (names), ``extra_mean_``/``extra_scale_`` ``(d,)`` (standardisation),
     ``extra_low_``/``extra_high_`` ``(d,)`` (the standardised terms' range on the fit readings: a query is
-    clamped to it, so a U-shaped or steep term is not extrapolated beyond the data it was fitted on) and
+    clamped to it, so a U-shaped or steep term is not extrapolated beyond the data it was fitted on; a
+    variable's modified terms follow its plain term's clamp, :func:`apply_extra`) and
     ``extra_coef_`` ``(3, d + 1)`` (rows: logit p_null, bias [m], log sigma; columns: intercept, variables;
     0 where a term is restricted to another part, :func:`term_part`).
     """
@@ -368,6 +369,35 @@ def fit_extra_terms(model: LidarLWLR, log: LidarLog) -> None:
     model.extra_coef_ = np.clip(coef, -MAX_COEF, MAX_COEF)
 
 
+def _clamp_by_variable(model: LidarLWLR, ex: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Raw terms ``ex (..., d)`` with each modified term of a variable taken at its plain term's clamped value.
+
+    ``v@sq`` is ``clamp(v)**2`` and ``v@cos_bearing`` ``clamp(v) cos(bearing)``, ``clamp`` being the range of
+    the plain term ``v`` on the fit readings: clamped term by term, a query beyond that range would take
+    ``v`` at one end and ``v**2`` at the larger square of the two ends, a point off the fitted curve (a
+    U-shaped fit then misses by its whole curvature). Terms whose variable has no plain term are left as
+    they are (their own clamp applies).
+    """
+    terms = [split_term(n) for n in model.extra_state_]
+    plain = {v: j for j, (v, m) in enumerate(terms) if m is None}
+    out = None
+    for i, (v, mod) in enumerate(terms):
+        j = plain.get(v)
+        if mod is None or j is None:
+            continue
+        lo, hi = (model.extra_mean_[j] + model.extra_scale_[j] * b for b in (model.extra_low_[j], model.extra_high_[j]))
+        x = ex[..., j]
+        xc = np.clip(x, lo, hi)
+        if np.array_equal(xc, x):
+            continue
+        power = 2 if mod.split("@")[0] == "sq" else 1
+        small = np.abs(x) <= 1e-12
+        ratio = np.where(small, 1.0, xc / np.where(small, 1.0, x)) ** power
+        out = np.array(ex, dtype=np.float64) if out is None else out
+        out[..., i] = np.where(small & (mod == "sq"), xc**2, ex[..., i] * ratio)
+    return ex if out is None else out
+
+
 def apply_extra(
     model: LidarLWLR, out: dict[str, NDArray[np.float64]], hit: NDArray[np.bool_], extra: Any
 ) -> dict[str, NDArray[np.float64]]:
@@ -389,7 +419,8 @@ def apply_extra(
     ex = np.asarray(extra, dtype=np.float64)
     if ex.ndim == 0 or ex.shape[-1] != len(names):
         raise InputError(f"extra: expected a last axis of {len(names)} values ({list(names)}), got shape {ex.shape}")
-    z = (np.broadcast_to(ex, hit.shape + (len(names),)) - model.extra_mean_) / model.extra_scale_
+    ex = _clamp_by_variable(model, np.broadcast_to(ex, hit.shape + (len(names),)))
+    z = (ex - model.extra_mean_) / model.extra_scale_
     xd = _design(np.clip(z, model.extra_low_, model.extra_high_))  # no extrapolation beyond the fit's range
     lin = xd @ model.extra_coef_.T  # (..., K, 3)
     q = np.clip(out["p_null"], 1e-12, 1 - 1e-12)

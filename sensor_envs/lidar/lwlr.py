@@ -196,7 +196,7 @@ class LidarLWLR(SensorModel):
         extra_state_, extra_mean_, extra_scale_, extra_coef_: the extra state's names, standardisation and
             linear terms (:mod:`sensor_envs.lidar.extra_state`).
         extra_low_, extra_high_: ``(d,)`` range of the standardised extra terms on the fit readings; queries
-            are clamped to it.
+            are clamped to it (a variable's modified terms, e.g. ``v@sq``, at its plain term's clamp).
         training_: a summary of the training log (no readings).
         card_: the model card entries (:class:`~sensor_envs.sensor_model.SensorModel`), e.g. ``gaussian_baseline``.
 
