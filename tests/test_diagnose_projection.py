@@ -222,3 +222,30 @@ def test_a_strongly_significant_finding_needs_only_a_held_out_gain() -> None:
     assert strong.added == ["c"]
     gone = run_diagnose(_Adapter(effect=0.3, gain=-0.004, wobble=0.05), max_add=1, n_permutations=199)
     assert gone.added == []  # a refit that loses held out is never kept
+
+
+class _BendingAdapter(_Adapter):
+    """``c`` taken with its square loses held out (its ends bend); taken linearly it gains."""
+
+    def state_terms(self, candidate: str, form: str = "main") -> tuple[str, ...] | None:
+        from sensor_envs.diagnose.core import LINEAR_FORM
+
+        return {"main": (candidate, f"{candidate}@sq"), LINEAR_FORM: (candidate,)}.get(form)
+
+    def evaluate(self, model: tuple[str, ...]) -> Evaluation:
+        ev = super().evaluate(model)
+        if "c@sq" in model:
+            ev.nll = ev.nll + 2 * self.gain  # the square's ends cost more than the effect gains
+        return ev
+
+
+def test_a_main_effect_rejected_with_its_square_is_tried_linear() -> None:
+    from sensor_envs.diagnose.core import LINEAR_FORM, run_diagnose
+
+    res = run_diagnose(_BendingAdapter(effect=0.3, gain=0.05, wobble=0.01), max_add=2, n_permutations=199)
+    tried = res.steps[0]["attempts"]
+    assert [a["terms"] for a in tried] == [["c", "c@sq"], ["c"]], tried
+    assert tried[0]["decision"].startswith("c rejected") and tried[1]["form"] == LINEAR_FORM
+    assert res.added == ["c"] and res.settings["state_after"] == ["c"]
+    once = run_diagnose(_BendingAdapter(effect=0.3, gain=0.05, wobble=0.01), max_add=1, n_permutations=199)
+    assert once.added == []  # one refit: the rejected form only
