@@ -239,13 +239,17 @@ class _BendingAdapter(_Adapter):
         return ev
 
 
-def test_a_main_effect_rejected_with_its_square_is_tried_linear() -> None:
+def test_a_main_effect_rejected_with_its_square_is_tried_linear(tmp_path) -> None:
     from sensor_envs.diagnose.core import LINEAR_FORM, run_diagnose
+    from sensor_envs.diagnose.report import write_report
 
     res = run_diagnose(_BendingAdapter(effect=0.3, gain=0.05, wobble=0.01), max_add=2, n_permutations=199)
     tried = res.steps[0]["attempts"]
     assert [a["terms"] for a in tried] == [["c", "c@sq"], ["c"]], tried
     assert tried[0]["decision"].startswith("c rejected") and tried[1]["form"] == LINEAR_FORM
     assert res.added == ["c"] and res.settings["state_after"] == ["c"]
+    write_report(res, tmp_path / "rep")  # the report's steps say which form each refit took
+    steps = (tmp_path / "rep" / "report.md").read_text().split("## Steps")[1]
+    assert "refit with c (mean effect, form main)" in steps and f"form {LINEAR_FORM})" in steps
     once = run_diagnose(_BendingAdapter(effect=0.3, gain=0.05, wobble=0.01), max_add=1, n_permutations=199)
     assert once.added == []  # one refit: the rejected form only

@@ -297,7 +297,8 @@ def _markdown(result: DiagnoseResult, data: dict[str, Any], figs: list[tuple[str
         lines.append(f"{i + 1}. model with held-out NLL {st['error']:.4f}:")
         for at in st.get("attempts", []):
             base = "" if at["baseline_with"] is None else f", Gaussian baseline with it {at['baseline_with']:.4f}"
-            lines.append(f"   - refit with {at['candidate']}: NLL {at['error_with']:.4f}{base}: {at['decision']}")
+            form = f" ({at['kind'] or 'mean'} effect, form {at['form']})" if at.get("form") else ""
+            lines.append(f"   - refit with {at['candidate']}{form}: NLL {at['error_with']:.4f}{base}: {at['decision']}")
         if not st.get("attempts"):
             lines.append(f"   - {st.get('decision', '')}")
     lines += ["", "## Residual vs effect, before and after", ""]
