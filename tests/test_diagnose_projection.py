@@ -220,6 +220,7 @@ def test_a_strongly_significant_finding_needs_only_a_held_out_gain() -> None:
     low, high = step["improvement_interval"]
     assert strong.effects[0]["p_value"] < 0.005 and low < 0 < high
     assert strong.added == ["c"]
+    assert step["decision"].startswith("added c as c: improvement") and "a gain suffices" in step["decision"]
     gone = run_diagnose(_Adapter(effect=0.3, gain=-0.004, wobble=0.05), max_add=1, n_permutations=199)
     assert gone.added == []  # a refit that loses held out is never kept
 
@@ -247,6 +248,9 @@ def test_a_main_effect_rejected_with_its_square_is_tried_linear(tmp_path) -> Non
     tried = res.steps[0]["attempts"]
     assert [a["terms"] for a in tried] == [["c", "c@sq"], ["c"]], tried
     assert tried[0]["decision"].startswith("c rejected") and tried[1]["form"] == LINEAR_FORM
+    kept = tried[1]["decision"]
+    assert tried[1]["improvement_interval"][0] > 0 and kept.startswith("added c as c: improvement")
+    assert "suffices" not in kept  # its bound is above 0: no appeal to the strong evidence
     assert res.added == ["c"] and res.settings["state_after"] == ["c"]
     write_report(res, tmp_path / "rep")  # the report's steps say which form each refit took
     steps = (tmp_path / "rep" / "report.md").read_text().split("## Steps")[1]

@@ -426,9 +426,9 @@ def run_diagnose(
         strong = float(pick.get("p_value", 1.0)) < alpha / 10
         # strong evidence (the search's family-wise p < alpha / 10) needs a held-out gain; weaker evidence
         # needs the gain's one-sided 95 % bound above 0
+        folds = f", over {attempt['gate_folds']} folds" if gate.adapters else ""
         if not (low > 0.0 or (strong and gain > 0.0)):
             need = "a gain (strongly significant)" if strong else "its one-sided 95 % bound above 0"
-            folds = f", over {attempt['gate_folds']} folds" if gate.adapters else ""
             attempt["decision"] = (
                 f"{pick['name']} rejected: held-out NLL {ev.error:.4f} -> {new_ev.error:.4f}, improvement "
                 f"[{low:.4f}, {high:.4f}] nats per reading (90 %, held-out blocks resampled{folds}); needed {need}"
@@ -436,7 +436,10 @@ def run_diagnose(
             step["decision"] = attempt["decision"]
             rejected.add(tuple(terms))
             continue
-        attempt["decision"] = step["decision"] = f"added {pick['name']} as {', '.join(terms)}"
+        attempt["decision"] = step["decision"] = (
+            f"added {pick['name']} as {', '.join(terms)}: improvement {gain:.4f} [{low:.4f}, {high:.4f}] nats per "
+            f"reading (90 %{folds}){'; strongly significant: a gain suffices' if strong and low <= 0.0 else ''}"
+        )
         state, model, ev = (*state, *terms), new_model, new_ev
         if pick["name"] not in added:  # still ranked: its effect on the model's other parts may be added later
             added.append(pick["name"])
